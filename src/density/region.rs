@@ -1,0 +1,129 @@
+//! Regions of columns and the 3D grids computed over them.
+
+use crate::world::{Layer, Limits, MAX_TIME};
+
+/// A request the simulation refuses, before any work starts.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SimError {
+    #[error("t must be a finite number of seconds within [0, 1e12], got {0}")]
+    BadTime(f64),
+    #[error("bbox must be four finite numbers X0,Y0,X1,Y1 with X0 < X1 and Y0 < Y1")]
+    BadBbox,
+    #[error("the region holds no cell centre")]
+    EmptyRegion,
+    #[error("the region is {cols}×{rows} columns; the limit is {max} columns per side")]
+    RegionTooWide { cols: u64, rows: u64, max: u64 },
+    #[error("the request needs {cells} cells; the limit is {max}")]
+    TooManyCells { cells: u64, max: u64 },
+    #[error("level {level} is out of range (0..={max})")]
+    BadLevel { level: u32, max: u32 },
+    #[error("coordinates out of range: {0}")]
+    OutOfRange(String),
+}
+
+/// A rectangle of columns at some level: `cols × rows` columns whose first column
+/// is (`x0`, `y0`). A level-`z` column spans `2^z` level-0 cells per side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Region {
+    pub x0: i64,
+    pub y0: i64,
+    pub cols: usize,
+    pub rows: usize,
+}
+
+/// Level-0 cells (and so level-z columns) are limited to ±2^52 so that any
+/// cell index, its metres and the halo arithmetic stay exact in i64 and f64.
+pub const MAX_CELL_INDEX: i64 = 1 << 52;
+
+impl Region {
+    /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]
+    /// (world metres, half-open on the high side).
+    pub fn from_bbox(layer: &Layer, level: u32, bbox: [f64; 4], limits: &Limits) -> Result<Region, SimError> {
+        let [bx0, by0, bx1, by1] = bbox;
+        if !(bbox.iter().all(|v| v.is_finite()) && bx0 < bx1 && by0 < by1) {
+            return Err(SimError::BadBbox);
+        }
+        if level > limits.max_level {
+            return Err(SimError::BadLevel { level, max: limits.max_level });
+        }
+        let w = layer.cell_size * (level as f64).exp2();
+        // Column c has its centre at (c + 0.5) * w; it belongs when x0 <= centre < x1.
+        let first = |lo: f64| (lo / w - 0.5).ceil();
+        let end = |hi: f64| (hi / w - 0.5).ceil();
+        let (cx0, cx1, cy0, cy1) = (first(bx0), end(bx1), first(by0), end(by1));
+        let lim = (MAX_CELL_INDEX >> level) as f64;
+        if [cx0, cx1, cy0, cy1].iter().any(|v| v.abs() > lim) {
+            return Err(SimError::OutOfRange(format!("the bbox reaches beyond ±{lim} columns at level {level}")));
+        }
+        if cx1 <= cx0 || cy1 <= cy0 {
+            return Err(SimError::EmptyRegion);
+        }
+        let cols = (cx1 - cx0) as u64;
+        let rows = (cy1 - cy0) as u64;
+        if cols > limits.max_columns || rows > limits.max_columns {
+            return Err(SimError::RegionTooWide { cols, rows, max: limits.max_columns });
+        }
+        let cells = cols * rows * layer.depth as u64;
+        if cells > limits.max_cells {
+            return Err(SimError::TooManyCells { cells, max: limits.max_cells });
+        }
+        Ok(Region { x0: cx0 as i64, y0: cy0 as i64, cols: cols as usize, rows: rows as usize })
+    }
+
+    /// Checks that a region built from other sources (tiles) is in range.
+    pub fn check(&self, level: u32, depth: u32, limits: &Limits) -> Result<(), SimError> {
+        if level > limits.max_level {
+            return Err(SimError::BadLevel { level, max: limits.max_level });
+        }
+        let lim = MAX_CELL_INDEX >> level;
+        let x1 = self.x0.checked_add(self.cols as i64);
+        let y1 = self.y0.checked_add(self.rows as i64);
+        match (x1, y1) {
+            (Some(x1), Some(y1)) if self.x0.abs() <= lim && self.y0.abs() <= lim && x1.abs() <= lim && y1.abs() <= lim => {}
+            _ => return Err(SimError::OutOfRange(format!("columns beyond ±{lim} at level {level}"))),
+        }
+        if self.cols == 0 || self.rows == 0 {
+            return Err(SimError::EmptyRegion);
+        }
+        let (cols, rows) = (self.cols as u64, self.rows as u64);
+        if cols > limits.max_columns || rows > limits.max_columns {
+            return Err(SimError::RegionTooWide { cols, rows, max: limits.max_columns });
+        }
+        let cells = cols * rows * depth as u64;
+        if cells > limits.max_cells {
+            return Err(SimError::TooManyCells { cells, max: limits.max_cells });
+        }
+        Ok(())
+    }
+}
+
+/// Checks a world time: finite and within [0, 1e12].
+pub fn check_time(t: f64) -> Result<f64, SimError> {
+    if t.is_finite() && (0.0..=MAX_TIME).contains(&t) { Ok(t) } else { Err(SimError::BadTime(t)) }
+}
+
+/// A 3D grid in C order with shape `(depth, rows, cols)`: row = y (north), col = x (east),
+/// depth = altitude level from the layer's base.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grid<T> {
+    pub depth: usize,
+    pub rows: usize,
+    pub cols: usize,
+    pub data: Vec<T>,
+}
+
+impl<T: Copy + Default> Grid<T> {
+    pub fn new(depth: usize, rows: usize, cols: usize) -> Grid<T> {
+        Grid { depth, rows, cols, data: vec![T::default(); depth * rows * cols] }
+    }
+
+    #[inline]
+    pub fn index(&self, k: usize, row: usize, col: usize) -> usize {
+        (k * self.rows + row) * self.cols + col
+    }
+
+    #[inline]
+    pub fn get(&self, k: usize, row: usize, col: usize) -> T {
+        self.data[self.index(k, row, col)]
+    }
+}

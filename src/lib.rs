@@ -1,0 +1,12 @@
+//! cloudscape: noise-driven Dobashi cloud simulation for large game worlds.
+//!
+//! The pipeline runs one way, one module per stage:
+//! world spec → probability fields → automaton → density → metaballs →
+//! shading → encoding → HTTP. A stage depends only on the stages before it.
+
+pub mod automaton;
+pub mod cli;
+pub mod density;
+pub mod fields;
+pub mod products;
+pub mod world;

@@ -1,7 +1,83 @@
-//! The `cloudscape` command line: one file per subcommand.
+//! The `cloudscape` command line: one file per subcommand. Errors go to stderr as
+//! one sentence and the process exits non-zero.
+
+mod density;
 
 use std::process::ExitCode;
 
+use clap::{Parser, Subcommand};
+
+use crate::world::Config;
+
+/// Noise-driven Dobashi cloud simulation for large game worlds.
+#[derive(Parser)]
+#[command(name = "cloudscape", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Write the density or cloud grid of a region to a file.
+    Density(density::DensityArgs),
+}
+
+/// Runs the command line and returns the process exit code.
 pub fn main() -> ExitCode {
-    ExitCode::SUCCESS
+    let cli = match Cli::try_parse() {
+        Ok(c) => c,
+        Err(e) => {
+            let code = if e.use_stderr() { 2 } else { 0 };
+            let _ = e.print();
+            return ExitCode::from(code);
+        }
+    };
+    let result = match cli.command {
+        Command::Density(args) => density::run(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(message) => {
+            eprintln!("error: {message}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Loads `--config FILE` or the embedded default.
+pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
+    match path {
+        Some(p) => Config::from_file(p).map_err(|e| e.to_string()),
+        None => Ok(Config::embedded()),
+    }
+}
+
+/// Parses `N,N,...` into exactly `n` finite numbers.
+pub(crate) fn parse_numbers(what: &str, s: &str, n: usize) -> Result<Vec<f64>, String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != n {
+        return Err(format!("{what} needs {n} comma-separated numbers, got `{s}`"));
+    }
+    parts
+        .iter()
+        .map(|p| match p.trim().parse::<f64>() {
+            Ok(v) if v.is_finite() => Ok(v),
+            _ => Err(format!("{what} has a value that is not a finite number: `{}`", p.trim())),
+        })
+        .collect()
+}
+
+/// Writes `bytes` to `path` whole or not at all: a temporary file beside it, then a rename.
+pub(crate) fn write_atomically(path: &str, bytes: &[u8]) -> Result<(), String> {
+    use std::io::Write;
+    let target = std::path::Path::new(path);
+    let dir = match target.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
+    tmp.write_all(bytes).map_err(|e| format!("cannot write {path}: {e}"))?;
+    tmp.persist(target).map_err(|e| format!("cannot write {path}: {}", e.error))?;
+    Ok(())
 }

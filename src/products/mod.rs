@@ -1,1 +1,3 @@
-//! products
+//! Products: one type per product, and the encoders that turn them into bytes.
+
+pub mod grid;

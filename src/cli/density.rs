@@ -38,11 +38,20 @@ pub struct DensityArgs {
 
 pub fn run(a: DensityArgs) -> Result<(), String> {
     let config = super::load_config(a.config.as_deref())?;
-    let world = config.world(&a.world).ok_or_else(|| format!("unknown world `{}`", a.world))?;
+    let world = config
+        .world(&a.world)
+        .ok_or_else(|| format!("unknown world `{}`", a.world))?;
     let (layer_index, layer) = world.layer(a.layer.as_deref()).ok_or_else(|| {
-        format!("unknown layer `{}` in world `{}`", a.layer.as_deref().unwrap_or(""), world.name)
+        format!(
+            "unknown layer `{}` in world `{}`",
+            a.layer.as_deref().unwrap_or(""),
+            world.name
+        )
     })?;
-    let t: f64 = a.t.trim().parse().map_err(|_| format!("--t is not a number: `{}`", a.t))?;
+    let t: f64 =
+        a.t.trim()
+            .parse()
+            .map_err(|_| format!("--t is not a number: `{}`", a.t))?;
     check_time(t).map_err(|e| e.to_string())?;
     let b = super::parse_numbers("--bbox", &a.bbox, 4)?;
     let bbox = [b[0], b[1], b[2], b[3]];
@@ -56,14 +65,17 @@ pub fn run(a: DensityArgs) -> Result<(), String> {
     if field == FieldKind::Cld && a.level != 0 {
         return Err("--field cld exists only at level 0 (the automaton's own cells)".into());
     }
-    let region = Region::from_bbox(layer, a.level, bbox, &config.limits).map_err(|e| e.to_string())?;
+    let region =
+        Region::from_bbox(layer, a.level, bbox, &config.limits).map_err(|e| e.to_string())?;
     let bytes = match field {
         FieldKind::Density => {
-            let g = density::density(&world, layer_index, a.level, region, t).map_err(|e| e.to_string())?;
+            let g = density::density(&world, layer_index, a.level, region, t)
+                .map_err(|e| e.to_string())?;
             encode_density(&g, format)
         }
         FieldKind::Cld => {
-            let g = density::cloud_cells(&world, layer_index, region, t).map_err(|e| e.to_string())?;
+            let g =
+                density::cloud_cells(&world, layer_index, region, t).map_err(|e| e.to_string())?;
             encode_cells(&g, format)
         }
     };

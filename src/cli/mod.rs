@@ -57,13 +57,18 @@ pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
 pub(crate) fn parse_numbers(what: &str, s: &str, n: usize) -> Result<Vec<f64>, String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != n {
-        return Err(format!("{what} needs {n} comma-separated numbers, got `{s}`"));
+        return Err(format!(
+            "{what} needs {n} comma-separated numbers, got `{s}`"
+        ));
     }
     parts
         .iter()
         .map(|p| match p.trim().parse::<f64>() {
             Ok(v) if v.is_finite() => Ok(v),
-            _ => Err(format!("{what} has a value that is not a finite number: `{}`", p.trim())),
+            _ => Err(format!(
+                "{what} has a value that is not a finite number: `{}`",
+                p.trim()
+            )),
         })
         .collect()
 }
@@ -76,8 +81,11 @@ pub(crate) fn write_atomically(path: &str, bytes: &[u8]) -> Result<(), String> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => std::path::Path::new("."),
     };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
-    tmp.write_all(bytes).map_err(|e| format!("cannot write {path}: {e}"))?;
-    tmp.persist(target).map_err(|e| format!("cannot write {path}: {}", e.error))?;
+    let mut tmp =
+        tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
+    tmp.write_all(bytes)
+        .map_err(|e| format!("cannot write {path}: {e}"))?;
+    tmp.persist(target)
+        .map_err(|e| format!("cannot write {path}: {}", e.error))?;
     Ok(())
 }

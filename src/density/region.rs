@@ -38,13 +38,21 @@ pub const MAX_CELL_INDEX: i64 = 1 << 52;
 impl Region {
     /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]
     /// (world metres, half-open on the high side).
-    pub fn from_bbox(layer: &Layer, level: u32, bbox: [f64; 4], limits: &Limits) -> Result<Region, SimError> {
+    pub fn from_bbox(
+        layer: &Layer,
+        level: u32,
+        bbox: [f64; 4],
+        limits: &Limits,
+    ) -> Result<Region, SimError> {
         let [bx0, by0, bx1, by1] = bbox;
         if !(bbox.iter().all(|v| v.is_finite()) && bx0 < bx1 && by0 < by1) {
             return Err(SimError::BadBbox);
         }
         if level > limits.max_level {
-            return Err(SimError::BadLevel { level, max: limits.max_level });
+            return Err(SimError::BadLevel {
+                level,
+                max: limits.max_level,
+            });
         }
         let w = layer.cell_size * (level as f64).exp2();
         // Column c has its centre at (c + 0.5) * w; it belongs when x0 <= centre < x1.
@@ -53,7 +61,9 @@ impl Region {
         let (cx0, cx1, cy0, cy1) = (first(bx0), end(bx1), first(by0), end(by1));
         let lim = (MAX_CELL_INDEX >> level) as f64;
         if [cx0, cx1, cy0, cy1].iter().any(|v| v.abs() > lim) {
-            return Err(SimError::OutOfRange(format!("the bbox reaches beyond ±{lim} columns at level {level}")));
+            return Err(SimError::OutOfRange(format!(
+                "the bbox reaches beyond ±{lim} columns at level {level}"
+            )));
         }
         if cx1 <= cx0 || cy1 <= cy0 {
             return Err(SimError::EmptyRegion);
@@ -61,37 +71,67 @@ impl Region {
         let cols = (cx1 - cx0) as u64;
         let rows = (cy1 - cy0) as u64;
         if cols > limits.max_columns || rows > limits.max_columns {
-            return Err(SimError::RegionTooWide { cols, rows, max: limits.max_columns });
+            return Err(SimError::RegionTooWide {
+                cols,
+                rows,
+                max: limits.max_columns,
+            });
         }
         let cells = cols * rows * layer.depth as u64;
         if cells > limits.max_cells {
-            return Err(SimError::TooManyCells { cells, max: limits.max_cells });
+            return Err(SimError::TooManyCells {
+                cells,
+                max: limits.max_cells,
+            });
         }
-        Ok(Region { x0: cx0 as i64, y0: cy0 as i64, cols: cols as usize, rows: rows as usize })
+        Ok(Region {
+            x0: cx0 as i64,
+            y0: cy0 as i64,
+            cols: cols as usize,
+            rows: rows as usize,
+        })
     }
 
     /// Checks that a region built from other sources (tiles) is in range.
     pub fn check(&self, level: u32, depth: u32, limits: &Limits) -> Result<(), SimError> {
         if level > limits.max_level {
-            return Err(SimError::BadLevel { level, max: limits.max_level });
+            return Err(SimError::BadLevel {
+                level,
+                max: limits.max_level,
+            });
         }
         let lim = MAX_CELL_INDEX >> level;
         let x1 = self.x0.checked_add(self.cols as i64);
         let y1 = self.y0.checked_add(self.rows as i64);
         match (x1, y1) {
-            (Some(x1), Some(y1)) if self.x0.abs() <= lim && self.y0.abs() <= lim && x1.abs() <= lim && y1.abs() <= lim => {}
-            _ => return Err(SimError::OutOfRange(format!("columns beyond ±{lim} at level {level}"))),
+            (Some(x1), Some(y1))
+                if self.x0.abs() <= lim
+                    && self.y0.abs() <= lim
+                    && x1.abs() <= lim
+                    && y1.abs() <= lim => {}
+            _ => {
+                return Err(SimError::OutOfRange(format!(
+                    "columns beyond ±{lim} at level {level}"
+                )));
+            }
         }
         if self.cols == 0 || self.rows == 0 {
             return Err(SimError::EmptyRegion);
         }
         let (cols, rows) = (self.cols as u64, self.rows as u64);
         if cols > limits.max_columns || rows > limits.max_columns {
-            return Err(SimError::RegionTooWide { cols, rows, max: limits.max_columns });
+            return Err(SimError::RegionTooWide {
+                cols,
+                rows,
+                max: limits.max_columns,
+            });
         }
         let cells = cols * rows * depth as u64;
         if cells > limits.max_cells {
-            return Err(SimError::TooManyCells { cells, max: limits.max_cells });
+            return Err(SimError::TooManyCells {
+                cells,
+                max: limits.max_cells,
+            });
         }
         Ok(())
     }
@@ -99,7 +139,11 @@ impl Region {
 
 /// Checks a world time: finite and within [0, 1e12].
 pub fn check_time(t: f64) -> Result<f64, SimError> {
-    if t.is_finite() && (0.0..=MAX_TIME).contains(&t) { Ok(t) } else { Err(SimError::BadTime(t)) }
+    if t.is_finite() && (0.0..=MAX_TIME).contains(&t) {
+        Ok(t)
+    } else {
+        Err(SimError::BadTime(t))
+    }
 }
 
 /// A 3D grid in C order with shape `(depth, rows, cols)`: row = y (north), col = x (east),
@@ -114,7 +158,12 @@ pub struct Grid<T> {
 
 impl<T: Copy + Default> Grid<T> {
     pub fn new(depth: usize, rows: usize, cols: usize) -> Grid<T> {
-        Grid { depth, rows, cols, data: vec![T::default(); depth * rows * cols] }
+        Grid {
+            depth,
+            rows,
+            cols,
+            data: vec![T::default(); depth * rows * cols],
+        }
     }
 
     #[inline]

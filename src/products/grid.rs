@@ -57,7 +57,11 @@ pub fn encode_cells(grid: &Grid<u8>, format: GridFormat) -> Vec<u8> {
             out.extend_from_slice(&grid.data);
             out
         }
-        GridFormat::F32 => grid.data.iter().flat_map(|&v| (v as f32).to_le_bytes()).collect(),
+        GridFormat::F32 => grid
+            .data
+            .iter()
+            .flat_map(|&v| (v as f32).to_le_bytes())
+            .collect(),
         GridFormat::U8 => grid.data.clone(),
     }
 }
@@ -87,7 +91,12 @@ mod tests {
 
     #[test]
     fn npy_header_is_aligned_and_describes_shape() {
-        let g = Grid { depth: 2, rows: 3, cols: 4, data: vec![0.5f32; 24] };
+        let g = Grid {
+            depth: 2,
+            rows: 3,
+            cols: 4,
+            data: vec![0.5f32; 24],
+        };
         let b = encode_density(&g, GridFormat::Npy);
         let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
         assert_eq!((10 + hl) % 64, 0);

@@ -13,7 +13,10 @@ pub const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("cannot read config file {path}: {source}")]
-    Read { path: String, source: std::io::Error },
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
     #[error("invalid config: {0}")]
     Parse(String),
     #[error("invalid config: {key}: {message}")]
@@ -21,7 +24,10 @@ pub enum ConfigError {
 }
 
 fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
-    ConfigError::Invalid { key: key.into(), message: message.into() }
+    ConfigError::Invalid {
+        key: key.into(),
+        message: message.into(),
+    }
 }
 
 /// HTTP server settings.
@@ -38,7 +44,9 @@ fn default_listen() -> String {
 
 impl Default for ServerConfig {
     fn default() -> Self {
-        ServerConfig { listen: default_listen() }
+        ServerConfig {
+            listen: default_listen(),
+        }
     }
 }
 
@@ -56,7 +64,11 @@ pub struct Limits {
 
 impl Default for Limits {
     fn default() -> Self {
-        Limits { max_columns: 2048, max_cells: 8 << 20, max_level: 16 }
+        Limits {
+            max_columns: 2048,
+            max_cells: 8 << 20,
+            max_level: 16,
+        }
     }
 }
 
@@ -70,7 +82,10 @@ pub struct SunConfig {
 
 impl Default for SunConfig {
     fn default() -> Self {
-        SunConfig { latitude: 45.0, day_of_year: 172 }
+        SunConfig {
+            latitude: 45.0,
+            day_of_year: 172,
+        }
     }
 }
 
@@ -135,8 +150,10 @@ impl Config {
 
     /// Reads and validates a config file.
     pub fn from_file(path: &str) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|source| ConfigError::Read { path: path.to_string(), source })?;
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_string(),
+            source,
+        })?;
         Config::parse(&text)
     }
 
@@ -151,7 +168,10 @@ impl Config {
         }
         let limits = raw.limits;
         if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid("limits", "max_columns and max_cells must be positive"));
+            return Err(invalid(
+                "limits",
+                "max_columns and max_cells must be positive",
+            ));
         }
         if limits.max_level > 40 {
             return Err(invalid("limits.max_level", "must be at most 40"));
@@ -171,7 +191,10 @@ impl Config {
                 ));
             }
             if rw.layers.is_empty() {
-                return Err(invalid(format!("worlds.{wname}.layers"), "a world needs at least one layer"));
+                return Err(invalid(
+                    format!("worlds.{wname}.layers"),
+                    "a world needs at least one layer",
+                ));
             }
             let mut layers = Vec::new();
             for (i, rl) in rw.layers.into_iter().enumerate() {
@@ -179,10 +202,18 @@ impl Config {
                 let preset = raw
                     .presets
                     .get(&rl.preset)
-                    .ok_or_else(|| invalid(format!("{key}.preset"), format!("unknown preset `{}`", rl.preset)))?
+                    .ok_or_else(|| {
+                        invalid(
+                            format!("{key}.preset"),
+                            format!("unknown preset `{}`", rl.preset),
+                        )
+                    })?
                     .clone();
                 if layers.iter().any(|l: &Layer| l.name == rl.name) {
-                    return Err(invalid(format!("{key}.name"), format!("duplicate layer name `{}`", rl.name)));
+                    return Err(invalid(
+                        format!("{key}.name"),
+                        format!("duplicate layer name `{}`", rl.name),
+                    ));
                 }
                 let layer = Layer {
                     name: rl.name,
@@ -202,12 +233,28 @@ impl Config {
                 validate_layer(&key, &layer)?;
                 layers.push(layer);
             }
-            worlds.insert(wname.clone(), World { name: wname, seed: rw.seed, layers });
+            worlds.insert(
+                wname.clone(),
+                World {
+                    name: wname,
+                    seed: rw.seed,
+                    layers,
+                },
+            );
         }
         if !worlds.contains_key("default") {
-            return Err(invalid("worlds.default", "the `default` world must be defined"));
+            return Err(invalid(
+                "worlds.default",
+                "the `default` world must be defined",
+            ));
         }
-        Ok(Config { server: raw.server, limits, sun: raw.sun, presets: raw.presets, worlds })
+        Ok(Config {
+            server: raw.server,
+            limits,
+            sun: raw.sun,
+            presets: raw.presets,
+            worlds,
+        })
     }
 
     /// Resolves a world name: a configured name, or a decimal `u64` meaning that
@@ -228,18 +275,28 @@ impl Config {
 }
 
 fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
-    if v.is_finite() { Ok(()) } else { Err(invalid(key, "must be a finite number")) }
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(invalid(key, "must be a finite number"))
+    }
 }
 
 fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
     if !(f.frequency.is_finite() && f.frequency > 0.0 && f.frequency <= 1e4) {
-        return Err(invalid(format!("{key}.frequency"), "must be in (0, 1e4] cycles per km"));
+        return Err(invalid(
+            format!("{key}.frequency"),
+            "must be in (0, 1e4] cycles per km",
+        ));
     }
     if f.octaves == 0 || f.octaves > 16 {
         return Err(invalid(format!("{key}.octaves"), "must be within [1, 16]"));
     }
     if !(f.lacunarity.is_finite() && (1.0..=8.0).contains(&f.lacunarity)) {
-        return Err(invalid(format!("{key}.lacunarity"), "must be within [1, 8]"));
+        return Err(invalid(
+            format!("{key}.lacunarity"),
+            "must be within [1, 8]",
+        ));
     }
     if !(f.gain.is_finite() && f.gain > 0.0 && f.gain <= 1.0) {
         return Err(invalid(format!("{key}.gain"), "must be in (0, 1]"));
@@ -251,20 +308,38 @@ fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
         }
     }
     let [lo, hi] = f.cutoff;
-    if !(lo.is_finite() && hi.is_finite() && (0.0..=1.0).contains(&lo) && (0.0..=1.0).contains(&hi) && lo < hi) {
-        return Err(invalid(format!("{key}.cutoff"), "must be [low, high] with 0 <= low < high <= 1"));
+    if !(lo.is_finite()
+        && hi.is_finite()
+        && (0.0..=1.0).contains(&lo)
+        && (0.0..=1.0).contains(&hi)
+        && lo < hi)
+    {
+        return Err(invalid(
+            format!("{key}.cutoff"),
+            "must be [low, high] with 0 <= low < high <= 1",
+        ));
     }
     for p in f.range {
         if !(p.is_finite() && (0.0..=1.0).contains(&p)) {
-            return Err(invalid(format!("{key}.range"), "probabilities must be within [0, 1]"));
+            return Err(invalid(
+                format!("{key}.range"),
+                "probabilities must be within [0, 1]",
+            ));
         }
     }
     if let Some(fe) = &f.feather {
-        if !(fe.start.is_finite() && fe.depth.is_finite() && fe.start >= 0.0 && fe.depth > fe.start) {
-            return Err(invalid(format!("{key}.feather"), "needs 0 <= start < depth (metres)"));
+        if !(fe.start.is_finite() && fe.depth.is_finite() && fe.start >= 0.0 && fe.depth > fe.start)
+        {
+            return Err(invalid(
+                format!("{key}.feather"),
+                "needs 0 <= start < depth (metres)",
+            ));
         }
         if !(fe.falloff.is_finite() && (0.0..=1.0).contains(&fe.falloff)) {
-            return Err(invalid(format!("{key}.feather.falloff"), "must be within [0, 1]"));
+            return Err(invalid(
+                format!("{key}.feather.falloff"),
+                "must be within [0, 1]",
+            ));
         }
     }
     Ok(())
@@ -275,40 +350,72 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
     validate_field(&format!("{key}.activation"), &p.activation)?;
     validate_field(&format!("{key}.extinction"), &p.extinction)?;
     if !(p.top_narrowing.is_finite() && (0.0..1.0).contains(&p.top_narrowing)) {
-        return Err(invalid(format!("{key}.top_narrowing"), "must be within [0, 1)"));
+        return Err(invalid(
+            format!("{key}.top_narrowing"),
+            "must be within [0, 1)",
+        ));
     }
     if !(p.evolve.is_finite() && p.evolve >= 0.0) {
         return Err(invalid(format!("{key}.evolve"), "must be >= 0 seconds"));
     }
     if p.rosa_iterations == 0 || p.rosa_iterations > 256 {
-        return Err(invalid(format!("{key}.rosa_iterations"), "must be within [1, 256]"));
+        return Err(invalid(
+            format!("{key}.rosa_iterations"),
+            "must be within [1, 256]",
+        ));
     }
     for v in p.rosa_thresholds {
         if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
-            return Err(invalid(format!("{key}.rosa_thresholds"), "must be within [0, 1]"));
+            return Err(invalid(
+                format!("{key}.rosa_thresholds"),
+                "must be within [0, 1]",
+            ));
         }
     }
     Ok(())
 }
 
 fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
-    if l.name.is_empty() || !l.name.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-') {
-        return Err(invalid(format!("{key}.name"), "must be non-empty ASCII letters, digits, '-' or '_'"));
+    if l.name.is_empty()
+        || !l
+            .name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
+        return Err(invalid(
+            format!("{key}.name"),
+            "must be non-empty ASCII letters, digits, '-' or '_'",
+        ));
     }
     if !(l.base.is_finite() && (-1e4..=1e5).contains(&l.base)) {
-        return Err(invalid(format!("{key}.base"), "must be within [-1e4, 1e5] metres"));
+        return Err(invalid(
+            format!("{key}.base"),
+            "must be within [-1e4, 1e5] metres",
+        ));
     }
     if !(l.cell_size.is_finite() && (1.0..=1e4).contains(&l.cell_size)) {
-        return Err(invalid(format!("{key}.cell_size"), "must be within [1, 10000] metres"));
+        return Err(invalid(
+            format!("{key}.cell_size"),
+            "must be within [1, 10000] metres",
+        ));
     }
     if !(l.cell_height.is_finite() && (1.0..=1e4).contains(&l.cell_height)) {
-        return Err(invalid(format!("{key}.cell_height"), "must be within [1, 10000] metres"));
+        return Err(invalid(
+            format!("{key}.cell_height"),
+            "must be within [1, 10000] metres",
+        ));
     }
     if l.depth == 0 || l.depth > 64 {
-        return Err(invalid(format!("{key}.depth"), "must be within [1, 64] cells"));
+        return Err(invalid(
+            format!("{key}.depth"),
+            "must be within [1, 64] cells",
+        ));
     }
     if !(l.dt.is_finite() && (0.01..=86400.0).contains(&l.dt)) {
-        return Err(invalid(format!("{key}.dt"), "must be within [0.01, 86400] seconds"));
+        return Err(invalid(
+            format!("{key}.dt"),
+            "must be within [0.01, 86400] seconds",
+        ));
     }
     for (name, v) in [("wind", l.wind), ("shear", l.shear)] {
         for c in v {
@@ -318,11 +425,15 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
     for k in 0..l.depth {
         let w = l.wind_at_level(k);
         if w[0].abs() > 300.0 || w[1].abs() > 300.0 {
-            return Err(invalid(format!("{key}.wind"), "wind (with shear) must stay within ±300 m/s"));
+            return Err(invalid(
+                format!("{key}.wind"),
+                "wind (with shear) must stay within ±300 m/s",
+            ));
         }
     }
     let e = l.epoch;
-    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || e.fade > e.warmup || e.fade > e.length {
+    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || e.fade > e.warmup || e.fade > e.length
+    {
         return Err(invalid(
             format!("{key}.epoch"),
             "needs 1 <= length <= 4096, warmup <= 4096, fade <= warmup and fade <= length",
@@ -330,12 +441,20 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
     }
     if let Some(x) = l.extent {
         if !(x.iter().all(|v| v.is_finite()) && x[0] < x[2] && x[1] < x[3]) {
-            return Err(invalid(format!("{key}.extent"), "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1"));
+            return Err(invalid(
+                format!("{key}.extent"),
+                "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+            ));
         }
     }
     for (i, el) in l.ellipsoids.iter().enumerate() {
-        if !(el.centre.iter().all(|v| v.is_finite()) && el.radii.iter().all(|r| r.is_finite() && *r > 0.0)) {
-            return Err(invalid(format!("{key}.ellipsoids[{i}]"), "needs a finite centre and positive radii"));
+        if !(el.centre.iter().all(|v| v.is_finite())
+            && el.radii.iter().all(|r| r.is_finite() && *r > 0.0))
+        {
+            return Err(invalid(
+                format!("{key}.ellipsoids[{i}]"),
+                "needs a finite centre and positive radii",
+            ));
         }
     }
     Ok(())
@@ -351,7 +470,13 @@ mod tests {
         let w = c.world("default").unwrap();
         assert_eq!(w.seed, 1);
         assert!(w.layers.len() >= 3);
-        for p in ["stratus", "stratocumulus", "altocumulus", "cumulus", "cirrus"] {
+        for p in [
+            "stratus",
+            "stratocumulus",
+            "altocumulus",
+            "cumulus",
+            "cirrus",
+        ] {
             assert!(c.presets.contains_key(p), "preset {p}");
         }
     }

@@ -142,7 +142,11 @@ pub struct EpochSpec {
 
 impl Default for EpochSpec {
     fn default() -> Self {
-        EpochSpec { length: 16, warmup: 24, fade: 8 }
+        EpochSpec {
+            length: 16,
+            warmup: 24,
+            fade: 8,
+        }
     }
 }
 
@@ -176,7 +180,10 @@ impl Layer {
     /// Wind (m/s) at the centre of vertical level `k`.
     pub fn wind_at_level(&self, k: u32) -> [f64; 2] {
         let h = (k as f64 + 0.5) * self.cell_height;
-        [self.wind[0] + self.shear[0] * h, self.wind[1] + self.shear[1] * h]
+        [
+            self.wind[0] + self.shear[0] * h,
+            self.wind[1] + self.shear[1] * h,
+        ]
     }
 
     /// Altitude of the centre of vertical level `k`, metres.

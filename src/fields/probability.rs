@@ -1,0 +1,367 @@
+//! Per-layer probability fields p_hum, p_act, p_ext.
+//!
+//! Each field is Rosa's Noise Maker (2013, §3.3 and §4.1): fBm of simplex noise
+//! mapped to a brightness in [0, 1], then move (offset), feather (at the edges of
+//! the layer's optional extent) and cutoff. Humidity and activation are then
+//! shaped by height (bases wider than tops) and by optional Dobashi ellipsoids,
+//! and each brightness is mapped linearly onto the field's probability range.
+//!
+//! Fields are evaluated in the layer's wind frame (cells that drift with the base
+//! wind), so the pattern moves with the wind; see `automaton::frame`.
+
+use super::noise::{Coord, Fbm, mix64};
+use crate::world::{FieldSpec, Layer, Mode, World};
+
+/// Which of a layer's three fields.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Which {
+    Humidity = 0,
+    Activation = 1,
+    Extinction = 2,
+}
+
+/// The noise fields of one layer of one world.
+#[derive(Clone, Debug)]
+pub struct LayerFields {
+    pub layer: Layer,
+    fbm: [Fbm; 3],
+    specs: [FieldSpec; 3],
+}
+
+/// Probabilities at one cell (or Rosa textures, for mode `rosa`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Probabilities {
+    pub hum: f32,
+    pub act: f32,
+    pub ext: f32,
+}
+
+/// Brightness (after move, feather and cutoff; before height shaping) of the
+/// three fields over a window of wind-frame cells. Row-major, `w × h`.
+#[derive(Clone, Debug)]
+pub struct FieldWindow {
+    pub x0: i64,
+    pub y0: i64,
+    pub w: usize,
+    pub h: usize,
+    pub b: [Vec<f32>; 3],
+}
+
+impl FieldWindow {
+    #[inline]
+    pub fn get(&self, which: Which, x: i64, y: i64) -> f32 {
+        let (dx, dy) = (x - self.x0, y - self.y0);
+        if dx < 0 || dy < 0 || dx >= self.w as i64 || dy >= self.h as i64 {
+            return 0.0;
+        }
+        self.b[which as usize][dy as usize * self.w + dx as usize]
+    }
+}
+
+/// Probability as a 16.16 fixed-point threshold: a draw `r` in 0..65536 fires when
+/// `r < q`; `q = 65536` always fires, `q = 0` never does.
+#[inline]
+pub fn quantize(p: f32) -> u32 {
+    if p.is_nan() {
+        return 0;
+    }
+    (p.clamp(0.0, 1.0) * 65536.0).round() as u32
+}
+
+impl LayerFields {
+    pub fn new(world: &World, layer_index: usize) -> LayerFields {
+        let layer = world.layers[layer_index].clone();
+        let base_seed = mix64(world.seed ^ mix64(0x6c61_7965_7200_0000 ^ layer_index as u64));
+        let specs = [
+            layer.preset.humidity.clone(),
+            layer.preset.activation.clone(),
+            layer.preset.extinction.clone(),
+        ];
+        let fbm = std::array::from_fn(|i| {
+            let s = &specs[i];
+            Fbm {
+                seed: mix64(base_seed ^ (i as u64 + 1)),
+                // frequency is cycles per km; scale is cycles per cell.
+                scale: s.frequency * layer.cell_size / 1000.0,
+                octaves: s.octaves,
+                lacunarity: s.lacunarity,
+                gain: s.gain,
+                offset: s.offset,
+            }
+        });
+        LayerFields { layer, fbm, specs }
+    }
+
+    /// Noise time for a reference time in seconds (None when the fields are frozen).
+    pub fn tau(&self, t_ref: f64) -> Option<Coord> {
+        let e = self.layer.preset.evolve;
+        if e > 0.0 {
+            Some(Coord::new(0, t_ref / e))
+        } else {
+            None
+        }
+    }
+
+    /// Octaves of field `which` worth evaluating when samples are `sample` cells apart.
+    pub fn octaves(&self, which: Which, sample: f64) -> u32 {
+        self.fbm[which as usize].octaves_for(sample)
+    }
+
+    /// Brightness in [0, 1] of one field at a wind-frame position (cell + fraction),
+    /// `world_shift` cells being the wind frame's offset from the world grid (for
+    /// the feather at the extent's edges).
+    pub fn brightness(
+        &self,
+        which: Which,
+        x: (i64, f64),
+        y: (i64, f64),
+        octaves: u32,
+        tau: Option<Coord>,
+        world_shift: (i64, i64),
+    ) -> f32 {
+        let spec = &self.specs[which as usize];
+        let n = self.fbm[which as usize].sample(octaves, x, y, tau);
+        let mut v = (n + 1.0) * 0.5;
+        if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
+            let cs = self.layer.cell_size;
+            let wx = ((x.0 + world_shift.0) as f64 + x.1) * cs;
+            let wy = ((y.0 + world_shift.1) as f64 + y.1) * cs;
+            let d = (wx - ext[0])
+                .min(ext[2] - wx)
+                .min(wy - ext[1])
+                .min(ext[3] - wy);
+            v *= feather_factor(d, f.start, f.depth, f.falloff);
+        }
+        let [lo, hi] = spec.cutoff;
+        ((v - lo) / (hi - lo)).clamp(0.0, 1.0) as f32
+    }
+
+    /// Evaluates the three brightness fields over a window of wind-frame cells,
+    /// at cell centres. `spacing` > 1 evaluates noise on a coarser lattice aligned
+    /// to multiples of `spacing` in frame coordinates and interpolates bilinearly
+    /// (the lattice is global, so any window gives the same values).
+    pub fn window(
+        &self,
+        x0: i64,
+        y0: i64,
+        w: usize,
+        h: usize,
+        spacing: u32,
+        tau: Option<Coord>,
+        world_shift: (i64, i64),
+    ) -> FieldWindow {
+        let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
+        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
+        if spacing <= 1 {
+            for (f, out) in b.iter_mut().enumerate() {
+                for r in 0..h {
+                    for c in 0..w {
+                        out[r * w + c] = self.brightness(
+                            which[f],
+                            (x0 + c as i64, 0.5),
+                            (y0 + r as i64, 0.5),
+                            octs[f],
+                            tau,
+                            world_shift,
+                        );
+                    }
+                }
+            }
+            return FieldWindow { x0, y0, w, h, b };
+        }
+        // Coarse lattice points are cell centres of cells at multiples of `s`.
+        let s = spacing as i64;
+        let gx0 = x0.div_euclid(s);
+        let gy0 = y0.div_euclid(s);
+        let gx1 = (x0 + w as i64 - 1).div_euclid(s) + 1;
+        let gy1 = (y0 + h as i64 - 1).div_euclid(s) + 1;
+        let gw = (gx1 - gx0 + 1) as usize;
+        let gh = (gy1 - gy0 + 1) as usize;
+        for (f, out) in b.iter_mut().enumerate() {
+            let mut g = vec![0f32; gw * gh];
+            for gr in 0..gh {
+                for gc in 0..gw {
+                    let cx = (gx0 + gc as i64) * s;
+                    let cy = (gy0 + gr as i64) * s;
+                    g[gr * gw + gc] =
+                        self.brightness(which[f], (cx, 0.5), (cy, 0.5), octs[f], tau, world_shift);
+                }
+            }
+            let inv = 1.0 / s as f32;
+            for r in 0..h {
+                let y = y0 + r as i64;
+                let gy = y.div_euclid(s);
+                let fy = y.rem_euclid(s) as f32 * inv;
+                let row0 = (gy - gy0) as usize * gw;
+                let row1 = row0 + gw;
+                for c in 0..w {
+                    let x = x0 + c as i64;
+                    let gx = x.div_euclid(s);
+                    let fx = x.rem_euclid(s) as f32 * inv;
+                    let i = (gx - gx0) as usize;
+                    let top = g[row0 + i] + (g[row0 + i + 1] - g[row0 + i]) * fx;
+                    let bot = g[row1 + i] + (g[row1 + i + 1] - g[row1 + i]) * fx;
+                    out[r * w + c] = top + (bot - top) * fy;
+                }
+            }
+        }
+        FieldWindow { x0, y0, w, h, b }
+    }
+
+    /// The coarse-lattice spacing (cells, a power of two, at most 16) at which the
+    /// bilinear interpolation error stays below about 0.03 in brightness: linear
+    /// interpolation of a sinusoid of frequency f with spacing s errs by at most
+    /// (π f s)² / 2 of its amplitude; summed over octaves weighted by amplitude.
+    pub fn coarse_spacing(&self) -> u32 {
+        let bound = |s: f64| {
+            let mut worst: f64 = 0.0;
+            for f in &self.fbm {
+                let (mut amp, mut norm, mut sum, mut freq) = (1.0, 0.0, 0.0, f.scale);
+                for _ in 0..f.octaves_for(1.0) {
+                    let e = (std::f64::consts::PI * freq * s).powi(2) / 2.0;
+                    sum += amp * e.min(1.0);
+                    norm += amp;
+                    amp *= f.gain;
+                    freq *= f.lacunarity;
+                }
+                worst = worst.max(0.5 * sum / norm);
+            }
+            worst
+        };
+        let mut s = 1u32;
+        while s < 16 && bound((2 * s) as f64) <= 0.03 {
+            s *= 2;
+        }
+        s
+    }
+
+    /// Height shaping: at height fraction `h` the brightness needed rises by
+    /// `top_narrowing * h²`, so the footprint shrinks toward the top.
+    #[inline]
+    pub fn shape(&self, v: f32, k: u32) -> f32 {
+        let h = (k as f32 + 0.5) / self.layer.depth as f32;
+        let n = self.layer.preset.top_narrowing as f32 * h * h;
+        ((v - n) / (1.0 - n)).clamp(0.0, 1.0)
+    }
+
+    /// Dobashi ellipsoid weight at a wind-frame position (metres) and level; 1 with none.
+    pub fn ellipsoid_weight(&self, x_m: f64, y_m: f64, k: u32) -> f32 {
+        if self.layer.ellipsoids.is_empty() {
+            return 1.0;
+        }
+        let z = self.layer.level_altitude(k);
+        let mut best: f64 = 0.0;
+        for e in &self.layer.ellipsoids {
+            let dx = (x_m - e.centre[0]) / e.radii[0];
+            let dy = (y_m - e.centre[1]) / e.radii[1];
+            let dz = (z - e.centre[2]) / e.radii[2];
+            best = best.max(1.0 - (dx * dx + dy * dy + dz * dz));
+        }
+        best.clamp(0.0, 1.0) as f32
+    }
+
+    /// Probabilities (Dobashi) or textures (Rosa) at level `k` from the three brightness values.
+    #[inline]
+    pub fn level_values(&self, k: u32, b: [f32; 3], ellipsoid: f32) -> Probabilities {
+        let hum_v = self.shape(b[0], k) * ellipsoid;
+        let act_v = self.shape(b[1], k) * ellipsoid;
+        match self.layer.preset.mode {
+            Mode::Dobashi => {
+                let map = |spec: &FieldSpec, v: f32| {
+                    (spec.range[0] as f32 + (spec.range[1] - spec.range[0]) as f32 * v)
+                        .clamp(0.0, 1.0)
+                };
+                Probabilities {
+                    hum: map(&self.specs[0], hum_v),
+                    act: map(&self.specs[1], act_v),
+                    ext: map(&self.specs[2], b[2]),
+                }
+            }
+            // Rosa eq. 3.5: tex_cld = (tex_hum + tex_act) / 2 stands in the extinction slot.
+            Mode::Rosa => Probabilities {
+                hum: hum_v,
+                act: act_v,
+                ext: (hum_v + act_v) * 0.5,
+            },
+        }
+    }
+}
+
+/// Rosa's feather: 0 within `start` of the edge (and outside), 1 beyond `depth`,
+/// a ramp between whose steepness near the edge grows with `falloff`.
+fn feather_factor(d: f64, start: f64, depth: f64, falloff: f64) -> f64 {
+    if d <= start {
+        0.0
+    } else if d >= depth {
+        1.0
+    } else {
+        ((d - start) / (depth - start)).powf(1.0 + 3.0 * falloff)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::Config;
+
+    fn fields() -> LayerFields {
+        let w = Config::embedded().world("default").unwrap();
+        LayerFields::new(&w, 0)
+    }
+
+    #[test]
+    fn quantize_ends() {
+        assert_eq!(quantize(0.0), 0);
+        assert_eq!(quantize(1.0), 65536);
+        assert_eq!(quantize(f32::NAN), 0);
+        assert_eq!(quantize(-1.0), 0);
+        assert_eq!(quantize(0.5), 32768);
+    }
+
+    #[test]
+    fn coarse_window_matches_exact_on_lattice_points_and_is_close_between() {
+        let f = fields();
+        let s = f.coarse_spacing();
+        assert!(
+            s >= 2,
+            "default stratocumulus fields are smooth enough to interpolate"
+        );
+        let exact = f.window(-37, 101, 64, 48, 1, None, (0, 0));
+        let coarse = f.window(-37, 101, 64, 48, s, None, (0, 0));
+        let mut max_err: f32 = 0.0;
+        for i in 0..exact.b[0].len() {
+            let (x, y) = (-37 + (i % 64) as i64, 101 + (i / 64) as i64);
+            let e = (exact.b[0][i] - coarse.b[0][i]).abs();
+            if x.rem_euclid(s as i64) == 0 && y.rem_euclid(s as i64) == 0 {
+                assert!(e < 1e-6);
+            }
+            max_err = max_err.max(e);
+        }
+        assert!(max_err < 0.05, "interpolation error {max_err}");
+    }
+
+    #[test]
+    fn windows_are_seamless() {
+        let f = fields();
+        let s = f.coarse_spacing();
+        let a = f.window(0, 0, 40, 20, s, None, (0, 0));
+        let b = f.window(13, 7, 20, 10, s, None, (0, 0));
+        for r in 0..10 {
+            for c in 0..20 {
+                assert_eq!(
+                    a.get(Which::Activation, 13 + c, 7 + r),
+                    b.get(Which::Activation, 13 + c, 7 + r)
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn tops_are_narrower_than_bases() {
+        let f = fields();
+        let v = 0.5;
+        assert!(f.shape(v, f.layer.depth - 1) < f.shape(v, 0));
+        assert_eq!(f.shape(0.0, 0), 0.0);
+    }
+}

@@ -60,22 +60,19 @@ pub fn run(a: DensityArgs) -> Result<(), String> {
         "cld" => FieldKind::Cld,
         other => return Err(format!("--field must be density or cld, got `{other}`")),
     };
-    let format = GridFormat::parse(&a.format)
-        .ok_or_else(|| format!("--format must be npy, f32 or u8, got `{}`", a.format))?;
+    let format =
+        GridFormat::parse(&a.format).ok_or_else(|| format!("--format must be npy, f32 or u8, got `{}`", a.format))?;
     if field == FieldKind::Cld && a.level != 0 {
         return Err("--field cld exists only at level 0 (the automaton's own cells)".into());
     }
-    let region =
-        Region::from_bbox(layer, a.level, bbox, &config.limits).map_err(|e| e.to_string())?;
+    let region = Region::from_bbox(layer, a.level, bbox, &config.limits).map_err(|e| e.to_string())?;
     let bytes = match field {
         FieldKind::Density => {
-            let g = density::density(&world, layer_index, a.level, region, t)
-                .map_err(|e| e.to_string())?;
+            let g = density::density(&world, layer_index, a.level, region, t).map_err(|e| e.to_string())?;
             encode_density(&g, format)
         }
         FieldKind::Cld => {
-            let g =
-                density::cloud_cells(&world, layer_index, region, t).map_err(|e| e.to_string())?;
+            let g = density::cloud_cells(&world, layer_index, region, t).map_err(|e| e.to_string())?;
             encode_cells(&g, format)
         }
     };

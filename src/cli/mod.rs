@@ -57,9 +57,7 @@ pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
 pub(crate) fn parse_numbers(what: &str, s: &str, n: usize) -> Result<Vec<f64>, String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != n {
-        return Err(format!(
-            "{what} needs {n} comma-separated numbers, got `{s}`"
-        ));
+        return Err(format!("{what} needs {n} comma-separated numbers, got `{s}`"));
     }
     parts
         .iter()
@@ -81,10 +79,8 @@ pub(crate) fn write_atomically(path: &str, bytes: &[u8]) -> Result<(), String> {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => std::path::Path::new("."),
     };
-    let mut tmp =
-        tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
-    tmp.write_all(bytes)
-        .map_err(|e| format!("cannot write {path}: {e}"))?;
+    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
+    tmp.write_all(bytes).map_err(|e| format!("cannot write {path}: {e}"))?;
     tmp.persist(target)
         .map_err(|e| format!("cannot write {path}: {}", e.error))?;
     Ok(())

@@ -1,11 +1,14 @@
 //! From automaton cells to continuous density: smoothing over space, linear
 //! interpolation in time between steps, and the cheaper models for far levels.
 
+mod exact;
+mod lod;
 mod region;
 
 pub use region::{Grid, MAX_CELL_INDEX, Region, SimError, check_time};
 
-use crate::world::World;
+use crate::automaton::LayerSim;
+use crate::world::{Limits, World};
 
 /// Which quantity a grid holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -16,30 +19,37 @@ pub enum FieldKind {
     Cld,
 }
 
+/// Backstop limits for callers that pass regions of their own making: nothing
+/// below allocates more than this whatever the configuration says.
+const HARD_LIMITS: Limits = Limits {
+    max_columns: 1 << 15,
+    max_cells: 1 << 28,
+    max_level: 40,
+};
+
 /// The density of layer `layer` of `world` over `region` (columns at `level`) at time `t`.
 /// Shape `(depth, rows, cols)`, values in [0, 1].
-pub fn density(
-    world: &World,
-    layer: usize,
-    level: u32,
-    region: Region,
-    t: f64,
-) -> Result<Grid<f32>, SimError> {
-    let _ = (world, layer, level, region, t);
-    Err(SimError::OutOfRange(
-        "the simulation core is being built".into(),
-    ))
+pub fn density(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<Grid<f32>, SimError> {
+    let sim = prepare(world, layer, level, region, t)?;
+    Ok(if level == 0 {
+        exact::density(&sim, region, t)
+    } else {
+        lod::density(&sim, level, region, t)
+    })
 }
 
 /// The automaton's `cld` bits over `region` (level-0 cells) at time `t`.
-pub fn cloud_cells(
-    world: &World,
-    layer: usize,
-    region: Region,
-    t: f64,
-) -> Result<Grid<u8>, SimError> {
-    let _ = (world, layer, region, t);
-    Err(SimError::OutOfRange(
-        "the simulation core is being built".into(),
-    ))
+pub fn cloud_cells(world: &World, layer: usize, region: Region, t: f64) -> Result<Grid<u8>, SimError> {
+    let sim = prepare(world, layer, 0, region, t)?;
+    Ok(exact::cloud_cells(&sim, region, t))
+}
+
+fn prepare(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<LayerSim, SimError> {
+    check_time(t)?;
+    let l = world
+        .layers
+        .get(layer)
+        .ok_or_else(|| SimError::OutOfRange(format!("no layer {layer}")))?;
+    region.check(level, l.depth, &HARD_LIMITS)?;
+    Ok(LayerSim::new(world, layer))
 }

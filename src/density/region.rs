@@ -38,12 +38,7 @@ pub const MAX_CELL_INDEX: i64 = 1 << 52;
 impl Region {
     /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]
     /// (world metres, half-open on the high side).
-    pub fn from_bbox(
-        layer: &Layer,
-        level: u32,
-        bbox: [f64; 4],
-        limits: &Limits,
-    ) -> Result<Region, SimError> {
+    pub fn from_bbox(layer: &Layer, level: u32, bbox: [f64; 4], limits: &Limits) -> Result<Region, SimError> {
         let [bx0, by0, bx1, by1] = bbox;
         if !(bbox.iter().all(|v| v.is_finite()) && bx0 < bx1 && by0 < by1) {
             return Err(SimError::BadBbox);
@@ -105,14 +100,9 @@ impl Region {
         let y1 = self.y0.checked_add(self.rows as i64);
         match (x1, y1) {
             (Some(x1), Some(y1))
-                if self.x0.abs() <= lim
-                    && self.y0.abs() <= lim
-                    && x1.abs() <= lim
-                    && y1.abs() <= lim => {}
+                if self.x0.abs() <= lim && self.y0.abs() <= lim && x1.abs() <= lim && y1.abs() <= lim => {}
             _ => {
-                return Err(SimError::OutOfRange(format!(
-                    "columns beyond ±{lim} at level {level}"
-                )));
+                return Err(SimError::OutOfRange(format!("columns beyond ±{lim} at level {level}")));
             }
         }
         if self.cols == 0 || self.rows == 0 {

@@ -220,21 +220,13 @@ pub fn simplex3(seed: u64, x: Coord, y: Coord, z: Coord) -> f64 {
         if t <= 0.0 {
             0.0
         } else {
-            let h = hash3(
-                seed,
-                i.wrapping_add(o[0]),
-                j.wrapping_add(o[1]),
-                k.wrapping_add(o[2]),
-            );
+            let h = hash3(seed, i.wrapping_add(o[0]), j.wrapping_add(o[1]), k.wrapping_add(o[2]));
             let g = GRAD3[(h >> 60) as usize];
             let t2 = t * t;
             t2 * t2 * (g[0] * dx + g[1] * dy + g[2] * dz)
         }
     };
-    let n = corner([0, 0, 0], 0.0)
-        + corner(o1, G3)
-        + corner(o2, 2.0 * G3)
-        + corner([1, 1, 1], 3.0 * G3);
+    let n = corner([0, 0, 0], 0.0) + corner(o1, G3) + corner(o2, 2.0 * G3) + corner([1, 1, 1], 3.0 * G3);
     (32.0 * n).clamp(-1.0, 1.0)
 }
 
@@ -267,8 +259,7 @@ impl Fbm {
     /// A per-octave shift, so octaves do not share lattice points and the
     /// field is not pinned to zero at the origin.
     fn octave_shift(&self, o: u32, axis: u64) -> f64 {
-        (mix64(self.seed ^ ((o as u64) << 8 | axis).wrapping_mul(0x2545_f491_4f6c_dd1d)) >> 11)
-            as f64
+        (mix64(self.seed ^ ((o as u64) << 8 | axis).wrapping_mul(0x2545_f491_4f6c_dd1d)) >> 11) as f64
             * (1.0 / (1u64 << 53) as f64)
             * 1024.0
     }
@@ -282,10 +273,10 @@ impl Fbm {
         let mut scale = self.scale;
         for o in 0..octaves {
             let oseed = mix64(self.seed.wrapping_add(o as u64));
-            let cx = Coord::scaled(x.0, x.1, scale)
-                .offset(self.offset[0] * (scale / self.scale) + self.octave_shift(o, 0));
-            let cy = Coord::scaled(y.0, y.1, scale)
-                .offset(self.offset[1] * (scale / self.scale) + self.octave_shift(o, 1));
+            let cx =
+                Coord::scaled(x.0, x.1, scale).offset(self.offset[0] * (scale / self.scale) + self.octave_shift(o, 0));
+            let cy =
+                Coord::scaled(y.0, y.1, scale).offset(self.offset[1] * (scale / self.scale) + self.octave_shift(o, 1));
             let n = match tau {
                 Some(t) => simplex3(oseed, cx, cy, t.offset(self.octave_shift(o, 2))),
                 None => simplex2(oseed, cx, cy),
@@ -321,10 +312,7 @@ mod tests {
     fn two_product_is_exact_against_i128() {
         // Integers times a dyadic-friendly scale: the exact product is representable
         // as p + err, which we check in i128 fixed point.
-        for &(a, b) in &[
-            (3_000_000_007.0f64, 1234567.0f64),
-            ((1u64 << 52) as f64 - 1.0, 3.0),
-        ] {
+        for &(a, b) in &[(3_000_000_007.0f64, 1234567.0f64), ((1u64 << 52) as f64 - 1.0, 3.0)] {
             let (p, e) = two_product(a, b);
             let exact = a as i128 * b as i128;
             assert_eq!(p as i128 + e as i128, exact);
@@ -346,12 +334,7 @@ mod tests {
         let mut max: f64 = -1.0;
         for i in 0..2000 {
             let v = simplex2(7, c(i as f64 * 0.173), c(i as f64 * 0.091));
-            let w = simplex3(
-                7,
-                c(i as f64 * 0.173),
-                c(i as f64 * 0.091),
-                c(i as f64 * 0.05),
-            );
+            let w = simplex3(7, c(i as f64 * 0.173), c(i as f64 * 0.091), c(i as f64 * 0.05));
             assert!((-1.0..=1.0).contains(&v) && (-1.0..=1.0).contains(&w));
             min = min.min(v);
             max = max.max(v);
@@ -376,11 +359,7 @@ mod tests {
         for i in 0..50 {
             let x = i as f64 * 0.37;
             let a = simplex2(11, Coord::new(0, x), Coord::new(0, 1.3));
-            let b = simplex2(
-                11,
-                Coord::new(x.floor() as i64, x - x.floor()),
-                Coord::new(1, 0.3),
-            );
+            let b = simplex2(11, Coord::new(x.floor() as i64, x - x.floor()), Coord::new(1, 0.3));
             assert!((a - b).abs() < 1e-12, "{a} {b}");
         }
     }

@@ -9,6 +9,8 @@
 //! Fields are evaluated in the layer's wind frame (cells that drift with the base
 //! wind), so the pattern moves with the wind; see `automaton::frame`.
 
+use rayon::prelude::*;
+
 use super::noise::{Coord, Fbm, mix64};
 use crate::world::{FieldSpec, Layer, Mode, World};
 
@@ -95,11 +97,7 @@ impl LayerFields {
     /// Noise time for a reference time in seconds (None when the fields are frozen).
     pub fn tau(&self, t_ref: f64) -> Option<Coord> {
         let e = self.layer.preset.evolve;
-        if e > 0.0 {
-            Some(Coord::new(0, t_ref / e))
-        } else {
-            None
-        }
+        if e > 0.0 { Some(Coord::new(0, t_ref / e)) } else { None }
     }
 
     /// Octaves of field `which` worth evaluating when samples are `sample` cells apart.
@@ -126,10 +124,7 @@ impl LayerFields {
             let cs = self.layer.cell_size;
             let wx = ((x.0 + world_shift.0) as f64 + x.1) * cs;
             let wy = ((y.0 + world_shift.1) as f64 + y.1) * cs;
-            let d = (wx - ext[0])
-                .min(ext[2] - wx)
-                .min(wy - ext[1])
-                .min(ext[3] - wy);
+            let d = (wx - ext[0]).min(ext[2] - wx).min(wy - ext[1]).min(ext[3] - wy);
             v *= feather_factor(d, f.start, f.depth, f.falloff);
         }
         let [lo, hi] = spec.cutoff;
@@ -155,18 +150,12 @@ impl LayerFields {
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
         if spacing <= 1 {
             for (f, out) in b.iter_mut().enumerate() {
-                for r in 0..h {
-                    for c in 0..w {
-                        out[r * w + c] = self.brightness(
-                            which[f],
-                            (x0 + c as i64, 0.5),
-                            (y0 + r as i64, 0.5),
-                            octs[f],
-                            tau,
-                            world_shift,
-                        );
+                out.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
+                    for (c, v) in row.iter_mut().enumerate() {
+                        let (x, y) = ((x0 + c as i64, 0.5), (y0 + r as i64, 0.5));
+                        *v = self.brightness(which[f], x, y, octs[f], tau, world_shift);
                     }
-                }
+                });
             }
             return FieldWindow { x0, y0, w, h, b };
         }
@@ -180,14 +169,13 @@ impl LayerFields {
         let gh = (gy1 - gy0 + 1) as usize;
         for (f, out) in b.iter_mut().enumerate() {
             let mut g = vec![0f32; gw * gh];
-            for gr in 0..gh {
-                for gc in 0..gw {
+            g.par_chunks_mut(gw).enumerate().for_each(|(gr, row)| {
+                for (gc, v) in row.iter_mut().enumerate() {
                     let cx = (gx0 + gc as i64) * s;
                     let cy = (gy0 + gr as i64) * s;
-                    g[gr * gw + gc] =
-                        self.brightness(which[f], (cx, 0.5), (cy, 0.5), octs[f], tau, world_shift);
+                    *v = self.brightness(which[f], (cx, 0.5), (cy, 0.5), octs[f], tau, world_shift);
                 }
-            }
+            });
             let inv = 1.0 / s as f32;
             for r in 0..h {
                 let y = y0 + r as i64;
@@ -269,8 +257,7 @@ impl LayerFields {
         match self.layer.preset.mode {
             Mode::Dobashi => {
                 let map = |spec: &FieldSpec, v: f32| {
-                    (spec.range[0] as f32 + (spec.range[1] - spec.range[0]) as f32 * v)
-                        .clamp(0.0, 1.0)
+                    (spec.range[0] as f32 + (spec.range[1] - spec.range[0]) as f32 * v).clamp(0.0, 1.0)
                 };
                 Probabilities {
                     hum: map(&self.specs[0], hum_v),
@@ -323,10 +310,7 @@ mod tests {
     fn coarse_window_matches_exact_on_lattice_points_and_is_close_between() {
         let f = fields();
         let s = f.coarse_spacing();
-        assert!(
-            s >= 2,
-            "default stratocumulus fields are smooth enough to interpolate"
-        );
+        assert!(s >= 2, "default stratocumulus fields are smooth enough to interpolate");
         let exact = f.window(-37, 101, 64, 48, 1, None, (0, 0));
         let coarse = f.window(-37, 101, 64, 48, s, None, (0, 0));
         let mut max_err: f32 = 0.0;

@@ -57,11 +57,7 @@ pub fn encode_cells(grid: &Grid<u8>, format: GridFormat) -> Vec<u8> {
             out.extend_from_slice(&grid.data);
             out
         }
-        GridFormat::F32 => grid
-            .data
-            .iter()
-            .flat_map(|&v| (v as f32).to_le_bytes())
-            .collect(),
+        GridFormat::F32 => grid.data.iter().flat_map(|&v| (v as f32).to_le_bytes()).collect(),
         GridFormat::U8 => grid.data.clone(),
     }
 }

@@ -13,10 +13,7 @@ pub const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     #[error("cannot read config file {path}: {source}")]
-    Read {
-        path: String,
-        source: std::io::Error,
-    },
+    Read { path: String, source: std::io::Error },
     #[error("invalid config: {0}")]
     Parse(String),
     #[error("invalid config: {key}: {message}")]
@@ -168,10 +165,7 @@ impl Config {
         }
         let limits = raw.limits;
         if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid(
-                "limits",
-                "max_columns and max_cells must be positive",
-            ));
+            return Err(invalid("limits", "max_columns and max_cells must be positive"));
         }
         if limits.max_level > 40 {
             return Err(invalid("limits.max_level", "must be at most 40"));
@@ -202,12 +196,7 @@ impl Config {
                 let preset = raw
                     .presets
                     .get(&rl.preset)
-                    .ok_or_else(|| {
-                        invalid(
-                            format!("{key}.preset"),
-                            format!("unknown preset `{}`", rl.preset),
-                        )
-                    })?
+                    .ok_or_else(|| invalid(format!("{key}.preset"), format!("unknown preset `{}`", rl.preset)))?
                     .clone();
                 if layers.iter().any(|l: &Layer| l.name == rl.name) {
                     return Err(invalid(
@@ -243,10 +232,7 @@ impl Config {
             );
         }
         if !worlds.contains_key("default") {
-            return Err(invalid(
-                "worlds.default",
-                "the `default` world must be defined",
-            ));
+            return Err(invalid("worlds.default", "the `default` world must be defined"));
         }
         Ok(Config {
             server: raw.server,
@@ -284,19 +270,13 @@ fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
 
 fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
     if !(f.frequency.is_finite() && f.frequency > 0.0 && f.frequency <= 1e4) {
-        return Err(invalid(
-            format!("{key}.frequency"),
-            "must be in (0, 1e4] cycles per km",
-        ));
+        return Err(invalid(format!("{key}.frequency"), "must be in (0, 1e4] cycles per km"));
     }
     if f.octaves == 0 || f.octaves > 16 {
         return Err(invalid(format!("{key}.octaves"), "must be within [1, 16]"));
     }
     if !(f.lacunarity.is_finite() && (1.0..=8.0).contains(&f.lacunarity)) {
-        return Err(invalid(
-            format!("{key}.lacunarity"),
-            "must be within [1, 8]",
-        ));
+        return Err(invalid(format!("{key}.lacunarity"), "must be within [1, 8]"));
     }
     if !(f.gain.is_finite() && f.gain > 0.0 && f.gain <= 1.0) {
         return Err(invalid(format!("{key}.gain"), "must be in (0, 1]"));
@@ -308,12 +288,7 @@ fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
         }
     }
     let [lo, hi] = f.cutoff;
-    if !(lo.is_finite()
-        && hi.is_finite()
-        && (0.0..=1.0).contains(&lo)
-        && (0.0..=1.0).contains(&hi)
-        && lo < hi)
-    {
+    if !(lo.is_finite() && hi.is_finite() && (0.0..=1.0).contains(&lo) && (0.0..=1.0).contains(&hi) && lo < hi) {
         return Err(invalid(
             format!("{key}.cutoff"),
             "must be [low, high] with 0 <= low < high <= 1",
@@ -321,25 +296,15 @@ fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
     }
     for p in f.range {
         if !(p.is_finite() && (0.0..=1.0).contains(&p)) {
-            return Err(invalid(
-                format!("{key}.range"),
-                "probabilities must be within [0, 1]",
-            ));
+            return Err(invalid(format!("{key}.range"), "probabilities must be within [0, 1]"));
         }
     }
     if let Some(fe) = &f.feather {
-        if !(fe.start.is_finite() && fe.depth.is_finite() && fe.start >= 0.0 && fe.depth > fe.start)
-        {
-            return Err(invalid(
-                format!("{key}.feather"),
-                "needs 0 <= start < depth (metres)",
-            ));
+        if !(fe.start.is_finite() && fe.depth.is_finite() && fe.start >= 0.0 && fe.depth > fe.start) {
+            return Err(invalid(format!("{key}.feather"), "needs 0 <= start < depth (metres)"));
         }
         if !(fe.falloff.is_finite() && (0.0..=1.0).contains(&fe.falloff)) {
-            return Err(invalid(
-                format!("{key}.feather.falloff"),
-                "must be within [0, 1]",
-            ));
+            return Err(invalid(format!("{key}.feather.falloff"), "must be within [0, 1]"));
         }
     }
     Ok(())
@@ -350,26 +315,17 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
     validate_field(&format!("{key}.activation"), &p.activation)?;
     validate_field(&format!("{key}.extinction"), &p.extinction)?;
     if !(p.top_narrowing.is_finite() && (0.0..1.0).contains(&p.top_narrowing)) {
-        return Err(invalid(
-            format!("{key}.top_narrowing"),
-            "must be within [0, 1)",
-        ));
+        return Err(invalid(format!("{key}.top_narrowing"), "must be within [0, 1)"));
     }
     if !(p.evolve.is_finite() && p.evolve >= 0.0) {
         return Err(invalid(format!("{key}.evolve"), "must be >= 0 seconds"));
     }
     if p.rosa_iterations == 0 || p.rosa_iterations > 256 {
-        return Err(invalid(
-            format!("{key}.rosa_iterations"),
-            "must be within [1, 256]",
-        ));
+        return Err(invalid(format!("{key}.rosa_iterations"), "must be within [1, 256]"));
     }
     for v in p.rosa_thresholds {
         if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
-            return Err(invalid(
-                format!("{key}.rosa_thresholds"),
-                "must be within [0, 1]",
-            ));
+            return Err(invalid(format!("{key}.rosa_thresholds"), "must be within [0, 1]"));
         }
     }
     Ok(())
@@ -388,16 +344,10 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         ));
     }
     if !(l.base.is_finite() && (-1e4..=1e5).contains(&l.base)) {
-        return Err(invalid(
-            format!("{key}.base"),
-            "must be within [-1e4, 1e5] metres",
-        ));
+        return Err(invalid(format!("{key}.base"), "must be within [-1e4, 1e5] metres"));
     }
     if !(l.cell_size.is_finite() && (1.0..=1e4).contains(&l.cell_size)) {
-        return Err(invalid(
-            format!("{key}.cell_size"),
-            "must be within [1, 10000] metres",
-        ));
+        return Err(invalid(format!("{key}.cell_size"), "must be within [1, 10000] metres"));
     }
     if !(l.cell_height.is_finite() && (1.0..=1e4).contains(&l.cell_height)) {
         return Err(invalid(
@@ -406,16 +356,10 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         ));
     }
     if l.depth == 0 || l.depth > 64 {
-        return Err(invalid(
-            format!("{key}.depth"),
-            "must be within [1, 64] cells",
-        ));
+        return Err(invalid(format!("{key}.depth"), "must be within [1, 64] cells"));
     }
     if !(l.dt.is_finite() && (0.01..=86400.0).contains(&l.dt)) {
-        return Err(invalid(
-            format!("{key}.dt"),
-            "must be within [0.01, 86400] seconds",
-        ));
+        return Err(invalid(format!("{key}.dt"), "must be within [0.01, 86400] seconds"));
     }
     for (name, v) in [("wind", l.wind), ("shear", l.shear)] {
         for c in v {
@@ -432,11 +376,10 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         }
     }
     let e = l.epoch;
-    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || e.fade > e.warmup || e.fade > e.length
-    {
+    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || (e.fade > 0 && e.fade >= e.warmup) || e.fade > e.length {
         return Err(invalid(
             format!("{key}.epoch"),
-            "needs 1 <= length <= 4096, warmup <= 4096, fade <= warmup and fade <= length",
+            "needs 1 <= length <= 4096, warmup <= 4096, fade < warmup (or 0) and fade <= length",
         ));
     }
     if let Some(x) = l.extent {
@@ -448,9 +391,7 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         }
     }
     for (i, el) in l.ellipsoids.iter().enumerate() {
-        if !(el.centre.iter().all(|v| v.is_finite())
-            && el.radii.iter().all(|r| r.is_finite() && *r > 0.0))
-        {
+        if !(el.centre.iter().all(|v| v.is_finite()) && el.radii.iter().all(|r| r.is_finite() && *r > 0.0)) {
             return Err(invalid(
                 format!("{key}.ellipsoids[{i}]"),
                 "needs a finite centre and positive radii",
@@ -470,13 +411,7 @@ mod tests {
         let w = c.world("default").unwrap();
         assert_eq!(w.seed, 1);
         assert!(w.layers.len() >= 3);
-        for p in [
-            "stratus",
-            "stratocumulus",
-            "altocumulus",
-            "cumulus",
-            "cirrus",
-        ] {
+        for p in ["stratus", "stratocumulus", "altocumulus", "cumulus", "cirrus"] {
             assert!(c.presets.contains_key(p), "preset {p}");
         }
     }

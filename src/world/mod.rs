@@ -136,7 +136,7 @@ pub struct EpochSpec {
     pub length: u32,
     /// Warm-up steps run from an empty grid before the epoch starts.
     pub warmup: u32,
-    /// Last steps of an epoch cross-faded into the next (must be <= warmup).
+    /// Last steps of an epoch cross-faded into the next (must be < warmup).
     pub fade: u32,
 }
 
@@ -180,10 +180,7 @@ impl Layer {
     /// Wind (m/s) at the centre of vertical level `k`.
     pub fn wind_at_level(&self, k: u32) -> [f64; 2] {
         let h = (k as f64 + 0.5) * self.cell_height;
-        [
-            self.wind[0] + self.shear[0] * h,
-            self.wind[1] + self.shear[1] * h,
-        ]
+        [self.wind[0] + self.shear[0] * h, self.wind[1] + self.shear[1] * h]
     }
 
     /// Altitude of the centre of vertical level `k`, metres.

@@ -1,0 +1,247 @@
+//! Runs of the automaton over exactly the cells a request needs.
+//!
+//! A run starts from an empty grid at step `start` and advances to its last
+//! snapshot. Before it starts, the dependency cone is computed backwards: the
+//! cells of level k needed at step n are those needed at n+1 widened by 2 in x
+//! and y (the reach of f_act), plus the cells the levels above and below read
+//! through their relative frame shift. Every level's grid covers its cone at the
+//! start; each step computes only the (shrinking) cone. Cells outside the cone
+//! may hold garbage but never feed a cell inside it, so the result over the
+//! requested windows is exact whatever the window.
+
+use rayon::prelude::*;
+
+use super::frame::Frames;
+use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
+use super::random::planes_of;
+use crate::fields::noise::mix64;
+use crate::fields::{LayerFields, quantize};
+use crate::world::{Mode, World};
+
+/// A layer ready to simulate: its fields, frames and random stream.
+#[derive(Clone, Debug)]
+pub struct LayerSim {
+    pub fields: LayerFields,
+    pub frames: Frames,
+    pub stream: u64,
+}
+
+/// One run: from an empty grid at `start` to the last snapshot.
+#[derive(Clone, Debug)]
+pub struct RunSpec {
+    /// Step whose time and frame alignment the probability fields use.
+    pub reference_step: i64,
+    /// Step at which the grid is empty.
+    pub start: i64,
+    /// Steps (>= start, ascending) whose state is kept.
+    pub snapshots: Vec<i64>,
+    /// Frame window of each level that must be exact at every snapshot.
+    pub windows: Vec<Rect>,
+}
+
+/// The state of every level at one step.
+#[derive(Clone, Debug)]
+pub struct Snapshot {
+    pub step: i64,
+    pub levels: Vec<Level>,
+}
+
+impl LayerSim {
+    pub fn new(world: &World, layer_index: usize) -> LayerSim {
+        let fields = LayerFields::new(world, layer_index);
+        let frames = Frames::new(&fields.layer);
+        let stream = mix64(world.seed ^ mix64(0x7374_7265_616d ^ ((layer_index as u64) << 32)));
+        LayerSim { fields, frames, stream }
+    }
+
+    pub fn depth(&self) -> usize {
+        self.fields.layer.depth as usize
+    }
+
+    fn rules(&self) -> Rules {
+        match self.fields.layer.preset.mode {
+            Mode::Dobashi => Rules::Dobashi,
+            Mode::Rosa => Rules::Rosa,
+        }
+    }
+
+    /// Frame offsets of every level at step `n`.
+    pub fn offsets(&self, n: i64) -> Vec<(i64, i64)> {
+        (0..self.depth() as u32).map(|k| self.frames.offset(k, n)).collect()
+    }
+
+    /// The cells of each level needed at each step from `start` to the last snapshot.
+    fn cone(&self, spec: &RunSpec) -> Vec<Vec<Rect>> {
+        let end = *spec.snapshots.last().expect("a run has a snapshot");
+        let depth = self.depth();
+        let steps = (end - spec.start) as usize;
+        let mut need = vec![vec![Rect::default(); depth]; steps + 1];
+        need[steps] = spec.windows.clone();
+        let dobashi = self.rules() == Rules::Dobashi;
+        for s in (0..steps).rev() {
+            let n = spec.start + s as i64;
+            let offsets = if dobashi { self.offsets(n) } else { Vec::new() };
+            for k in 0..depth {
+                let mut r = need[s + 1][k].expand(2);
+                if dobashi {
+                    // Level kk reads level k when k = kk + 1, kk − 1 or kk − 2.
+                    for kk in [k as i64 - 1, k as i64 + 1, k as i64 + 2] {
+                        if kk >= 0 && (kk as usize) < depth {
+                            let (ax, ay) = offsets[kk as usize];
+                            let (bx, by) = offsets[k];
+                            r = r.hull(&need[s + 1][kk as usize].shift(ax - bx, ay - by));
+                        }
+                    }
+                }
+                if spec.snapshots.contains(&n) {
+                    r = r.hull(&spec.windows[k]);
+                }
+                need[s][k] = r;
+            }
+        }
+        need
+    }
+
+    /// Per-level drives over each level's grid, from fields aligned at the reference step.
+    fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
+        let f = &self.fields;
+        let layer = &f.layer;
+        let r_off = self.frames.reference_offset(reference_step);
+        // Level k's frame cell x is reference-frame cell x + O_k(ref) − O_ref(ref).
+        let shifts: Vec<(i64, i64)> = (0..self.depth() as u32)
+            .map(|k| {
+                let o = self.frames.offset(k, reference_step);
+                (o.0 - r_off.0, o.1 - r_off.1)
+            })
+            .collect();
+        let mut hull = Rect::default();
+        for (lv, s) in levels.iter().zip(&shifts) {
+            let r = Rect {
+                x0: lv.x0,
+                x1: lv.x0 + 64 * lv.wpr as i64,
+                y0: lv.y0,
+                y1: lv.y0 + lv.rows as i64,
+            };
+            hull = hull.hull(&r.shift(s.0, s.1));
+        }
+        let tau = f.tau(reference_step as f64 * layer.dt);
+        let window = f.window(
+            hull.x0,
+            hull.y0,
+            (hull.x1 - hull.x0) as usize,
+            (hull.y1 - hull.y0) as usize,
+            f.coarse_spacing(),
+            tau,
+            r_off,
+        );
+        let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
+        let mode = layer.preset.mode;
+        levels
+            .par_iter()
+            .enumerate()
+            .map(|(k, lv)| {
+                let (sx, sy) = shifts[k];
+                let words = lv.wpr * lv.rows;
+                let mut stoch = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+                let mut thr = (Vec::new(), Vec::new(), Vec::new());
+                if mode == Mode::Dobashi {
+                    stoch = (
+                        Vec::with_capacity(words),
+                        Vec::with_capacity(words),
+                        Vec::with_capacity(words),
+                        Vec::with_capacity(words),
+                    );
+                } else {
+                    thr = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
+                }
+                for r in 0..lv.rows {
+                    let y = lv.y0 + r as i64 + sy;
+                    for w in 0..lv.wpr {
+                        let mut q = [[0u32; 64]; 3];
+                        for b in 0..64 {
+                            let x = lv.x0 + 64 * w as i64 + b as i64 + sx;
+                            let bright = [0, 1, 2]
+                                .map(|i| window.b[i][(y - hull.y0) as usize * window.w + (x - hull.x0) as usize]);
+                            let ew = f.ellipsoid_weight(
+                                (x as f64 + 0.5) * layer.cell_size,
+                                (y as f64 + 0.5) * layer.cell_size,
+                                k as u32,
+                            );
+                            let p = f.level_values(k as u32, bright, ew);
+                            match mode {
+                                Mode::Dobashi => {
+                                    q[0][b] = quantize(p.hum);
+                                    q[1][b] = quantize(p.act);
+                                    q[2][b] = quantize(p.ext);
+                                }
+                                Mode::Rosa => {
+                                    let i = r * lv.wpr + w;
+                                    thr.0[i] |= ((p.hum > thresholds[0]) as u64) << b;
+                                    thr.1[i] |= ((p.act > thresholds[1]) as u64) << b;
+                                    thr.2[i] |= ((p.ext > thresholds[2]) as u64) << b;
+                                }
+                            }
+                        }
+                        if mode == Mode::Dobashi {
+                            let nz = |q: &[u32; 64]| q.iter().any(|&v| v > 0) as u8;
+                            stoch.3.push(nz(&q[0]) | nz(&q[1]) << 1 | nz(&q[2]) << 2);
+                            stoch.0.push(planes_of(&q[0]));
+                            stoch.1.push(planes_of(&q[1]));
+                            stoch.2.push(planes_of(&q[2]));
+                        }
+                    }
+                }
+                match mode {
+                    Mode::Dobashi => Drives::Stochastic {
+                        hum: stoch.0,
+                        act: stoch.1,
+                        ext: stoch.2,
+                        nonzero: stoch.3,
+                    },
+                    Mode::Rosa => Drives::Threshold {
+                        hum: thr.0,
+                        act: thr.1,
+                        keep: thr.2,
+                    },
+                }
+            })
+            .collect()
+    }
+
+    /// Executes a run and returns its snapshots.
+    pub fn run(&self, spec: &RunSpec) -> Vec<Snapshot> {
+        let need = self.cone(spec);
+        let mut levels: Vec<Level> = need[0].iter().map(|r| Level::covering(*r)).collect();
+        let drives = self.drives(&levels, spec.reference_step);
+        let mut next = levels.clone();
+        let rules = self.rules();
+        let mut out = Vec::new();
+        if spec.snapshots.contains(&spec.start) {
+            out.push(Snapshot {
+                step: spec.start,
+                levels: levels.clone(),
+            });
+        }
+        for (s, need_next) in need.iter().enumerate().skip(1) {
+            let n = spec.start + s as i64 - 1;
+            let offsets = self.offsets(n);
+            let ctx = StepContext {
+                rules,
+                stream: self.stream,
+                n,
+                offsets: &offsets,
+            };
+            next.par_iter_mut()
+                .enumerate()
+                .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
+            std::mem::swap(&mut levels, &mut next);
+            if spec.snapshots.contains(&(n + 1)) {
+                out.push(Snapshot {
+                    step: n + 1,
+                    levels: levels.clone(),
+                });
+            }
+        }
+        out
+    }
+}

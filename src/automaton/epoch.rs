@@ -1,50 +1,93 @@
 //! Bounded history: the state at step `m` never depends on more than a fixed
 //! number of earlier steps, so a query at t = 1e12 costs what one at t = 1e3 does.
 //!
-//! Mode `dobashi`: steps are grouped in epochs of `E` steps. The run for epoch
-//! `e` starts from an empty grid `W` warm-up steps before the epoch (at
-//! `eE − W`) and its probability fields are aligned at the epoch start `eE`.
-//! Over the last `F` steps of an epoch the state is cross-faded into the next
-//! epoch's run (which started early enough, since `F < W`): density is blended
-//! with weight `a = (i + 1)/(F + 1)` on the i-th fade step, cloud bits are taken
-//! from the next run where a per-cell hash falls below `a`. Because draws are
-//! keyed by (cell, step) and not by run, two runs over the same steps see the
-//! same random numbers and coalesce once the empty start is forgotten, so the
-//! fade changes few cells (measured in BENCHMARKS.md).
+//! Mode `dobashi`: steps are grouped in epochs of `E` steps. Run `j` starts from
+//! an empty grid at `(j−1)E − W` (`W` warm-up steps before it is first used) with
+//! its probability fields aligned at step `jE`. Every cell switches from run `e`
+//! to run `e+1` once per epoch, at its own step `eE + φ` where `φ` in [0, F) is a
+//! per-cell hash (`F` = the `fade` setting; `φ = 0` for every cell when F = 0).
+//! So about 1/F of the cells switch on each of the first F steps of an epoch,
+//! and the epoch boundary itself is a step like any other: no frame pops.
+//! Because draws are keyed by (cell, step) and not by run, two runs over the
+//! same steps see the same random numbers and converge once the empty start is
+//! forgotten, so a switch rarely flips a cell (measured in BENCHMARKS.md).
 //!
 //! Mode `rosa`: each frame is Rosa's fixed number of iterations from an empty
 //! grid with the textures of that frame's time (Rosa 2013, §4.2.1).
 
 use crate::world::{Layer, Mode};
 
-/// How to obtain the state at one step: runs and their blend weights.
+/// One run: fields aligned at `reference`, empty grid at `start`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct RunId {
+    pub reference: i64,
+    pub start: i64,
+}
+
+/// How to obtain the state at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepPlan {
     pub step: i64,
-    /// (reference step, start step, weight) of each contributing run; weights sum to 1.
-    pub runs: Vec<(i64, i64, f32)>,
+    /// The old run and, while cells are still switching, the new one.
+    pub runs: Vec<RunId>,
+    /// With two runs: a cell whose switch phase φ (in [0, fade)) is <= `phase`
+    /// has switched to `runs[1]`.
+    pub phase: i64,
+    pub fade: u32,
+}
+
+impl StepPlan {
+    /// Index into `runs` of the run that supplies a cell with switch hash `h` (0..65536).
+    #[inline]
+    pub fn pick(&self, h: u32) -> usize {
+        if self.runs.len() < 2 {
+            return 0;
+        }
+        let phi = ((h as u64 * self.fade as u64) >> 16) as i64;
+        usize::from(phi <= self.phase)
+    }
 }
 
 /// The runs that make up the state at step `m`.
 pub fn plan_step(layer: &Layer, m: i64) -> StepPlan {
     match layer.preset.mode {
-        Mode::Rosa => StepPlan {
-            step: m,
-            runs: vec![(m, m - layer.preset.rosa_iterations as i64, 1.0)],
-        },
-        Mode::Dobashi => {
-            let e = layer.epoch;
-            let (len, warm, fade) = (e.length as i64, e.warmup as i64, e.fade as i64);
-            let epoch = m.div_euclid(len);
-            let start = epoch * len;
-            let mut runs = vec![(start, start - warm, 1.0f32)];
-            let fade_from = start + len - fade;
-            if fade > 0 && m >= fade_from {
-                let a = (m - fade_from + 1) as f32 / (fade + 1) as f32;
-                runs[0].2 = 1.0 - a;
-                runs.push((start + len, start + len - warm, a));
+        Mode::Rosa => {
+            let run = RunId {
+                reference: m,
+                start: m - layer.preset.rosa_iterations as i64,
+            };
+            StepPlan {
+                step: m,
+                runs: vec![run],
+                phase: 0,
+                fade: 0,
             }
-            StepPlan { step: m, runs }
+        }
+        Mode::Dobashi => {
+            let ep = layer.epoch;
+            let (len, warm, fade) = (ep.length as i64, ep.warmup as i64, ep.fade as i64);
+            let e = m.div_euclid(len);
+            let p = m - e * len;
+            let run = |j: i64| RunId {
+                reference: j * len,
+                start: (j - 1) * len - warm,
+            };
+            if p + 1 >= fade {
+                // Every phase is <= p: all cells are on the new run.
+                StepPlan {
+                    step: m,
+                    runs: vec![run(e + 1)],
+                    phase: p,
+                    fade: ep.fade,
+                }
+            } else {
+                StepPlan {
+                    step: m,
+                    runs: vec![run(e), run(e + 1)],
+                    phase: p,
+                    fade: ep.fade,
+                }
+            }
         }
     }
 }
@@ -55,17 +98,33 @@ mod tests {
     use crate::world::Config;
 
     #[test]
-    fn plans_are_bounded_and_weights_sum_to_one() {
+    fn plans_are_bounded() {
         let w = Config::embedded().world("default").unwrap();
         let layer = &w.layers[0];
+        let ep = layer.epoch;
         for m in [0i64, 5, 15, 16, 1_000_000_000_000, i64::MAX / 4] {
             let p = plan_step(layer, m);
-            let total: f32 = p.runs.iter().map(|r| r.2).sum();
-            assert!((total - 1.0).abs() < 1e-6);
-            for &(_, start, _) in &p.runs {
-                assert!(start < m, "a run starts before the step it serves");
-                assert!(m - start <= (layer.epoch.length + layer.epoch.warmup) as i64);
+            for r in &p.runs {
+                assert!(r.start < m, "a run starts before the step it serves");
+                assert!(m - r.start <= (ep.length + ep.fade + ep.warmup) as i64);
             }
+        }
+    }
+
+    #[test]
+    fn each_cell_switches_once_per_epoch() {
+        let w = Config::embedded().world("default").unwrap();
+        let layer = &w.layers[0];
+        let len = layer.epoch.length as i64;
+        for h in [0u32, 1, 20000, 40000, 65535] {
+            let runs: Vec<RunId> = (2 * len..5 * len)
+                .map(|m| {
+                    let p = plan_step(layer, m);
+                    p.runs[p.pick(h)]
+                })
+                .collect();
+            let switches = runs.windows(2).filter(|w| w[0] != w[1]).count();
+            assert_eq!(switches, 3, "hash {h}");
         }
     }
 }

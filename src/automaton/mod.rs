@@ -12,3 +12,6 @@ pub mod run;
 pub use epoch::{StepPlan, plan_step};
 pub use kernel::{Level, Rect};
 pub use run::{LayerSim, RunSpec, Snapshot};
+
+#[cfg(test)]
+mod tests;

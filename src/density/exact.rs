@@ -12,55 +12,67 @@ use std::collections::BTreeMap;
 use rayon::prelude::*;
 
 use super::{Grid, Region};
-use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, plan_step};
+use crate::automaton::epoch::RunId;
+use crate::automaton::{LayerSim, Rect, RunSpec, Snapshot, plan_step};
 use crate::fields::noise::mix64;
-use crate::fields::quantize;
 
-/// Runs every plan needed for `steps` with the given per-level windows, and returns
-/// for each step the (snapshot, weight) pairs to blend.
-fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<(Snapshot, f32)>> {
+/// Runs every run the plans of `steps` need, over the given per-level windows,
+/// and returns for each step the cloud bits of each level's window (row-major).
+fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
     let layer = &sim.fields.layer;
     let plans: Vec<_> = steps.iter().map(|&m| plan_step(layer, m)).collect();
-    // Group by run (reference step, start): one run serves every step that needs it.
-    let mut runs: BTreeMap<(i64, i64), Vec<i64>> = BTreeMap::new();
+    // One run serves every step that needs it.
+    let mut runs: BTreeMap<RunId, Vec<i64>> = BTreeMap::new();
     for p in &plans {
-        for &(reference, start, _) in &p.runs {
-            let v = runs.entry((reference, start)).or_default();
+        for r in &p.runs {
+            let v = runs.entry(*r).or_default();
             if !v.contains(&p.step) {
                 v.push(p.step);
             }
         }
     }
-    let mut results: BTreeMap<(i64, i64), Vec<Snapshot>> = BTreeMap::new();
-    for ((reference, start), mut snaps) in runs {
+    let mut results: BTreeMap<RunId, Vec<Snapshot>> = BTreeMap::new();
+    for (id, mut snaps) in runs {
         snaps.sort_unstable();
         let spec = RunSpec {
-            reference_step: reference,
-            start,
+            reference_step: id.reference,
+            start: id.start,
             snapshots: snaps,
             windows: windows.to_vec(),
         };
-        results.insert((reference, start), sim.run(&spec));
+        results.insert(id, sim.run(&spec));
     }
     plans
         .iter()
         .map(|p| {
-            p.runs
+            let snaps: Vec<&Snapshot> = p
+                .runs
                 .iter()
-                .map(|&(reference, start, w)| {
-                    let snap = results[&(reference, start)]
-                        .iter()
-                        .find(|s| s.step == p.step)
-                        .expect("snapshot planned")
-                        .clone();
-                    (snap, w)
+                .map(|id| results[id].iter().find(|s| s.step == p.step).expect("snapshot planned"))
+                .collect();
+            windows
+                .par_iter()
+                .enumerate()
+                .map(|(k, w)| {
+                    let mut out = Vec::with_capacity(((w.x1 - w.x0) * (w.y1 - w.y0)) as usize);
+                    for y in w.y0..w.y1 {
+                        for x in w.x0..w.x1 {
+                            let run = if snaps.len() > 1 {
+                                p.pick(switch_hash(sim.stream, k, x, y))
+                            } else {
+                                0
+                            };
+                            out.push(snaps[run].levels[k].cld_at(x, y) as u8);
+                        }
+                    }
+                    out
                 })
                 .collect()
         })
         .collect()
 }
 
-/// Tent-smoothed, run-blended cloud field of one level over a window.
+/// Tent-smoothed cloud field of one level over a window.
 struct Smoothed {
     x0: i64,
     y0: i64,
@@ -69,24 +81,14 @@ struct Smoothed {
 }
 
 impl Smoothed {
-    fn new(parts: &[(&Level, f32)], window: Rect) -> Smoothed {
+    fn new(bits: &[u8], window: Rect) -> Smoothed {
         let w = (window.x1 - window.x0) as usize;
         let h = (window.y1 - window.y0) as usize;
-        let mut raw = vec![0f32; w * h];
-        for (lv, weight) in parts {
-            for r in 0..h {
-                for c in 0..w {
-                    if lv.cld_at(window.x0 + c as i64, window.y0 + r as i64) {
-                        raw[r * w + c] += weight;
-                    }
-                }
-            }
-        }
         let at = |c: i64, r: i64| {
             if c < 0 || r < 0 || c >= w as i64 || r >= h as i64 {
                 0.0
             } else {
-                raw[r as usize * w + c as usize]
+                bits[r as usize * w + c as usize] as f32
             }
         };
         let mut values = vec![0f32; w * h];
@@ -142,15 +144,7 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
     grid.data.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
-        let smoothed: Vec<Smoothed> = st
-            .iter()
-            .map(|parts| {
-                Smoothed::new(
-                    &parts.iter().map(|(s, w)| (&s.levels[k], *w)).collect::<Vec<_>>(),
-                    windows[k],
-                )
-            })
-            .collect();
+        let smoothed: Vec<Smoothed> = st.iter().map(|levels| Smoothed::new(&levels[k], windows[k])).collect();
         let (cx, cy) = disp[k];
         // Bilinear weights: frame index of the cell centre is X − c.
         let (ox, wx) = if cx.frac > 0.0 { (1, 1.0 - cx.frac) } else { (0, 0.0) };
@@ -180,11 +174,9 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
 
 /// The cloud bits over `region` (level-0 cells) at the step containing t.
 pub fn cloud_cells(sim: &LayerSim, region: Region, t: f64) -> Grid<u8> {
-    let layer = &sim.fields.layer;
-    let depth = sim.depth();
-    let (n, _) = split_time(t, layer.dt);
-    let offsets = sim.offsets(n);
-    let windows: Vec<Rect> = offsets
+    let (n, _) = split_time(t, sim.fields.layer.dt);
+    let windows: Vec<Rect> = sim
+        .offsets(n)
         .iter()
         .map(|&(ox, oy)| Rect {
             x0: region.x0 - ox,
@@ -193,32 +185,23 @@ pub fn cloud_cells(sim: &LayerSim, region: Region, t: f64) -> Grid<u8> {
             y1: region.y0 + region.rows as i64 - oy,
         })
         .collect();
-    let st = states(sim, &[n], &windows);
-    let parts = &st[0];
-    let mut grid = Grid::new(depth, region.rows, region.cols);
-    let fade = parts.get(1).map(|p| quantize(p.1)).unwrap_or(0);
-    for k in 0..depth {
-        let (ox, oy) = offsets[k];
-        for r in 0..region.rows {
-            let y = region.y0 + r as i64 - oy;
-            for c in 0..region.cols {
-                let x = region.x0 + c as i64 - ox;
-                // Cross-fade: a per-cell hash below the fade weight takes the next epoch's bit.
-                let pick = if fade > 0 && dither(sim.stream, k, x, y) < fade {
-                    1
-                } else {
-                    0
-                };
-                let i = grid.index(k, r, c);
-                grid.data[i] = parts[pick].0.levels[k].cld_at(x, y) as u8;
-            }
-        }
+    let data = frame_cells(sim, n, &windows).concat();
+    Grid {
+        depth: sim.depth(),
+        rows: region.rows,
+        cols: region.cols,
+        data,
     }
-    grid
 }
 
-/// A per-cell uniform number in 0..65536, fixed for the cell's lifetime in its frame.
-fn dither(stream: u64, k: usize, x: i64, y: i64) -> u32 {
+/// The cloud bits of each level over a window of its own frame at step `n`
+/// (row-major per level).
+pub fn frame_cells(sim: &LayerSim, n: i64, windows: &[Rect]) -> Vec<Vec<u8>> {
+    states(sim, &[n], windows).remove(0)
+}
+
+/// A per-cell uniform number in 0..65536 that sets when the cell switches runs.
+fn switch_hash(stream: u64, k: usize, x: i64, y: i64) -> u32 {
     let h = mix64(stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40) ^ mix64(x as u64 ^ mix64(y as u64)));
     (h >> 48) as u32
 }

@@ -1,7 +1,7 @@
 //! From automaton cells to continuous density: smoothing over space, linear
 //! interpolation in time between steps, and the cheaper models for far levels.
 
-mod exact;
+pub mod exact;
 mod lod;
 mod region;
 

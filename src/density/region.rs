@@ -31,9 +31,9 @@ pub struct Region {
     pub rows: usize,
 }
 
-/// Level-0 cells (and so level-z columns) are limited to ±2^52 so that any
+/// Level-0 cells (and so level-z columns) are limited to ±2^48 so that any
 /// cell index, its metres and the halo arithmetic stay exact in i64 and f64.
-pub const MAX_CELL_INDEX: i64 = 1 << 52;
+pub const MAX_CELL_INDEX: i64 = 1 << 48;
 
 impl Region {
     /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]

@@ -376,10 +376,10 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         }
     }
     let e = l.epoch;
-    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || (e.fade > 0 && e.fade >= e.warmup) || e.fade > e.length {
+    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || e.fade > e.length {
         return Err(invalid(
             format!("{key}.epoch"),
-            "needs 1 <= length <= 4096, warmup <= 4096, fade < warmup (or 0) and fade <= length",
+            "needs 1 <= length <= 4096, warmup <= 4096 and fade <= length",
         ));
     }
     if let Some(x) = l.extent {

@@ -136,7 +136,8 @@ pub struct EpochSpec {
     pub length: u32,
     /// Warm-up steps run from an empty grid before the epoch starts.
     pub warmup: u32,
-    /// Last steps of an epoch cross-faded into the next (must be < warmup).
+    /// Cells switch from one epoch's run to the next over the first `fade` steps
+    /// of an epoch, each at its own step (must be <= length).
     pub fade: u32,
 }
 
@@ -145,7 +146,7 @@ impl Default for EpochSpec {
         EpochSpec {
             length: 16,
             warmup: 24,
-            fade: 8,
+            fade: 16,
         }
     }
 }

@@ -1,0 +1,143 @@
+//! The packed kernel against the naive reference, bit for bit, on random grids,
+//! random drives and random frame shifts (edges included: cells outside a grid
+//! read as empty in both).
+
+use proptest::prelude::*;
+
+use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
+use super::naive::{NaiveDrives, NaiveLevel, step};
+use super::random::planes_of;
+use crate::fields::noise::mix64;
+
+/// A random scene: per level a grid origin, cells and thresholds.
+#[derive(Debug, Clone)]
+struct Scene {
+    rules: Rules,
+    wpr: usize,
+    rows: usize,
+    origins: Vec<(i64, i64)>,
+    offsets: Vec<Vec<(i64, i64)>>,
+    seed: u64,
+    density: u8,
+}
+
+fn scene() -> impl Strategy<Value = Scene> {
+    (
+        prop_oneof![Just(Rules::Dobashi), Just(Rules::Rosa)],
+        1usize..4,
+        1usize..12,
+        1usize..5,
+        any::<u64>(),
+        0u8..4,
+    )
+        .prop_flat_map(|(rules, wpr, rows, depth, seed, density)| {
+            let origin = (-3i64..3, -20i64..20).prop_map(|(wx, y)| (wx * 64, y));
+            let offs = proptest::collection::vec((-70i64..70, -6i64..6), depth);
+            (
+                Just(rules),
+                Just(wpr),
+                Just(rows),
+                proptest::collection::vec(origin, depth),
+                proptest::collection::vec(offs, 3),
+                Just(seed),
+                Just(density),
+            )
+        })
+        .prop_map(|(rules, wpr, rows, origins, offsets, seed, density)| Scene {
+            rules,
+            wpr,
+            rows,
+            origins,
+            offsets,
+            seed,
+            density,
+        })
+}
+
+fn random_bits(s: &mut u64, density: u8) -> u64 {
+    *s = mix64(*s);
+    let a = *s;
+    *s = mix64(*s);
+    match density {
+        0 => a & *s,
+        1 => a,
+        2 => a | *s,
+        _ => 0,
+    }
+}
+
+fn threshold(s: &mut u64) -> u32 {
+    *s = mix64(*s);
+    match *s % 6 {
+        0 | 1 => 0,
+        2 => 65536,
+        3 => (*s >> 40) as u32 % 256,
+        _ => (*s >> 20) as u32 % 65537,
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(96))]
+    #[test]
+    fn packed_equals_naive(sc in scene()) {
+        let mut s = sc.seed;
+        let depth = sc.origins.len();
+        let mut packed: Vec<Level> = Vec::new();
+        let mut naive: Vec<NaiveLevel> = Vec::new();
+        let mut pdrives = Vec::new();
+        let mut ndrives = Vec::new();
+        for &(x0, y0) in &sc.origins {
+            let mut lv = Level::covering(Rect { x0, x1: x0 + 64 * sc.wpr as i64, y0, y1: y0 + sc.rows as i64 });
+            for i in 0..lv.hum.len() {
+                lv.hum[i] = random_bits(&mut s, sc.density);
+                lv.act[i] = random_bits(&mut s, sc.density);
+                lv.cld[i] = random_bits(&mut s, sc.density);
+            }
+            let w = sc.wpr * 64;
+            let unpack = |v: &[u64]| -> Vec<u8> { (0..w * sc.rows).map(|c| ((v[(c / w) * sc.wpr + (c % w) / 64] >> (c % 64)) & 1) as u8).collect() };
+            naive.push(NaiveLevel { x0, y0, w, h: sc.rows, hum: unpack(&lv.hum), act: unpack(&lv.act), cld: unpack(&lv.cld) });
+            match sc.rules {
+                Rules::Dobashi => {
+                    let q: Vec<Vec<u32>> = (0..3).map(|_| (0..w * sc.rows).map(|_| threshold(&mut s)).collect()).collect();
+                    let planes = |v: &Vec<u32>| -> Vec<[u64; 17]> { v.chunks(64).map(|c| planes_of(c.try_into().unwrap())).collect() };
+                    let nz = |v: &Vec<u32>| -> Vec<bool> { v.chunks(64).map(|c| c.iter().any(|&x| x > 0)).collect() };
+                    let (a, b, c) = (nz(&q[0]), nz(&q[1]), nz(&q[2]));
+                    let nonzero = (0..a.len()).map(|i| a[i] as u8 | (b[i] as u8) << 1 | (c[i] as u8) << 2).collect();
+                    pdrives.push(Drives::Stochastic { hum: planes(&q[0]), act: planes(&q[1]), ext: planes(&q[2]), nonzero });
+                    ndrives.push(NaiveDrives::Stochastic { hum: q[0].clone(), act: q[1].clone(), ext: q[2].clone() });
+                }
+                Rules::Rosa => {
+                    let m: Vec<Vec<u64>> = (0..3).map(|_| (0..lv.hum.len()).map(|_| random_bits(&mut s, 1)).collect()).collect();
+                    ndrives.push(NaiveDrives::Threshold { hum: unpack(&m[0]), act: unpack(&m[1]), keep: unpack(&m[2]) });
+                    pdrives.push(Drives::Threshold { hum: m[0].clone(), act: m[1].clone(), keep: m[2].clone() });
+                }
+            }
+            packed.push(lv);
+        }
+        let stream = mix64(sc.seed ^ 1);
+        for (i, offsets) in sc.offsets.iter().enumerate() {
+            let n = -5 + i as i64 * 1_000_003;
+            let ctx = StepContext { rules: sc.rules, stream, n, offsets };
+            let mut next = packed.clone();
+            for k in 0..depth {
+                let lv = &packed[k];
+                let all = Rect { x0: lv.x0, x1: lv.x0 + 64 * lv.wpr as i64, y0: lv.y0, y1: lv.y0 + lv.rows as i64 };
+                step_level(&packed, k, &pdrives[k], &ctx, all, &mut next[k]);
+            }
+            packed = next;
+            naive = step(&naive, &ndrives, sc.rules, stream, n, offsets);
+            for k in 0..depth {
+                let (p, q) = (&packed[k], &naive[k]);
+                for r in 0..q.h {
+                    for c in 0..q.w {
+                        let bit = |v: &[u64]| ((v[r * p.wpr + c / 64] >> (c % 64)) & 1) as u8;
+                        let i = r * q.w + c;
+                        prop_assert_eq!(bit(&p.hum), q.hum[i], "hum level {} cell {},{} step {}", k, c, r, i);
+                        prop_assert_eq!(bit(&p.act), q.act[i], "act level {} cell {},{} step {}", k, c, r, i);
+                        prop_assert_eq!(bit(&p.cld), q.cld[i], "cld level {} cell {},{} step {}", k, c, r, i);
+                    }
+                }
+            }
+        }
+    }
+}

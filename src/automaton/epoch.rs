@@ -117,7 +117,7 @@ mod tests {
         let layer = &w.layers[0];
         let len = layer.epoch.length as i64;
         for h in [0u32, 1, 20000, 40000, 65535] {
-            let runs: Vec<RunId> = (2 * len..5 * len)
+            let runs: Vec<RunId> = (2 * len + 1..=5 * len)
                 .map(|m| {
                     let p = plan_step(layer, m);
                     p.runs[p.pick(h)]

@@ -58,7 +58,7 @@ impl LayerSim {
         self.fields.layer.depth as usize
     }
 
-    fn rules(&self) -> Rules {
+    pub fn rules(&self) -> Rules {
         match self.fields.layer.preset.mode {
             Mode::Dobashi => Rules::Dobashi,
             Mode::Rosa => Rules::Rosa,
@@ -103,7 +103,7 @@ impl LayerSim {
     }
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
-    fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
+    pub fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
         let f = &self.fields;
         let layer = &f.layer;
         let r_off = self.frames.reference_offset(reference_step);

@@ -80,12 +80,16 @@ pub fn mix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
-/// Hash of a seed and up to three lattice indices.
+/// Hash of a seed and up to three lattice indices: the indices are spread by
+/// odd multipliers into one word and finalised once (every input bit reaches
+/// every output bit; no table, so no period).
 #[inline]
 fn hash3(seed: u64, i: i64, j: i64, k: i64) -> u64 {
-    let mut h = mix64(seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-    h = mix64(h ^ (j as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f));
-    mix64(h ^ (k as u64).wrapping_mul(0x1656_67b1_9e37_79f9))
+    mix64(
+        seed ^ (i as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15)
+            ^ (j as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f).rotate_left(21)
+            ^ (k as u64).wrapping_mul(0x1656_67b1_9e37_79f9).rotate_left(42),
+    )
 }
 
 // 2D gradients: 16 unit vectors evenly spaced on the circle.

@@ -1,0 +1,354 @@
+//! Simulation-core benchmarks: automaton (packed vs naive), fields (ours vs the
+//! `noise` crate), cold tile density, far-field levels. Accuracy figures that go
+//! with the speed ones (LOD error, coarse-lattice error, bounded-history distance)
+//! are computed once and printed before the timings.
+//!
+//!     cargo bench --bench core
+//!
+//! BENCHMARKS.md holds the figures of a run on the project machine.
+
+use std::hint::black_box;
+use std::time::Duration;
+
+use cloudscape::automaton::kernel::{Level, Rect, StepContext, step_level};
+use cloudscape::automaton::naive::{self, NaiveDrives, NaiveLevel};
+use cloudscape::automaton::{LayerSim, RunSpec, plan_step};
+use cloudscape::density::{self, Region};
+use cloudscape::fields::noise::Fbm;
+use cloudscape::fields::probability::Which;
+use cloudscape::world::{Config, World};
+use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use noise::{MultiFractal, NoiseFn};
+use rayon::prelude::*;
+
+fn world() -> World {
+    Config::embedded().world("default").unwrap()
+}
+
+/// A realistic state: the default stratocumulus layer after a warm-up run, with
+/// its spatially varying drives, over `size × size` cells.
+fn scene(size: i64) -> (LayerSim, Vec<Level>, Vec<cloudscape::automaton::kernel::Drives>) {
+    let sim = LayerSim::new(&world(), 0);
+    let window = Rect {
+        x0: 0,
+        x1: size,
+        y0: 0,
+        y1: size,
+    };
+    let spec = RunSpec {
+        reference_step: 64,
+        start: 40,
+        snapshots: vec![64],
+        windows: vec![window; sim.depth()],
+    };
+    let snap = sim.run(&spec).remove(0);
+    let levels: Vec<Level> = snap.levels.iter().map(|l| crop(l, window)).collect();
+    let drives = sim.drives(&levels, 64);
+    (sim, levels, drives)
+}
+
+fn crop(l: &Level, r: Rect) -> Level {
+    let mut out = Level::covering(r);
+    for y in r.y0..r.y1 {
+        for x in r.x0..r.x1 {
+            if l.cld_at(x, y) {
+                let i = (y - out.y0) as usize * out.wpr + ((x - out.x0) / 64) as usize;
+                out.cld[i] |= 1 << ((x - out.x0) % 64);
+            }
+        }
+    }
+    // hum and act are seeded from cld so activity spreads during the benchmark.
+    out.act = out.cld.iter().map(|w| w & 0x5555_5555_5555_5555).collect();
+    out.hum = out.cld.iter().map(|w| !w).collect();
+    out
+}
+
+fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[cloudscape::automaton::kernel::Drives], steps: i64) {
+    let mut cur = levels.to_vec();
+    let mut next = levels.to_vec();
+    for n in 0..steps {
+        let offsets = sim.offsets(64 + n);
+        let ctx = StepContext {
+            rules: sim.rules(),
+            stream: sim.stream,
+            n: 64 + n,
+            offsets: &offsets,
+        };
+        next.par_iter_mut().enumerate().for_each(|(k, o)| {
+            let lv = &cur[k];
+            let all = Rect {
+                x0: lv.x0,
+                x1: lv.x0 + 64 * lv.wpr as i64,
+                y0: lv.y0,
+                y1: lv.y0 + lv.rows as i64,
+            };
+            step_level(&cur, k, &drives[k], &ctx, all, o)
+        });
+        std::mem::swap(&mut cur, &mut next);
+    }
+    black_box(&cur);
+}
+
+fn to_naive(levels: &[Level], drives: &[cloudscape::automaton::kernel::Drives]) -> (Vec<NaiveLevel>, Vec<NaiveDrives>) {
+    let mut nl = Vec::new();
+    let mut nd = Vec::new();
+    for (l, d) in levels.iter().zip(drives) {
+        let w = l.wpr * 64;
+        let bit = |v: &[u64], c: usize| ((v[(c / w) * l.wpr + (c % w) / 64] >> (c % 64)) & 1) as u8;
+        let n = w * l.rows;
+        nl.push(NaiveLevel {
+            x0: l.x0,
+            y0: l.y0,
+            w,
+            h: l.rows,
+            hum: (0..n).map(|c| bit(&l.hum, c)).collect(),
+            act: (0..n).map(|c| bit(&l.act, c)).collect(),
+            cld: (0..n).map(|c| bit(&l.cld, c)).collect(),
+        });
+        if let cloudscape::automaton::kernel::Drives::Stochastic { hum, act, ext, .. } = d {
+            let q = |p: &Vec<[u64; 17]>, c: usize| -> u32 {
+                let word = &p[(c / w) * l.wpr + (c % w) / 64];
+                let b = c % 64;
+                if (word[0] >> b) & 1 == 1 {
+                    return 65536;
+                }
+                (0..16).fold(0u32, |acc, j| (acc << 1) | ((word[1 + j] >> b) & 1) as u32)
+            };
+            nd.push(NaiveDrives::Stochastic {
+                hum: (0..n).map(|c| q(hum, c)).collect(),
+                act: (0..n).map(|c| q(act, c)).collect(),
+                ext: (0..n).map(|c| q(ext, c)).collect(),
+            });
+        }
+    }
+    (nl, nd)
+}
+
+fn automaton(c: &mut Criterion) {
+    let mut g = c.benchmark_group("automaton");
+    g.sample_size(10)
+        .measurement_time(Duration::from_secs(4))
+        .warm_up_time(Duration::from_secs(1));
+    let (sim, levels, drives) = scene(512);
+    let cells = (512 * 512 * sim.depth()) as u64;
+    g.throughput(Throughput::Elements(cells * 8));
+    g.bench_function("packed 512x512x10, 8 steps", |b| {
+        b.iter(|| packed_steps(&sim, &levels, &drives, 8))
+    });
+    let (small_sim, small_levels, small_drives) = scene(128);
+    let (nl, nd) = to_naive(&small_levels, &small_drives);
+    let small_cells = (128 * 128 * small_sim.depth()) as u64;
+    g.throughput(Throughput::Elements(small_cells));
+    g.bench_function("naive 128x128x10, 1 step", |b| {
+        b.iter(|| {
+            let offsets = small_sim.offsets(64);
+            black_box(naive::step(&nl, &nd, small_sim.rules(), small_sim.stream, 64, &offsets))
+        })
+    });
+    g.finish();
+}
+
+fn fields(c: &mut Criterion) {
+    let mut g = c.benchmark_group("fields");
+    g.sample_size(10)
+        .measurement_time(Duration::from_secs(3))
+        .warm_up_time(Duration::from_secs(1));
+    let n = 64 * 64;
+    g.throughput(Throughput::Elements(n));
+    let ours = Fbm {
+        seed: 3,
+        scale: 0.02,
+        octaves: 4,
+        lacunarity: 2.0,
+        gain: 0.5,
+        offset: [0.0, 0.0],
+    };
+    g.bench_function("ours fbm2 4 octaves", |b| {
+        b.iter(|| {
+            let mut s = 0.0;
+            for i in 0..n as i64 {
+                s += ours.sample(4, (i % 64, 0.5), (i / 64, 0.5), None);
+            }
+            black_box(s)
+        })
+    });
+    let theirs = noise::Fbm::<noise::Simplex>::new(3)
+        .set_octaves(4)
+        .set_frequency(0.02)
+        .set_lacunarity(2.0)
+        .set_persistence(0.5);
+    g.bench_function("noise crate Fbm<Simplex> 4 octaves", |b| {
+        b.iter(|| {
+            let mut s = 0.0;
+            for i in 0..n as i64 {
+                s += theirs.get([(i % 64) as f64 + 0.5, (i / 64) as f64 + 0.5]);
+            }
+            black_box(s)
+        })
+    });
+    let lf = LayerSim::new(&world(), 0).fields;
+    for (name, spacing) in [("exact", [1u32; 3]), ("coarse lattice", lf.coarse_spacing())] {
+        g.throughput(Throughput::Elements(256 * 256 * 3));
+        g.bench_function(BenchmarkId::new("layer window 256x256x3", name), |b| {
+            b.iter(|| black_box(lf.window(0, 0, 256, 256, spacing, None, (0, 0))))
+        });
+    }
+    g.finish();
+}
+
+fn tiles(c: &mut Criterion) {
+    let mut g = c.benchmark_group("tile");
+    g.sample_size(10)
+        .measurement_time(Duration::from_secs(6))
+        .warm_up_time(Duration::from_secs(1));
+    let w = world();
+    let mut t = 1234.5;
+    for level in [0u32, 2, 4] {
+        let region = Region {
+            x0: 256 * 3,
+            y0: -256 * 2,
+            cols: 256,
+            rows: 256,
+        };
+        g.bench_function(
+            BenchmarkId::new("cold density 256x256 stratocumulus, level", level),
+            |b| {
+                b.iter(|| {
+                    t += 977.0; // a different time (and epoch) every iteration: nothing is reused
+                    black_box(density::density(&w, 0, level, region, t).unwrap())
+                })
+            },
+        );
+    }
+    let region = Region {
+        x0: 0,
+        y0: 0,
+        cols: 256,
+        rows: 256,
+    };
+    for tt in [1e3, 1e12] {
+        g.bench_function(BenchmarkId::new("density 256x256 at t", tt), |b| {
+            b.iter(|| black_box(density::density(&w, 0, 0, region, tt).unwrap()))
+        });
+    }
+    g.finish();
+}
+
+/// Accuracy figures, printed once.
+fn accuracy() {
+    let w = world();
+    // Far-field levels against the downsampled automaton (held-out seed and time).
+    for (seed, t) in [("1", 1000.0), ("99", 86_400.0 * 3.0 + 17.0)] {
+        let wd = Config::embedded().world(seed).unwrap();
+        let region = Region {
+            x0: -512,
+            y0: 256,
+            cols: 512,
+            rows: 512,
+        };
+        let full = density::density(&wd, 0, 0, region, t).unwrap();
+        for level in [1u32, 2, 3, 4, 5] {
+            let s = 1usize << level;
+            let lod_region = Region {
+                x0: region.x0 >> level,
+                y0: region.y0 >> level,
+                cols: 512 / s,
+                rows: 512 / s,
+            };
+            let lod = density::density(&wd, 0, level, lod_region, t).unwrap();
+            let (mut se, mut bias, mut n) = (0f64, 0f64, 0f64);
+            for k in 0..full.depth {
+                for r in 0..lod_region.rows {
+                    for c in 0..lod_region.cols {
+                        let mut m = 0f64;
+                        for dy in 0..s {
+                            for dx in 0..s {
+                                m += full.get(k, r * s + dy, c * s + dx) as f64;
+                            }
+                        }
+                        m /= (s * s) as f64;
+                        let e = lod.get(k, r, c) as f64 - m;
+                        se += e * e;
+                        bias += e;
+                        n += 1.0;
+                    }
+                }
+            }
+            println!(
+                "lod seed {seed} t {t}: level {level}: rmse {:.4}, bias {:+.4}",
+                (se / n).sqrt(),
+                bias / n
+            );
+        }
+    }
+    // Coarse-lattice field error.
+    let lf = LayerSim::new(&w, 0).fields;
+    let sp = lf.coarse_spacing();
+    let exact = lf.window(0, 0, 256, 256, [1; 3], None, (0, 0));
+    let coarse = lf.window(0, 0, 256, 256, sp, None, (0, 0));
+    for (i, name) in [
+        (Which::Humidity, "humidity"),
+        (Which::Activation, "activation"),
+        (Which::Extinction, "extinction"),
+    ] {
+        let i = i as usize;
+        let max = exact.b[i]
+            .iter()
+            .zip(&coarse.b[i])
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max);
+        println!("coarse lattice {name}: spacing {} cells, max error {max:.4}", sp[i]);
+    }
+    // Bounded history against a long continuous run: the same cells at the same step.
+    let sim = LayerSim::new(&w, 0);
+    let layer = &sim.fields.layer;
+    let window = Rect {
+        x0: 0,
+        x1: 128,
+        y0: 0,
+        y1: 128,
+    };
+    for m in [200i64, 208, 215] {
+        let plan = plan_step(layer, m);
+        let run = plan.runs[plan.runs.len() - 1];
+        let long_start = run.start - 400;
+        let mut diffs = 0usize;
+        let mut total = 0usize;
+        let short = sim.run(&RunSpec {
+            reference_step: run.reference,
+            start: run.start,
+            snapshots: vec![m],
+            windows: vec![window; sim.depth()],
+        });
+        let long = sim.run(&RunSpec {
+            reference_step: run.reference,
+            start: long_start,
+            snapshots: vec![m],
+            windows: vec![window; sim.depth()],
+        });
+        for k in 0..sim.depth() {
+            for y in 0..128 {
+                for x in 0..128 {
+                    total += 1;
+                    diffs += (short[0].levels[k].cld_at(x, y) != long[0].levels[k].cld_at(x, y)) as usize;
+                }
+            }
+        }
+        println!(
+            "bounded history at step {m}: run of {} steps vs {} steps differs in {:.4} of cells",
+            m - run.start,
+            m - long_start,
+            diffs as f64 / total as f64
+        );
+    }
+}
+
+fn all(c: &mut Criterion) {
+    accuracy();
+    automaton(c);
+    fields(c);
+    tiles(c);
+}
+
+criterion_group!(benches, all);
+criterion_main!(benches);

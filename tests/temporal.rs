@@ -59,3 +59,62 @@ fn consecutive_steps_change_few_cells_and_epoch_boundaries_no_more() {
         "boundary {boundary} vs ordinary {ordinary}"
     );
 }
+
+fn correlation(a: &[f32], b: &[f32]) -> f64 {
+    let n = a.len() as f64;
+    let (ma, mb) = (
+        a.iter().map(|&v| v as f64).sum::<f64>() / n,
+        b.iter().map(|&v| v as f64).sum::<f64>() / n,
+    );
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (&x, &y) in a.iter().zip(b) {
+        let (dx, dy) = (x as f64 - ma, y as f64 - mb);
+        sab += dx * dy;
+        saa += dx * dx;
+        sbb += dy * dy;
+    }
+    sab / (saa * sbb).sqrt()
+}
+
+#[test]
+fn cloud_masses_travel_with_the_wind_at_their_height() {
+    use cloudscape::density::{Region, density};
+    let world = Config::embedded().world("default").unwrap();
+    let layer = &world.layers[0];
+    let (t0, dt) = (5000.0, 200.0);
+    let a = Region {
+        x0: 0,
+        y0: 0,
+        cols: 128,
+        rows: 128,
+    };
+    let before = density(&world, 0, 0, a, t0).unwrap();
+    for k in [0usize, 9] {
+        let w = layer.wind_at_level(k as u32);
+        let (sx, sy) = (
+            (w[0] * dt / layer.cell_size).round() as i64,
+            (w[1] * dt / layer.cell_size).round() as i64,
+        );
+        let moved = Region {
+            x0: a.x0 + sx,
+            y0: a.y0 + sy,
+            ..a
+        };
+        let after_moved = density(&world, 0, 0, moved, t0 + dt).unwrap();
+        let after_still = density(&world, 0, 0, a, t0 + dt).unwrap();
+        let plane = |g: &cloudscape::density::Grid<f32>| g.data[k * 128 * 128..(k + 1) * 128 * 128].to_vec();
+        let followed = correlation(&plane(&before), &plane(&after_moved));
+        let stayed = correlation(&plane(&before), &plane(&after_still));
+        println!(
+            "level {k}: shift ({sx}, {sy}) cells: correlation {followed:.3} following the wind, {stayed:.3} standing still"
+        );
+        assert!(
+            followed > 0.6,
+            "level {k}: the cloud mass is found downwind ({followed})"
+        );
+        assert!(
+            followed > stayed + 0.2,
+            "level {k}: following the wind beats standing still"
+        );
+    }
+}

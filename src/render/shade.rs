@@ -6,14 +6,21 @@
 //! holding the optical depth accumulated so far. Before a ball adds its own splat, the
 //! buffer at its projected centre is the optical depth toward the sun through every
 //! ball in front of it; the ball's sun transmittance is
-//! `T = exp(−(τ_front + τ_self / 2))` (Beer–Lambert; half of its own centre optical
-//! depth stands for the light reaching its middle). After all balls, the buffer is the
+//! `T = exp(−(τ_front + κ · τ_self))` (Beer–Lambert). `κ` ([`SELF_SHADOW`]) is the
+//! density-weighted mean fraction of a ball's own centre optical depth that light
+//! crosses before reaching matter inside it: along each line half of the line's depth
+//! on average, weighted by the line's density, `κ = ∫S² dA / (2 S(0) ∫S dA) ≈ 0.2853`
+//! (S the splat line integral, over the disc). After all balls, the buffer is the
 //! total optical depth of any sun ray, which gives the ground shadow map.
 
 use crate::density::metaballs::{Lattice, Metaball};
 
 use super::light::{Lighting, dot};
 use super::splats::{SplatSheet, centre_line_integral, line_integral};
+
+/// Mean self-shadowing fraction of a ball's centre optical depth (see the module
+/// docs): `∫S² dA / (2 S(0) ∫S dA)` over the unit disc, by quadrature.
+pub const SELF_SHADOW: f64 = 0.285_28;
 
 /// Largest light-buffer side in texels; larger extents get coarser texels.
 const MAX_LIGHT_TEXELS: usize = 4096;
@@ -213,7 +220,7 @@ pub fn shade(
         let p = rel(b.centre);
         let (a, bb) = (dot(p, u), dot(p, v));
         let front = buffer.tau_at(b.centre);
-        let t_sun = (-(front + 0.5 * tau)).exp().clamp(0.0, 1.0);
+        let t_sun = (-(front + SELF_SHADOW * tau)).exp().clamp(0.0, 1.0);
         let c = b.centre;
         if c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3] {
             let k = sheet.index_for_tau(tau);
@@ -277,9 +284,9 @@ mod tests {
         for w in bb.windows(2) {
             assert!(w[1].sun_transmittance > w[0].sun_transmittance, "{w:?}");
         }
-        // The top ball sees only half of itself: exp(−τ/2).
+        // The top ball sees only itself: exp(−κτ).
         let top = bb.last().unwrap();
-        let expected = (-0.5 * top.tau as f64).exp();
+        let expected = (-SELF_SHADOW * top.tau as f64).exp();
         assert!((top.sun_transmittance as f64 - expected).abs() < 1e-4);
         // The ball below sees its own half plus the ball above at the impact parameter
         // of their horizontal offset (odd levels are shifted by half a spacing in x and y).
@@ -288,12 +295,30 @@ mod tests {
             + (top.centre[1] - second.centre[1]).powi(2))
         .sqrt();
         let front = top.tau as f64 * line_integral(off / 150.0) / centre_line_integral();
-        let expected = (-(front + 0.5 * second.tau as f64)).exp();
+        let expected = (-(front + SELF_SHADOW * second.tau as f64)).exp();
         assert!(
             (second.sun_transmittance as f64 - expected).abs() < 0.02,
             "{} vs {expected}",
             second.sun_transmittance
         );
+    }
+
+    #[test]
+    fn self_shadow_constant_matches_quadrature() {
+        // ∫ S(p)^k 2πp dp over [0, 1], midpoint rule.
+        let n = 20_000;
+        let (mut s1, mut s2) = (0.0, 0.0);
+        for i in 0..n {
+            let p = (i as f64 + 0.5) / n as f64;
+            let s = line_integral(p);
+            s1 += s * p;
+            s2 += s * s * p;
+        }
+        let kappa = s2 / (2.0 * centre_line_integral() * s1);
+        assert!((kappa - SELF_SHADOW).abs() < 1e-4, "{kappa}");
+        // ∫S dA is the volume integral of the field function.
+        let vol = s1 * 2.0 * std::f64::consts::PI / n as f64;
+        assert!((vol - crate::density::metaballs::wyvill_volume_integral()).abs() < 1e-6);
     }
 
     #[test]

@@ -36,14 +36,7 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
     };
     let lighting = Lighting::new(sun, params);
     let sheet = SplatSheet::new(256, 65);
-    let (billboards, _) = shade(
-        &[ball],
-        &lattice,
-        &lighting,
-        &sheet,
-        0.1,
-        [0.0, 0.0, 1e6, 1e6],
-    );
+    let (billboards, _) = shade(&[ball], &lattice, &lighting, &sheet, 0.1, [0.0, 0.0, 1e6, 1e6]);
     assert_eq!(billboards.len(), 1);
     let tau = billboards[0].tau as f64;
 
@@ -57,11 +50,7 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
     // The field on a 10 m grid around the ball.
     let cell = 10.0;
     let m = (2.2 * R / cell) as usize;
-    let origin = [
-        CENTRE[0] - 1.1 * R,
-        CENTRE[1] - 1.1 * R,
-        CENTRE[2] - 1.1 * R,
-    ];
+    let origin = [CENTRE[0] - 1.1 * R, CENTRE[1] - 1.1 * R, CENTRE[2] - 1.1 * R];
     let k = lattice.field_sum();
     let mut grid = Grid::<f32>::new(m, m, m);
     for z in 0..m {
@@ -72,10 +61,7 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
                     origin[1] + (y as f64 + 0.5) * cell,
                     origin[2] + (z as f64 + 0.5) * cell,
                 ];
-                let r = ((p[0] - CENTRE[0]).powi(2)
-                    + (p[1] - CENTRE[1]).powi(2)
-                    + (p[2] - CENTRE[2]).powi(2))
-                .sqrt();
+                let r = ((p[0] - CENTRE[0]).powi(2) + (p[1] - CENTRE[1]).powi(2) + (p[2] - CENTRE[2]).powi(2)).sqrt();
                 let i = grid.index(z, y, x);
                 grid.data[i] = (wyvill(r / R) / k) as f32;
             }
@@ -93,11 +79,7 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
         origin[1] + m as f64 * cell,
         origin[2] + m as f64 * cell,
     ];
-    let volume = Volume::new(
-        grid,
-        place,
-        [origin[0], origin[1], origin[2], top[0], top[1], top[2]],
-    );
+    let volume = Volume::new(grid, place, [origin[0], origin[1], origin[2], top[0], top[1], top[2]]);
     let params = MarchParams {
         step: 4.0,
         shadow_step: 8.0,
@@ -112,8 +94,7 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
 fn compositor_and_ray_marcher_agree_on_an_isolated_metaball() {
     // A thin ball (centre optical depth ≈ 0.5) lit from the side.
     let sun = Sun::new(90.0, 30.0).unwrap();
-    let extinction =
-        0.5 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
+    let extinction = 0.5 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
     let (drawn, marched, tau) = single_ball_scene(extinction, sun);
     assert!((tau - 0.5).abs() < 1e-3, "tau {tau}");
     // Coverage: the splat's opacity is Beer–Lambert of the exact line integral, so
@@ -129,17 +110,11 @@ fn compositor_and_ray_marcher_agree_on_an_isolated_metaball() {
     // ball; the marcher varies it through the ball (e^0 … e^−τ). Stated tolerance:
     // total radiance within 3 %, every pixel within 8 % of the peak radiance.
     let lum = |c: &[f32; 3]| (c[0] + c[1] + c[2]) as f64;
-    let (sd, sm): (f64, f64) = (
-        drawn.rgb.iter().map(lum).sum(),
-        marched.rgb.iter().map(lum).sum(),
-    );
+    let (sd, sm): (f64, f64) = (drawn.rgb.iter().map(lum).sum(), marched.rgb.iter().map(lum).sum());
     assert!((sd / sm - 1.0).abs() < 0.03, "total radiance {sd} vs {sm}");
     let peak = marched.rgb.iter().map(lum).fold(0.0, f64::max);
     for (a, b) in drawn.rgb.iter().zip(&marched.rgb) {
-        assert!(
-            (lum(a) - lum(b)).abs() < 0.08 * peak,
-            "{a:?} vs {b:?} (peak {peak})"
-        );
+        assert!((lum(a) - lum(b)).abs() < 0.08 * peak, "{a:?} vs {b:?} (peak {peak})");
     }
 }
 
@@ -160,11 +135,7 @@ fn extremes_render_finite() {
                     .flatten()
                     .all(|v| v.is_finite() && *v >= 0.0 && *v < 10.0)
             );
-            assert!(
-                img.alpha
-                    .iter()
-                    .all(|a| a.is_finite() && (0.0..=1.0).contains(a))
-            );
+            assert!(img.alpha.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
         }
     }
 }

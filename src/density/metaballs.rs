@@ -110,20 +110,13 @@ impl Lattice {
 
     /// The mean of `Σ_i f(|x − c_i|/R)` over space: (balls per volume) × ∫f over the ball.
     pub fn field_sum(&self) -> f64 {
-        wyvill_volume_integral() * self.radius.powi(3)
-            / (self.spacing * self.spacing * self.vertical_spacing)
+        wyvill_volume_integral() * self.radius.powi(3) / (self.spacing * self.spacing * self.vertical_spacing)
     }
 
     /// The metaballs whose centres lie in `owned` = [x0, y0, x1, y1) (world metres),
     /// each collecting density from `grid` placed at `place`. Balls with density below
     /// `min_density` are dropped. Ordered by (k, j, i); deterministic.
-    pub fn collect(
-        &self,
-        grid: &Grid<f32>,
-        place: &GridPlacement,
-        owned: [f64; 4],
-        min_density: f32,
-    ) -> Vec<Metaball> {
+    pub fn collect(&self, grid: &Grid<f32>, place: &GridPlacement, owned: [f64; 4], min_density: f32) -> Vec<Metaball> {
         use rayon::prelude::*;
         let s = self.spacing;
         let mut rows = Vec::new();
@@ -235,10 +228,7 @@ mod tests {
             / n as f64
             * 4.0
             * std::f64::consts::PI;
-        assert!(
-            (numeric - wyvill_volume_integral()).abs() < 1e-8,
-            "{numeric}"
-        );
+        assert!((numeric - wyvill_volume_integral()).abs() < 1e-8, "{numeric}");
     }
 
     #[test]
@@ -269,11 +259,7 @@ mod tests {
         assert_eq!(lat.centre(0, 0, 1)[1] - lat.centre(0, 0, 0)[1], 100.0);
         let balls = lat.collect(&grid, &place, [0.0, 0.0, 4000.0, 4000.0], 0.001);
         assert_eq!(balls.len(), 20 * 20 * 5);
-        assert!(
-            balls
-                .iter()
-                .all(|b| b.centre[0] >= 0.0 && b.centre[0] < 4000.0)
-        );
+        assert!(balls.iter().all(|b| b.centre[0] >= 0.0 && b.centre[0] < 4000.0));
     }
 
     #[test]
@@ -293,10 +279,8 @@ mod tests {
         assert!(!balls.is_empty() && balls.len() < 30, "{}", balls.len());
         // Every kept ball lies within its radius of the one dense cell (1050, 1050, 150).
         for b in &balls {
-            let d = ((b.centre[0] - 1050.0).powi(2)
-                + (b.centre[1] - 1050.0).powi(2)
-                + (b.centre[2] - 150.0).powi(2))
-            .sqrt();
+            let d = ((b.centre[0] - 1050.0).powi(2) + (b.centre[1] - 1050.0).powi(2) + (b.centre[2] - 150.0).powi(2))
+                .sqrt();
             assert!(d < 150.0, "{b:?}");
         }
     }
@@ -321,8 +305,7 @@ mod tests {
                 for j in j0 - 3..=j0 + 3 {
                     for i in i0 - 3..=i0 + 3 {
                         let c = lat.centre(i, j, k);
-                        let d =
-                            ((x - c[0]).powi(2) + (y - c[1]).powi(2) + (z - c[2]).powi(2)).sqrt();
+                        let d = ((x - c[0]).powi(2) + (y - c[1]).powi(2) + (z - c[2]).powi(2)).sqrt();
                         s += wyvill(d / 250.0);
                     }
                 }

@@ -155,13 +155,7 @@ pub fn build(tile: &ShadedTile) -> Atlas {
         let width = if impostors.is_empty() {
             1
         } else {
-            ATLAS_WIDTH.min(
-                order
-                    .iter()
-                    .map(|&i| rects[i].0 + dims[i].0)
-                    .max()
-                    .unwrap_or(1),
-            )
+            ATLAS_WIDTH.min(order.iter().map(|&i| rects[i].0 + dims[i].0).max().unwrap_or(1))
         };
         let mut atlas = Image::new(width, height);
         let mut entries = Vec::new();
@@ -195,8 +189,7 @@ pub fn build(tile: &ShadedTile) -> Atlas {
         manifest["width"] = json!(width);
         manifest["height"] = json!(height);
         manifest["alpha"] = json!("straight");
-        manifest["view"] =
-            json!("orthographic, horizontal, looking north (+y); rect x = east, rect y = down");
+        manifest["view"] = json!("orthographic, horizontal, looking north (+y); rect x = east, rect y = down");
         manifest["impostors"] = serde_json::Value::Array(entries);
         return Atlas {
             png: atlas.to_png_straight_alpha(),

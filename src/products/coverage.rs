@@ -33,12 +33,10 @@ pub fn encode_png_for_tile(
     limits: &Limits,
 ) -> Result<Vec<u8>, RenderError> {
     check_time(t)?;
-    let l = world.layers.get(layer).ok_or_else(|| {
-        RenderError::BadRequest(format!(
-            "layer {layer} does not exist in world `{}`",
-            world.name
-        ))
-    })?;
+    let l = world
+        .layers
+        .get(layer)
+        .ok_or_else(|| RenderError::BadRequest(format!("layer {layer} does not exist in world `{}`", world.name)))?;
     let region: Region = tile.region()?;
     region.check(tile.z, l.depth, limits)?;
     let grid = density::density(world, layer, tile.z, region, t)?;

@@ -16,11 +16,7 @@ pub fn encode_png_map(tile: &ShadedTile) -> Vec<u8> {
     let n = TILE_COLUMNS;
     let mut bytes = Vec::with_capacity(n * n);
     for row in (0..n).rev() {
-        bytes.extend(
-            tile.shadow[row * n..(row + 1) * n]
-                .iter()
-                .map(|&t| to_u8(t)),
-        );
+        bytes.extend(tile.shadow[row * n..(row + 1) * n].iter().map(|&t| to_u8(t)));
     }
     encode_png(n, n, png::ColorType::Grayscale, &bytes)
 }

@@ -43,9 +43,7 @@ pub fn encode_png_sheet(quality: Quality) -> Vec<u8> {
 pub fn encode_json_sheet(quality: Quality) -> Vec<u8> {
     let sheet = quality.splat_sheet();
     let cols = grid_columns(sheet.count);
-    let taus: Vec<f64> = (0..sheet.count)
-        .map(|k| sheet.tau(k) as f32 as f64)
-        .collect();
+    let taus: Vec<f64> = (0..sheet.count).map(|k| sheet.tau(k) as f32 as f64).collect();
     let v = json!({
         "quality": quality.as_str(),
         "count": sheet.count,

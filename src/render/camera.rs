@@ -36,16 +36,8 @@ impl Camera {
     }
 
     /// A checked camera.
-    pub fn new(
-        position: [f64; 3],
-        yaw_deg: f64,
-        pitch_deg: f64,
-        fov_deg: f64,
-    ) -> Result<Camera, String> {
-        if !position
-            .iter()
-            .all(|v| v.is_finite() && v.abs() <= MAX_CAMERA_COORD)
-        {
+    pub fn new(position: [f64; 3], yaw_deg: f64, pitch_deg: f64, fov_deg: f64) -> Result<Camera, String> {
+        if !position.iter().all(|v| v.is_finite() && v.abs() <= MAX_CAMERA_COORD) {
             return Err("camera position must be finite and within ±1e12 metres".into());
         }
         if !(pitch_deg.is_finite() && (-90.0..=90.0).contains(&pitch_deg)) {
@@ -72,11 +64,7 @@ impl Camera {
     /// (forward, right, up) unit vectors.
     pub fn basis(&self) -> ([f64; 3], [f64; 3], [f64; 3]) {
         let (yaw, pitch) = (self.yaw_deg.to_radians(), self.pitch_deg.to_radians());
-        let forward = [
-            yaw.sin() * pitch.cos(),
-            yaw.cos() * pitch.cos(),
-            pitch.sin(),
-        ];
+        let forward = [yaw.sin() * pitch.cos(), yaw.cos() * pitch.cos(), pitch.sin()];
         let right = [yaw.cos(), -yaw.sin(), 0.0];
         let up = cross(right, forward);
         (forward, right, up)
@@ -160,18 +148,13 @@ impl View {
         let sy = self.height as f64 / 2.0 - py;
         match self.kind {
             ViewKind::Perspective { focal } => {
-                let d = [0, 1, 2]
-                    .map(|i| self.forward[i] * focal + self.right[i] * sx + self.up[i] * sy);
+                let d = [0, 1, 2].map(|i| self.forward[i] * focal + self.right[i] * sx + self.up[i] * sy);
                 let n = dot(d, d).sqrt();
                 (self.origin, d.map(|c| c / n))
             }
-            ViewKind::Orthographic {
-                metres_per_pixel: m,
-            } => {
-                let o = [0, 1, 2].map(|i| {
-                    self.origin[i] + (self.right[i] * sx + self.up[i] * sy) * m
-                        - self.forward[i] * 1e6
-                });
+            ViewKind::Orthographic { metres_per_pixel: m } => {
+                let o = [0, 1, 2]
+                    .map(|i| self.origin[i] + (self.right[i] * sx + self.up[i] * sy) * m - self.forward[i] * 1e6);
                 (o, self.forward)
             }
         }
@@ -179,11 +162,7 @@ impl View {
 
     /// Where `p` lands; `None` behind the eye (perspective) or not finite.
     pub fn project(&self, p: [f64; 3]) -> Option<Projected> {
-        let r = [
-            p[0] - self.origin[0],
-            p[1] - self.origin[1],
-            p[2] - self.origin[2],
-        ];
+        let r = [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]];
         let (x, y, depth) = (dot(r, self.right), dot(r, self.up), dot(r, self.forward));
         let scale = match self.kind {
             ViewKind::Perspective { focal } => {
@@ -211,17 +190,9 @@ impl View {
     pub fn direction_to(&self, p: [f64; 3]) -> [f64; 3] {
         match self.kind {
             ViewKind::Perspective { .. } => {
-                let r = [
-                    p[0] - self.origin[0],
-                    p[1] - self.origin[1],
-                    p[2] - self.origin[2],
-                ];
+                let r = [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]];
                 let n = dot(r, r).sqrt();
-                if n > 0.0 {
-                    r.map(|c| c / n)
-                } else {
-                    self.forward
-                }
+                if n > 0.0 { r.map(|c| c / n) } else { self.forward }
             }
             ViewKind::Orthographic { .. } => self.forward,
         }
@@ -229,11 +200,7 @@ impl View {
 
     /// Distance used to sort billboards back to front.
     pub fn sort_distance(&self, p: [f64; 3]) -> f64 {
-        let r = [
-            p[0] - self.origin[0],
-            p[1] - self.origin[1],
-            p[2] - self.origin[2],
-        ];
+        let r = [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]];
         match self.kind {
             ViewKind::Perspective { .. } => dot(r, r).sqrt(),
             ViewKind::Orthographic { .. } => dot(r, self.forward),
@@ -250,18 +217,11 @@ mod tests {
         let cam = Camera::parse("0,0,100,90,0,60").unwrap();
         let (f, r, u) = cam.basis();
         assert!((f[0] - 1.0).abs() < 1e-12 && f[1].abs() < 1e-12);
-        assert!(
-            (r[1] + 1.0).abs() < 1e-12,
-            "right of east-facing is south: {r:?}"
-        );
+        assert!((r[1] + 1.0).abs() < 1e-12, "right of east-facing is south: {r:?}");
         assert!((u[2] - 1.0).abs() < 1e-12);
         let view = View::perspective(&cam, 64, 48);
         let (o, d) = view.ray(10.5, 30.5);
-        let p = [
-            o[0] + d[0] * 500.0,
-            o[1] + d[1] * 500.0,
-            o[2] + d[2] * 500.0,
-        ];
+        let p = [o[0] + d[0] * 500.0, o[1] + d[1] * 500.0, o[2] + d[2] * 500.0];
         let q = view.project(p).unwrap();
         assert!((q.x - 10.5).abs() < 1e-9 && (q.y - 30.5).abs() < 1e-9);
         assert!(view.project([-10.0, 0.0, 100.0]).is_none());

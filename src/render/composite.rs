@@ -26,13 +26,7 @@ const BAND_ROWS: usize = 16;
 const NEAR_CLIP_RADII: f64 = 0.5;
 
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
-pub fn composite(
-    image: &mut Image,
-    billboards: &[Billboard],
-    sheet: &SplatSheet,
-    lighting: &Lighting,
-    view: &View,
-) {
+pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
     struct Item {
         dist: f64,
         x: f64,
@@ -46,9 +40,7 @@ pub fn composite(
         .filter_map(|b| {
             let p = view.project(b.centre)?;
             let r = b.radius as f64;
-            if p.depth < NEAR_CLIP_RADII * r
-                && matches!(view.kind, super::camera::ViewKind::Perspective { .. })
-            {
+            if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, super::camera::ViewKind::Perspective { .. }) {
                 return None;
             }
             let r_px = r * p.scale;

@@ -25,10 +25,7 @@ impl Image {
 
     /// Display values in [0, 1]: tone-mapped, gamma-encoded RGB (alpha ignored).
     pub fn display(&self) -> Vec<[f32; 3]> {
-        self.rgb
-            .iter()
-            .map(|c| c.map(|v| tone_map(v as f64) as f32))
-            .collect()
+        self.rgb.iter().map(|c| c.map(|v| tone_map(v as f64) as f32)).collect()
     }
 
     /// An opaque 8-bit sRGB-ish PNG of the display values.
@@ -69,8 +66,7 @@ pub fn encode_png(width: usize, height: usize, colour: png::ColorType, data: &[u
         enc.set_depth(png::BitDepth::Eight);
         enc.set_compression(png::Compression::Fast);
         let mut w = enc.write_header().expect("in-memory PNG header");
-        w.write_image_data(data)
-            .expect("PNG data matches its dimensions");
+        w.write_image_data(data).expect("PNG data matches its dimensions");
     }
     out
 }
@@ -114,8 +110,7 @@ pub fn ssim(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 
         let vx = (sxx[i] - mu_x * mu_x).max(0.0);
         let vy = (syy[i] - mu_y * mu_y).max(0.0);
         let cov = sxy[i] - mu_x * mu_y;
-        total += ((2.0 * mu_x * mu_y + c1) * (2.0 * cov + c2))
-            / ((mu_x * mu_x + mu_y * mu_y + c1) * (vx + vy + c2));
+        total += ((2.0 * mu_x * mu_y + c1) * (2.0 * cov + c2)) / ((mu_x * mu_x + mu_y * mu_y + c1) * (vx + vy + c2));
     }
     total / x.len() as f64
 }

@@ -126,13 +126,9 @@ impl Lighting {
         };
         let sun_rgb = beta.map(|b| intensity * visible * (-b * air_mass).exp());
         let daylight = 0.03 + 0.97 * smoothstep(-12.0, 10.0, el);
-        let ambient_rgb = params.ambient.map(|a| {
-            if a.is_finite() {
-                a.max(0.0) * daylight
-            } else {
-                0.0
-            }
-        });
+        let ambient_rgb = params
+            .ambient
+            .map(|a| if a.is_finite() { a.max(0.0) * daylight } else { 0.0 });
         Lighting {
             sun_dir: sun.direction(),
             sun_rgb,
@@ -211,8 +207,7 @@ mod tests {
     #[test]
     fn phase_is_normalised() {
         for g in [-0.5, 0.0, 0.3, 0.7] {
-            let total =
-                integrate_over_sphere(|mu| henyey_greenstein(g, mu)) / (4.0 * std::f64::consts::PI);
+            let total = integrate_over_sphere(|mu| henyey_greenstein(g, mu)) / (4.0 * std::f64::consts::PI);
             assert!((total - 1.0).abs() < 1e-4, "g={g}: {total}");
         }
         let p = Phase::default();
@@ -232,10 +227,7 @@ mod tests {
                     mix: 0.5,
                 }
                 .eval(mu);
-                assert!(
-                    v.is_finite() && v >= 0.0 && v <= 2.0e4,
-                    "g={g} mu={mu}: {v}"
-                );
+                assert!(v.is_finite() && v >= 0.0 && v <= 2.0e4, "g={g} mu={mu}: {v}");
             }
         }
     }

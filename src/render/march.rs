@@ -118,13 +118,7 @@ impl Volume {
         let (tx, ty, tz) = (q[0] - fx, q[1] - fy, q[2] - fz);
         let (x0, y0, z0) = (fx as i64, fy as i64, fz as i64);
         let at = |x: i64, y: i64, z: i64| -> f64 {
-            if x < 0
-                || y < 0
-                || z < 0
-                || x as usize >= g.cols
-                || y as usize >= g.rows
-                || z as usize >= g.depth
-            {
+            if x < 0 || y < 0 || z < 0 || x as usize >= g.cols || y as usize >= g.rows || z as usize >= g.depth {
                 0.0
             } else {
                 g.data[(z as usize * g.rows + y as usize) * g.cols + x as usize] as f64
@@ -152,8 +146,7 @@ impl Volume {
         if (0..3).any(|i| b[i] < 0.0 || b[i] >= self.brick_dims[i] as f64) {
             return None;
         }
-        let idx = (b[2] as usize * self.brick_dims[1] + b[1] as usize) * self.brick_dims[0]
-            + b[0] as usize;
+        let idx = (b[2] as usize * self.brick_dims[1] + b[1] as usize) * self.brick_dims[0] + b[0] as usize;
         if self.bricks[idx] > 0.0 {
             return None;
         }
@@ -196,13 +189,7 @@ impl Volume {
 }
 
 /// The volumes a ray crosses within [t_min, t_max], sorted by entry.
-fn intervals(
-    volumes: &[Volume],
-    o: [f64; 3],
-    d: [f64; 3],
-    t_min: f64,
-    t_max: f64,
-) -> Vec<(usize, f64, f64)> {
+fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64, t_max: f64) -> Vec<(usize, f64, f64)> {
     let mut v: Vec<(usize, f64, f64)> = volumes
         .iter()
         .enumerate()
@@ -213,13 +200,7 @@ fn intervals(
 }
 
 /// Optical depth from `p` toward the sun through all volumes (capped at `max_shadow_tau`).
-pub fn shadow_tau(
-    volumes: &[Volume],
-    p: [f64; 3],
-    sun: [f64; 3],
-    extinction: f64,
-    params: &MarchParams,
-) -> f64 {
+pub fn shadow_tau(volumes: &[Volume], p: [f64; 3], sun: [f64; 3], extinction: f64, params: &MarchParams) -> f64 {
     let mut tau = 0.0;
     for (i, t0, t1) in intervals(volumes, p, sun, 0.0, f64::INFINITY) {
         let vol = &volumes[i];
@@ -231,9 +212,7 @@ pub fn shadow_tau(
             }
             let dt = params.shadow_step.min(t1 - t);
             let m = t + 0.5 * dt;
-            tau += extinction
-                * vol.density([p[0] + sun[0] * m, p[1] + sun[1] * m, p[2] + sun[2] * m])
-                * dt;
+            tau += extinction * vol.density([p[0] + sun[0] * m, p[1] + sun[1] * m, p[2] + sun[2] * m]) * dt;
             if tau > params.max_shadow_tau {
                 return params.max_shadow_tau;
             }
@@ -253,11 +232,7 @@ pub fn march_ray(
     t_max: f64,
 ) -> ([f64; 3], f64) {
     let sigma_max = lighting.params.extinction;
-    let sigma_max = if sigma_max.is_finite() {
-        sigma_max.max(0.0)
-    } else {
-        1e6
-    };
+    let sigma_max = if sigma_max.is_finite() { sigma_max.max(0.0) } else { 1e6 };
     let sun = lighting.sun_dir;
     let phase = lighting.params.phase.eval(dot(d, sun));
     let sun_up = lighting.sun_rgb.iter().any(|&c| c > 0.0);
@@ -300,13 +275,7 @@ pub fn march_ray(
 /// Renders `view` over `volumes`: clouds, then the sky or the ground (at altitude 0,
 /// shadowed by a shadow ray) behind them. Rows are independent, so the image does
 /// not depend on the thread count.
-pub fn render(
-    volumes: &[Volume],
-    lighting: &Lighting,
-    params: &MarchParams,
-    view: &View,
-    background: bool,
-) -> Image {
+pub fn render(volumes: &[Volume], lighting: &Lighting, params: &MarchParams, view: &View, background: bool) -> Image {
     let mut img = Image::new(view.width, view.height);
     let width = view.width;
     let rows: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..view.height)
@@ -350,14 +319,7 @@ fn trace(
     let bg = if ground_t.is_finite() {
         let g = [o[0] + d[0] * ground_t, o[1] + d[1] * ground_t, 0.0];
         let t_sun = if lighting.sun_dir[2] > 0.0 {
-            (-shadow_tau(
-                volumes,
-                g,
-                lighting.sun_dir,
-                lighting.params.extinction,
-                params,
-            ))
-            .exp()
+            (-shadow_tau(volumes, g, lighting.sun_dir, lighting.params.extinction, params)).exp()
         } else {
             1.0
         };

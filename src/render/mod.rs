@@ -90,12 +90,7 @@ pub struct QualitySettings {
 }
 
 impl Quality {
-    pub const ALL: [Quality; 4] = [
-        Quality::Fast,
-        Quality::Balanced,
-        Quality::Accurate,
-        Quality::Reference,
-    ];
+    pub const ALL: [Quality; 4] = [Quality::Fast, Quality::Balanced, Quality::Accurate, Quality::Reference];
 
     pub fn parse(s: &str) -> Option<Quality> {
         match s {

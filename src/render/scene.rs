@@ -60,14 +60,9 @@ pub struct Rendered {
 /// Parses `WxH`.
 pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
     let parts: Vec<&str> = s.split(['x', 'X']).collect();
-    let nums: Vec<usize> = parts
-        .iter()
-        .filter_map(|p| p.trim().parse::<usize>().ok())
-        .collect();
+    let nums: Vec<usize> = parts.iter().filter_map(|p| p.trim().parse::<usize>().ok()).collect();
     if parts.len() != 2 || nums.len() != 2 || nums[0] == 0 || nums[1] == 0 {
-        return Err(format!(
-            "size must be WxH with positive integers, got `{s}`"
-        ));
+        return Err(format!("size must be WxH with positive integers, got `{s}`"));
     }
     Ok((nums[0], nums[1]))
 }
@@ -75,9 +70,7 @@ pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
 fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
     crate::density::check_time(req.t)?;
     if req.width == 0 || req.height == 0 {
-        return Err(RenderError::BadRequest(
-            "the image must be at least 1×1 pixels".into(),
-        ));
+        return Err(RenderError::BadRequest("the image must be at least 1×1 pixels".into()));
     }
     let pixels = req.width.saturating_mul(req.height);
     let max = if req.quality == Quality::Reference {
@@ -95,11 +88,7 @@ fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
 }
 
 /// The tiles (layer, tile) the camera sees, per the level choice above.
-pub fn plan(
-    world: &World,
-    config: &Config,
-    req: &RenderRequest,
-) -> Result<Vec<(usize, TileId)>, RenderError> {
+pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(usize, TileId)>, RenderError> {
     check_request(req)?;
     let lod_pixels = req.quality.settings().lod_pixels;
     let cam = &req.camera;
@@ -117,9 +106,7 @@ pub fn plan(
             z_top += 1;
         }
         let s = tile_size(z_top);
-        let range = |c: f64| {
-            ((c - VIEW_DISTANCE) / s).floor() as i64..=((c + VIEW_DISTANCE) / s).floor() as i64
-        };
+        let range = |c: f64| ((c - VIEW_DISTANCE) / s).floor() as i64..=((c + VIEW_DISTANCE) / s).floor() as i64;
         let mut stack: Vec<TileId> = Vec::new();
         for y in range(p[1]) {
             for x in range(p[0]) {
@@ -147,13 +134,7 @@ pub fn plan(
                             r[0] * up[0] + r[1] * up[1] + r[2] * up[2],
                             r[0] * forward[0] + r[1] * forward[1] + r[2] * forward[2],
                         );
-                        let tests = [
-                            f < 0.0,
-                            a > f * tan_h,
-                            a < -f * tan_h,
-                            b > f * tan_v,
-                            b < -f * tan_v,
-                        ];
+                        let tests = [f < 0.0, a > f * tan_h, a < -f * tan_h, b > f * tan_v, b < -f * tan_v];
                         for i in 0..5 {
                             outside[i] &= tests[i];
                         }
@@ -196,32 +177,16 @@ pub fn plan(
 
 /// The sun of a request: given, or from the world clock.
 pub fn request_sun(config: &Config, req: &RenderRequest) -> Sun {
-    req.sun
-        .unwrap_or_else(|| Sun::from_clock(req.t, &config.sun))
+    req.sun.unwrap_or_else(|| Sun::from_clock(req.t, &config.sun))
 }
 
 /// Plans the view and shades its tiles (in parallel).
-pub fn prepare(
-    world: &World,
-    config: &Config,
-    req: &RenderRequest,
-) -> Result<Vec<ShadedTile>, RenderError> {
+pub fn prepare(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<ShadedTile>, RenderError> {
     let tiles = plan(world, config, req)?;
     let sun = request_sun(config, req);
     tiles
         .par_iter()
-        .map(|&(layer, tile)| {
-            shade_tile(
-                world,
-                layer,
-                tile,
-                req.t,
-                req.quality,
-                sun,
-                &req.params,
-                &config.limits,
-            )
-        })
+        .map(|&(layer, tile)| shade_tile(world, layer, tile, req.t, req.quality, sun, &req.params, &config.limits))
         .collect()
 }
 
@@ -233,10 +198,7 @@ pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> I
     let mut image = background(&view, &lighting, |x, y| {
         tiles.iter().map(|t| t.shadow_at(x, y)).product()
     });
-    let all: Vec<_> = tiles
-        .iter()
-        .flat_map(|t| t.billboards.iter().copied())
-        .collect();
+    let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards.iter().copied()).collect();
     composite(&mut image, &all, &sheet, &lighting, &view);
     image
 }
@@ -273,22 +235,13 @@ pub fn reference_step(tiles: &[ShadedTile], quality: Quality) -> f64 {
 }
 
 /// Draws `volumes` with the ray marcher for the exact `sun`.
-pub fn draw_reference(
-    volumes: &[Volume],
-    req: &RenderRequest,
-    sun: Sun,
-    params: &MarchParams,
-) -> Image {
+pub fn draw_reference(volumes: &[Volume], req: &RenderRequest, sun: Sun, params: &MarchParams) -> Image {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun, req.params);
     march::render(volumes, &lighting, params, &view, true)
 }
 
-fn background(
-    view: &View,
-    lighting: &Lighting,
-    ground_t: impl Fn(f64, f64) -> f64 + Sync,
-) -> Image {
+fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
     img.rgb.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
@@ -309,11 +262,7 @@ fn background(
 
 /// Renders a request: the billboard compositor for `fast | balanced | accurate`, the
 /// ray marcher for `reference`.
-pub fn render(
-    world: &World,
-    config: &Config,
-    req: &RenderRequest,
-) -> Result<Rendered, RenderError> {
+pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Rendered, RenderError> {
     let sun = request_sun(config, req);
     let tiles = prepare(world, config, req)?;
     let ids = tiles.iter().map(|t| (t.layer, t.tile)).collect();
@@ -369,25 +318,14 @@ mod tests {
         }
         // Looking straight down from just above the clouds sees fewer tiles than a
         // wide view toward the horizon.
-        let down = plan(
-            &world,
-            &config,
-            &req("1000,1000,9000,0,-90,20", Quality::Balanced),
-        )
-        .unwrap();
+        let down = plan(&world, &config, &req("1000,1000,9000,0,-90,20", Quality::Balanced)).unwrap();
         assert!(down.len() <= tiles.len());
         let mut big = r;
         big.width = 100_000;
-        assert!(matches!(
-            plan(&world, &config, &big),
-            Err(RenderError::TooMuchWork(_))
-        ));
+        assert!(matches!(plan(&world, &config, &big), Err(RenderError::TooMuchWork(_))));
         let mut bad_t = r;
         bad_t.t = -1.0;
-        assert!(matches!(
-            plan(&world, &config, &bad_t),
-            Err(RenderError::Sim(_))
-        ));
+        assert!(matches!(plan(&world, &config, &bad_t), Err(RenderError::Sim(_))));
     }
 
     #[test]

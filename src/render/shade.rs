@@ -89,11 +89,7 @@ pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
 
 impl LightBuffer {
     fn coords(&self, p: [f64; 3]) -> (f64, f64) {
-        let r = [
-            p[0] - self.origin[0],
-            p[1] - self.origin[1],
-            p[2] - self.origin[2],
-        ];
+        let r = [p[0] - self.origin[0], p[1] - self.origin[1], p[2] - self.origin[2]];
         (dot(r, self.u), dot(r, self.v))
     }
 
@@ -147,9 +143,7 @@ impl LightBuffer {
 /// Optical depth through the centre of a ball of density `d` on `lattice`:
 /// `σ · (d / K) · R · S(0)` with K the lattice's field sum.
 pub fn ball_tau(density: f64, lattice: &Lattice, extinction: f64) -> f64 {
-    let t = extinction.max(0.0) * density.max(0.0) / lattice.field_sum()
-        * lattice.radius
-        * centre_line_integral();
+    let t = extinction.max(0.0) * density.max(0.0) / lattice.field_sum() * lattice.radius * centre_line_integral();
     // NaN (0 · ∞) means no matter; ∞ is capped so sums stay finite (e^−1e6 = 0 anyway).
     if t.is_nan() { 0.0 } else { t.min(1e6) }
 }
@@ -224,9 +218,7 @@ pub fn shade(
         let c = b.centre;
         if c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3] {
             let k = sheet.index_for_tau(tau);
-            let colour = lighting
-                .source_with_phase(t_sun, 1.0)
-                .map(|x| x.clamp(0.0, 2.0) as f32);
+            let colour = lighting.source_with_phase(t_sun, 1.0).map(|x| x.clamp(0.0, 2.0) as f32);
             shaded.push((
                 i,
                 Billboard {
@@ -272,14 +264,7 @@ mod tests {
         let (balls, lat) = column_of_balls(6, 0.8);
         let l = Lighting::new(Sun::new(0.0, 89.0).unwrap(), ShadingParams::default());
         let sheet = SplatSheet::new(64, 17);
-        let (bb, _) = shade(
-            &balls,
-            &lat,
-            &l,
-            &sheet,
-            0.3,
-            [0.0, 0.0, 10_000.0, 10_000.0],
-        );
+        let (bb, _) = shade(&balls, &lat, &l, &sheet, 0.3, [0.0, 0.0, 10_000.0, 10_000.0]);
         assert_eq!(bb.len(), 6);
         for w in bb.windows(2) {
             assert!(w[1].sun_transmittance > w[0].sun_transmittance, "{w:?}");
@@ -291,9 +276,7 @@ mod tests {
         // The ball below sees its own half plus the ball above at the impact parameter
         // of their horizontal offset (odd levels are shifted by half a spacing in x and y).
         let second = bb[bb.len() - 2];
-        let off = ((top.centre[0] - second.centre[0]).powi(2)
-            + (top.centre[1] - second.centre[1]).powi(2))
-        .sqrt();
+        let off = ((top.centre[0] - second.centre[0]).powi(2) + (top.centre[1] - second.centre[1]).powi(2)).sqrt();
         let front = top.tau as f64 * line_integral(off / 150.0) / centre_line_integral();
         let expected = (-(front + SELF_SHADOW * second.tau as f64)).exp();
         assert!(
@@ -344,11 +327,7 @@ mod tests {
                             assert!(b.tau.is_finite() && b.tau >= 0.0);
                             assert!((0.0..=1.0).contains(&b.sun_transmittance));
                             assert!((0.0..1.0).contains(&b.opacity));
-                            assert!(
-                                b.colour
-                                    .iter()
-                                    .all(|c| c.is_finite() && (0.0..=2.0).contains(c))
-                            );
+                            assert!(b.colour.iter().all(|c| c.is_finite() && (0.0..=2.0).contains(c)));
                         }
                         let t = buf.transmittance_at([550.0, 550.0, 0.0]);
                         assert!(t.is_finite() && (0.0..=1.0).contains(&t));

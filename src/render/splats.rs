@@ -98,10 +98,7 @@ impl SplatSheet {
         let c = (n - 1) as f64 / 2.0;
         let u = (c + dx * c).clamp(0.0, (n - 1) as f64);
         let v = (c + dy * c).clamp(0.0, (n - 1) as f64);
-        let (u0, v0) = (
-            (u.floor() as usize).min(n - 2),
-            (v.floor() as usize).min(n - 2),
-        );
+        let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
         let (fu, fv) = (u - u0 as f64, v - v0 as f64);
         let base = k.min(self.count - 1) * n * n;
         let at = |uu: usize, vv: usize| self.alpha[base + vv * n + uu] as f64;
@@ -157,10 +154,7 @@ mod tests {
                 let p = (((u as f64 - 32.0).powi(2) + (v as f64 - 32.0).powi(2)).sqrt()) / 32.0;
                 let expected = 1.0 - (-tau * numeric_line_integral(p) / s0).exp();
                 let got = sheet.alpha[(k * 65 + v) * 65 + u] as f64;
-                assert!(
-                    (got - expected).abs() < 1e-5,
-                    "k={k} ({u},{v}): {got} vs {expected}"
-                );
+                assert!((got - expected).abs() < 1e-5, "k={k} ({u},{v}): {got} vs {expected}");
             }
         }
         // Splats grow with index (density).

@@ -39,10 +39,7 @@ impl Sun {
     /// A sun from azimuth and elevation in degrees; `None` unless both are finite
     /// and the elevation lies within [-90, 90]. The azimuth is wrapped to [0, 360).
     pub fn new(azimuth_deg: f64, elevation_deg: f64) -> Option<Sun> {
-        if !(azimuth_deg.is_finite()
-            && elevation_deg.is_finite()
-            && (-90.0..=90.0).contains(&elevation_deg))
-        {
+        if !(azimuth_deg.is_finite() && elevation_deg.is_finite() && (-90.0..=90.0).contains(&elevation_deg)) {
             return None;
         }
         let mut az = azimuth_deg.rem_euclid(360.0);
@@ -62,9 +59,8 @@ impl Sun {
         if parts.len() != 2 || nums.len() != 2 {
             return Err(format!("sun must be AZ,EL in degrees, got `{s}`"));
         }
-        Sun::new(nums[0], nums[1]).ok_or_else(|| {
-            format!("sun must have a finite azimuth and an elevation within [-90, 90], got `{s}`")
-        })
+        Sun::new(nums[0], nums[1])
+            .ok_or_else(|| format!("sun must have a finite azimuth and an elevation within [-90, 90], got `{s}`"))
     }
 
     /// The sun of the world clock: time of day `t mod 86400` s taken as local solar
@@ -74,11 +70,7 @@ impl Sun {
     /// Hour angle `H = 15° · (hours − 12)`. The direction in local east/north/up is
     /// `(−cos δ sin H, sin δ cos φ − cos δ cos H sin φ, sin δ sin φ + cos δ cos H cos φ)`.
     pub fn from_clock(t: f64, config: &SunConfig) -> Sun {
-        let seconds = if t.is_finite() {
-            t.rem_euclid(86_400.0)
-        } else {
-            0.0
-        };
+        let seconds = if t.is_finite() { t.rem_euclid(86_400.0) } else { 0.0 };
         let hours = seconds / 3600.0;
         let n = config.day_of_year as f64;
         let decl = (23.44f64).to_radians() * (std::f64::consts::TAU * (284.0 + n) / 365.0).sin();
@@ -97,10 +89,7 @@ impl Sun {
 
     /// Unit vector pointing toward the sun (x east, y north, z up).
     pub fn direction(&self) -> [f64; 3] {
-        let (az, el) = (
-            self.azimuth_deg.to_radians(),
-            self.elevation_deg.to_radians(),
-        );
+        let (az, el) = (self.azimuth_deg.to_radians(), self.elevation_deg.to_radians());
         [az.sin() * el.cos(), az.cos() * el.cos(), el.sin()]
     }
 
@@ -221,10 +210,7 @@ mod tests {
                 assert_eq!(c.bucket(), s.bucket(), "{s:?}");
                 let (d1, d2) = (s.direction(), c.direction());
                 let cos = d1[0] * d2[0] + d1[1] * d2[1] + d1[2] * d2[2];
-                assert!(
-                    cos.clamp(-1.0, 1.0).acos().to_degrees() < 8.0,
-                    "{s:?} vs {c:?}"
-                );
+                assert!(cos.clamp(-1.0, 1.0).acos().to_degrees() < 8.0, "{s:?} vs {c:?}");
             }
         }
     }

@@ -94,12 +94,7 @@ pub fn tile_halo(l: &Layer, z: u32, quality: Quality, sun: Sun) -> usize {
     let s = quality.settings();
     let column = l.cell_size * (z as f64).exp2();
     let radius = s.radius_factor * s.spacing_columns * column;
-    shadow_halo(
-        l.top() - l.base,
-        sun.bucket().centre().elevation_deg,
-        column,
-        radius,
-    )
+    shadow_halo(l.top() - l.base, sun.bucket().centre().elevation_deg, column, radius)
 }
 
 /// Computes the density of a tile (with halo), its metaballs, their shading for the
@@ -116,12 +111,10 @@ pub fn shade_tile(
     limits: &Limits,
 ) -> Result<ShadedTile, RenderError> {
     check_time(t)?;
-    let l = world.layers.get(layer).ok_or_else(|| {
-        RenderError::BadRequest(format!(
-            "layer {layer} does not exist in world `{}`",
-            world.name
-        ))
-    })?;
+    let l = world
+        .layers
+        .get(layer)
+        .ok_or_else(|| RenderError::BadRequest(format!("layer {layer} does not exist in world `{}`", world.name)))?;
     let region = tile.region()?;
     region.check(tile.z, l.depth, limits)?;
     let halo = tile_halo(l, tile.z, quality, sun);
@@ -133,9 +126,7 @@ pub fn shade_tile(
         rows: TILE_COLUMNS + 2 * halo,
     };
     let grid = density::density(world, layer, tile.z, halo_region, t)?;
-    Ok(shade_density(
-        layer, l, tile, t, quality, sun, params, grid, halo,
-    ))
+    Ok(shade_density(layer, l, tile, t, quality, sun, params, grid, halo))
 }
 
 /// [`shade_tile`] on a density grid already computed: `grid` covers the tile plus
@@ -155,12 +146,7 @@ pub fn shade_density(
     let settings = quality.settings();
     let column = l.cell_size * (tile.z as f64).exp2();
     let spacing = settings.spacing_columns * column;
-    let lattice = Lattice::new(
-        spacing,
-        settings.radius_factor * spacing,
-        l.base,
-        l.top() - l.base,
-    );
+    let lattice = Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base);
     let bucket = sun.bucket();
     let centre_sun = bucket.centre();
     let n = TILE_COLUMNS as i64;
@@ -184,14 +170,7 @@ pub fn shade_density(
     let balls = lattice.collect(&grid, &place, all, MIN_BALL_DENSITY);
     let lighting = Lighting::new(centre_sun, *params);
     let sheet = SplatSheet::new(settings.splat_count, settings.splat_size);
-    let (billboards, buffer) = shade(
-        &balls,
-        &lattice,
-        &lighting,
-        &sheet,
-        settings.light_texel,
-        owned,
-    );
+    let (billboards, buffer) = shade(&balls, &lattice, &lighting, &sheet, settings.light_texel, owned);
     let mut shadow = vec![1.0f32; TILE_COLUMNS * TILE_COLUMNS];
     if centre_sun.elevation_deg > 0.0 {
         for r in 0..TILE_COLUMNS {
@@ -236,10 +215,7 @@ impl ShadedTile {
             return 1.0;
         }
         let (u, v) = (u.clamp(0.0, (n - 1) as f64), v.clamp(0.0, (n - 1) as f64));
-        let (u0, v0) = (
-            (u.floor() as usize).min(n - 2),
-            (v.floor() as usize).min(n - 2),
-        );
+        let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
         let (fu, fv) = (u - u0 as f64, v - v0 as f64);
         let at = |c: usize, r: usize| self.shadow[r * n + c] as f64;
         let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;

@@ -6,24 +6,34 @@
 //! ```text
 //! Quality::parse("fast" | "balanced" | "accurate" | "reference") -> Option<Quality>;  q.as_str()
 //! Sun::parse("AZ,EL") -> Result<Sun, String>;  Sun::from_clock(t, &config.sun) -> Sun
-//! sun.bucket() -> SunBucket;  bucket.id() -> String   (cache-key part, ~8° buckets)
+//! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets)
+//! TileId { z, x, y }
 //!
-//! tile::shade_tile(&world, layer, TileId { z, x, y }, t, quality, sun, &config.limits)
-//!     -> Result<ShadedTile, RenderError>          // density + metaballs + shading, once
-//! products::billboards::{encode_json, encode_bin, decode_bin}(&ShadedTile / bytes)
-//! products::shadow::encode_png(&ShadedTile) -> Vec<u8>
-//! products::atlas::build(&ShadedTile) -> Atlas { png: Vec<u8>, manifest: Vec<u8> (JSON) }
-//! products::coverage::encode_png(&world, layer, TileId, t, &limits) -> Result<Vec<u8>, RenderError>
-//! products::splats::{png, json}(quality) -> Vec<u8>
+//! // Density + metaballs + shading of one tile, once; every tile product encodes it.
+//! tile::shade_tile(&world, layer, TileId, t, quality, sun, &ShadingParams::default(), &config.limits)
+//!     -> Result<ShadedTile, RenderError>
+//! products::billboards::encode_json(&ShadedTile) -> Vec<u8>          // billboards.json
+//! products::billboards::encode_bin(&ShadedTile) -> Vec<u8>           // billboards.bin
+//! products::billboards::decode_bin(&[u8]) -> Result<BinBillboards, String>
+//! products::shadow::encode_png_map(&ShadedTile) -> Vec<u8>           // shadow.png
+//! products::atlas::build(&ShadedTile) -> Atlas { png, manifest, impostors }  // atlas.png / atlas.json
+//! products::coverage::encode_png_for_tile(&world, layer, TileId, t, &config.limits)
+//!     -> Result<Vec<u8>, RenderError>                               // coverage.png (no sun, no quality)
+//! products::splats::encode_png_sheet(quality) / encode_json_sheet(quality) -> Vec<u8>  // /v1/splats.*
 //!
-//! scene::render(&world, &config, &RenderRequest) -> Result<Rendered, RenderError>
-//!     // `cloudscape render` and GET /render.png; rendered.image.to_png()
+//! // `cloudscape render` and GET /render.png:
+//! scene::parse_size("WxH") -> Result<(usize, usize), String>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
+//! scene::render(&world, &config, &RenderRequest { camera, width, height, t, quality, sun: Option<Sun>,
+//!     params: ShadingParams::default() }) -> Result<Rendered, RenderError>;  rendered.image.to_png()
 //! ```
 //!
+//! Errors: [`RenderError::BadRequest`] and [`RenderError::Sim`] are the caller's input
+//! (400, or 422 for `SimError` limits such as `RegionTooWide`), [`RenderError::TooMuchWork`]
+//! is over the render limits (413/422).
+//!
 //! Every product for a sun is shaded with the centre of the sun's bucket, so all suns
-//! in one bucket give identical bytes. `RenderError` separates bad input
-//! ([`RenderError::BadRequest`], [`RenderError::Sim`]) from requests over the limits
-//! ([`RenderError::TooMuchWork`]).
+//! in one bucket give identical bytes: the bucket belongs in the cache key, the exact
+//! sun does not.
 
 pub mod camera;
 pub mod composite;

@@ -122,7 +122,8 @@ impl LightBuffer {
     }
 
     fn splat(&mut self, a: f64, b: f64, radius: f64, tau_centre: f64) {
-        let s0 = centre_line_integral();
+        let lut = profile_table();
+        let inv_r2 = 1.0 / (radius * radius);
         let x_lo = (((a - radius - self.min[0]) / self.texel).floor().max(0.0)) as usize;
         let y_lo = (((b - radius - self.min[1]) / self.texel).floor().max(0.0)) as usize;
         let x_hi = (((a + radius - self.min[0]) / self.texel).ceil() as usize).min(self.width);
@@ -131,13 +132,36 @@ impl LightBuffer {
             let tb = self.min[1] + (y as f64 + 0.5) * self.texel - b;
             for x in x_lo..x_hi {
                 let ta = self.min[0] + (x as f64 + 0.5) * self.texel - a;
-                let p = (ta * ta + tb * tb).sqrt() / radius;
-                if p < 1.0 {
-                    self.tau[y * self.width + x] += (tau_centre * line_integral(p) / s0) as f32;
+                let q = (ta * ta + tb * tb) * inv_r2;
+                if q < 1.0 {
+                    self.tau[y * self.width + x] += (tau_centre * profile_at(lut, q)) as f32;
                 }
             }
         }
     }
+}
+
+/// Entries of the splat-profile table over p² in [0, 1].
+const PROFILE_ENTRIES: usize = 4096;
+
+/// `S(p) / S(0)` tabulated over `p²` (linear interpolation between entries; the
+/// profile is a smooth polynomial-like function of p², error < 1e-6).
+fn profile_table() -> &'static [f64] {
+    static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| {
+        let s0 = centre_line_integral();
+        (0..=PROFILE_ENTRIES)
+            .map(|i| line_integral((i as f64 / PROFILE_ENTRIES as f64).sqrt()) / s0)
+            .collect()
+    })
+}
+
+#[inline]
+fn profile_at(table: &[f64], q: f64) -> f64 {
+    let x = q.clamp(0.0, 1.0) * PROFILE_ENTRIES as f64;
+    let i = (x as usize).min(PROFILE_ENTRIES - 1);
+    let f = x - i as f64;
+    table[i] * (1.0 - f) + table[i + 1] * f
 }
 
 /// Optical depth through the centre of a ball of density `d` on `lattice`:
@@ -284,6 +308,16 @@ mod tests {
             "{} vs {expected}",
             second.sun_transmittance
         );
+    }
+
+    #[test]
+    fn profile_table_matches_the_closed_form() {
+        let t = profile_table();
+        for i in 0..=1000 {
+            let p = i as f64 / 1000.0;
+            let exact = line_integral(p) / centre_line_integral();
+            assert!((profile_at(t, p * p) - exact).abs() < 1e-5, "p={p}");
+        }
     }
 
     #[test]

@@ -3,7 +3,7 @@
 use clap::Args;
 
 use crate::render::scene::{RenderRequest, parse_size, render};
-use crate::render::{Camera, Quality, ShadingParams, Sun};
+use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
 
 #[derive(Args)]
 pub struct RenderArgs {
@@ -26,6 +26,9 @@ pub struct RenderArgs {
     /// Sun AZ,EL in degrees (default: from the world clock and the config's latitude and day).
     #[arg(long, allow_hyphen_values = true)]
     sun: Option<String>,
+    /// Dual Henyey–Greenstein phase function G1,G2,MIX (default 0.7,-0.2,0.5).
+    #[arg(long, allow_hyphen_values = true)]
+    phase: Option<String>,
     /// Config file (default: the embedded config).
     #[arg(long)]
     config: Option<String>,
@@ -55,6 +58,20 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
         Some(s) => Some(Sun::parse(s).map_err(|e| format!("--sun: {e}"))?),
         None => None,
     };
+    let mut params = ShadingParams::default();
+    if let Some(p) = &a.phase {
+        let v = super::parse_numbers("--phase", p, 3)?;
+        if v[0].abs() > 1.0 || v[1].abs() > 1.0 || !(0.0..=1.0).contains(&v[2]) {
+            return Err(format!(
+                "--phase needs G1,G2 within [-1, 1] and MIX within [0, 1], got `{p}`"
+            ));
+        }
+        params.phase = Phase {
+            g1: v[0],
+            g2: v[1],
+            mix: v[2],
+        };
+    }
     let req = RenderRequest {
         camera,
         width,
@@ -62,7 +79,7 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
         t,
         quality,
         sun,
-        params: ShadingParams::default(),
+        params,
     };
     let rendered = render(&world, &config, &req).map_err(|e| e.to_string())?;
     super::write_atomically(&a.out, &rendered.image.to_png())

@@ -9,4 +9,5 @@ pub mod cli;
 pub mod density;
 pub mod fields;
 pub mod products;
+pub mod render;
 pub mod world;

@@ -2,6 +2,7 @@
 //! one sentence and the process exits non-zero.
 
 mod density;
+mod render;
 
 use std::process::ExitCode;
 
@@ -21,6 +22,8 @@ struct Cli {
 enum Command {
     /// Write the density or cloud grid of a region to a file.
     Density(density::DensityArgs),
+    /// Render what a client would see from a camera to a PNG.
+    Render(render::RenderArgs),
 }
 
 /// Runs the command line and returns the process exit code.
@@ -35,6 +38,7 @@ pub fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Density(args) => density::run(args),
+        Command::Render(args) => render::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 
 pub mod exact;
 mod lod;
+pub mod metaballs;
 mod region;
 
 pub use region::{Grid, MAX_CELL_INDEX, Region, SimError, check_time};

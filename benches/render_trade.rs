@@ -1,0 +1,415 @@
+//! The speed/accuracy trade of the quality presets, measured (BENCHMARKS.md,
+//! "Rendering").
+//!
+//! `cargo bench --bench render_trade` renders a fixed scene set with every preset and
+//! with the reference ray marcher, and prints a Markdown table: per preset and scene,
+//! the time (density, billboards, drawing) and the error against the reference (RMSE
+//! of display RGB in [0, 1], SSIM of luma); then the reference's own convergence
+//! (error of coarser steps against a step of 1/16 cell); then per-tile time to
+//! billboards + atlas. It writes the plot to `benches/render_trade.png` and the images
+//! to `target/render_trade/`. Under `cargo test` (no `--bench` argument) it does nothing.
+
+use std::time::Instant;
+
+use cloudscape::density::{self, Region};
+use cloudscape::products::atlas;
+use cloudscape::render::image::{Image, encode_png, rmse, ssim};
+use cloudscape::render::march::MarchParams;
+use cloudscape::render::scene::{self, RenderRequest};
+use cloudscape::render::tile::{ShadedTile, shade_density, tile_halo};
+use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
+use cloudscape::world::{Config, World};
+
+const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+
+/// One-layer worlds for the scene set.
+const SCENE_WORLDS: &str = r#"
+[worlds.stratus]
+seed = 11
+[[worlds.stratus.layers]]
+name = "stratus"
+preset = "stratus"
+base = 600.0
+cell_size = 100.0
+cell_height = 80.0
+depth = 6
+dt = 20.0
+wind = [5.0, 1.0]
+
+[worlds.cumulus]
+seed = 12
+[[worlds.cumulus.layers]]
+name = "cumulus"
+preset = "cumulus"
+base = 1200.0
+cell_size = 100.0
+cell_height = 100.0
+depth = 12
+dt = 20.0
+wind = [6.0, 0.0]
+
+[worlds.altocumulus]
+seed = 13
+[[worlds.altocumulus.layers]]
+name = "altocumulus"
+preset = "altocumulus"
+base = 4000.0
+cell_size = 80.0
+cell_height = 80.0
+depth = 8
+dt = 20.0
+wind = [12.0, -2.0]
+"#;
+
+struct Scene {
+    name: &'static str,
+    world: &'static str,
+    camera: &'static str,
+    sun: (f64, f64),
+}
+
+const SCENES: [Scene; 4] = [
+    Scene {
+        name: "stratus deck from below",
+        world: "stratus",
+        camera: "12800,12800,20,0,35,70",
+        sun: (150.0, 45.0),
+    },
+    Scene {
+        name: "cumulus field at 45°",
+        world: "cumulus",
+        camera: "12800,6000,5000,0,-45,60",
+        sun: (200.0, 45.0),
+    },
+    Scene {
+        name: "altocumulus from above",
+        world: "altocumulus",
+        camera: "10240,10240,7000,30,-60,60",
+        sun: (120.0, 50.0),
+    },
+    Scene {
+        name: "low sun at the horizon",
+        world: "cumulus",
+        camera: "12800,3000,700,0,6,70",
+        sun: (5.0, 1.0),
+    },
+];
+
+const SIZE: usize = 512;
+const CONVERGENCE_SIZE: usize = 192;
+
+struct Measured {
+    density_s: f64,
+    billboards_s: f64,
+    draw_s: f64,
+    image: Image,
+    tiles: Vec<ShadedTile>,
+}
+
+fn request(s: &Scene, q: Quality, size: usize) -> RenderRequest {
+    RenderRequest {
+        camera: Camera::parse(s.camera).unwrap(),
+        width: size,
+        height: size,
+        t: 1800.0,
+        quality: q,
+        sun: Some(Sun::new(s.sun.0, s.sun.1).unwrap()),
+        params: ShadingParams::default(),
+    }
+}
+
+/// Plans, computes density, shades, and draws with the billboard compositor (or, for
+/// `Reference`, with the ray marcher at `march_step` cells), timing each stage.
+fn measure(world: &World, config: &Config, req: &RenderRequest, march_step: Option<f64>) -> Measured {
+    let sun = req.sun.unwrap();
+    let plan = scene::plan(world, config, req).unwrap();
+    let t0 = Instant::now();
+    let grids: Vec<_> = plan
+        .iter()
+        .map(|&(li, tile)| {
+            let l = &world.layers[li];
+            let halo = tile_halo(l, tile.z, req.quality, sun);
+            let r = tile.region().unwrap();
+            let h = halo as i64;
+            let region = Region {
+                x0: r.x0 - h,
+                y0: r.y0 - h,
+                cols: r.cols + 2 * halo,
+                rows: r.rows + 2 * halo,
+            };
+            (density::density(world, li, tile.z, region, req.t).unwrap(), halo)
+        })
+        .collect();
+    let density_s = t0.elapsed().as_secs_f64();
+    let t1 = Instant::now();
+    let tiles: Vec<ShadedTile> = plan
+        .iter()
+        .zip(grids)
+        .map(|(&(li, tile), (g, halo))| {
+            shade_density(
+                li,
+                &world.layers[li],
+                tile,
+                req.t,
+                req.quality,
+                sun,
+                &req.params,
+                g,
+                halo,
+            )
+        })
+        .collect();
+    let billboards_s = t1.elapsed().as_secs_f64();
+    let t2 = Instant::now();
+    let image = match march_step {
+        None => scene::draw_billboards(&tiles, req, sun),
+        Some(cells) => {
+            let vols = scene::volumes(&tiles);
+            let step = scene::reference_step(&tiles, Quality::Reference)
+                / Quality::Reference.settings().march_step_cells
+                * cells;
+            scene::draw_reference(&vols, req, sun, &MarchParams::with_step(step))
+        }
+    };
+    let draw_s = t2.elapsed().as_secs_f64();
+    Measured {
+        density_s,
+        billboards_s,
+        draw_s,
+        image,
+        tiles,
+    }
+}
+
+fn main() {
+    if !std::env::args().any(|a| a == "--bench") {
+        return;
+    }
+    let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).unwrap();
+    let out_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("target/render_trade");
+    std::fs::create_dir_all(&out_dir).unwrap();
+    let threads = rayon::current_num_threads();
+    println!("## Rendering: speed against accuracy\n");
+    println!("Command: `cargo bench --bench render_trade` ({threads} threads, {SIZE}×{SIZE} pixels, t = 1800 s).");
+    println!(
+        "Error is against `reference` (ray marcher, step ¼ cell) on the same tiles; RMSE of display RGB in [0, 1], SSIM of luma."
+    );
+    println!(
+        "Times in seconds: density (the simulation, shared by all presets), billboards (metaballs + shading), draw.\n"
+    );
+    println!(
+        "| scene | preset | tiles | billboards | density s | billboards s | draw s | total s | speed-up vs reference (total / excl. density) | RMSE | SSIM |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut points: Vec<(Quality, f64, f64)> = Vec::new();
+    let mut per_tile: Vec<(Quality, f64, usize)> = Vec::new();
+    let mut summary: Vec<(Quality, Vec<f64>, Vec<f64>, Vec<f64>)> =
+        [Quality::Fast, Quality::Balanced, Quality::Accurate]
+            .iter()
+            .map(|&q| (q, vec![], vec![], vec![]))
+            .collect();
+    for s in &SCENES {
+        let world = config.world(s.world).unwrap();
+        let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE), Some(0.25));
+        // The reference needs no billboards: its time is density + ray marching.
+        let ref_total = rref.density_s + rref.draw_s;
+        let ref_display = rref.image.display();
+        write_png(&out_dir, s.name, "reference", &rref.image);
+        for (qi, q) in [Quality::Fast, Quality::Balanced, Quality::Accurate]
+            .into_iter()
+            .enumerate()
+        {
+            let m = measure(&world, &config, &request(s, q, SIZE), None);
+            let total = m.density_s + m.billboards_s + m.draw_s;
+            let d = m.image.display();
+            let (e, ss) = (rmse(&d, &ref_display), ssim(&d, &ref_display, SIZE, SIZE));
+            let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
+            let speed = ref_total / total;
+            let speed_ex = rref.draw_s / (m.billboards_s + m.draw_s);
+            println!(
+                "| {} | {} | {} | {} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0}× / {:.0}× | {:.4} | {:.3} |",
+                s.name,
+                q.as_str(),
+                m.tiles.len(),
+                n,
+                m.density_s,
+                m.billboards_s,
+                m.draw_s,
+                total,
+                speed,
+                speed_ex,
+                e,
+                ss
+            );
+            points.push((q, total, ss));
+            summary[qi].1.push(speed);
+            summary[qi].2.push(speed_ex);
+            summary[qi].3.push(ss);
+            write_png(&out_dir, s.name, q.as_str(), &m.image);
+            // Per-tile time to billboards + atlas.
+            let t = Instant::now();
+            for tile in &m.tiles {
+                atlas::build(tile);
+            }
+            let atlas_s = t.elapsed().as_secs_f64();
+            per_tile.push((q, m.billboards_s + atlas_s, m.tiles.len()));
+        }
+        points.push((Quality::Reference, ref_total, 1.0));
+        println!(
+            "| {} | reference | {} | – | {:.2} | – | {:.2} | {:.2} | 1× | 0 | 1 |",
+            s.name,
+            rref.tiles.len(),
+            rref.density_s,
+            rref.draw_s,
+            ref_total
+        );
+    }
+    println!("\nSummary over the scene set (geometric mean of speed-ups, minimum SSIM):\n");
+    println!("| preset | speed-up total | speed-up excl. density | min SSIM | mean SSIM |");
+    println!("|---|---|---|---|---|");
+    for (q, sp, spx, ss) in &summary {
+        let gm = |v: &Vec<f64>| (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp();
+        let min = ss.iter().cloned().fold(f64::INFINITY, f64::min);
+        let mean = ss.iter().sum::<f64>() / ss.len() as f64;
+        println!(
+            "| {} | {:.0}× | {:.0}× | {:.3} | {:.3} |",
+            q.as_str(),
+            gm(sp),
+            gm(spx),
+            min,
+            mean
+        );
+    }
+
+    println!("\nPer-tile time to billboards + atlas (density excluded), mean over the scene set's tiles:\n");
+    println!("| preset | tiles | seconds per tile |");
+    println!("|---|---|---|");
+    for q in [Quality::Fast, Quality::Balanced, Quality::Accurate] {
+        let (s, n) = per_tile
+            .iter()
+            .filter(|p| p.0 == q)
+            .fold((0.0, 0), |a, p| (a.0 + p.1, a.1 + p.2));
+        println!("| {} | {} | {:.3} |", q.as_str(), n, s / n.max(1) as f64);
+    }
+
+    println!(
+        "\nReference convergence ({CONVERGENCE_SIZE}×{CONVERGENCE_SIZE}): error of each step against a step of 1/16 cell.\n"
+    );
+    println!("| scene | step (cells) | draw s | RMSE | SSIM |");
+    println!("|---|---|---|---|---|");
+    let mut convergence: Vec<(f64, f64)> = Vec::new();
+    for s in [&SCENES[0], &SCENES[1]] {
+        let world = config.world(s.world).unwrap();
+        let req = request(s, Quality::Reference, CONVERGENCE_SIZE);
+        let truth = measure(&world, &config, &req, Some(1.0 / 16.0)).image.display();
+        for cells in [2.0, 1.0, 0.5, 0.25, 0.125] {
+            let m = measure(&world, &config, &req, Some(cells));
+            let d = m.image.display();
+            let (e, ss) = (rmse(&d, &truth), ssim(&d, &truth, CONVERGENCE_SIZE, CONVERGENCE_SIZE));
+            println!("| {} | {} | {:.2} | {:.4} | {:.4} |", s.name, cells, m.draw_s, e, ss);
+            convergence.push((cells, e));
+        }
+    }
+    let plot = plot(&points, &convergence);
+    let plot_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/render_trade.png");
+    std::fs::write(&plot_path, plot).unwrap();
+    println!("\nPlot: `benches/render_trade.png`; images: `target/render_trade/`.");
+}
+
+fn write_png(dir: &std::path::Path, scene: &str, q: &str, img: &Image) {
+    let name: String = scene
+        .chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+        .collect();
+    std::fs::write(dir.join(format!("{name}-{q}.png")), img.to_png()).unwrap();
+}
+
+/// A 640×320 plot without text (legend in BENCHMARKS.md). Left panel: SSIM (y, 0.9 to
+/// 1, a tick per 0.02) against total time (x, log10 from 0.1 s to 1000 s, a tick per decade); one dot per
+/// scene, red = fast, green = balanced, blue = accurate, black = reference (SSIM 1).
+/// Right panel: reference RMSE (y, 0 to 0.02, a tick per 0.004) against step (x, log2 from 1/8 to 2
+/// cells, a tick per octave), one polyline per scene.
+fn plot(points: &[(Quality, f64, f64)], convergence: &[(f64, f64)]) -> Vec<u8> {
+    let (w, h) = (640usize, 320usize);
+    let mut px = vec![255u8; w * h * 3];
+    let put = |x: i64, y: i64, c: [u8; 3], px: &mut Vec<u8>| {
+        if x >= 0 && y >= 0 && (x as usize) < w && (y as usize) < h {
+            let i = (y as usize * w + x as usize) * 3;
+            px[i..i + 3].copy_from_slice(&c);
+        }
+    };
+    let grey = [170, 170, 170];
+    // Panel frames and ticks.
+    for (x0, x1) in [(40i64, 300i64), (360, 620)] {
+        for x in x0..=x1 {
+            put(x, 290, [0, 0, 0], &mut px);
+            put(x, 20, grey, &mut px);
+        }
+        for y in 20..=290 {
+            put(x0, y, [0, 0, 0], &mut px);
+            put(x1, y, grey, &mut px);
+        }
+    }
+    for d in 0..=4 {
+        let x = 40 + d * 65;
+        for y in 285..295 {
+            put(x, y, [0, 0, 0], &mut px);
+        }
+    }
+    for o in 0..=4 {
+        let x = 360 + o * 65;
+        for y in 285..295 {
+            put(x, y, [0, 0, 0], &mut px);
+        }
+    }
+    for k in 0..=5 {
+        let y = 290 - k * 54;
+        for x in 35..45 {
+            put(x, y, [0, 0, 0], &mut px);
+            put(x + 320, y, [0, 0, 0], &mut px);
+        }
+    }
+    let colour = |q: Quality| match q {
+        Quality::Fast => [220, 30, 30],
+        Quality::Balanced => [30, 160, 30],
+        Quality::Accurate => [30, 60, 220],
+        Quality::Reference => [0, 0, 0],
+    };
+    for &(q, t, s) in points {
+        let x = 40.0 + (t.max(0.1).log10() + 1.0) * 65.0;
+        let y = 290.0 - ((s - 0.9) / 0.1).clamp(0.0, 1.0) * 270.0;
+        for dy in -3..=3 {
+            for dx in -3..=3 {
+                put(x as i64 + dx, y as i64 + dy, colour(q), &mut px);
+            }
+        }
+    }
+    for chunk in convergence.chunks(5) {
+        let pts: Vec<(f64, f64)> = chunk
+            .iter()
+            .map(|&(cells, e)| {
+                (
+                    360.0 + (cells.log2() + 3.0) * 65.0,
+                    290.0 - (e / 0.05).clamp(0.0, 1.0) * 270.0,
+                )
+            })
+            .collect();
+        for win in pts.windows(2) {
+            for i in 0..=100 {
+                let f = i as f64 / 100.0;
+                let (x, y) = (
+                    win[0].0 + (win[1].0 - win[0].0) * f,
+                    win[0].1 + (win[1].1 - win[0].1) * f,
+                );
+                put(x as i64, y as i64, [0, 0, 0], &mut px);
+            }
+        }
+        for &(x, y) in &pts {
+            for d in -2..=2 {
+                put(x as i64 + d, y as i64, [0, 0, 0], &mut px);
+                put(x as i64, y as i64 + d, [0, 0, 0], &mut px);
+            }
+        }
+    }
+    encode_png(w, h, png::ColorType::Rgb, &px)
+}

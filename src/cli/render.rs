@@ -1,0 +1,86 @@
+//! `cloudscape render`: what a client would see from a camera, as a PNG.
+
+use clap::Args;
+
+use crate::render::scene::{RenderRequest, parse_size, render};
+use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
+
+#[derive(Args)]
+pub struct RenderArgs {
+    /// World name from the config, or a decimal u64 seed (default climate).
+    #[arg(long)]
+    world: String,
+    /// Camera X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the
+    /// horizon; horizontal field of view; degrees.
+    #[arg(long, allow_hyphen_values = true)]
+    camera: String,
+    /// World-clock time in seconds, 0 <= t <= 1e12.
+    #[arg(long, allow_hyphen_values = true)]
+    t: String,
+    /// Image size WxH in pixels.
+    #[arg(long)]
+    size: String,
+    /// fast | balanced | accurate (billboards) | reference (volumetric ray marcher).
+    #[arg(long, default_value = "balanced")]
+    quality: String,
+    /// Sun AZ,EL in degrees (default: from the world clock and the config's latitude and day).
+    #[arg(long, allow_hyphen_values = true)]
+    sun: Option<String>,
+    /// Dual Henyey–Greenstein phase function G1,G2,MIX (default 0.7,-0.2,0.5).
+    #[arg(long, allow_hyphen_values = true)]
+    phase: Option<String>,
+    /// Config file (default: the embedded config).
+    #[arg(long)]
+    config: Option<String>,
+    /// Output PNG; written whole or not at all.
+    #[arg(long)]
+    out: String,
+}
+
+pub fn run(a: RenderArgs) -> Result<(), String> {
+    let config = super::load_config(a.config.as_deref())?;
+    let world = config
+        .world(&a.world)
+        .ok_or_else(|| format!("unknown world `{}`", a.world))?;
+    let t: f64 =
+        a.t.trim()
+            .parse()
+            .map_err(|_| format!("--t is not a number: `{}`", a.t))?;
+    let camera = Camera::parse(&a.camera).map_err(|e| format!("--camera: {e}"))?;
+    let (width, height) = parse_size(&a.size).map_err(|e| format!("--size: {e}"))?;
+    let quality = Quality::parse(&a.quality).ok_or_else(|| {
+        format!(
+            "--quality must be fast, balanced, accurate or reference, got `{}`",
+            a.quality
+        )
+    })?;
+    let sun = match &a.sun {
+        Some(s) => Some(Sun::parse(s).map_err(|e| format!("--sun: {e}"))?),
+        None => None,
+    };
+    let mut params = ShadingParams::default();
+    if let Some(p) = &a.phase {
+        let v = super::parse_numbers("--phase", p, 3)?;
+        if v[0].abs() > 1.0 || v[1].abs() > 1.0 || !(0.0..=1.0).contains(&v[2]) {
+            return Err(format!(
+                "--phase needs G1,G2 within [-1, 1] and MIX within [0, 1], got `{p}`"
+            ));
+        }
+        params.phase = Phase {
+            g1: v[0],
+            g2: v[1],
+            mix: v[2],
+        };
+    }
+    let req = RenderRequest {
+        camera,
+        width,
+        height,
+        t,
+        quality,
+        sun,
+        params,
+    };
+    let rendered = render(&world, &config, &req).map_err(|e| e.to_string())?;
+    super::write_atomically(&a.out, &rendered.image.to_png())
+}

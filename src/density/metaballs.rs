@@ -1,0 +1,431 @@
+//! Metaballs: a lattice of spheres that collect the smoothed density (Dobashi et al.
+//! 2000 §4; Rosa 2013 §4.2.3), the representation the billboards are drawn from.
+//!
+//! The lattice is anchored to the world, not to a tile, so neighbouring tiles share
+//! one lattice and meet without seams. Every other row is offset by half a spacing
+//! (Rosa: "every odd horizontal row of metaballs are offset"), and so is every other
+//! vertical level, which weakens lattice artifacts:
+//!
+//! ```text
+//! x = (i + ½·((j + k) mod 2)) · s,   y = (j + ½·(k mod 2)) · s,   z = base + (k + ½) · s_v
+//! ```
+//!
+//! with `s` the horizontal spacing and `s_v = thickness / n_v` the vertical spacing
+//! (`n_v` levels fill the layer exactly).
+//!
+//! A metaball's density is the field-weighted mean of the cell densities within its
+//! radius, `d = Σ ρ_j f(r_j/R) / Σ f(r_j/R)`, where cells beyond the grid (above or
+//! below the layer) count as empty air (Rosa: "out of range ... a zero is returned").
+//! The continuous field the lattice stands for is `ρ̃(x) = Σ d_i f(|x − c_i|/R) / K`,
+//! with `K` the lattice's mean field sum ([`Lattice::field_sum`]), so a uniform
+//! density ρ is reproduced as ρ on average.
+
+use super::Grid;
+
+/// Wyvill's field function (Wyvill, McPheeters & Wyvill 1986, as used by Dobashi 2000):
+/// `f(r) = −4/9 r⁶ + 17/9 r⁴ − 22/9 r² + 1` for `0 <= r <= 1`, 0 beyond (and for NaN).
+/// f(0) = 1, f(1) = 0, f'(1) = 0: smooth where it meets zero.
+#[inline]
+pub fn wyvill(r: f64) -> f64 {
+    if !(r.abs() < 1.0) {
+        return 0.0;
+    }
+    let r2 = r * r;
+    let r4 = r2 * r2;
+    (-4.0 / 9.0) * r4 * r2 + (17.0 / 9.0) * r4 - (22.0 / 9.0) * r2 + 1.0
+}
+
+/// ∫ f(|x|) d³x over the unit ball, exactly: `4π (−4/81 + 17/63 − 22/45 + 1/3)`.
+pub fn wyvill_volume_integral() -> f64 {
+    4.0 * std::f64::consts::PI * (-4.0 / 81.0 + 17.0 / 63.0 - 22.0 / 45.0 + 1.0 / 3.0)
+}
+
+/// Where a density grid sits in the world: the south-west-bottom corner of its
+/// first cell and the cell sizes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GridPlacement {
+    /// World x (metres) of the west edge of column 0.
+    pub x0: f64,
+    /// World y (metres) of the south edge of row 0.
+    pub y0: f64,
+    /// Width of a column, metres (`cell_size · 2^level`).
+    pub column: f64,
+    /// Altitude of the grid's bottom, metres (the layer base).
+    pub base: f64,
+    /// Height of a cell, metres.
+    pub cell_height: f64,
+}
+
+/// The metaball lattice of one layer at one level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lattice {
+    /// Horizontal spacing, metres.
+    pub spacing: f64,
+    /// Vertical spacing, metres (the layer thickness divided into whole levels).
+    pub vertical_spacing: f64,
+    /// Number of vertical levels.
+    pub levels: u32,
+    /// Metaball radius, metres.
+    pub radius: f64,
+    /// Altitude of the layer base, metres.
+    pub base: f64,
+}
+
+/// One metaball: a sphere of the lattice with the density it collected.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Metaball {
+    /// Lattice indices (i, j, k): unique in the world for one lattice.
+    pub index: [i64; 3],
+    /// Centre, world metres (x east, y north, altitude).
+    pub centre: [f64; 3],
+    /// Collected density in [0, 1].
+    pub density: f32,
+}
+
+/// Field weights around a ball for one sub-cell offset: (dk, dr, dc, f) from the
+/// anchor cell, and their sum (cells beyond the grid still count, as empty air).
+struct Stencil {
+    key: [i64; 3],
+    taps: Vec<(i32, i32, i32, f32)>,
+    weight: f64,
+}
+
+impl Lattice {
+    /// A lattice for a layer of `thickness` metres at altitude `base`, with horizontal
+    /// `spacing` and radius `radius` (metres). The vertical spacing is the thickness
+    /// split into `max(1, round(thickness / spacing))` levels.
+    pub fn new(spacing: f64, radius: f64, base: f64, thickness: f64) -> Lattice {
+        let levels = ((thickness / spacing).round() as u32).max(1);
+        Lattice {
+            spacing,
+            vertical_spacing: thickness / levels as f64,
+            levels,
+            radius,
+            base,
+        }
+    }
+
+    /// Centre of lattice point (i, j, k), world metres.
+    pub fn centre(&self, i: i64, j: i64, k: i64) -> [f64; 3] {
+        let ox = 0.5 * ((j + k).rem_euclid(2)) as f64;
+        let oy = 0.5 * (k.rem_euclid(2)) as f64;
+        [
+            (i as f64 + ox) * self.spacing,
+            (j as f64 + oy) * self.spacing,
+            self.base + (k as f64 + 0.5) * self.vertical_spacing,
+        ]
+    }
+
+    /// The mean of `Σ_i f(|x − c_i|/R)` over space: (balls per volume) × ∫f over the ball.
+    pub fn field_sum(&self) -> f64 {
+        wyvill_volume_integral() * self.radius.powi(3) / (self.spacing * self.spacing * self.vertical_spacing)
+    }
+
+    /// The metaballs whose centres lie in `owned` = [x0, y0, x1, y1) (world metres),
+    /// each collecting density from `grid` placed at `place`. Balls with density below
+    /// `min_density` are dropped. Ordered by (k, j, i); deterministic.
+    pub fn collect(&self, grid: &Grid<f32>, place: &GridPlacement, owned: [f64; 4], min_density: f32) -> Vec<Metaball> {
+        use rayon::prelude::*;
+        let s = self.spacing;
+        let mut rows = Vec::new();
+        for k in 0..self.levels as i64 {
+            let oy = 0.5 * (k.rem_euclid(2)) as f64;
+            let j0 = (owned[1] / s - oy).ceil() as i64;
+            let j1 = (owned[3] / s - oy).ceil() as i64;
+            for j in j0..j1 {
+                rows.push((k, j));
+            }
+        }
+        let per_row: Vec<Vec<Metaball>> = rows
+            .par_iter()
+            .map(|&(k, j)| {
+                let ox = 0.5 * ((j + k).rem_euclid(2)) as f64;
+                let i0 = (owned[0] / s - ox).ceil() as i64;
+                let i1 = (owned[2] / s - ox).ceil() as i64;
+                let mut stencils: Vec<Stencil> = Vec::new();
+                let mut out = Vec::new();
+                for i in i0..i1 {
+                    let c = self.centre(i, j, k);
+                    let d = self.collect_cached(grid, place, c, &mut stencils);
+                    if d >= min_density && d > 0.0 {
+                        out.push(Metaball {
+                            index: [i, j, k],
+                            centre: c,
+                            density: d,
+                        });
+                    }
+                }
+                out
+            })
+            .collect();
+        per_row.into_iter().flatten().collect()
+    }
+
+    /// The first cell index in each axis whose centre may lie within the radius of `c`,
+    /// and the offset of `c` from that cell's centre (in cells).
+    fn stencil_anchor(&self, place: &GridPlacement, c: [f64; 3]) -> ([i64; 3], [f64; 3]) {
+        let r = self.radius;
+        let (w, h) = (place.column, place.cell_height);
+        let axes = [(c[0], place.x0, w), (c[1], place.y0, w), (c[2], place.base, h)];
+        let first = axes.map(|(centre, origin, size)| ((centre - r - origin) / size - 0.5).ceil() as i64);
+        let offset = [0, 1, 2].map(|a| {
+            let (centre, origin, size) = axes[a];
+            (centre - origin) / size - 0.5 - first[a] as f64
+        });
+        (first, offset)
+    }
+
+    /// [`Lattice::collect_at`] with the field weights of each distinct sub-cell offset
+    /// computed once: a lattice whose spacing is a multiple of the cell size has only a
+    /// few offsets, so most balls reuse a stencil.
+    fn collect_cached(&self, grid: &Grid<f32>, place: &GridPlacement, c: [f64; 3], cache: &mut Vec<Stencil>) -> f32 {
+        let (first, offset) = self.stencil_anchor(place, c);
+        let key = offset.map(|v| (v * 1e6).round() as i64);
+        let idx = match cache.iter().position(|s| s.key == key) {
+            Some(i) => i,
+            None => {
+                cache.push(self.stencil(place, offset, key));
+                cache.len() - 1
+            }
+        };
+        let st = &cache[idx];
+        if st.weight <= 0.0 {
+            return 0.0;
+        }
+        let mut sum = 0.0f64;
+        for &(dk, dr, dc, f) in &st.taps {
+            let (kk, rr, cc) = (first[2] + dk as i64, first[1] + dr as i64, first[0] + dc as i64);
+            if kk >= 0
+                && rr >= 0
+                && cc >= 0
+                && (kk as usize) < grid.depth
+                && (rr as usize) < grid.rows
+                && (cc as usize) < grid.cols
+            {
+                sum += f as f64 * grid.get(kk as usize, rr as usize, cc as usize) as f64;
+            }
+        }
+        (sum / st.weight).clamp(0.0, 1.0) as f32
+    }
+
+    /// The field-weighted mean density around `c` (cells outside the grid are empty):
+    /// the naive reference of the cached stencils [`Lattice::collect`] uses.
+    pub fn collect_at(&self, grid: &Grid<f32>, place: &GridPlacement, c: [f64; 3]) -> f32 {
+        let r = self.radius;
+        let (w, h) = (place.column, place.cell_height);
+        let range = |centre: f64, origin: f64, size: f64| {
+            let lo = ((centre - r - origin) / size - 0.5).ceil() as i64;
+            let hi = ((centre + r - origin) / size - 0.5).floor() as i64;
+            (lo, hi)
+        };
+        let (c0, c1) = range(c[0], place.x0, w);
+        let (r0, r1) = range(c[1], place.y0, w);
+        let (k0, k1) = range(c[2], place.base, h);
+        let (mut sum, mut weight) = (0.0f64, 0.0f64);
+        for kk in k0..=k1 {
+            let dz = place.base + (kk as f64 + 0.5) * h - c[2];
+            let kin = kk >= 0 && (kk as usize) < grid.depth;
+            for rr in r0..=r1 {
+                let dy = place.y0 + (rr as f64 + 0.5) * w - c[1];
+                let rin = kin && rr >= 0 && (rr as usize) < grid.rows;
+                for cc in c0..=c1 {
+                    let dx = place.x0 + (cc as f64 + 0.5) * w - c[0];
+                    let f = wyvill((dx * dx + dy * dy + dz * dz).sqrt() / r);
+                    if f <= 0.0 {
+                        continue;
+                    }
+                    weight += f;
+                    if rin && cc >= 0 && (cc as usize) < grid.cols {
+                        sum += f * grid.get(kk as usize, rr as usize, cc as usize) as f64;
+                    }
+                }
+            }
+        }
+        if weight > 0.0 {
+            (sum / weight).clamp(0.0, 1.0) as f32
+        } else {
+            0.0
+        }
+    }
+
+    fn stencil(&self, place: &GridPlacement, offset: [f64; 3], key: [i64; 3]) -> Stencil {
+        let r = self.radius;
+        let (w, h) = (place.column, place.cell_height);
+        let n = [
+            (2.0 * r / w).ceil() as i32 + 1,
+            (2.0 * r / w).ceil() as i32 + 1,
+            (2.0 * r / h).ceil() as i32 + 1,
+        ];
+        let mut taps = Vec::new();
+        for dk in 0..=n[2] {
+            let dz = (dk as f64 - offset[2]) * h;
+            for dr in 0..=n[1] {
+                let dy = (dr as f64 - offset[1]) * w;
+                for dc in 0..=n[0] {
+                    let dx = (dc as f64 - offset[0]) * w;
+                    let f = wyvill((dx * dx + dy * dy + dz * dz).sqrt() / r);
+                    if f > 0.0 {
+                        taps.push((dk, dr, dc, f as f32));
+                    }
+                }
+            }
+        }
+        // The weight as the f32 taps will apply it, so a uniform field stays exact.
+        let weight = taps.iter().map(|t| t.3 as f64).sum();
+        Stencil { key, taps, weight }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn field_function_endpoints_and_smoothness() {
+        assert_eq!(wyvill(0.0), 1.0);
+        assert!(wyvill(1.0).abs() < 1e-15);
+        assert_eq!(wyvill(1.5), 0.0);
+        assert_eq!(wyvill(f64::NAN), 0.0);
+        // Derivative at 1 from the left: f'(r) = −24/9 r⁵ + 68/9 r³ − 44/9 r → 0 at r = 1.
+        let h = 1e-6;
+        let slope = (wyvill(1.0) - wyvill(1.0 - h)) / h;
+        assert!(slope.abs() < 1e-4, "{slope}");
+        // Monotone decreasing on [0, 1].
+        let mut prev = 1.0;
+        for i in 1..=100 {
+            let v = wyvill(i as f64 / 100.0);
+            assert!(v <= prev && v >= 0.0);
+            prev = v;
+        }
+    }
+
+    #[test]
+    fn volume_integral_matches_numeric_quadrature() {
+        // ∫ f dV = 4π ∫ f(r) r² dr, midpoint rule.
+        let n = 100_000;
+        let numeric: f64 = (0..n)
+            .map(|i| {
+                let r = (i as f64 + 0.5) / n as f64;
+                wyvill(r) * r * r
+            })
+            .sum::<f64>()
+            / n as f64
+            * 4.0
+            * std::f64::consts::PI;
+        assert!((numeric - wyvill_volume_integral()).abs() < 1e-8, "{numeric}");
+    }
+
+    #[test]
+    fn uniform_density_is_collected_exactly_and_offsets_alternate() {
+        let grid = Grid {
+            depth: 10,
+            rows: 40,
+            cols: 40,
+            data: vec![0.6f32; 16_000],
+        };
+        let place = GridPlacement {
+            x0: 0.0,
+            y0: 0.0,
+            column: 100.0,
+            base: 1000.0,
+            cell_height: 100.0,
+        };
+        let lat = Lattice::new(200.0, 250.0, 1000.0, 1000.0);
+        assert_eq!(lat.levels, 5);
+        // Interior ball, away from the top/bottom: exactly the uniform value.
+        let c = lat.centre(10, 10, 2);
+        assert!((lat.collect_at(&grid, &place, c) - 0.6).abs() < 1e-6);
+        // The bottom level sees air below: less than the uniform value, more than 0.
+        let b = lat.collect_at(&grid, &place, lat.centre(10, 10, 0));
+        assert!(b > 0.2 && b < 0.6, "{b}");
+        // Odd rows are shifted by half a spacing in x; odd levels in y.
+        assert_eq!(lat.centre(0, 1, 0)[0] - lat.centre(0, 0, 0)[0], 100.0);
+        assert_eq!(lat.centre(0, 0, 1)[1] - lat.centre(0, 0, 0)[1], 100.0);
+        let balls = lat.collect(&grid, &place, [0.0, 0.0, 4000.0, 4000.0], 0.001);
+        assert_eq!(balls.len(), 20 * 20 * 5);
+        assert!(balls.iter().all(|b| b.centre[0] >= 0.0 && b.centre[0] < 4000.0));
+    }
+
+    #[test]
+    fn cached_stencils_agree_with_the_naive_sum() {
+        // Pseudo-random density; lattices aligned and not aligned with the cells.
+        let mut grid = Grid::<f32>::new(7, 30, 40);
+        for (i, v) in grid.data.iter_mut().enumerate() {
+            *v = ((i as u64).wrapping_mul(2_654_435_761) % 1000) as f32 / 1000.0;
+        }
+        let place = GridPlacement {
+            x0: -1000.0,
+            y0: 500.0,
+            column: 100.0,
+            base: 2000.0,
+            cell_height: 90.0,
+        };
+        for (spacing, radius) in [(200.0, 250.0), (130.0, 210.0), (400.0, 500.0)] {
+            let lat = Lattice::new(spacing, radius, 2000.0, 630.0);
+            let balls = lat.collect(&grid, &place, [-1000.0, 500.0, 3000.0, 3500.0], 0.0);
+            assert!(!balls.is_empty());
+            for b in &balls {
+                let naive = lat.collect_at(&grid, &place, b.centre);
+                assert!((b.density - naive).abs() < 1e-5, "{b:?} vs {naive}");
+            }
+        }
+    }
+
+    #[test]
+    fn empty_metaballs_are_dropped() {
+        let mut grid = Grid::<f32>::new(4, 20, 20);
+        let i = grid.index(1, 10, 10);
+        grid.data[i] = 1.0;
+        let place = GridPlacement {
+            x0: 0.0,
+            y0: 0.0,
+            column: 100.0,
+            base: 0.0,
+            cell_height: 100.0,
+        };
+        let lat = Lattice::new(100.0, 150.0, 0.0, 400.0);
+        let balls = lat.collect(&grid, &place, [0.0, 0.0, 2000.0, 2000.0], 1e-4);
+        assert!(!balls.is_empty() && balls.len() < 30, "{}", balls.len());
+        // Every kept ball lies within its radius of the one dense cell (1050, 1050, 150).
+        for b in &balls {
+            let d = ((b.centre[0] - 1050.0).powi(2) + (b.centre[1] - 1050.0).powi(2) + (b.centre[2] - 150.0).powi(2))
+                .sqrt();
+            assert!(d < 150.0, "{b:?}");
+        }
+    }
+
+    #[test]
+    fn field_sum_matches_a_brute_force_lattice_average() {
+        let lat = Lattice::new(200.0, 250.0, 0.0, 100_000.0);
+        // Average Σ f over random-ish points deep inside an unbounded lattice.
+        let mut total = 0.0;
+        let n = 400;
+        for p in 0..n {
+            let x = 10_000.0 + (p as f64 * 37.77) % 400.0;
+            let y = 10_000.0 + (p as f64 * 91.13) % 400.0;
+            let z = 50_000.0 + (p as f64 * 53.9) % 400.0;
+            let mut s = 0.0;
+            let (i0, j0, k0) = (
+                (x / 200.0) as i64,
+                (y / 200.0) as i64,
+                (z / lat.vertical_spacing) as i64,
+            );
+            for k in k0 - 3..=k0 + 3 {
+                for j in j0 - 3..=j0 + 3 {
+                    for i in i0 - 3..=i0 + 3 {
+                        let c = lat.centre(i, j, k);
+                        let d = ((x - c[0]).powi(2) + (y - c[1]).powi(2) + (z - c[2]).powi(2)).sqrt();
+                        s += wyvill(d / 250.0);
+                    }
+                }
+            }
+            total += s;
+        }
+        let mean = total / n as f64;
+        assert!(
+            (mean / lat.field_sum() - 1.0).abs() < 0.05,
+            "{mean} vs {}",
+            lat.field_sum()
+        );
+    }
+}

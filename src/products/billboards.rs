@@ -1,0 +1,233 @@
+//! Billboard instance lists of a shaded tile: JSON, and a compact binary.
+//!
+//! Both hold the tile's shaded metaballs, ready to sort and draw as camera-facing
+//! quads textured with splat `splat` of the sheet named in the header
+//! (`/v1/splats.png?quality=Q`). `colour` is linear RGB pre-shaded for an isotropic
+//! phase, `albedo · (sun_rgb · T + ambient_rgb)`; a client that wants the phase
+//! function uses `albedo · (sun_rgb · T · p(cos θ) + ambient_rgb)` with `T` =
+//! `sun_transmittance` and the header's lighting. Opacity is the splat's texel value;
+//! `opacity` is its peak (centre) value.
+//!
+//! # Binary layout (`billboards.bin`), little-endian
+//!
+//! Header, 64 bytes:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | `[u8; 4]` | magic `CSBB` |
+//! | 4 | u16 | format version (1) |
+//! | 6 | u16 | record size in bytes (32) |
+//! | 8 | u32 | record count |
+//! | 12 | u32 | tile level z |
+//! | 16 | i64 | tile x |
+//! | 24 | i64 | tile y |
+//! | 32 | f64 | tile origin x, world metres (west edge) |
+//! | 40 | f64 | tile origin y, world metres (south edge) |
+//! | 48 | f32 | sun azimuth, degrees (bucket centre) |
+//! | 52 | f32 | sun elevation, degrees (bucket centre) |
+//! | 56 | u16 | splat count of the sheet |
+//! | 58 | u16 | splat size (texels per side) |
+//! | 60 | f32 | tile side, metres |
+//!
+//! Records, 32 bytes each:
+//!
+//! | offset | type | field |
+//! |---|---|---|
+//! | 0 | f32 | x − origin x, metres |
+//! | 4 | f32 | y − origin y, metres |
+//! | 8 | f32 | altitude, metres |
+//! | 12 | f32 | radius, metres |
+//! | 16 | u16 | splat index |
+//! | 18 | u8 | peak opacity × 255, rounded |
+//! | 19 | u8 | sun transmittance × 255, rounded |
+//! | 20 | 3 × f32 | colour, linear RGB |
+
+use serde_json::json;
+
+use crate::render::ShadedTile;
+use crate::world::ALGORITHM_VERSION;
+
+/// Magic bytes of `billboards.bin`.
+pub const BIN_MAGIC: [u8; 4] = *b"CSBB";
+/// Version of the binary layout.
+pub const BIN_VERSION: u16 = 1;
+pub const BIN_HEADER_BYTES: usize = 64;
+pub const BIN_RECORD_BYTES: usize = 32;
+
+/// Rounds an f64 to a value that prints shortly in JSON (f32 precision), never NaN.
+fn f(v: f64) -> f64 {
+    if v.is_finite() { v as f32 as f64 } else { 0.0 }
+}
+
+/// The header fields shared by the JSON and the atlas manifest.
+pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
+    let l = &tile.lighting;
+    let s = tile.quality.settings();
+    json!({
+        "algorithm_version": ALGORITHM_VERSION,
+        "layer": tile.layer_name,
+        "tile": { "z": tile.tile.z, "x": tile.tile.x, "y": tile.tile.y },
+        "t": tile.t,
+        "quality": tile.quality.as_str(),
+        "origin": [tile.origin[0], tile.origin[1]],
+        "size": tile.size,
+        "sun": {
+            "bucket": tile.bucket.id(),
+            "azimuth_deg": f(tile.sun.azimuth_deg),
+            "elevation_deg": f(tile.sun.elevation_deg),
+            "direction": l.sun_dir.map(f),
+        },
+        "lighting": {
+            "sun_rgb": l.sun_rgb.map(f),
+            "ambient_rgb": l.ambient_rgb.map(f),
+            "albedo": f(l.params.albedo),
+            "extinction_per_m": f(l.params.extinction),
+            "phase": { "model": "dual Henyey-Greenstein", "g1": f(l.params.phase.g1), "g2": f(l.params.phase.g2), "mix": f(l.params.phase.mix) },
+        },
+        "splats": {
+            "count": s.splat_count,
+            "size": s.splat_size,
+            "tau_max": crate::render::splats::TAU_MAX,
+        },
+    })
+}
+
+/// `billboards.json`: the header above plus
+/// `"billboards": [{"position": [x, y, z], "radius", "splat", "colour": [r, g, b],
+/// "opacity", "sun_transmittance", "density"}]` and `"count"`.
+pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
+    let mut v = header_json(tile);
+    let list: Vec<serde_json::Value> = tile
+        .billboards
+        .iter()
+        .map(|b| {
+            json!({
+                "position": b.centre.map(f),
+                "radius": f(b.radius as f64),
+                "splat": b.splat,
+                "colour": b.colour.map(|c| f(c as f64)),
+                "opacity": f(b.opacity as f64),
+                "sun_transmittance": f(b.sun_transmittance as f64),
+                "density": f(b.density as f64),
+            })
+        })
+        .collect();
+    v["format"] = json!("cloudscape-billboards");
+    v["colour_space"] = json!("linear RGB, pre-shaded for an isotropic phase");
+    v["count"] = json!(list.len());
+    v["billboards"] = serde_json::Value::Array(list);
+    serde_json::to_vec(&v).expect("a JSON value serialises")
+}
+
+/// `billboards.bin` (layout in the module docs).
+pub fn encode_bin(tile: &ShadedTile) -> Vec<u8> {
+    let s = tile.quality.settings();
+    let mut out = Vec::with_capacity(BIN_HEADER_BYTES + BIN_RECORD_BYTES * tile.billboards.len());
+    out.extend_from_slice(&BIN_MAGIC);
+    out.extend_from_slice(&BIN_VERSION.to_le_bytes());
+    out.extend_from_slice(&(BIN_RECORD_BYTES as u16).to_le_bytes());
+    out.extend_from_slice(&(tile.billboards.len() as u32).to_le_bytes());
+    out.extend_from_slice(&tile.tile.z.to_le_bytes());
+    out.extend_from_slice(&tile.tile.x.to_le_bytes());
+    out.extend_from_slice(&tile.tile.y.to_le_bytes());
+    out.extend_from_slice(&tile.origin[0].to_le_bytes());
+    out.extend_from_slice(&tile.origin[1].to_le_bytes());
+    out.extend_from_slice(&(tile.sun.azimuth_deg as f32).to_le_bytes());
+    out.extend_from_slice(&(tile.sun.elevation_deg as f32).to_le_bytes());
+    out.extend_from_slice(&(s.splat_count as u16).to_le_bytes());
+    out.extend_from_slice(&(s.splat_size as u16).to_le_bytes());
+    out.extend_from_slice(&(tile.size as f32).to_le_bytes());
+    debug_assert_eq!(out.len(), BIN_HEADER_BYTES);
+    for b in &tile.billboards {
+        out.extend_from_slice(&((b.centre[0] - tile.origin[0]) as f32).to_le_bytes());
+        out.extend_from_slice(&((b.centre[1] - tile.origin[1]) as f32).to_le_bytes());
+        out.extend_from_slice(&(b.centre[2] as f32).to_le_bytes());
+        out.extend_from_slice(&b.radius.to_le_bytes());
+        out.extend_from_slice(&b.splat.to_le_bytes());
+        out.push(crate::render::image::to_u8(b.opacity));
+        out.push(crate::render::image::to_u8(b.sun_transmittance));
+        for c in b.colour {
+            out.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// A decoded `billboards.bin`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BinBillboards {
+    pub z: u32,
+    pub x: i64,
+    pub y: i64,
+    pub origin: [f64; 2],
+    pub sun_azimuth_deg: f32,
+    pub sun_elevation_deg: f32,
+    pub splat_count: u16,
+    pub splat_size: u16,
+    pub size: f32,
+    pub records: Vec<BinRecord>,
+}
+
+/// One record of `billboards.bin`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BinRecord {
+    /// Offset from the tile origin (x, y) and altitude, metres.
+    pub offset: [f32; 3],
+    pub radius: f32,
+    pub splat: u16,
+    pub opacity: u8,
+    pub sun_transmittance: u8,
+    pub colour: [f32; 3],
+}
+
+/// Decodes `billboards.bin`; `Err` names what is wrong.
+pub fn decode_bin(bytes: &[u8]) -> Result<BinBillboards, String> {
+    if bytes.len() < BIN_HEADER_BYTES || bytes[0..4] != BIN_MAGIC {
+        return Err("not a cloudscape billboards.bin (bad magic or short header)".into());
+    }
+    let u16_at = |o: usize| u16::from_le_bytes([bytes[o], bytes[o + 1]]);
+    let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+    let f32_at = |o: usize| f32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
+    let i64_at = |o: usize| i64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes"));
+    let f64_at = |o: usize| f64::from_le_bytes(bytes[o..o + 8].try_into().expect("8 bytes"));
+    if u16_at(4) != BIN_VERSION || u16_at(6) as usize != BIN_RECORD_BYTES {
+        return Err(format!(
+            "unsupported billboards.bin version {} / record size {}",
+            u16_at(4),
+            u16_at(6)
+        ));
+    }
+    let count = u32_at(8) as usize;
+    if bytes.len() != BIN_HEADER_BYTES + count * BIN_RECORD_BYTES {
+        return Err(format!(
+            "billboards.bin holds {} bytes, expected {}",
+            bytes.len(),
+            BIN_HEADER_BYTES + count * BIN_RECORD_BYTES
+        ));
+    }
+    let records = (0..count)
+        .map(|i| {
+            let o = BIN_HEADER_BYTES + i * BIN_RECORD_BYTES;
+            BinRecord {
+                offset: [f32_at(o), f32_at(o + 4), f32_at(o + 8)],
+                radius: f32_at(o + 12),
+                splat: u16_at(o + 16),
+                opacity: bytes[o + 18],
+                sun_transmittance: bytes[o + 19],
+                colour: [f32_at(o + 20), f32_at(o + 24), f32_at(o + 28)],
+            }
+        })
+        .collect();
+    Ok(BinBillboards {
+        z: u32_at(12),
+        x: i64_at(16),
+        y: i64_at(24),
+        origin: [f64_at(32), f64_at(40)],
+        sun_azimuth_deg: f32_at(48),
+        sun_elevation_deg: f32_at(52),
+        splat_count: u16_at(56),
+        splat_size: u16_at(58),
+        size: f32_at(60),
+        records,
+    })
+}

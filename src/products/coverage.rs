@@ -1,0 +1,81 @@
+//! `coverage.png`: a 2D weather map per tile, for engines that take an external
+//! weather texture (in the spirit of the Guerrilla/Unreal weather maps).
+//!
+//! RGBA 8-bit, 256×256, one pixel per column of the tile at its level; row 0 is the
+//! northern edge, column 0 the western edge. Channels:
+//!
+//! - **R — coverage**: the largest density in the column, × 255.
+//! - **G — opacity**: vertical opacity `1 − exp(−Σ σ ρ Δz)` of the column (the optical
+//!   thickness, squashed into [0, 1)), with σ = [`ShadingParams::default`]'s extinction.
+//! - **B — cloud base**: height of the lowest cell with density ≥ [`CLOUD_THRESHOLD`]
+//!   above the layer base, as a fraction of the layer thickness (cell centre), × 255;
+//!   0 where the column holds no cloud.
+//! - **A — cloud top**: the same for the highest such cell; 0 where there is no cloud,
+//!   so cloudless columns are transparent.
+//!
+//! [`ShadingParams::default`]: crate::render::ShadingParams
+
+use crate::density::{self, Grid, Region, check_time};
+use crate::render::image::{encode_png, to_u8};
+use crate::render::tile::{TILE_COLUMNS, TileId};
+use crate::render::{RenderError, ShadingParams};
+use crate::world::{Layer, Limits, World};
+
+/// Density from which a cell counts as cloud for the base/top channels.
+pub const CLOUD_THRESHOLD: f32 = 0.1;
+
+/// Computes a tile's density and encodes its coverage map.
+pub fn encode_png_for_tile(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    limits: &Limits,
+) -> Result<Vec<u8>, RenderError> {
+    check_time(t)?;
+    let l = world
+        .layers
+        .get(layer)
+        .ok_or_else(|| RenderError::BadRequest(format!("layer {layer} does not exist in world `{}`", world.name)))?;
+    let region: Region = tile.region()?;
+    region.check(tile.z, l.depth, limits)?;
+    let grid = density::density(world, layer, tile.z, region, t)?;
+    Ok(encode_png_from_grid(l, &grid, 0))
+}
+
+/// Encodes the coverage map of the 256×256 columns of `grid` that start `halo`
+/// columns in from its south-west corner.
+pub fn encode_png_from_grid(layer: &Layer, grid: &Grid<f32>, halo: usize) -> Vec<u8> {
+    let n = TILE_COLUMNS;
+    let sigma = ShadingParams::default().extinction;
+    let depth = grid.depth.max(1) as f32;
+    let mut bytes = Vec::with_capacity(n * n * 4);
+    for row in (0..n).rev() {
+        for col in 0..n {
+            let (r, c) = (row + halo, col + halo);
+            let (mut max, mut tau) = (0.0f32, 0.0f64);
+            let (mut base, mut top) = (None, None);
+            for k in 0..grid.depth {
+                let v = if r < grid.rows && c < grid.cols {
+                    grid.get(k, r, c)
+                } else {
+                    0.0
+                };
+                max = max.max(v);
+                tau += sigma * v as f64 * layer.cell_height;
+                if v >= CLOUD_THRESHOLD {
+                    base.get_or_insert(k);
+                    top = Some(k);
+                }
+            }
+            let height = |k: Option<usize>| k.map_or(0, |k| to_u8((k as f32 + 0.5) / depth));
+            bytes.extend_from_slice(&[
+                to_u8(max),
+                to_u8((1.0 - (-tau).exp()) as f32),
+                height(base),
+                height(top),
+            ]);
+        }
+    }
+    encode_png(n, n, png::ColorType::Rgba, &bytes)
+}

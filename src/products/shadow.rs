@@ -1,0 +1,22 @@
+//! `shadow.png`: the ground shadow map of a shaded tile.
+//!
+//! 8-bit greyscale, 256×256, one pixel per column of the tile at its level; row 0 is
+//! the northern edge (a map, north up), column 0 the western edge. The value is the
+//! sunlight transmittance through the layer's clouds to the ground (altitude 0) under
+//! the column's centre, × 255 rounded: 255 = no cloud shadow, 0 = full shadow. When the
+//! sun (bucket centre) is not above the horizon there is no direct light to shadow and
+//! every pixel is 255. Occluders beyond the tile's shadow halo are not included.
+
+use crate::render::ShadedTile;
+use crate::render::image::{encode_png, to_u8};
+use crate::render::tile::TILE_COLUMNS;
+
+/// Encodes the tile's shadow map as a PNG.
+pub fn encode_png_map(tile: &ShadedTile) -> Vec<u8> {
+    let n = TILE_COLUMNS;
+    let mut bytes = Vec::with_capacity(n * n);
+    for row in (0..n).rev() {
+        bytes.extend(tile.shadow[row * n..(row + 1) * n].iter().map(|&t| to_u8(t)));
+    }
+    encode_png(n, n, png::ColorType::Grayscale, &bytes)
+}

@@ -1,0 +1,261 @@
+//! The light model shared by both renderers: sun colour, sky ambient, the
+//! dual-lobe Henyey–Greenstein phase function, and the sky/ground background.
+//!
+//! Radiance is linear RGB in units where a white surface facing a clear noon sun
+//! reads about 1; [`tone_map`] maps it to [0, 1) for display.
+
+use super::sun::Sun;
+
+/// Largest |g| used by the phase function: g → ±1 is a delta lobe; clamping keeps
+/// the peak finite (at |g| = 0.99 the normalised peak is about 2·10⁴).
+pub const MAX_ABS_G: f64 = 0.99;
+
+/// Dual-lobe Henyey–Greenstein phase function (Henyey & Greenstein 1941):
+/// `p = mix · HG(g1) + (1 − mix) · HG(g2)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Phase {
+    /// Forward lobe asymmetry, default 0.7.
+    pub g1: f64,
+    /// Backward lobe asymmetry, default −0.2.
+    pub g2: f64,
+    /// Weight of the first lobe in [0, 1], default 0.5.
+    pub mix: f64,
+}
+
+impl Default for Phase {
+    fn default() -> Self {
+        Phase {
+            g1: 0.7,
+            g2: -0.2,
+            mix: 0.5,
+        }
+    }
+}
+
+impl Phase {
+    /// The phase function times 4π (so an isotropic medium gives 1), for the cosine
+    /// of the scattering angle between the light's travel direction and the direction
+    /// toward the viewer. Finite and non-negative for any input (g is clamped to
+    /// ±[`MAX_ABS_G`], mix to [0, 1], NaN inputs count as 0).
+    pub fn eval(&self, cos_theta: f64) -> f64 {
+        let c = if cos_theta.is_finite() {
+            cos_theta.clamp(-1.0, 1.0)
+        } else {
+            0.0
+        };
+        let mix = if self.mix.is_finite() {
+            self.mix.clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
+        mix * henyey_greenstein(self.g1, c) + (1.0 - mix) * henyey_greenstein(self.g2, c)
+    }
+}
+
+/// 4π × the Henyey–Greenstein phase function: `(1 − g²) / (1 + g² − 2g cosθ)^{3/2}`.
+pub fn henyey_greenstein(g: f64, cos_theta: f64) -> f64 {
+    let g = if g.is_finite() {
+        g.clamp(-MAX_ABS_G, MAX_ABS_G)
+    } else {
+        0.0
+    };
+    let denom = (1.0 + g * g - 2.0 * g * cos_theta).max(1e-12);
+    (1.0 - g * g) / (denom * denom.sqrt())
+}
+
+/// How clouds interact with light. Both renderers read the same values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShadingParams {
+    /// Extinction coefficient at density 1, per metre (Beer–Lambert σ = extinction · ρ).
+    pub extinction: f64,
+    /// Single-scattering albedo in [0, 1].
+    pub albedo: f64,
+    pub phase: Phase,
+    /// Sun irradiance at the zenith, before cloud (clear-sky units, ~1).
+    pub sun_intensity: f64,
+    /// Sky ambient radiance (linear RGB) at full daylight, added unoccluded.
+    pub ambient: [f64; 3],
+}
+
+impl Default for ShadingParams {
+    fn default() -> Self {
+        ShadingParams {
+            extinction: 0.01,
+            albedo: 0.9,
+            phase: Phase::default(),
+            sun_intensity: 1.2,
+            ambient: [0.30, 0.34, 0.42],
+        }
+    }
+}
+
+/// Everything a renderer needs about light for one sun: direction, colours, phase.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lighting {
+    /// Unit vector toward the sun.
+    pub sun_dir: [f64; 3],
+    /// Direct sun radiance reaching the top of the clouds (linear RGB, ≥ 0).
+    pub sun_rgb: [f64; 3],
+    /// Sky ambient (linear RGB, ≥ 0).
+    pub ambient_rgb: [f64; 3],
+    pub params: ShadingParams,
+    /// How much daylight there is, 0 (night) to 1.
+    pub daylight: f64,
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+impl Lighting {
+    /// Light for `sun`. The sun fades out between 0° and −6° elevation (civil
+    /// twilight) and is reddened by the air mass of Kasten & Young 1989
+    /// (`m = 1 / (sin h + 0.50572 (h + 6.07995°)^−1.6364)`), finite at and below the horizon.
+    pub fn new(sun: Sun, params: ShadingParams) -> Lighting {
+        let el = sun.elevation_deg.clamp(-90.0, 90.0);
+        let h = el.max(0.0);
+        let air_mass = 1.0 / (h.to_radians().sin() + 0.50572 * (h + 6.07995).powf(-1.6364));
+        // Relative optical depths of a clear atmosphere per air mass (reddening only).
+        let beta = [0.05, 0.10, 0.22];
+        let visible = smoothstep(-6.0, 0.0, el);
+        let intensity = if params.sun_intensity.is_finite() {
+            params.sun_intensity.max(0.0)
+        } else {
+            0.0
+        };
+        let sun_rgb = beta.map(|b| intensity * visible * (-b * air_mass).exp());
+        let daylight = 0.03 + 0.97 * smoothstep(-12.0, 10.0, el);
+        let ambient_rgb = params
+            .ambient
+            .map(|a| if a.is_finite() { a.max(0.0) * daylight } else { 0.0 });
+        Lighting {
+            sun_dir: sun.direction(),
+            sun_rgb,
+            ambient_rgb,
+            params,
+            daylight,
+        }
+    }
+
+    /// Source radiance of cloud at a point that receives sunlight transmittance
+    /// `sun_transmittance`, seen along view direction `view_dir` (camera → point):
+    /// `albedo · (sun · T · p(cos θ) + ambient)` with cos θ = view_dir · sun_dir.
+    pub fn cloud_source(&self, sun_transmittance: f64, view_dir: [f64; 3]) -> [f64; 3] {
+        let cos = dot(view_dir, self.sun_dir);
+        let p = self.params.phase.eval(cos);
+        self.source_with_phase(sun_transmittance, p)
+    }
+
+    /// As [`Lighting::cloud_source`] with the phase value given.
+    pub fn source_with_phase(&self, sun_transmittance: f64, phase: f64) -> [f64; 3] {
+        let t = if sun_transmittance.is_finite() {
+            sun_transmittance.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let a = self.params.albedo.clamp(0.0, 1.0);
+        [0, 1, 2].map(|i| a * (self.sun_rgb[i] * t * phase + self.ambient_rgb[i]))
+    }
+
+    /// Radiance of the background along `dir`: sky above the horizon; below it the
+    /// ground (albedo 0.25) lit by the sun through cloud transmittance `ground_t`.
+    pub fn background(&self, dir: [f64; 3], ground_t: f64) -> [f64; 3] {
+        if dir[2] >= 0.0 {
+            let k = dir[2].clamp(0.0, 1.0).sqrt();
+            let horizon = [0.62, 0.70, 0.80];
+            let zenith = [0.22, 0.38, 0.70];
+            [0, 1, 2].map(|i| self.daylight * (horizon[i] * (1.0 - k) + zenith[i] * k))
+        } else {
+            let g = [0.26, 0.25, 0.21];
+            let t = if ground_t.is_finite() {
+                ground_t.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let cos = self.sun_dir[2].max(0.0);
+            [0, 1, 2].map(|i| g[i] * (self.sun_rgb[i] * t * cos + self.ambient_rgb[i]))
+        }
+    }
+}
+
+/// Display mapping from linear radiance to [0, 1): `1 − exp(−x)` then gamma 1/2.2.
+/// NaN or negative input maps to 0, +∞ to 1.
+pub fn tone_map(x: f64) -> f64 {
+    if x.is_nan() || x <= 0.0 {
+        return 0.0;
+    }
+    (1.0 - (-x).exp()).powf(1.0 / 2.2)
+}
+
+#[inline]
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn integrate_over_sphere(f: impl Fn(f64) -> f64) -> f64 {
+        // ∫ p dω = 2π ∫_{-1}^{1} p(μ) dμ, midpoint rule.
+        let n = 200_000;
+        let h = 2.0 / n as f64;
+        (0..n).map(|i| f(-1.0 + (i as f64 + 0.5) * h)).sum::<f64>() * h * 2.0 * std::f64::consts::PI
+    }
+
+    #[test]
+    fn phase_is_normalised() {
+        for g in [-0.5, 0.0, 0.3, 0.7] {
+            let total = integrate_over_sphere(|mu| henyey_greenstein(g, mu)) / (4.0 * std::f64::consts::PI);
+            assert!((total - 1.0).abs() < 1e-4, "g={g}: {total}");
+        }
+        let p = Phase::default();
+        let total = integrate_over_sphere(|mu| p.eval(mu)) / (4.0 * std::f64::consts::PI);
+        assert!((total - 1.0).abs() < 1e-4, "{total}");
+        // Forward peak larger than backward.
+        assert!(p.eval(1.0) > p.eval(-1.0));
+    }
+
+    #[test]
+    fn phase_extremes_are_finite_and_bounded() {
+        for g in [1.0, -1.0, 0.999_999, f64::INFINITY, f64::NAN, 5.0] {
+            for mu in [-1.0, 0.0, 1.0, f64::NAN] {
+                let v = Phase {
+                    g1: g,
+                    g2: -g,
+                    mix: 0.5,
+                }
+                .eval(mu);
+                assert!(v.is_finite() && v >= 0.0 && v <= 2.0e4, "g={g} mu={mu}: {v}");
+            }
+        }
+    }
+
+    #[test]
+    fn lighting_at_and_below_horizon_is_finite() {
+        for el in [-90.0, -10.0, -6.0, -0.0, 0.0, 1e-9, 2.0, 90.0] {
+            let l = Lighting::new(Sun::new(0.0, el).unwrap(), ShadingParams::default());
+            for c in l.sun_rgb.iter().chain(l.ambient_rgb.iter()) {
+                assert!(c.is_finite() && *c >= 0.0 && *c <= 2.0);
+            }
+            if el <= -6.0 {
+                assert_eq!(l.sun_rgb, [0.0; 3]);
+            }
+            let s = l.cloud_source(f64::NAN, [0.0, 0.0, 1.0]);
+            assert!(s.iter().all(|v| v.is_finite()));
+        }
+        let noon = Lighting::new(Sun::new(0.0, 60.0).unwrap(), ShadingParams::default());
+        let low = Lighting::new(Sun::new(0.0, 1.0).unwrap(), ShadingParams::default());
+        // Low sun is dimmer and redder.
+        assert!(low.sun_rgb[2] / low.sun_rgb[0] < noon.sun_rgb[2] / noon.sun_rgb[0]);
+    }
+
+    #[test]
+    fn tone_map_is_bounded() {
+        assert_eq!(tone_map(f64::NAN), 0.0);
+        assert_eq!(tone_map(-1.0), 0.0);
+        assert_eq!(tone_map(f64::INFINITY), 1.0);
+        assert!(tone_map(1e300) <= 1.0 && tone_map(0.5) > 0.0);
+    }
+}

@@ -1,0 +1,185 @@
+//! From density to light: splats, sun shading, billboards, and the two renderers
+//! (the billboard compositor a client would use, and the reference ray marcher).
+//!
+//! # API summary (what the HTTP service calls)
+//!
+//! ```text
+//! Quality::parse("fast" | "balanced" | "accurate" | "reference") -> Option<Quality>;  q.as_str()
+//! Sun::parse("AZ,EL") -> Result<Sun, String>;  Sun::from_clock(t, &config.sun) -> Sun
+//! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets)
+//! TileId { z, x, y }
+//!
+//! // Density + metaballs + shading of one tile, once; every tile product encodes it.
+//! tile::shade_tile(&world, layer, TileId, t, quality, sun, &ShadingParams::default(), &config.limits)
+//!     -> Result<ShadedTile, RenderError>
+//! products::billboards::encode_json(&ShadedTile) -> Vec<u8>          // billboards.json
+//! products::billboards::encode_bin(&ShadedTile) -> Vec<u8>           // billboards.bin
+//! products::billboards::decode_bin(&[u8]) -> Result<BinBillboards, String>
+//! products::shadow::encode_png_map(&ShadedTile) -> Vec<u8>           // shadow.png
+//! products::atlas::build(&ShadedTile) -> Atlas { png, manifest, impostors }  // atlas.png / atlas.json
+//! products::coverage::encode_png_for_tile(&world, layer, TileId, t, &config.limits)
+//!     -> Result<Vec<u8>, RenderError>                               // coverage.png (no sun, no quality)
+//! products::splats::encode_png_sheet(quality) / encode_json_sheet(quality) -> Vec<u8>  // /v1/splats.*
+//!
+//! // `cloudscape render` and GET /render.png:
+//! scene::parse_size("WxH") -> Result<(usize, usize), String>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
+//! scene::render(&world, &config, &RenderRequest { camera, width, height, t, quality, sun: Option<Sun>,
+//!     params: ShadingParams::default() }) -> Result<Rendered, RenderError>;  rendered.image.to_png()
+//! ```
+//!
+//! Errors: [`RenderError::BadRequest`] and [`RenderError::Sim`] are the caller's input
+//! (400, or 422 for `SimError` limits such as `RegionTooWide`), [`RenderError::TooMuchWork`]
+//! is over the render limits (413/422).
+//!
+//! Every product for a sun is shaded with the centre of the sun's bucket, so all suns
+//! in one bucket give identical bytes: the bucket belongs in the cache key, the exact
+//! sun does not.
+
+pub mod camera;
+pub mod composite;
+pub mod image;
+pub mod light;
+pub mod march;
+pub mod scene;
+pub mod shade;
+pub mod splats;
+pub mod sun;
+pub mod tile;
+
+pub use camera::Camera;
+pub use light::{Phase, ShadingParams};
+pub use scene::{RenderRequest, Rendered, render};
+pub use sun::{Sun, SunBucket};
+pub use tile::{ShadedTile, TileId, shade_tile};
+
+use crate::density::SimError;
+
+/// A request the renderer refuses.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RenderError {
+    /// The simulation refused the region or time.
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    /// Malformed input (camera, size, layer, ...).
+    #[error("{0}")]
+    BadRequest(String),
+    /// Well-formed but over the configured limits.
+    #[error("{0}")]
+    TooMuchWork(String),
+}
+
+/// Quality presets: how finely clouds are sampled and shaded. `Reference` renders with
+/// the ray marcher; its billboard products are those of `Accurate`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Quality {
+    Fast,
+    Balanced,
+    Accurate,
+    Reference,
+}
+
+/// What a preset selects.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct QualitySettings {
+    /// Metaball spacing, in columns of the tile's level.
+    pub spacing_columns: f64,
+    /// Metaball radius as a multiple of the spacing.
+    pub radius_factor: f64,
+    /// Number of splats in the sheet and their side in texels.
+    pub splat_count: usize,
+    pub splat_size: usize,
+    /// Light-buffer texel, in metaball radii (finer = sharper self-shadowing).
+    pub light_texel: f64,
+    /// Level choice: a tile is split into finer tiles while one of its columns would
+    /// cover more than this many pixels on screen.
+    pub lod_pixels: f64,
+    /// Impostor atlas texel, in columns of the tile's level.
+    pub atlas_texel_columns: f64,
+    /// Ray-marcher view step, in cell heights (used by `Reference`).
+    pub march_step_cells: f64,
+}
+
+impl Quality {
+    pub const ALL: [Quality; 4] = [Quality::Fast, Quality::Balanced, Quality::Accurate, Quality::Reference];
+
+    pub fn parse(s: &str) -> Option<Quality> {
+        match s {
+            "fast" => Some(Quality::Fast),
+            "balanced" => Some(Quality::Balanced),
+            "accurate" => Some(Quality::Accurate),
+            "reference" => Some(Quality::Reference),
+            _ => None,
+        }
+    }
+
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Quality::Fast => "fast",
+            Quality::Balanced => "balanced",
+            Quality::Accurate => "accurate",
+            Quality::Reference => "reference",
+        }
+    }
+
+    pub fn settings(&self) -> QualitySettings {
+        match self {
+            Quality::Fast => QualitySettings {
+                spacing_columns: 4.0,
+                radius_factor: 1.25,
+                splat_count: 64,
+                splat_size: 17,
+                light_texel: 0.5,
+                lod_pixels: 8.0,
+                atlas_texel_columns: 1.0,
+                march_step_cells: 0.5,
+            },
+            Quality::Balanced => QualitySettings {
+                spacing_columns: 2.0,
+                radius_factor: 1.25,
+                splat_count: 128,
+                splat_size: 33,
+                light_texel: 0.4,
+                lod_pixels: 4.0,
+                atlas_texel_columns: 0.5,
+                march_step_cells: 0.5,
+            },
+            Quality::Accurate | Quality::Reference => QualitySettings {
+                spacing_columns: 1.0,
+                radius_factor: 1.5,
+                splat_count: 256,
+                splat_size: 65,
+                light_texel: 0.33,
+                lod_pixels: 2.0,
+                atlas_texel_columns: 0.25,
+                march_step_cells: 0.25,
+            },
+        }
+    }
+
+    /// The splat sheet of this preset.
+    pub fn splat_sheet(&self) -> splats::SplatSheet {
+        let s = self.settings();
+        splats::SplatSheet::new(s.splat_count, s.splat_size)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quality_round_trips() {
+        for q in Quality::ALL {
+            assert_eq!(Quality::parse(q.as_str()), Some(q));
+        }
+        assert_eq!(Quality::parse("ultra"), None);
+        // Finer presets sample more finely.
+        let (f, b, a) = (
+            Quality::Fast.settings(),
+            Quality::Balanced.settings(),
+            Quality::Accurate.settings(),
+        );
+        assert!(f.spacing_columns > b.spacing_columns && b.spacing_columns > a.spacing_columns);
+        assert!(f.splat_size < b.splat_size && b.splat_size < a.splat_size);
+    }
+}

@@ -1,0 +1,338 @@
+//! A camera's view: which tiles and levels it needs, and the picture from them —
+//! by the billboard compositor (what a client draws) or the reference ray marcher.
+//!
+//! Level choice (far = coarser): per layer, a quadtree over tiles. It starts from the
+//! coarsest tiles that cover [`VIEW_DISTANCE`] around the camera and splits a tile into
+//! its four children while one of its columns, at the tile's nearest distance from
+//! the eye, would span more than the preset's `lod_pixels` pixels. Tiles outside the
+//! view frustum or farther than `VIEW_DISTANCE` horizontally are dropped. The work is
+//! bounded: at most [`MAX_RENDER_TILES`] tiles and [`MAX_RENDER_PIXELS`] pixels (the
+//! reference at most [`MAX_REFERENCE_PIXELS`]); a bigger request is refused up front.
+
+use rayon::prelude::*;
+
+use crate::world::{Config, World};
+
+use super::camera::{Camera, View};
+use super::composite::composite;
+use super::image::Image;
+use super::light::{Lighting, ShadingParams};
+use super::march::{self, MarchParams, Volume};
+use super::sun::Sun;
+use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile};
+use super::{Quality, RenderError};
+
+/// Clouds farther than this (horizontally, metres) from the camera are not drawn.
+pub const VIEW_DISTANCE: f64 = 30_000.0;
+/// Most tiles (over all layers) one render may compute.
+pub const MAX_RENDER_TILES: usize = 24;
+/// Largest image, pixels, for billboard presets.
+pub const MAX_RENDER_PIXELS: usize = 4096 * 4096;
+/// Largest image, pixels, for the reference ray marcher.
+pub const MAX_REFERENCE_PIXELS: usize = 1024 * 1024;
+
+/// What to draw.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RenderRequest {
+    pub camera: Camera,
+    pub width: usize,
+    pub height: usize,
+    /// World-clock seconds.
+    pub t: f64,
+    pub quality: Quality,
+    /// The sun; `None` follows the world clock.
+    pub sun: Option<Sun>,
+    pub params: ShadingParams,
+}
+
+/// A rendered view and what went into it.
+#[derive(Clone, Debug)]
+pub struct Rendered {
+    pub image: Image,
+    /// (layer, tile) of every tile drawn.
+    pub tiles: Vec<(usize, TileId)>,
+    /// Billboards drawn (0 for the reference).
+    pub billboards: usize,
+    /// The sun used.
+    pub sun: Sun,
+}
+
+/// Parses `WxH`.
+pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
+    let parts: Vec<&str> = s.split(['x', 'X']).collect();
+    let nums: Vec<usize> = parts.iter().filter_map(|p| p.trim().parse::<usize>().ok()).collect();
+    if parts.len() != 2 || nums.len() != 2 || nums[0] == 0 || nums[1] == 0 {
+        return Err(format!("size must be WxH with positive integers, got `{s}`"));
+    }
+    Ok((nums[0], nums[1]))
+}
+
+fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
+    crate::density::check_time(req.t)?;
+    if req.width == 0 || req.height == 0 {
+        return Err(RenderError::BadRequest("the image must be at least 1×1 pixels".into()));
+    }
+    let pixels = req.width.saturating_mul(req.height);
+    let max = if req.quality == Quality::Reference {
+        MAX_REFERENCE_PIXELS
+    } else {
+        MAX_RENDER_PIXELS
+    };
+    if pixels > max || req.width > 8192 || req.height > 8192 {
+        return Err(RenderError::TooMuchWork(format!(
+            "the image has {pixels} pixels; the limit for quality {} is {max}",
+            req.quality.as_str()
+        )));
+    }
+    Ok(())
+}
+
+/// The tiles (layer, tile) the camera sees, per the level choice above.
+pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(usize, TileId)>, RenderError> {
+    check_request(req)?;
+    let lod_pixels = req.quality.settings().lod_pixels;
+    let cam = &req.camera;
+    let (forward, right, up) = cam.basis();
+    let tan_h = (cam.fov_deg.to_radians() / 2.0).tan();
+    let tan_v = tan_h * req.height as f64 / req.width as f64;
+    let pixel_angle = 2.0 * tan_h / req.width as f64;
+    let p = cam.position;
+    let mut out = Vec::new();
+    for (li, l) in world.layers.iter().enumerate() {
+        let (zb, zt) = (l.base, l.top());
+        let tile_size = |z: u32| TILE_COLUMNS as f64 * l.cell_size * (z as f64).exp2();
+        let mut z_top = 0;
+        while tile_size(z_top) < 2.0 * VIEW_DISTANCE && z_top < config.limits.max_level {
+            z_top += 1;
+        }
+        let s = tile_size(z_top);
+        let range = |c: f64| ((c - VIEW_DISTANCE) / s).floor() as i64..=((c + VIEW_DISTANCE) / s).floor() as i64;
+        let mut stack: Vec<TileId> = Vec::new();
+        for y in range(p[1]) {
+            for x in range(p[0]) {
+                stack.push(TileId { z: z_top, x, y });
+            }
+        }
+        while let Some(t) = stack.pop() {
+            let size = tile_size(t.z);
+            let (x0, y0) = (t.x as f64 * size, t.y as f64 * size);
+            let (x1, y1) = (x0 + size, y0 + size);
+            let dx = (x0 - p[0]).max(0.0).max(p[0] - x1);
+            let dy = (y0 - p[1]).max(0.0).max(p[1] - y1);
+            let dz = (zb - p[2]).max(0.0).max(p[2] - zt);
+            if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE {
+                continue;
+            }
+            // Frustum culling: drop the box if all 8 corners are outside one plane.
+            let mut outside = [true; 5];
+            for &cx in &[x0, x1] {
+                for &cy in &[y0, y1] {
+                    for &cz in &[zb, zt] {
+                        let r = [cx - p[0], cy - p[1], cz - p[2]];
+                        let (a, b, f) = (
+                            r[0] * right[0] + r[1] * right[1] + r[2] * right[2],
+                            r[0] * up[0] + r[1] * up[1] + r[2] * up[2],
+                            r[0] * forward[0] + r[1] * forward[1] + r[2] * forward[2],
+                        );
+                        let tests = [f < 0.0, a > f * tan_h, a < -f * tan_h, b > f * tan_v, b < -f * tan_v];
+                        for i in 0..5 {
+                            outside[i] &= tests[i];
+                        }
+                    }
+                }
+            }
+            if outside.iter().any(|&o| o) {
+                continue;
+            }
+            let dist = (dx * dx + dy * dy + dz * dz).sqrt().max(1.0);
+            let column = l.cell_size * (t.z as f64).exp2();
+            if t.z > 0 && column / (dist * pixel_angle) > lod_pixels {
+                for (ox, oy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    stack.push(TileId {
+                        z: t.z - 1,
+                        x: t.x * 2 + ox,
+                        y: t.y * 2 + oy,
+                    });
+                }
+                if out.len() + stack.len() > 64 * MAX_RENDER_TILES {
+                    return Err(RenderError::TooMuchWork(format!(
+                        "the view needs more than {} tiles; the limit is {MAX_RENDER_TILES}",
+                        64 * MAX_RENDER_TILES
+                    )));
+                }
+                continue;
+            }
+            out.push((li, t));
+        }
+    }
+    if out.len() > MAX_RENDER_TILES {
+        return Err(RenderError::TooMuchWork(format!(
+            "the view needs {} tiles; the limit is {MAX_RENDER_TILES} (narrow the view or lower the quality)",
+            out.len()
+        )));
+    }
+    out.sort_by_key(|(l, t)| (*l, t.z, t.y, t.x));
+    Ok(out)
+}
+
+/// The sun of a request: given, or from the world clock.
+pub fn request_sun(config: &Config, req: &RenderRequest) -> Sun {
+    req.sun.unwrap_or_else(|| Sun::from_clock(req.t, &config.sun))
+}
+
+/// Plans the view and shades its tiles (in parallel).
+pub fn prepare(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<ShadedTile>, RenderError> {
+    let tiles = plan(world, config, req)?;
+    let sun = request_sun(config, req);
+    tiles
+        .par_iter()
+        .map(|&(layer, tile)| shade_tile(world, layer, tile, req.t, req.quality, sun, &req.params, &config.limits))
+        .collect()
+}
+
+/// Draws shaded tiles with the billboard compositor over sky and shadowed ground.
+pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> Image {
+    let view = View::perspective(&req.camera, req.width, req.height);
+    let lighting = Lighting::new(sun.bucket().centre(), req.params);
+    let sheet = req.quality.splat_sheet();
+    let mut image = background(&view, &lighting, |x, y| {
+        tiles.iter().map(|t| t.shadow_at(x, y)).product()
+    });
+    let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards.iter().copied()).collect();
+    composite(&mut image, &all, &sheet, &lighting, &view);
+    image
+}
+
+/// The reference volumes of shaded tiles: each tile's density (with its halo, so
+/// interpolation is seamless) answering for the tile's own box.
+pub fn volumes(tiles: &[ShadedTile]) -> Vec<Volume> {
+    tiles
+        .iter()
+        .map(|t| {
+            let top = t.place.base + t.density.depth as f64 * t.place.cell_height;
+            let bounds = [
+                t.origin[0],
+                t.origin[1],
+                t.place.base,
+                t.origin[0] + t.size,
+                t.origin[1] + t.size,
+                top,
+            ];
+            Volume::new(t.density.clone(), t.place, bounds)
+        })
+        .collect()
+}
+
+/// The ray-marcher step for a set of tiles: the preset's step in cell heights, of the
+/// thinnest cells.
+pub fn reference_step(tiles: &[ShadedTile], quality: Quality) -> f64 {
+    let h = tiles
+        .iter()
+        .map(|t| t.place.cell_height.min(t.column))
+        .fold(f64::INFINITY, f64::min);
+    let h = if h.is_finite() { h } else { 100.0 };
+    h * quality.settings().march_step_cells
+}
+
+/// Draws `volumes` with the ray marcher for the exact `sun`.
+pub fn draw_reference(volumes: &[Volume], req: &RenderRequest, sun: Sun, params: &MarchParams) -> Image {
+    let view = View::perspective(&req.camera, req.width, req.height);
+    let lighting = Lighting::new(sun, req.params);
+    march::render(volumes, &lighting, params, &view, true)
+}
+
+fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
+    let mut img = Image::new(view.width, view.height);
+    let w = view.width;
+    img.rgb.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        for (x, px) in row.iter_mut().enumerate() {
+            let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
+            let t = if d[2] < 0.0 && o[2] > 0.0 && lighting.sun_dir[2] > 0.0 {
+                let s = -o[2] / d[2];
+                ground_t(o[0] + d[0] * s, o[1] + d[1] * s)
+            } else {
+                1.0
+            };
+            *px = lighting.background(d, t).map(|v| v as f32);
+        }
+    });
+    img.alpha.iter_mut().for_each(|a| *a = 1.0);
+    img
+}
+
+/// Renders a request: the billboard compositor for `fast | balanced | accurate`, the
+/// ray marcher for `reference`.
+pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Rendered, RenderError> {
+    let sun = request_sun(config, req);
+    let tiles = prepare(world, config, req)?;
+    let ids = tiles.iter().map(|t| (t.layer, t.tile)).collect();
+    if req.quality == Quality::Reference {
+        let vols = volumes(&tiles);
+        let params = MarchParams::with_step(reference_step(&tiles, req.quality));
+        let image = draw_reference(&vols, req, sun, &params);
+        Ok(Rendered {
+            image,
+            tiles: ids,
+            billboards: 0,
+            sun,
+        })
+    } else {
+        let image = draw_billboards(&tiles, req, sun);
+        let billboards = tiles.iter().map(|t| t.billboards.len()).sum();
+        Ok(Rendered {
+            image,
+            tiles: ids,
+            billboards,
+            sun,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn req(camera: &str, quality: Quality) -> RenderRequest {
+        RenderRequest {
+            camera: Camera::parse(camera).unwrap(),
+            width: 256,
+            height: 128,
+            t: 0.0,
+            quality,
+            sun: None,
+            params: ShadingParams::default(),
+        }
+    }
+
+    #[test]
+    fn plan_sees_tiles_in_front_and_bounds_work() {
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let r = req("1000,1000,500,0,20,60", Quality::Balanced);
+        let tiles = plan(&world, &config, &r).unwrap();
+        assert!(!tiles.is_empty() && tiles.len() <= MAX_RENDER_TILES);
+        // Looking north: no tile lies wholly south of the camera.
+        for (li, t) in &tiles {
+            let size = TILE_COLUMNS as f64 * world.layers[*li].cell_size * (t.z as f64).exp2();
+            assert!((t.y + 1) as f64 * size > 1000.0, "{t:?}");
+        }
+        // Looking straight down from just above the clouds sees fewer tiles than a
+        // wide view toward the horizon.
+        let down = plan(&world, &config, &req("1000,1000,9000,0,-90,20", Quality::Balanced)).unwrap();
+        assert!(down.len() <= tiles.len());
+        let mut big = r;
+        big.width = 100_000;
+        assert!(matches!(plan(&world, &config, &big), Err(RenderError::TooMuchWork(_))));
+        let mut bad_t = r;
+        bad_t.t = -1.0;
+        assert!(matches!(plan(&world, &config, &bad_t), Err(RenderError::Sim(_))));
+    }
+
+    #[test]
+    fn size_parses() {
+        assert_eq!(parse_size("512x256").unwrap(), (512, 256));
+        assert!(parse_size("0x5").is_err());
+        assert!(parse_size("5").is_err());
+        assert!(parse_size("-5x5").is_err());
+    }
+}

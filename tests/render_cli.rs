@@ -1,0 +1,123 @@
+//! `cloudscape render` through the binary: PNGs out, clear one-line errors, no panics,
+//! identical bytes whatever the thread count.
+
+use std::process::Command;
+
+const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+
+/// The default config plus a one-layer world, so a test render computes one tile.
+fn config_file(dir: &std::path::Path) -> String {
+    let extra = r#"
+[worlds.single]
+seed = 7
+
+[[worlds.single.layers]]
+name = "stratocumulus"
+preset = "stratocumulus"
+base = 1500.0
+cell_size = 100.0
+cell_height = 100.0
+depth = 10
+dt = 20.0
+wind = [8.0, 2.0]
+"#;
+    let path = dir.join("cfg.toml");
+    std::fs::write(&path, format!("{DEFAULT_CONFIG}\n{extra}")).unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+fn cloudscape(args: &[&str], threads: usize) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(args)
+        .env("RAYON_NUM_THREADS", threads.to_string())
+        .output()
+        .unwrap()
+}
+
+/// Looking straight up from the middle of tile (0, 0): one tile in view.
+const CAMERA: &str = "12800,12800,0,0,90,40";
+
+#[test]
+fn render_writes_a_png_deterministically() {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = config_file(dir.path());
+    let mut outputs = Vec::new();
+    for (quality, threads) in [("balanced", 1), ("balanced", 2), ("reference", 2)] {
+        let out = dir.path().join(format!("{quality}-{threads}.png"));
+        let o = cloudscape(
+            &[
+                "render",
+                "--config",
+                &cfg,
+                "--world",
+                "single",
+                "--camera",
+                CAMERA,
+                "--t",
+                "600",
+                "--size",
+                "48x32",
+                "--quality",
+                quality,
+                "--sun",
+                "120,40",
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            threads,
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let bytes = std::fs::read(&out).unwrap();
+        let reader = png::Decoder::new(std::io::Cursor::new(&bytes)).read_info().unwrap();
+        assert_eq!((reader.info().width, reader.info().height), (48, 32));
+        outputs.push(bytes);
+    }
+    assert_eq!(outputs[0], outputs[1], "thread count changed the image");
+}
+
+#[test]
+fn bad_requests_fail_with_one_sentence_and_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.png");
+    let out = out.to_str().unwrap();
+    let base = ["render", "--t", "0", "--out", out];
+    let cases: [(&[&str], &str); 7] = [
+        (&["--camera", "0,0,0,0,95,60", "--size", "8x8"], "pitch"),
+        (&["--camera", "0,0,0,0", "--size", "8x8"], "camera"),
+        (&["--camera", CAMERA, "--size", "8"], "size"),
+        (&["--camera", CAMERA, "--size", "8x8", "--quality", "ultra"], "quality"),
+        (&["--camera", CAMERA, "--size", "8x8", "--sun", "10,100"], "sun"),
+        (
+            &["--camera", CAMERA, "--size", "5000x5000", "--quality", "reference"],
+            "limit",
+        ),
+        (&["--camera", CAMERA, "--size", "8x8"], "unknown world"),
+    ];
+    for (extra, needle) in cases {
+        let mut args: Vec<&str> = base.to_vec();
+        args.extend_from_slice(extra);
+        args.extend_from_slice(&[
+            "--world",
+            if needle == "unknown world" {
+                "nowhere"
+            } else {
+                "default"
+            },
+        ]);
+        let o = cloudscape(&args, 1);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{extra:?} succeeded");
+        assert!(err.contains(needle), "{extra:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "{extra:?}: {err}");
+        assert!(!err.contains("panicked"));
+        assert!(!std::path::Path::new(out).exists());
+    }
+    let o = cloudscape(
+        &[
+            "render", "--world", "default", "--camera", CAMERA, "--t", "-5", "--size", "8x8", "--out", out,
+        ],
+        1,
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("t must be"));
+}

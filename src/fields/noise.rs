@@ -268,30 +268,59 @@ impl Fbm {
             * 1024.0
     }
 
-    /// Normalised fBm in [-1, 1] at cell `(x, y)` + fractions, with noise time `tau`
-    /// (in lattice units; 3D noise when the field evolves, 2D otherwise).
-    pub fn sample(&self, octaves: u32, x: (i64, f64), y: (i64, f64), tau: Option<Coord>) -> f64 {
-        let mut sum = 0.0;
-        let mut norm = 0.0;
+    /// The per-octave constants, computed once per field rather than per sample.
+    pub fn table(&self) -> Vec<Octave> {
+        let mut out = Vec::with_capacity(self.octaves as usize);
         let mut amp = 1.0;
         let mut scale = self.scale;
-        for o in 0..octaves {
-            let oseed = mix64(self.seed.wrapping_add(o as u64));
-            let cx =
-                Coord::scaled(x.0, x.1, scale).offset(self.offset[0] * (scale / self.scale) + self.octave_shift(o, 0));
-            let cy =
-                Coord::scaled(y.0, y.1, scale).offset(self.offset[1] * (scale / self.scale) + self.octave_shift(o, 1));
-            let n = match tau {
-                Some(t) => simplex3(oseed, cx, cy, t.offset(self.octave_shift(o, 2))),
-                None => simplex2(oseed, cx, cy),
-            };
-            sum += amp * n;
-            norm += amp;
+        for o in 0..self.octaves {
+            out.push(Octave {
+                seed: mix64(self.seed.wrapping_add(o as u64)),
+                scale,
+                amp,
+                shift: [
+                    self.offset[0] * (scale / self.scale) + self.octave_shift(o, 0),
+                    self.offset[1] * (scale / self.scale) + self.octave_shift(o, 1),
+                    self.octave_shift(o, 2),
+                ],
+            });
             amp *= self.gain;
             scale *= self.lacunarity;
         }
-        sum / norm
+        out
     }
+
+    /// Normalised fBm in [-1, 1] at cell `(x, y)` + fractions, with noise time `tau`
+    /// (in lattice units; 3D noise when the field evolves, 2D otherwise).
+    pub fn sample(&self, octaves: u32, x: (i64, f64), y: (i64, f64), tau: Option<Coord>) -> f64 {
+        sample_table(&self.table(), octaves, x, y, tau)
+    }
+}
+
+/// One octave of an fBm: its hash seed, lattice units per cell, amplitude and shift.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Octave {
+    pub seed: u64,
+    pub scale: f64,
+    pub amp: f64,
+    pub shift: [f64; 3],
+}
+
+/// fBm from a precomputed octave table (see [`Fbm::table`]); the first `octaves` are used.
+pub fn sample_table(table: &[Octave], octaves: u32, x: (i64, f64), y: (i64, f64), tau: Option<Coord>) -> f64 {
+    let mut sum = 0.0;
+    let mut norm = 0.0;
+    for oct in table.iter().take(octaves as usize) {
+        let cx = Coord::scaled(x.0, x.1, oct.scale).offset(oct.shift[0]);
+        let cy = Coord::scaled(y.0, y.1, oct.scale).offset(oct.shift[1]);
+        let n = match tau {
+            Some(t) => simplex3(oct.seed, cx, cy, t.offset(oct.shift[2])),
+            None => simplex2(oct.seed, cx, cy),
+        };
+        sum += oct.amp * n;
+        norm += oct.amp;
+    }
+    sum / norm
 }
 
 #[cfg(test)]

@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use super::noise::{Coord, Fbm, mix64};
+use super::noise::{Coord, Fbm, Octave, mix64, sample_table};
 use crate::world::{FieldSpec, Layer, Mode, World};
 
 /// Which of a layer's three fields.
@@ -27,6 +27,7 @@ pub enum Which {
 pub struct LayerFields {
     pub layer: Layer,
     fbm: [Fbm; 3],
+    tables: [Vec<Octave>; 3],
     specs: [FieldSpec; 3],
 }
 
@@ -91,7 +92,13 @@ impl LayerFields {
                 offset: s.offset,
             }
         });
-        LayerFields { layer, fbm, specs }
+        let tables = std::array::from_fn(|i| fbm[i].table());
+        LayerFields {
+            layer,
+            fbm,
+            tables,
+            specs,
+        }
     }
 
     /// Noise time for a reference time in seconds (None when the fields are frozen).
@@ -118,7 +125,7 @@ impl LayerFields {
         world_shift: (i64, i64),
     ) -> f32 {
         let spec = &self.specs[which as usize];
-        let n = self.fbm[which as usize].sample(octaves, x, y, tau);
+        let n = sample_table(&self.tables[which as usize], octaves, x, y, tau);
         let mut v = (n + 1.0) * 0.5;
         if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
             let cs = self.layer.cell_size;

@@ -1,8 +1,8 @@
 //! Products: one type per product, and the encoders that turn them into bytes.
 
-pub mod grid;
 pub mod atlas;
 pub mod billboards;
 pub mod coverage;
+pub mod grid;
 pub mod shadow;
 pub mod splats;

@@ -87,7 +87,8 @@ fi
 # positive_data_acceptance is left out: a schema-valid world name or layer that is not
 # configured is rightly a 404. Everything else schemathesis checks is on.
 status=0
-timeout 900 "${ST[@]}" run "$base/openapi.json" \
+# Run from the scratch directory: schemathesis keeps a cache in its working directory.
+(cd "$work" && timeout 900 "${ST[@]}" run "$base/openapi.json" \
   --checks all \
   --exclude-checks positive_data_acceptance \
   --max-examples "${SCHEMATHESIS_MAX_EXAMPLES:-40}" \
@@ -95,7 +96,7 @@ timeout 900 "${ST[@]}" run "$base/openapi.json" \
   --request-timeout 30 \
   --workers 2 \
   --seed 1 \
-  --no-color 2>&1 | tail -n 60 || status=$?
+  --no-color) 2>&1 | tail -n 60 || status=$?
 if ! kill -0 "$server_pid" 2>/dev/null; then
   echo "error: the server died during the run" >&2
   cat "$work/server.log" >&2

@@ -571,7 +571,9 @@ async fn region_sample_and_series_agree_with_the_tiles() {
     assert_eq!(region["columns"]["cols"], 80);
     assert_eq!(region["columns"]["rows"], 60);
     let expected = coverage_from_tiles(&tiles, bbox, 100.0, 2);
-    assert_eq!(region["coverage"].as_f64().unwrap(), expected);
+    // serde_json parses floats to within one ulp; the counts behind them are equal.
+    assert!((region["coverage"].as_f64().unwrap() - expected).abs() < 1e-12, "{region} vs {expected}");
+    assert!(expected > 0.0 && expected < 1.0, "the test region should be partly cloudy: {expected}");
     let max = tiles.values().flatten().fold(0.0f32, |m, &v| m.max(v));
     assert!(region["max_density"].as_f64().unwrap() <= max as f64);
     let c = region["coverage"].as_f64().unwrap();
@@ -757,6 +759,9 @@ async fn operator_routes_health_readiness_metrics_openapi() {
         "/readyz",
         "/metrics",
         "/openapi.json",
+        "/v1/worlds/{world}/render.png",
+        "/v1/splats.png",
+        "/v1/splats.json",
     ] {
         assert!(paths.contains_key(p), "openapi lacks {p}");
     }
@@ -890,4 +895,137 @@ fn serve_command_prints_config_and_stops_on_sigterm() {
     assert!(killed.success());
     let status = child.wait().unwrap();
     assert!(status.success(), "graceful exit on SIGTERM: {status:?}");
+}
+
+const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";
+
+/// Decodes an 8-bit PNG into (width, height, channels, pixels).
+fn decode_png(bytes: &[u8]) -> (u32, u32, usize, Vec<u8>) {
+    let decoder = png::Decoder::new(std::io::Cursor::new(bytes));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, info.color_type.samples(), buf)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn render_tile_products_share_one_shading_per_sun_bucket() {
+    let s = start(config_with(&[])).await;
+    let tile = "/v1/worlds/default/tiles/0/0/0";
+    let q = "t=40&quality=fast&sun=10,30";
+
+    // coverage.png: R is the column's largest density (row 0 = north), never compressed.
+    let r = s
+        .get_with(&format!("{tile}/coverage.png?t=40"), &[("accept-encoding", "gzip")])
+        .await;
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["content-type"], "image/png");
+    assert!(r.headers().get("content-encoding").is_none(), "PNG is not recompressed");
+    let (w, h, channels, pixels) = decode_png(&r.bytes().await.unwrap());
+    assert_eq!((w, h, channels), (256, 256, 4));
+    let (_, density) = parse_npy(&s.get(&format!("{tile}/density.npy?t=40")).await.bytes().await.unwrap());
+    for (row, col) in [(0usize, 0usize), (17, 200), (255, 255), (128, 3)] {
+        let max = (0..2)
+            .map(|k| density[(k * 256 + row) * 256 + col])
+            .fold(0.0f32, f32::max);
+        let red = pixels[((255 - row) * 256 + col) * 4] as f32;
+        assert!(
+            (red - max * 255.0).abs() <= 1.0,
+            "coverage R at ({row}, {col}): {red} vs {max}"
+        );
+    }
+
+    let get = |product: &'static str, query: &'static str| {
+        let url = format!("{}{tile}/{product}?{query}", s.base);
+        let client = s.client.clone();
+        async move { client.get(url).send().await.unwrap() }
+    };
+    let json = get("billboards.json", q).await;
+    assert_eq!(json.headers()["content-type"], "application/json");
+    let etag = json.headers()["etag"].to_str().unwrap().to_string();
+    assert!(json.json_body().await.is_object());
+    let bin = get("billboards.bin", q).await.bytes().await.unwrap();
+    assert_eq!(&bin[..4], b"CSBB");
+    let atlas = get("atlas.png", q).await;
+    assert_eq!(atlas.headers()["content-type"], "image/png");
+    assert_eq!(&atlas.bytes().await.unwrap()[..8], PNG_SIGNATURE);
+    assert!(get("atlas.json", q).await.json_body().await.is_object());
+    assert_eq!(&get("shadow.png", q).await.bytes().await.unwrap()[..8], PNG_SIGNATURE);
+    // Five products, one shading.
+    assert_eq!(
+        s.metric("cloudscape_computations_total", &[("kind", "tile_shaded")])
+            .await,
+        1.0
+    );
+
+    // A sun in the same ~8° bucket is the same product; another bucket or quality is not.
+    let same = get("billboards.json", "t=40&quality=fast&sun=11,31").await;
+    assert_eq!(same.headers()["etag"].to_str().unwrap(), etag);
+    let other_sun = get("billboards.json", "t=40&quality=fast&sun=100,30").await;
+    assert_ne!(other_sun.headers()["etag"].to_str().unwrap(), etag);
+    let other_quality = get("billboards.json", "t=40&quality=balanced&sun=10,30").await;
+    assert_ne!(other_quality.headers()["etag"].to_str().unwrap(), etag);
+    assert_eq!(
+        s.metric("cloudscape_computations_total", &[("kind", "tile_shaded")])
+            .await,
+        3.0
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn render_png_and_splat_sheets() {
+    let s = start(config_with(&[])).await;
+    let url = "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=40&size=64x36&quality=fast&sun=180,40";
+    let r = s.get(url).await;
+    assert_eq!(r.status(), StatusCode::OK);
+    assert_eq!(r.headers()["content-type"], "image/png");
+    let etag = r.headers()["etag"].to_str().unwrap().to_string();
+    let png1 = r.bytes().await.unwrap();
+    assert_eq!(decode_png(&png1).0, 64);
+    assert_eq!(
+        s.get_with(url, &[("if-none-match", &etag)]).await.status(),
+        StatusCode::NOT_MODIFIED
+    );
+
+    for (path, status, code) in [
+        ("/v1/worlds/default/render.png?t=0", 400, "missing_parameter"),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10&t=0",
+            400,
+            "invalid_parameter",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=0x10",
+            400,
+            "invalid_parameter",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=8000x8000",
+            413,
+            "too_much_work",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=nan",
+            400,
+            "not_finite",
+        ),
+        ("/v1/splats.png?quality=ultra", 400, "invalid_parameter"),
+    ] {
+        let r = s.get(path).await;
+        assert_eq!(r.status().as_u16(), status, "{path}");
+        assert_eq!(r.json_body().await["error"], code, "{path}");
+    }
+
+    // The sheets are made during start-up: serving them computes nothing.
+    let png = s.get("/v1/splats.png?quality=fast").await;
+    assert_eq!(png.headers()["content-type"], "image/png");
+    assert!(png.headers()["cache-control"].to_str().unwrap().contains("immutable"));
+    assert_eq!(&png.bytes().await.unwrap()[..8], PNG_SIGNATURE);
+    let json = s.json("/v1/splats.json").await;
+    assert_eq!(json["quality"], "balanced");
+    assert_eq!(
+        s.metric("cloudscape_computations_total", &[("kind", "splats")]).await,
+        0.0
+    );
 }

@@ -111,6 +111,20 @@ impl ResponseCache {
         key: CacheKey,
         job: impl FnOnce() -> Result<Bytes, ApiError> + Send + 'static,
     ) -> Result<Bytes, ApiError> {
+        self.get_or_compute_with_siblings(metrics, kind, key, move || job().map(|b| (b, Vec::new())))
+            .await
+    }
+
+    /// Like [`get_or_compute`](Self::get_or_compute) for a job that also produces the
+    /// bytes of other keys from the same work (the products of one shaded tile): those
+    /// are cached too.
+    pub async fn get_or_compute_with_siblings(
+        self: &Arc<Self>,
+        metrics: &Arc<Metrics>,
+        kind: &'static str,
+        key: CacheKey,
+        job: impl FnOnce() -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
+    ) -> Result<Bytes, ApiError> {
         if let Some(bytes) = self.cache.get(&key).await {
             metrics.cache_hits.with_label_values(&[kind]).inc();
             return Ok(bytes);
@@ -119,7 +133,14 @@ impl ResponseCache {
         let this = Arc::clone(self);
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
-            let init = this.queue.run(&m, kind, job);
+            let cache = this.cache.clone();
+            let init = async {
+                let (bytes, siblings) = this.queue.run(&m, kind, job).await?;
+                for (k, b) in siblings {
+                    cache.insert(k, b).await;
+                }
+                Ok::<_, ApiError>(bytes)
+            };
             this.cache.try_get_with(key, init).await.map_err(|e| (*e).clone())
         });
         match tokio::time::timeout(self.budget, task).await {
@@ -144,6 +165,11 @@ impl ResponseCache {
 }
 
 impl ResponseCache {
+    /// Puts bytes computed outside a request (start-up work) in the cache.
+    pub async fn insert(&self, key: CacheKey, bytes: Bytes) {
+        self.cache.insert(key, bytes).await;
+    }
+
     /// Compute jobs running or queued.
     pub fn queue_depth(&self) -> usize {
         self.queue.depth()

@@ -79,6 +79,8 @@ pub struct WorldInfo {
     pub sample: String,
     pub region: String,
     pub series: String,
+    pub render: String,
+    pub splats: Vec<String>,
 }
 
 fn json_response(headers: &HeaderMap, cache_control: &str, value: &impl Serialize) -> Result<Response, ApiError> {
@@ -172,11 +174,23 @@ pub async fn world(
         products: Product::ALL.iter().map(|p| p.name().to_string()).collect(),
         tiles: Product::ALL
             .iter()
-            .map(|p| format!("{base}/tiles/{{z}}/{{x}}/{{y}}/{}?t={{t}}&layer={{layer}}", p.name()))
+            .map(|p| {
+                format!(
+                    "{base}/tiles/{{z}}/{{x}}/{{y}}/{}?t={{t}}&layer={{layer}}&quality={{quality}}&sun={{az}},{{el}}",
+                    p.name()
+                )
+            })
             .collect(),
         sample: format!("{base}/sample?x={{x}}&y={{y}}&z={{z}}&t={{t}}"),
         region: format!("{base}/region?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t={{t}}&layer={{layer}}&level={{level}}"),
         series: format!("{base}/series?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t0={{t0}}&t1={{t1}}&dt={{dt}}&layer={{layer}}"),
+        render: format!(
+            "{base}/render.png?camera={{x}},{{y}},{{z}},{{yaw}},{{pitch}},{{fov}}&t={{t}}&size={{w}}x{{h}}&quality={{quality}}&sun={{az}},{{el}}"
+        ),
+        splats: vec![
+            "/v1/splats.png?quality={quality}".to_string(),
+            "/v1/splats.json?quality={quality}".to_string(),
+        ],
         name: w.name,
     };
     json_response(&headers, &s.settings.cache_control_other, &info)

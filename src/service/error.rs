@@ -9,6 +9,7 @@ use axum::response::{IntoResponse, Response};
 use serde::Serialize;
 
 use crate::density::SimError;
+use crate::render::RenderError;
 
 /// A request the service refuses or could not answer.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -32,6 +33,9 @@ pub enum ApiError {
     EmptyRegion,
     #[error("{0}")]
     RegionTooLarge(String),
+    /// Well-formed but more work than the render limits allow (pixels, tiles in view).
+    #[error("{0}")]
+    TooMuchWork(String),
     #[error("the series has {points} time points; the limit is {max}")]
     SeriesTooLong { points: u64, max: u32 },
     #[error("level {level} is out of range (0..={max})")]
@@ -86,6 +90,7 @@ impl ApiError {
             CoordinatesOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "coordinates_out_of_range"),
             RegionTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "region_too_large"),
             SeriesTooLong { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "series_too_long"),
+            TooMuchWork(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_much_work"),
             UnknownWorld(_) => (StatusCode::NOT_FOUND, "unknown_world"),
             UnknownLayer { .. } => (StatusCode::NOT_FOUND, "unknown_layer"),
             UnknownProduct(_) => (StatusCode::NOT_FOUND, "unknown_product"),
@@ -111,6 +116,19 @@ impl From<SimError> for ApiError {
                 max,
             },
             SimError::OutOfRange(m) => ApiError::CoordinatesOutOfRange(m),
+        }
+    }
+}
+
+impl From<RenderError> for ApiError {
+    fn from(e: RenderError) -> ApiError {
+        match e {
+            RenderError::Sim(e) => e.into(),
+            RenderError::BadRequest(m) => ApiError::InvalidParameter {
+                name: "request".to_string(),
+                message: m,
+            },
+            RenderError::TooMuchWork(m) => ApiError::TooMuchWork(m),
         }
     }
 }

@@ -132,6 +132,11 @@ impl CacheKey {
         CacheKey(format!("{kind}|a{ALGORITHM_VERSION}|w{}|l{layer}", world.fingerprint))
     }
 
+    /// A key that depends on no world (splat sheets).
+    pub fn global(kind: &str) -> CacheKey {
+        CacheKey(format!("{kind}|a{ALGORITHM_VERSION}"))
+    }
+
     /// Appends `|name=value`.
     pub fn with(mut self, name: &str, value: impl std::fmt::Display) -> CacheKey {
         let _ = write!(self.0, "|{name}={value}");

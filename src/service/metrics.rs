@@ -37,7 +37,16 @@ pub struct Metrics {
 }
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 4] = ["tile_density", "sample", "region", "series"];
+pub const KINDS: [&str; 8] = [
+    "tile_density",
+    "tile_coverage",
+    "tile_shaded",
+    "sample",
+    "region",
+    "series",
+    "render",
+    "splats",
+];
 
 const LATENCY_BUCKETS: [f64; 14] = [
     0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0,

@@ -8,8 +8,9 @@
 //!
 //! Routes (see `openapi.json`): discovery under `/v1/worlds`, tiles under
 //! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}`, region queries (`/sample`,
-//! `/region`, `/series`), and the operator routes `/healthz`, `/readyz`, `/metrics`,
-//! `/openapi.json`.
+//! `/region`, `/series`), `/v1/worlds/{world}/render.png`, the splat sheets
+//! `/v1/splats.{png,json}`, and the operator routes `/healthz`, `/readyz`,
+//! `/metrics`, `/openapi.json`.
 //!
 //! Caching: every computed response is keyed by a canonical [`key::CacheKey`] (world
 //! fingerprint, layer, tile or region, canonical frame, product, algorithm version);
@@ -26,6 +27,7 @@ mod openapi;
 mod ops;
 mod params;
 mod queries;
+mod render;
 mod stats;
 mod tiles;
 
@@ -231,6 +233,9 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/worlds/{world}/sample", get(queries::sample))
         .route("/v1/worlds/{world}/region", get(queries::region))
         .route("/v1/worlds/{world}/series", get(queries::series))
+        .route("/v1/worlds/{world}/render.png", get(render::render_png))
+        .route("/v1/splats.png", get(render::splats_png))
+        .route("/v1/splats.json", get(render::splats_json))
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))

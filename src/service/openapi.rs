@@ -2,7 +2,7 @@
 
 use utoipa::OpenApi;
 
-use super::{discovery, error, ops, queries, stats, tiles};
+use super::{discovery, error, ops, queries, render, stats, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -17,6 +17,9 @@ use super::{discovery, error, ops, queries, stats, tiles};
         queries::sample,
         queries::region,
         queries::series,
+        render::render_png,
+        render::splats_png,
+        render::splats_json,
         ops::healthz,
         ops::readyz,
         ops::metrics,

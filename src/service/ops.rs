@@ -11,7 +11,9 @@ use serde::Serialize;
 use crate::density::{self, Region};
 
 use super::error::ApiError;
+use super::render::{splats_bytes, splats_key};
 use super::{AppState, Phase};
+use crate::render::Quality;
 
 /// `/healthz` and `/readyz` bodies.
 #[derive(Serialize, utoipa::ToSchema)]
@@ -22,7 +24,8 @@ pub struct Status {
 
 /// Start-up work: one small computation per layer of every configured world, through
 /// the simulation, so that a replica only says it is ready once it can answer (and
-/// its thread pools are warm). Ready when it succeeds; never ready if it fails.
+/// its thread pools are warm), then the splat sheets of every quality into the cache.
+/// Ready when it succeeds; never ready if it fails.
 pub async fn start_up(state: Arc<AppState>) {
     let worlds: Vec<_> = state.worlds.config().worlds.values().cloned().collect();
     let result = state
@@ -40,9 +43,24 @@ pub async fn start_up(state: Arc<AppState>) {
                         .map_err(|e| ApiError::Internal(format!("world {} layer {i}: {e}", w.name)))?;
                 }
             }
-            Ok(())
+            let mut sheets = Vec::new();
+            for q in Quality::ALL {
+                for json in [false, true] {
+                    sheets.push((splats_key(q, json), splats_bytes(q, json)));
+                }
+            }
+            Ok(sheets)
         })
         .await;
+    let result = match result {
+        Ok(sheets) => {
+            for (key, bytes) in sheets {
+                state.cache.insert(key, bytes).await;
+            }
+            Ok(())
+        }
+        Err(e) => Err(e),
+    };
     match result {
         Ok(()) => {
             state.readiness.set(Phase::Ready);

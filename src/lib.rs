@@ -10,4 +10,5 @@ pub mod density;
 pub mod fields;
 pub mod products;
 pub mod render;
+pub mod service;
 pub mod world;

@@ -3,6 +3,7 @@
 
 mod density;
 mod render;
+mod serve;
 
 use std::process::ExitCode;
 
@@ -24,6 +25,8 @@ enum Command {
     Density(density::DensityArgs),
     /// Render what a client would see from a camera to a PNG.
     Render(render::RenderArgs),
+    /// Serve tiles, region queries and metrics over HTTP.
+    Serve(serve::ServeArgs),
 }
 
 /// Runs the command line and returns the process exit code.
@@ -39,6 +42,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Density(args) => density::run(args),
         Command::Render(args) => render::run(args),
+        Command::Serve(args) => serve::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -27,12 +27,31 @@ fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
     }
 }
 
-/// HTTP server settings.
+/// HTTP server settings (`[server]`), read by `service/`. Every key has a default.
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
-#[serde(deny_unknown_fields)]
+#[serde(deny_unknown_fields, default)]
 pub struct ServerConfig {
-    #[serde(default = "default_listen")]
+    /// Address to listen on.
     pub listen: String,
+    /// Byte budget of the in-memory cache of encoded responses.
+    pub cache_bytes: u64,
+    /// Compute jobs that may be running or queued at once; 0 means 4 × cores.
+    /// A request that finds the queue full is shed with 503.
+    pub compute_queue: u32,
+    /// Time budget of one request, milliseconds.
+    pub request_timeout_ms: u64,
+    /// Canonical frames per automaton step: `t` is snapped to a grid of `dt / frames_per_step`.
+    pub frames_per_step: u32,
+    /// `Cache-Control` of responses whose `t` is already a canonical frame time.
+    pub cache_control: String,
+    /// `Cache-Control` of everything else (non-canonical `t`, discovery).
+    pub cache_control_other: String,
+    /// After SIGTERM, how long `/readyz` says 503 while requests are still served.
+    pub drain_ms: u64,
+    /// How long in-flight requests may take to finish once listening stops.
+    pub shutdown_timeout_ms: u64,
+    /// Most time points one `/series` request may ask for.
+    pub max_series: u32,
 }
 
 fn default_listen() -> String {
@@ -43,7 +62,36 @@ impl Default for ServerConfig {
     fn default() -> Self {
         ServerConfig {
             listen: default_listen(),
+            cache_bytes: 256 << 20,
+            compute_queue: 0,
+            request_timeout_ms: 10_000,
+            frames_per_step: 4,
+            cache_control: "public, max-age=31536000, immutable".to_string(),
+            cache_control_other: "public, max-age=60".to_string(),
+            drain_ms: 1000,
+            shutdown_timeout_ms: 30_000,
+            max_series: 256,
         }
+    }
+}
+
+impl ServerConfig {
+    fn validate(&self) -> Result<(), ConfigError> {
+        if !(1..=64).contains(&self.frames_per_step) {
+            return Err(invalid("server.frames_per_step", "must be within [1, 64]"));
+        }
+        if self.request_timeout_ms == 0 {
+            return Err(invalid("server.request_timeout_ms", "must be positive"));
+        }
+        for (key, v) in [
+            ("server.cache_control", &self.cache_control),
+            ("server.cache_control_other", &self.cache_control_other),
+        ] {
+            if !v.bytes().all(|b| (0x20..0x7f).contains(&b)) {
+                return Err(invalid(key, "must be printable ASCII (it is an HTTP header value)"));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -163,6 +211,7 @@ impl Config {
         for (name, preset) in &raw.presets {
             validate_preset(&format!("presets.{name}"), preset)?;
         }
+        raw.server.validate()?;
         let limits = raw.limits;
         if limits.max_columns == 0 || limits.max_cells == 0 {
             return Err(invalid("limits", "max_columns and max_cells must be positive"));

@@ -1,0 +1,211 @@
+//! `cloudscape serve`: the HTTP service.
+//!
+//! Configuration, lowest precedence first: the embedded default or `--config FILE`
+//! (also `CLOUDSCAPE_CONFIG`), then environment overrides of `[server]` and `[limits]`
+//! keys (`CLOUDSCAPE_SERVER_LISTEN=0.0.0.0:8080`, `CLOUDSCAPE_LIMITS_MAX_LEVEL=12`,
+//! values in TOML syntax or plain strings), then `--listen`. The result is validated
+//! like any config file; `--print-config` prints it and exits.
+
+use clap::Args;
+
+use crate::service::Server;
+use crate::world::Config;
+
+const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
+
+/// Sections whose keys the environment may override.
+const ENV_SECTIONS: [&str; 2] = ["server", "limits"];
+
+#[derive(Args)]
+pub struct ServeArgs {
+    /// Config file (default: $CLOUDSCAPE_CONFIG, else the embedded config).
+    #[arg(long)]
+    config: Option<String>,
+    /// Address to listen on (default: the config's server.listen, 127.0.0.1:8080).
+    #[arg(long)]
+    listen: Option<String>,
+    /// Print the effective configuration as TOML and exit.
+    #[arg(long)]
+    print_config: bool,
+}
+
+/// The config text with environment (`vars`) and flag overrides applied, validated.
+pub(crate) fn effective_config(
+    file: Option<&str>,
+    listen: Option<&str>,
+    vars: impl IntoIterator<Item = (String, String)>,
+) -> Result<Config, String> {
+    let text = match file {
+        Some(p) => std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?,
+        None => DEFAULT_CONFIG.to_string(),
+    };
+    let mut doc: toml::Table =
+        toml::from_str(&text).map_err(|e| format!("invalid config: {}", e.to_string().trim()))?;
+    let mut set = |section: &str, key: &str, value: toml::Value| -> Result<(), String> {
+        let table = doc
+            .entry(section)
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        match table {
+            toml::Value::Table(t) => {
+                t.insert(key.to_string(), value);
+                Ok(())
+            }
+            _ => Err(format!("invalid config: `{section}` must be a table")),
+        }
+    };
+    for (name, raw) in vars {
+        let Some(rest) = name.strip_prefix("CLOUDSCAPE_") else {
+            continue;
+        };
+        let Some(section) = ENV_SECTIONS
+            .iter()
+            .find(|s| rest.starts_with(&format!("{}_", s.to_uppercase())))
+        else {
+            continue;
+        };
+        let key = rest[section.len() + 1..].to_lowercase();
+        // TOML syntax when it parses (numbers, booleans, quoted strings), else a plain string.
+        let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or(toml::Value::String(raw.clone()));
+        set(section, &key, value).map_err(|e| format!("{e} (from {name})"))?;
+    }
+    if let Some(l) = listen {
+        set("server", "listen", toml::Value::String(l.to_string()))?;
+    }
+    let merged = toml::to_string(&doc).map_err(|e| format!("cannot merge config overrides: {e}"))?;
+    Config::parse(&merged).map_err(|e| e.to_string())
+}
+
+/// The effective configuration as TOML that `Config::parse` reads back to the same config.
+pub(crate) fn config_to_toml(config: &Config) -> Result<String, String> {
+    let mut doc = toml::Table::new();
+    doc.insert("server".into(), value(&config.server)?);
+    doc.insert("limits".into(), value(&config.limits)?);
+    doc.insert("sun".into(), value(&config.sun)?);
+    doc.insert("presets".into(), value(&config.presets)?);
+    let mut worlds = toml::Table::new();
+    for (name, w) in &config.worlds {
+        let mut layers = Vec::new();
+        for l in &w.layers {
+            let toml::Value::Table(mut t) = value(l)? else {
+                return Err("a layer is not a table".into());
+            };
+            t.remove("preset_name");
+            t.insert("preset".into(), toml::Value::String(l.preset_name.clone()));
+            if l.ellipsoids.is_empty() {
+                t.remove("ellipsoids");
+            }
+            layers.push(toml::Value::Table(t));
+        }
+        let mut wt = toml::Table::new();
+        wt.insert("seed".into(), toml::Value::Integer(w.seed as i64));
+        wt.insert("layers".into(), toml::Value::Array(layers));
+        worlds.insert(name.clone(), toml::Value::Table(wt));
+    }
+    doc.insert("worlds".into(), toml::Value::Table(worlds));
+    toml::to_string(&doc).map_err(|e| format!("cannot print config: {e}"))
+}
+
+fn value<T: serde::Serialize>(v: &T) -> Result<toml::Value, String> {
+    toml::Value::try_from(v).map_err(|e| format!("cannot print config: {e}"))
+}
+
+pub fn run(a: ServeArgs) -> Result<(), String> {
+    let file = a.config.or_else(|| std::env::var("CLOUDSCAPE_CONFIG").ok());
+    let config = effective_config(file.as_deref(), a.listen.as_deref(), std::env::vars())?;
+    if a.print_config {
+        print!("{}", config_to_toml(&config)?);
+        return Ok(());
+    }
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .try_init();
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+        .map_err(|e| format!("cannot start the async runtime: {e}"))?;
+    runtime.block_on(async move {
+        let listen = config.server.listen.clone();
+        let server = Server::bind(config)
+            .await
+            .map_err(|e| format!("cannot listen on {listen}: {e}"))?;
+        let addr = server.local_addr().map_err(|e| e.to_string())?;
+        tracing::info!(%addr, "listening on http://{addr}");
+        let shutdown = server.shutdown_handle();
+        tokio::spawn(async move {
+            termination_signal().await;
+            tracing::info!("signal received: shutting down gracefully");
+            shutdown.trigger();
+        });
+        server.run().await.map_err(|e| format!("server failed: {e}"))
+    })
+}
+
+/// Ctrl-C or SIGTERM.
+async fn termination_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        _ = ctrl_c => {}
+        _ = term => {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn printed_config_reads_back_equal() {
+        let c = Config::embedded();
+        let text = config_to_toml(&c).unwrap();
+        assert_eq!(Config::parse(&text).unwrap(), c);
+    }
+
+    #[test]
+    fn environment_and_flags_override_in_order() {
+        let vars = vec![
+            ("CLOUDSCAPE_SERVER_LISTEN".to_string(), "0.0.0.0:9000".to_string()),
+            ("CLOUDSCAPE_SERVER_CACHE_BYTES".to_string(), "1234".to_string()),
+            ("CLOUDSCAPE_LIMITS_MAX_LEVEL".to_string(), "7".to_string()),
+            ("UNRELATED".to_string(), "x".to_string()),
+        ];
+        let c = effective_config(None, None, vars.clone()).unwrap();
+        assert_eq!(c.server.listen, "0.0.0.0:9000");
+        assert_eq!(c.server.cache_bytes, 1234);
+        assert_eq!(c.limits.max_level, 7);
+        let c = effective_config(None, Some("127.0.0.1:1"), vars).unwrap();
+        assert_eq!(c.server.listen, "127.0.0.1:1");
+    }
+
+    #[test]
+    fn unknown_or_invalid_overrides_are_named() {
+        let e = effective_config(None, None, vec![("CLOUDSCAPE_SERVER_BOGUS".into(), "1".into())]).unwrap_err();
+        assert!(e.contains("bogus"), "{e}");
+        let e = effective_config(
+            None,
+            None,
+            vec![("CLOUDSCAPE_SERVER_FRAMES_PER_STEP".into(), "0".into())],
+        )
+        .unwrap_err();
+        assert!(e.contains("frames_per_step"), "{e}");
+    }
+}

@@ -1,0 +1,135 @@
+//! Prometheus metrics, one registry per server (so tests can run several servers in
+//! one process), labelled by route template — never by tile, which would explode the
+//! number of series.
+
+use prometheus::{
+    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
+};
+
+/// Every metric the service exports. Owned by `AppState`; handlers and the compute
+/// queue update it.
+pub struct Metrics {
+    registry: Registry,
+    /// Requests by route template, method and status.
+    pub requests: IntCounterVec,
+    /// Request latency by route template, seconds.
+    pub latency: HistogramVec,
+    /// Requests being served right now.
+    pub in_flight: IntGauge,
+    /// Cache lookups that found the bytes, by product kind.
+    pub cache_hits: IntCounterVec,
+    /// Cache lookups that did not (the request then computes or joins a computation).
+    pub cache_misses: IntCounterVec,
+    /// Computations actually run, by product kind: concurrent misses on one key count once.
+    pub computations: IntCounterVec,
+    /// Compute time by product kind, seconds.
+    pub compute_seconds: HistogramVec,
+    /// Compute jobs running or queued.
+    pub queue_depth: IntGauge,
+    /// Requests refused with 503 because the queue was full, by product kind.
+    pub shed: IntCounterVec,
+    /// Requests whose time budget ran out.
+    pub timeouts: IntCounterVec,
+    /// Bytes held by the response cache (updated when scraped).
+    pub cache_bytes: IntGauge,
+    /// 1 while ready, 0 while starting or draining.
+    pub ready: IntGauge,
+}
+
+/// The `kind` label values: what a computation produces.
+pub const KINDS: [&str; 8] = [
+    "tile_density",
+    "tile_coverage",
+    "tile_shaded",
+    "sample",
+    "region",
+    "series",
+    "render",
+    "splats",
+];
+
+const LATENCY_BUCKETS: [f64; 14] = [
+    0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0,
+];
+
+impl Metrics {
+    pub fn new() -> Metrics {
+        let m = Metrics::unlabelled();
+        // Export every kind from the start, at zero, so dashboards and alerts see the series.
+        for kind in KINDS {
+            for v in [&m.cache_hits, &m.cache_misses, &m.computations, &m.shed, &m.timeouts] {
+                v.with_label_values(&[kind]);
+            }
+            m.compute_seconds.with_label_values(&[kind]);
+        }
+        m
+    }
+
+    fn unlabelled() -> Metrics {
+        let registry = Registry::new();
+        let counter = |name: &str, help: &str, labels: &[&str]| {
+            let c = IntCounterVec::new(Opts::new(name, help), labels).expect("valid metric");
+            registry.register(Box::new(c.clone())).expect("unique metric");
+            c
+        };
+        let histogram = |name: &str, help: &str, labels: &[&str]| {
+            let h = HistogramVec::new(HistogramOpts::new(name, help).buckets(LATENCY_BUCKETS.to_vec()), labels)
+                .expect("valid metric");
+            registry.register(Box::new(h.clone())).expect("unique metric");
+            h
+        };
+        let gauge = |name: &str, help: &str| {
+            let g = IntGauge::new(name, help).expect("valid metric");
+            registry.register(Box::new(g.clone())).expect("unique metric");
+            g
+        };
+        Metrics {
+            requests: counter(
+                "cloudscape_http_requests_total",
+                "HTTP requests by route template",
+                &["route", "method", "status"],
+            ),
+            latency: histogram(
+                "cloudscape_http_request_duration_seconds",
+                "HTTP request latency",
+                &["route"],
+            ),
+            in_flight: gauge("cloudscape_http_requests_in_flight", "HTTP requests being served"),
+            cache_hits: counter("cloudscape_cache_hits_total", "response cache hits", &["kind"]),
+            cache_misses: counter("cloudscape_cache_misses_total", "response cache misses", &["kind"]),
+            computations: counter(
+                "cloudscape_computations_total",
+                "computations run (coalesced)",
+                &["kind"],
+            ),
+            compute_seconds: histogram("cloudscape_compute_duration_seconds", "compute time", &["kind"]),
+            queue_depth: gauge("cloudscape_compute_queue_depth", "compute jobs running or queued"),
+            shed: counter(
+                "cloudscape_shed_total",
+                "requests shed with 503: compute queue full",
+                &["kind"],
+            ),
+            timeouts: counter(
+                "cloudscape_timeouts_total",
+                "requests over their time budget",
+                &["kind"],
+            ),
+            cache_bytes: gauge("cloudscape_cache_bytes", "bytes held by the response cache"),
+            ready: gauge("cloudscape_ready", "1 when ready to serve"),
+            registry,
+        }
+    }
+
+    /// The text exposition format.
+    pub fn render(&self) -> String {
+        let mut buf = Vec::new();
+        TextEncoder::new()
+            .encode(&self.registry.gather(), &mut buf)
+            .expect("text encoding cannot fail");
+        String::from_utf8(buf).expect("exposition is UTF-8")
+    }
+
+    pub fn observe_compute(&self, kind: &str) -> Histogram {
+        self.compute_seconds.with_label_values(&[kind])
+    }
+}

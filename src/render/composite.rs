@@ -207,7 +207,8 @@ mod tests {
             for (i, c) in img.rgb.iter_mut().enumerate() {
                 *c = [0.2, 0.3, (i % 7) as f32 / 7.0];
             }
-            img.alpha.iter_mut().for_each(|a| *a = 1.0);
+            // Alpha 0 so the final alpha is the billboards' own coverage.
+            img.alpha.iter_mut().for_each(|a| *a = 0.0);
         };
         let (mut fast, mut naive) = (Image::new(40, 30), Image::new(40, 30));
         background(&mut fast);

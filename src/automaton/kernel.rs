@@ -119,31 +119,6 @@ impl Level {
         }
         (self.cld[dy as usize * self.wpr + (dx / 64) as usize] >> (dx % 64)) & 1 == 1
     }
-
-    /// 64 `act` bits starting at frame cell (`x`, `y`); zeros outside the grid.
-    #[inline]
-    fn act_bits(&self, x: i64, y: i64) -> u64 {
-        let r = y - self.y0;
-        if r < 0 || r >= self.rows as i64 {
-            return 0;
-        }
-        let row = &self.act[r as usize * self.wpr..(r as usize + 1) * self.wpr];
-        let pos = x - self.x0;
-        let q = pos.div_euclid(64);
-        let s = pos.rem_euclid(64) as u32;
-        let word = |i: i64| {
-            if i >= 0 && (i as usize) < row.len() {
-                row[i as usize]
-            } else {
-                0
-            }
-        };
-        if s == 0 {
-            word(q)
-        } else {
-            (word(q) >> s) | (word(q + 1) << (64 - s))
-        }
-    }
 }
 
 /// What drives formation and extinction for one level (same geometry as its `Level`).
@@ -210,23 +185,71 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
             }
         }
     }
-    let row_of = |r: i64| -> Option<&[u64]> {
+    let zeros = vec![0u64; wpr];
+    let row_of = |r: i64| -> &[u64] {
         if r >= 0 && (r as usize) < lv.rows {
-            Some(&lv.act[r as usize * wpr..(r as usize + 1) * wpr])
+            &lv.act[r as usize * wpr..(r as usize + 1) * wpr]
         } else {
-            None
+            &zeros
         }
     };
+    // f_act of the words being computed in the current row.
+    let mut f_row = vec![0u64; wpr];
     for r in r_lo..r_hi {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
         let act_row = &lv.act[base..base + wpr];
-        let others = [
+        let (ym2, ym1, yp1, yp2) = (
             row_of(r as i64 - 2),
             row_of(r as i64 - 1),
             row_of(r as i64 + 1),
             row_of(r as i64 + 2),
-        ];
+        );
+        for w in w_lo..w_hi {
+            let a = act_row[w];
+            let prev = if w > 0 { act_row[w - 1] } else { 0 };
+            let next = if w + 1 < wpr { act_row[w + 1] } else { 0 };
+            // Lane b is cell x0 + 64w + b; its x+d neighbour is lane b+d.
+            f_row[w] = (a >> 1)
+                | (next << 63)
+                | (a >> 2)
+                | (next << 62)
+                | (a << 1)
+                | (prev >> 63)
+                | (a << 2)
+                | (prev >> 62)
+                | ym2[w]
+                | ym1[w]
+                | yp1[w]
+                | yp2[w];
+        }
+        // z neighbours: the same frame cells read from the other level's grid, whose
+        // words are offset by a whole-word part `q` and a bit part `sh`.
+        for (nl, rx, ry) in zn.iter().flatten() {
+            let rr = y + ry - nl.y0;
+            if rr < 0 || rr >= nl.rows as i64 {
+                continue;
+            }
+            let nrow = &nl.act[rr as usize * nl.wpr..(rr as usize + 1) * nl.wpr];
+            let pos = lv.x0 + rx - nl.x0;
+            let q = pos.div_euclid(64);
+            let sh = pos.rem_euclid(64) as u32;
+            let word = |i: i64| {
+                if i >= 0 && (i as usize) < nrow.len() {
+                    nrow[i as usize]
+                } else {
+                    0
+                }
+            };
+            for (w, f) in f_row.iter_mut().enumerate().take(w_hi).skip(w_lo) {
+                let qi = q + w as i64;
+                *f |= if sh == 0 {
+                    word(qi)
+                } else {
+                    (word(qi) >> sh) | (word(qi + 1) << (64 - sh))
+                };
+            }
+        }
         let keys = match ctx.rules {
             Rules::Dobashi => {
                 [Draw::Humidity, Draw::Activation, Draw::Extinction].map(|d| row_key(ctx.stream, d, k as u32, y, ctx.n))
@@ -235,18 +258,8 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
         };
         for w in w_lo..w_hi {
             let a = act_row[w];
-            let prev = if w > 0 { act_row[w - 1] } else { 0 };
-            let next = if w + 1 < wpr { act_row[w + 1] } else { 0 };
-            // Lane b is cell x0 + 64w + b; its x+d neighbour is lane b+d.
-            let mut f =
-                (a >> 1) | (next << 63) | (a >> 2) | (next << 62) | (a << 1) | (prev >> 63) | (a << 2) | (prev >> 62);
-            for o in others.iter().flatten() {
-                f |= o[w];
-            }
+            let f = f_row[w];
             let x = lv.x0 + 64 * w as i64;
-            for (nl, rx, ry) in zn.iter().flatten() {
-                f |= nl.act_bits(x + rx, y + ry);
-            }
             let h = lv.hum[base + w];
             let c = lv.cld[base + w];
             let keep_h = h & !a;

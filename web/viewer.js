@@ -97,8 +97,8 @@ const state = {
   camera: { x: camArr[0], y: camArr[1], z: camArr[2], yaw: camArr[3], pitch: camArr[4], fov: camArr[5] },
   /** Manual sun [az, el], or null to follow the world clock (the server's choice). */
   sun: parseNumbers(query.get('sun'), 2),
-  /** Names of the layers drawn, or null for all. */
-  layers: query.get('layers') ? query.get('layers').split(',') : null,
+  /** Names of the layers drawn (`layers=` alone: none), or null for all. */
+  layers: query.has('layers') ? query.get('layers').split(',').filter(Boolean) : null,
   viewDistance: Number(query.get('view')) > 0 ? Number(query.get('view')) : 20000,
   playing: false,
 };
@@ -572,6 +572,7 @@ function pump() {
         image.close?.();
         tile.state = 'ready';
         instancesDirty = true;
+        dropUnneeded();
       })
       .catch((e) => {
         stats.failures++;
@@ -585,7 +586,7 @@ function pump() {
   }
 }
 
-/** Re-plans; queues new tiles; drops tiles neither wanted nor standing in for a wanted one. */
+/** Re-plans, queues the new tiles and drops the ones no longer needed. */
 function updateTiles() {
   if (!worldInfo) return;
   const gen = generation();
@@ -603,7 +604,13 @@ function updateTiles() {
   const cam = state.camera;
   const centreDistance = (t) => Math.hypot(t.origin[0] + t.size / 2 - cam.x, t.origin[1] + t.size / 2 - cam.y);
   queue.sort((a, b) => centreDistance(a) - centreDistance(b));
-  const missing = planned.filter((p, i) => tiles.get(wanted[i]).state !== 'ready');
+  dropUnneeded();
+  pump();
+}
+
+/** Drops tiles that are neither wanted nor standing in for a wanted tile still loading. */
+function dropUnneeded() {
+  const missing = wanted.map((k) => tiles.get(k)).filter((t) => t && t.state !== 'ready');
   for (const [key, tile] of tiles) {
     if (wanted.includes(key)) continue;
     const standsIn =
@@ -618,7 +625,6 @@ function updateTiles() {
       );
     if (!standsIn) dropTile(key);
   }
-  pump();
 }
 
 function dropTile(key) {

@@ -25,6 +25,8 @@ mkdirSync(outDir, { recursive: true });
 const VIEWPORT = { width: 800, height: 450 };
 /** Generous: a cold server computes every tile on a shared 2-core machine. */
 const LOAD_TIMEOUT_MS = 600_000;
+/** SwiftShader draws a frame of ~100k billboards slowly. */
+const SCREENSHOT_TIMEOUT_MS = 300_000;
 
 let passed = 0;
 let failed = 0;
@@ -68,7 +70,6 @@ async function openPage(context) {
     if (m.type() === 'error') log.errors.push(m.text());
   });
   page.on('pageerror', (e) => log.errors.push(String(e)));
-  page.on('requestfailed', (r) => log.errors.push(`request failed: ${r.url()} ${r.failure()?.errorText}`));
   page.on('request', (r) => {
     if (r.url().includes('/tiles/')) log.tileRequests.push(r.url().slice(base.length));
   });
@@ -110,18 +111,24 @@ const std = (a) => {
 try {
   const context = await browser.newContext({ viewport: VIEWPORT });
 
-  // --- Scene A: straight down on the stratocumulus layer from 21 km. ----------------
-  // The server's level rule (column ≤ 8 px for `fast`) gives exactly one tile here:
-  // level 1 (51.2 km), tile (0, 0), whose view footprint lies well inside it.
+  // --- Scene A: straight down on the stratocumulus layer from 9 km. -----------------
+  // The server's level rule (a column may span at most 4 px for `balanced`) gives
+  // exactly one tile here: level 0, tile (0, 0), whose footprint lies inside it.
   const t0 = 43200;
-  const camera = '12800,12800,21000,0,-90,60';
-  const sceneA = `/?world=default&t=${t0}&camera=${camera}&quality=fast&layers=stratocumulus`;
+  const camera = '12800,12800,9000,0,-90,60';
+  const scene = `/?world=default&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
   const { page, log } = await openPage(context);
-  await page.goto(base + sceneA);
+  // The same view with no layer drawn: sky and ground only, the reference that
+  // tells cloud from ground below.
+  await page.goto(`${base}${scene}&layers=`);
+  await settle(page);
+  const ground = await canvasLuminance(page);
+  check('a view without layers requests no tile', log.tileRequests.length === 0);
+  await page.goto(`${base}${scene}&layers=stratocumulus`);
   await settle(page);
 
   const expected = ['billboards.bin', 'shadow.png'].map(
-    (p) => `/v1/worlds/default/tiles/1/0/0/${p}?t=${t0}&quality=fast&layer=stratocumulus`,
+    (p) => `/v1/worlds/default/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
   );
   const requested = [...new Set(log.tileRequests)].sort();
   check(
@@ -129,16 +136,16 @@ try {
     JSON.stringify(requested) === JSON.stringify(expected.slice().sort()),
     `requested ${JSON.stringify(requested)}`,
   );
-  const splats = log.responses.filter((r) => r.url.startsWith('/v1/splats.png?quality=fast'));
+  const splats = log.responses.filter((r) => r.url.startsWith('/v1/splats.png?quality=balanced'));
   check('fetches the splat atlas of its quality', splats.length > 0 && splats.every((r) => r.status === 200));
 
   const a = await canvasLuminance(page);
-  await page.screenshot({ path: join(outDir, 'topdown.png') });
+  await page.screenshot({ path: join(outDir, 'topdown.png'), timeout: SCREENSHOT_TIMEOUT_MS });
   check('the canvas is not blank', std(a.lum) > 0.03, `luminance std ${std(a.lum).toFixed(3)}`);
 
   // Project every column of the server's coverage map to the screen and compare.
   const coverage = await page.evaluate(async (t) => {
-    const url = `/v1/worlds/default/tiles/1/0/0/coverage.png?t=${t}&layer=stratocumulus`;
+    const url = `/v1/worlds/default/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
     const res = await fetch(url);
     const img = await createImageBitmap(await res.blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
     const c = document.createElement('canvas');
@@ -149,7 +156,7 @@ try {
     const d = ctx.getImageData(0, 0, img.width, img.height).data;
     const info = await (await fetch('/v1/worlds/default')).json();
     const layer = info.layers.find((l) => l.name === 'stratocumulus');
-    const column = layer.cell_size * 2; // level 1
+    const column = layer.cell_size; // level 0
     const mid = (layer.base + layer.top) / 2;
     const samples = [];
     for (let row = 0; row < img.height; row++) {
@@ -163,14 +170,14 @@ try {
     }
     return { status: res.status, samples };
   }, t0);
-  const at = (s) => a.lum[s.py * a.width + s.px];
+  // Cloudiness of a pixel: how far the clouds moved it from the ground-only picture.
+  const at = (s) => Math.abs(a.lum[s.py * a.width + s.px] - ground.lum[s.py * a.width + s.px]);
   const cloudy = coverage.samples.filter((s) => s.coverage >= 0.5).map(at);
   const clear = coverage.samples.filter((s) => s.coverage === 0).map(at);
-  const contrast = mean(cloudy) - mean(clear);
   check(
-    'the picture is brighter where the coverage map says cloud',
-    coverage.status === 200 && cloudy.length >= 50 && clear.length >= 50 && contrast > 0.1,
-    `${cloudy.length} cloudy columns mean ${mean(cloudy).toFixed(3)}, ${clear.length} clear columns mean ${mean(clear).toFixed(3)}`,
+    'the picture is cloudier where the coverage map says cloud',
+    coverage.status === 200 && cloudy.length >= 50 && clear.length >= 50 && mean(cloudy) > mean(clear) + 0.05,
+    `${cloudy.length} cloudy columns differ from the bare ground by ${mean(cloudy).toFixed(3)} on average, ${clear.length} clear columns by ${mean(clear).toFixed(3)}`,
   );
 
   // --- The time slider. -------------------------------------------------------------
@@ -204,14 +211,16 @@ try {
   );
   check('a reload downloads no tile body again', after.every((r) => r.status !== 200));
 
-  check('scene A logs no console errors', log.errors.length === 0, log.errors.slice(0, 5).join(' | '));
+  const bad = log.responses.filter((r) => r.status >= 400);
+  check('no request failed', bad.length === 0, JSON.stringify(bad.slice(0, 5)));
+  check('the page logs no console errors', log.errors.length === 0, log.errors.slice(0, 5).join(' | '));
   await page.close();
 
   // --- The default view (what `/` shows), and a 10 km view, for the figures. ---------
   const def = await openPage(context);
   await def.page.goto(`${base}/`);
   await settle(def.page);
-  await def.page.screenshot({ path: join(outDir, 'viewer.png') });
+  await def.page.screenshot({ path: join(outDir, 'viewer.png'), timeout: SCREENSHOT_TIMEOUT_MS });
   const d = await canvasLuminance(def.page);
   check('the default view is not blank', std(d.lum) > 0.03, `luminance std ${std(d.lum).toFixed(3)}`);
   const ds = await def.page.evaluate(async () => {

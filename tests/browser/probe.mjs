@@ -1,0 +1,14 @@
+import { chromium } from 'playwright-core';
+const [base, path, out] = process.argv.slice(2);
+const browser = await chromium.launch({ executablePath: '/usr/bin/chromium', args: ['--no-sandbox','--disable-gpu','--enable-unsafe-swiftshader','--use-angle=swiftshader','--ignore-gpu-blocklist'] });
+const page = await browser.newPage({ viewport: { width: 800, height: 450 } });
+page.on('console', (m) => console.log('console', m.type(), m.text()));
+const t0 = Date.now();
+await page.goto(base + path);
+await page.waitForFunction(() => window.cloudscape && window.cloudscape.settled(), null, { timeout: 600000, polling: 500 });
+console.log('settled after', Date.now() - t0, 'ms');
+console.log(JSON.stringify(await page.evaluate(() => ({ ...window.cloudscape.stats, urls: window.cloudscape.stats.urls.length, tiles: window.cloudscape.tiles().length }))));
+const t1 = Date.now();
+await page.screenshot({ path: out, timeout: 120000 });
+console.log('screenshot', Date.now() - t1, 'ms');
+await browser.close();

@@ -137,7 +137,7 @@ try {
     `requested ${JSON.stringify(requested)}`,
   );
   const splats = log.responses.filter((r) => r.url.startsWith('/v1/splats.png?quality=balanced'));
-  check('fetches the splat atlas of its quality', splats.length > 0 && splats.every((r) => r.status === 200));
+  check('fetches the splat atlas of its quality', splats.length > 0 && splats.every((r) => r.status === 200 || r.status === 304));
 
   const a = await canvasLuminance(page);
   await page.screenshot({ path: join(outDir, 'topdown.png'), timeout: SCREENSHOT_TIMEOUT_MS });
@@ -224,10 +224,10 @@ try {
   const d = await canvasLuminance(def.page);
   check('the default view is not blank', std(d.lum) > 0.03, `luminance std ${std(d.lum).toFixed(3)}`);
   const ds = await def.page.evaluate(async () => {
-    // Frame time over 60 frames (software GL: a relative figure only).
+    // Frame time over 20 frames (software GL: a relative figure only).
     const times = [];
     let last = performance.now();
-    for (let i = 0; i < 60; i++) {
+    for (let i = 0; i < 20; i++) {
       await new Promise((r) => requestAnimationFrame(r));
       const now = performance.now();
       times.push(now - last);
@@ -235,7 +235,7 @@ try {
     }
     times.sort((x, y) => x - y);
     const s = window.cloudscape.stats;
-    return { drawCalls: s.drawCalls, billboards: s.billboards, tiles: window.cloudscape.tiles().length, median: times[30], cpu: s.frameMs };
+    return { drawCalls: s.drawCalls, billboards: s.billboards, tiles: window.cloudscape.tiles().length, median: times[10], cpu: s.frameMs };
   });
   figure('default view: draw calls', ds.drawCalls);
   figure('default view: billboards', ds.billboards);

@@ -572,8 +572,14 @@ async fn region_sample_and_series_agree_with_the_tiles() {
     assert_eq!(region["columns"]["rows"], 60);
     let expected = coverage_from_tiles(&tiles, bbox, 100.0, 2);
     // serde_json parses floats to within one ulp; the counts behind them are equal.
-    assert!((region["coverage"].as_f64().unwrap() - expected).abs() < 1e-12, "{region} vs {expected}");
-    assert!(expected > 0.0 && expected < 1.0, "the test region should be partly cloudy: {expected}");
+    assert!(
+        (region["coverage"].as_f64().unwrap() - expected).abs() < 1e-12,
+        "{region} vs {expected}"
+    );
+    assert!(
+        expected > 0.0 && expected < 1.0,
+        "the test region should be partly cloudy: {expected}"
+    );
     let max = tiles.values().flatten().fold(0.0f32, |m, &v| m.max(v));
     assert!(region["max_density"].as_f64().unwrap() <= max as f64);
     let c = region["coverage"].as_f64().unwrap();

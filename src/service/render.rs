@@ -31,7 +31,7 @@ const DEFAULT_SIZE: &str = "640x360";
         ("camera" = String, Query, description = "X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the horizon; horizontal field of view; degrees", example = "0,0,1200,0,10,60"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the first layer's frame grid)", example = 0),
         ("size" = Option<String>, Query, description = "WxH pixels (default 640x360)", example = "64x36"),
-        ("quality" = Option<String>, Query, description = "fast | balanced (default) | accurate | reference (volumetric ray marcher)"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference (volumetric ray marcher)"),
         ("sun" = Option<String>, Query, description = "AZ,EL degrees (default: the world clock's sun at t); bucketed to ~8 degrees"),
     ),
     responses(
@@ -150,7 +150,7 @@ async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool
     get,
     path = "/v1/splats.png",
     tag = "render",
-    params(("quality" = Option<String>, Query, description = "fast | balanced (default) | accurate | reference")),
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference")),
     responses(
         (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
         (status = 304, description = "If-None-Match matched"),
@@ -170,7 +170,7 @@ pub async fn splats_png(
     get,
     path = "/v1/splats.json",
     tag = "render",
-    params(("quality" = Option<String>, Query, description = "fast | balanced (default) | accurate | reference")),
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference")),
     responses(
         (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
         (status = 304, description = "If-None-Match matched"),

@@ -177,10 +177,10 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("z" = u32, Path, description = "Level: a level-z column is 2^z level-0 cells wide", minimum = 0, example = 0),
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
-        ("product" = String, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
+        ("product" = super::openapi::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12; snapped to the layer's frame grid (dt / frames_per_step)", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("quality" = Option<String>, Query, description = "fast | balanced (default) | accurate | reference: metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference: metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
     ),
     responses(

@@ -6,6 +6,7 @@
 
 pub mod automaton;
 pub mod cli;
+pub mod client;
 pub mod density;
 pub mod fields;
 pub mod products;

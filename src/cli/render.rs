@@ -2,6 +2,7 @@
 
 use clap::Args;
 
+use crate::client::TileClient;
 use crate::render::scene::{RenderRequest, parse_size, render};
 use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
 
@@ -29,19 +30,19 @@ pub struct RenderArgs {
     /// Dual Henyey–Greenstein phase function G1,G2,MIX (default 0.7,-0.2,0.5).
     #[arg(long, allow_hyphen_values = true)]
     phase: Option<String>,
-    /// Config file (default: the embedded config).
+    /// Config file (default: the embedded config). Not used with --server.
     #[arg(long)]
     config: Option<String>,
+    /// Draw what the server at URL (http://HOST:PORT) serves: fetch its billboard tiles,
+    /// shadow maps and splats over HTTP and composite them here, instead of simulating.
+    #[arg(long)]
+    server: Option<String>,
     /// Output PNG; written whole or not at all.
     #[arg(long)]
     out: String,
 }
 
 pub fn run(a: RenderArgs) -> Result<(), String> {
-    let config = super::load_config(a.config.as_deref())?;
-    let world = config
-        .world(&a.world)
-        .ok_or_else(|| format!("unknown world `{}`", a.world))?;
     let t: f64 =
         a.t.trim()
             .parse()
@@ -81,6 +82,17 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
         sun,
         params,
     };
-    let rendered = render(&world, &config, &req).map_err(|e| e.to_string())?;
+    let rendered = match &a.server {
+        Some(url) => TileClient::new(url)
+            .and_then(|mut client| client.render(&a.world, &req))
+            .map_err(|e| e.to_string())?,
+        None => {
+            let config = super::load_config(a.config.as_deref())?;
+            let world = config
+                .world(&a.world)
+                .ok_or_else(|| format!("unknown world `{}`", a.world))?;
+            render(&world, &config, &req).map_err(|e| e.to_string())?
+        }
+    };
     super::write_atomically(&a.out, &rendered.image.to_png())
 }

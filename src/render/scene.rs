@@ -87,8 +87,37 @@ fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
     Ok(())
 }
 
+/// The geometry of a layer that the level choice needs: what a remote client learns
+/// from `/v1/worlds/{world}` without the layer's full spec.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerBand {
+    /// Altitude of the layer's bottom and top, metres.
+    pub base: f64,
+    pub top: f64,
+    /// Level-0 column width, metres.
+    pub cell_size: f64,
+}
+
 /// The tiles (layer, tile) the camera sees, per the level choice above.
 pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(usize, TileId)>, RenderError> {
+    let bands: Vec<LayerBand> = world
+        .layers
+        .iter()
+        .map(|l| LayerBand {
+            base: l.base,
+            top: l.top(),
+            cell_size: l.cell_size,
+        })
+        .collect();
+    plan_bands(&bands, config.limits.max_level, req)
+}
+
+/// [`plan`] over layer bands, with levels up to `max_level`.
+pub fn plan_bands(
+    layers: &[LayerBand],
+    max_level: u32,
+    req: &RenderRequest,
+) -> Result<Vec<(usize, TileId)>, RenderError> {
     check_request(req)?;
     let lod_pixels = req.quality.settings().lod_pixels;
     let cam = &req.camera;
@@ -98,11 +127,11 @@ pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(
     let pixel_angle = 2.0 * tan_h / req.width as f64;
     let p = cam.position;
     let mut out = Vec::new();
-    for (li, l) in world.layers.iter().enumerate() {
-        let (zb, zt) = (l.base, l.top());
+    for (li, l) in layers.iter().enumerate() {
+        let (zb, zt) = (l.base, l.top);
         let tile_size = |z: u32| TILE_COLUMNS as f64 * l.cell_size * (z as f64).exp2();
         let mut z_top = 0;
-        while tile_size(z_top) < 2.0 * VIEW_DISTANCE && z_top < config.limits.max_level {
+        while tile_size(z_top) < 2.0 * VIEW_DISTANCE && z_top < max_level {
             z_top += 1;
         }
         let s = tile_size(z_top);
@@ -241,7 +270,9 @@ pub fn draw_reference(volumes: &[Volume], req: &RenderRequest, sun: Sun, params:
     march::render(volumes, &lighting, params, &view, true)
 }
 
-fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
+/// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
+/// point) behind the clouds.
+pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
     img.rgb.par_chunks_mut(w).enumerate().for_each(|(y, row)| {

@@ -30,6 +30,7 @@ mod queries;
 mod render;
 mod stats;
 mod tiles;
+mod web;
 
 use std::io;
 use std::net::SocketAddr;
@@ -240,6 +241,7 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))
         .route("/openapi.json", get(ops::openapi))
+        .merge(web::routes())
         .fallback(|req: Request| async move { ApiError::NotFound(req.uri().path().chars().take(200).collect()) })
         .method_not_allowed_fallback(|| async { ApiError::MethodNotAllowed })
         .layer(CompressionLayer::new())

@@ -1,0 +1,267 @@
+// Drives the viewer served at `/` in real headless Chromium (Debian's package, through
+// playwright-core) against a running `cloudscape serve`.
+//
+//   node tests/browser/viewer.test.mjs http://127.0.0.1:PORT OUT_DIR
+//
+// Checks: the page loads without console errors; it requests exactly the tile URLs
+// its view needs; the canvas is not blank and is brighter where the server's coverage
+// map says cloud; moving the time slider changes the picture; a reload revalidates
+// every tile with a 304 and downloads no tile body. Saves screenshots in OUT_DIR and
+// prints figures (draw calls, billboards, bytes, frame time) for BENCHMARKS.md; no
+// assertion depends on time.
+
+import { mkdirSync, writeFileSync } from 'node:fs';
+import { join } from 'node:path';
+import { chromium } from 'playwright-core';
+
+const base = process.argv[2];
+const outDir = process.argv[3] || 'target/browser';
+if (!base) {
+  console.error('usage: node viewer.test.mjs BASE_URL [OUT_DIR]');
+  process.exit(2);
+}
+mkdirSync(outDir, { recursive: true });
+
+const VIEWPORT = { width: 800, height: 450 };
+/** Generous: a cold server computes every tile on a shared 2-core machine. */
+const LOAD_TIMEOUT_MS = 600_000;
+/** SwiftShader draws a frame of ~100k billboards slowly. */
+const SCREENSHOT_TIMEOUT_MS = 300_000;
+
+let passed = 0;
+let failed = 0;
+function check(name, ok, detail = '') {
+  if (ok) {
+    passed++;
+    console.log(`ok - ${name}${detail ? ` (${detail})` : ''}`);
+  } else {
+    failed++;
+    console.log(`not ok - ${name}${detail ? `: ${detail}` : ''}`);
+  }
+}
+const figures = [];
+const figure = (name, value) => {
+  figures.push(`${name}: ${value}`);
+  console.log(`figure - ${name}: ${value}`);
+};
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+  headless: true,
+  args: [
+    '--no-sandbox',
+    '--disable-gpu',
+    '--disable-quic',
+    '--no-first-run',
+    '--disable-background-networking',
+    '--disable-component-update',
+    '--disable-sync',
+    '--enable-unsafe-swiftshader',
+    '--use-angle=swiftshader',
+    '--ignore-gpu-blocklist',
+  ],
+});
+
+/** A page with everything it logs and requests recorded. */
+async function openPage(context) {
+  const page = await context.newPage();
+  const log = { errors: [], tileRequests: [], responses: [] };
+  page.on('console', (m) => {
+    if (m.type() === 'error') log.errors.push(m.text());
+  });
+  page.on('pageerror', (e) => log.errors.push(String(e)));
+  page.on('request', (r) => {
+    if (r.url().includes('/tiles/')) log.tileRequests.push(r.url().slice(base.length));
+  });
+  page.on('response', (r) => log.responses.push({ url: r.url().slice(base.length), status: r.status() }));
+  return { page, log };
+}
+
+async function settle(page) {
+  await page.waitForFunction(() => window.cloudscape && window.cloudscape.settled(), null, {
+    timeout: LOAD_TIMEOUT_MS,
+    polling: 250,
+  });
+  // Two more frames so the last tiles are drawn.
+  await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
+}
+
+/** Luminance (0..1) of the canvas, as a flat array, read back in the page. */
+async function canvasLuminance(page) {
+  return page.evaluate(() => {
+    const src = document.getElementById('view');
+    const c = document.createElement('canvas');
+    c.width = src.clientWidth;
+    c.height = src.clientHeight;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(src, 0, 0, c.width, c.height);
+    const d = ctx.getImageData(0, 0, c.width, c.height).data;
+    const lum = [];
+    for (let i = 0; i < d.length; i += 4) lum.push((0.2126 * d[i] + 0.7152 * d[i + 1] + 0.0722 * d[i + 2]) / 255);
+    return { width: c.width, height: c.height, lum };
+  });
+}
+
+const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);
+const std = (a) => {
+  const m = mean(a);
+  return Math.sqrt(mean(a.map((v) => (v - m) ** 2)));
+};
+
+try {
+  const context = await browser.newContext({ viewport: VIEWPORT });
+
+  // --- Scene A: straight down on the stratocumulus layer from 9 km. -----------------
+  // The server's level rule (a column may span at most 4 px for `balanced`) gives
+  // exactly one tile here: level 0, tile (0, 0), whose footprint lies inside it.
+  const t0 = 43200;
+  const camera = '12800,12800,9000,0,-90,60';
+  const scene = `/?world=default&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
+  const { page, log } = await openPage(context);
+  // The same view with no layer drawn: sky and ground only, the reference that
+  // tells cloud from ground below.
+  await page.goto(`${base}${scene}&layers=`);
+  await settle(page);
+  const ground = await canvasLuminance(page);
+  check('a view without layers requests no tile', log.tileRequests.length === 0);
+  await page.goto(`${base}${scene}&layers=stratocumulus`);
+  await settle(page);
+
+  const expected = ['billboards.bin', 'shadow.png'].map(
+    (p) => `/v1/worlds/default/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
+  );
+  const requested = [...new Set(log.tileRequests)].sort();
+  check(
+    'requests exactly the tile URLs of its view',
+    JSON.stringify(requested) === JSON.stringify(expected.slice().sort()),
+    `requested ${JSON.stringify(requested)}`,
+  );
+  const splats = log.responses.filter((r) => r.url.startsWith('/v1/splats.png?quality=balanced'));
+  check('fetches the splat atlas of its quality', splats.length > 0 && splats.every((r) => r.status === 200 || r.status === 304));
+
+  const a = await canvasLuminance(page);
+  await page.screenshot({ path: join(outDir, 'topdown.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+  check('the canvas is not blank', std(a.lum) > 0.03, `luminance std ${std(a.lum).toFixed(3)}`);
+
+  // Project every column of the server's coverage map to the screen and compare.
+  const coverage = await page.evaluate(async (t) => {
+    const url = `/v1/worlds/default/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
+    const res = await fetch(url);
+    const img = await createImageBitmap(await res.blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
+    const c = document.createElement('canvas');
+    c.width = img.width;
+    c.height = img.height;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(img, 0, 0);
+    const d = ctx.getImageData(0, 0, img.width, img.height).data;
+    const info = await (await fetch('/v1/worlds/default')).json();
+    const layer = info.layers.find((l) => l.name === 'stratocumulus');
+    const column = layer.cell_size; // level 0
+    const mid = (layer.base + layer.top) / 2;
+    const samples = [];
+    for (let row = 0; row < img.height; row++) {
+      for (let col = 0; col < img.width; col++) {
+        const x = (col + 0.5) * column;
+        const y = (img.height - 1 - row + 0.5) * column; // row 0 is north
+        const p = window.cloudscape.project([x, y, mid]);
+        if (!p || p[0] < 0 || p[1] < 0 || p[0] >= window.innerWidth || p[1] >= window.innerHeight) continue;
+        samples.push({ px: Math.floor(p[0]), py: Math.floor(p[1]), coverage: d[(row * img.width + col) * 4] / 255 });
+      }
+    }
+    return { status: res.status, samples };
+  }, t0);
+  // Cloudiness of a pixel: how far the clouds moved it from the ground-only picture.
+  const at = (s) => Math.abs(a.lum[s.py * a.width + s.px] - ground.lum[s.py * a.width + s.px]);
+  const cloudy = coverage.samples.filter((s) => s.coverage >= 0.5).map(at);
+  const clear = coverage.samples.filter((s) => s.coverage === 0).map(at);
+  check(
+    'the picture is cloudier where the coverage map says cloud',
+    coverage.status === 200 && cloudy.length >= 50 && clear.length >= 50 && mean(cloudy) > mean(clear) + 0.05,
+    `${cloudy.length} cloudy columns differ from the bare ground by ${mean(cloudy).toFixed(3)} on average, ${clear.length} clear columns by ${mean(clear).toFixed(3)}`,
+  );
+
+  // --- The time slider. -------------------------------------------------------------
+  const t1 = t0 + 1800;
+  await page.evaluate((t) => {
+    const slider = document.getElementById('time');
+    slider.value = String(t);
+    slider.dispatchEvent(new Event('input', { bubbles: true }));
+  }, t1);
+  await settle(page);
+  const drawnGens = await page.evaluate(() => window.cloudscape.tiles().map((t) => t.gen));
+  const b = await canvasLuminance(page);
+  const diff = mean(a.lum.map((v, i) => Math.abs(v - b.lum[i])));
+  check(
+    'moving the time slider loads the new frame and changes the picture',
+    drawnGens.length > 0 && drawnGens.every((g) => g.startsWith(`t=${t1}&`)) && diff > 0.01,
+    `mean |Δluminance| ${diff.toFixed(4)}`,
+  );
+
+  // --- Reload: every tile revalidates with a 304, no tile body is downloaded. --------
+  const before = log.responses.length;
+  await page.reload();
+  await settle(page);
+  const after = log.responses.slice(before).filter((r) => r.url.includes('/tiles/'));
+  const notModified = after.filter((r) => r.status === 304).length;
+  const stats = await page.evaluate(() => ({ ...window.cloudscape.stats, urls: undefined }));
+  check(
+    'a reload revalidates every tile with a 304',
+    after.length >= 2 && notModified === after.length && stats.revalidations >= after.length,
+    `${notModified}/${after.length} tile responses were 304; viewer counted ${stats.revalidations} revalidations`,
+  );
+  check('a reload downloads no tile body again', after.every((r) => r.status !== 200));
+
+  const bad = log.responses.filter((r) => r.status >= 400);
+  check('no request failed', bad.length === 0, JSON.stringify(bad.slice(0, 5)));
+  check('the page logs no console errors', log.errors.length === 0, log.errors.slice(0, 5).join(' | '));
+  await page.close();
+
+  // --- The default view (what `/` shows), and a 10 km view, for the figures. ---------
+  const def = await openPage(context);
+  await def.page.goto(`${base}/`);
+  await settle(def.page);
+  await def.page.screenshot({ path: join(outDir, 'viewer.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+  const d = await canvasLuminance(def.page);
+  check('the default view is not blank', std(d.lum) > 0.03, `luminance std ${std(d.lum).toFixed(3)}`);
+  const ds = await def.page.evaluate(async () => {
+    // Frame time over 20 frames (software GL: a relative figure only).
+    const times = [];
+    let last = performance.now();
+    for (let i = 0; i < 20; i++) {
+      await new Promise((r) => requestAnimationFrame(r));
+      const now = performance.now();
+      times.push(now - last);
+      last = now;
+    }
+    times.sort((x, y) => x - y);
+    const s = window.cloudscape.stats;
+    return { drawCalls: s.drawCalls, billboards: s.billboards, tiles: window.cloudscape.tiles().length, median: times[10], cpu: s.frameMs };
+  });
+  figure('default view: draw calls', ds.drawCalls);
+  figure('default view: billboards', ds.billboards);
+  figure('default view: tiles', ds.tiles);
+  figure('default view: median frame interval, ms (SwiftShader, 800x450)', ds.median.toFixed(1));
+  figure('default view: CPU time per frame, ms', ds.cpu.toFixed(2));
+  check('the default view logs no console errors', def.log.errors.length === 0, def.log.errors.slice(0, 5).join(' | '));
+  await def.page.close();
+
+  // A fresh context (empty caches): bytes for a 10 km view.
+  const fresh = await browser.newContext({ viewport: VIEWPORT });
+  const ten = await openPage(fresh);
+  await ten.page.goto(`${base}/?view=10000`);
+  await settle(ten.page);
+  const ts = await ten.page.evaluate(() => ({ ...window.cloudscape.stats, urls: window.cloudscape.stats.urls.length }));
+  figure('10 km view: tile requests', ts.urls);
+  figure('10 km view: bytes on the wire (all requests)', ts.transferBytes);
+  figure('10 km view: body bytes (decoded)', ts.bodyBytes);
+  check('the 10 km view logs no console errors', ten.log.errors.length === 0, ten.log.errors.slice(0, 5).join(' | '));
+  await fresh.close();
+  writeFileSync(join(outDir, 'figures.txt'), figures.join('\n') + '\n');
+} catch (e) {
+  check('the browser test ran to the end', false, e.stack || String(e));
+} finally {
+  await browser.close();
+}
+
+console.log(`browser: ${passed} passed, ${failed} failed`);
+process.exit(failed === 0 ? 0 : 1);

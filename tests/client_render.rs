@@ -1,0 +1,241 @@
+//! The Rust client against a real server: a remote render (`client::TileClient`,
+//! `cloudscape render --server URL`) gives the same image as a local render of the same
+//! scene, within the 8-bit quantisation of the served products; a second render
+//! revalidates every tile with a 304 instead of downloading it.
+//!
+//! Tolerance: the served products quantise sun transmittance, shadow maps and splat
+//! opacities to 8 bits (≤ 1/510 each), so display values may differ by a few 1/255
+//! steps where many billboards overlap; the mean over the image stays far below one
+//! step. Asserted: mean |Δ| ≤ 1/255 and max |Δ| ≤ 12/255 per channel.
+
+use std::net::SocketAddr;
+use std::process::Command;
+use std::sync::mpsc;
+
+use cloudscape::client::{ClientError, TileClient};
+use cloudscape::render::{Camera, Quality, RenderRequest, ShadingParams, render};
+use cloudscape::service::{Server, ShutdownHandle};
+use cloudscape::world::Config;
+
+const MEAN_TOLERANCE: f64 = 1.0 / 255.0;
+const MAX_TOLERANCE: f64 = 12.0 / 255.0;
+
+struct RunningServer {
+    base: String,
+    shutdown: ShutdownHandle,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Drop for RunningServer {
+    fn drop(&mut self) {
+        self.shutdown.trigger();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// `cloudscape serve` on the embedded config, in-process on 127.0.0.1:0.
+fn start_server() -> RunningServer {
+    let mut config = Config::embedded();
+    config.server.listen = "127.0.0.1:0".to_string();
+    config.server.request_timeout_ms = 600_000;
+    config.server.drain_ms = 0;
+    let (tx, rx) = mpsc::channel::<(SocketAddr, ShutdownHandle)>();
+    let thread = std::thread::spawn(move || {
+        let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
+        runtime.block_on(async move {
+            let server = Server::bind(config).await.expect("bind 127.0.0.1:0");
+            tx.send((server.local_addr().unwrap(), server.shutdown_handle()))
+                .unwrap();
+            server.run().await.expect("server runs");
+        });
+    });
+    let (addr, shutdown) = rx.recv().expect("the server starts");
+    RunningServer {
+        base: format!("http://{addr}"),
+        shutdown,
+        thread: Some(thread),
+    }
+}
+
+/// Mean and max absolute difference of two images' display values.
+fn difference(a: &[[f32; 3]], b: &[[f32; 3]]) -> (f64, f64) {
+    assert_eq!(a.len(), b.len());
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for (p, q) in a.iter().zip(b) {
+        for c in 0..3 {
+            let d = (p[c] - q[c]).abs() as f64;
+            sum += d;
+            max = max.max(d);
+        }
+    }
+    (sum / (3 * a.len()) as f64, max)
+}
+
+fn decode_png(path: &std::path::Path) -> (u32, u32, Vec<u8>) {
+    let file = std::io::BufReader::new(std::fs::File::open(path).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
+}
+
+#[test]
+fn a_remote_render_matches_a_local_one_and_revalidates() {
+    let server = start_server();
+    let config = Config::embedded();
+    let world = config.world("default").unwrap();
+    // Between the altocumulus top (5 km) and the cirrus base (8 km), looking down and
+    // north: the two lower layers, several tiles and levels, sunlit ground.
+    let req = RenderRequest {
+        camera: Camera::parse("12800,6000,7000,0,-50,70").unwrap(),
+        width: 192,
+        height: 108,
+        t: 43200.0,
+        quality: Quality::Fast,
+        sun: None,
+        params: ShadingParams::default(),
+    };
+    let local = render(&world, &config, &req).expect("local render");
+    let mut client = TileClient::new(&server.base).unwrap();
+    let remote = client.render("default", &req).expect("remote render");
+
+    assert!(!local.tiles.is_empty() && local.billboards > 0, "the scene has clouds");
+    assert_eq!(remote.tiles, local.tiles, "the same level choice");
+    assert_eq!(remote.billboards, local.billboards, "every billboard served");
+    assert_eq!(
+        remote.sun,
+        local.sun.bucket().centre(),
+        "the centre of the clock sun's bucket"
+    );
+    let (mean, max) = difference(&remote.image.display(), &local.image.display());
+    assert!(
+        mean <= MEAN_TOLERANCE && max <= MAX_TOLERANCE,
+        "remote vs local: mean |Δ| {mean:.5}, max |Δ| {max:.5}"
+    );
+
+    // Two products per tile, a splat sheet and its manifest, the world: all 200s.
+    let first = client.stats();
+    assert_eq!(first.revalidated, 0);
+    assert_eq!(first.fetched as usize, 2 * local.tiles.len() + 3);
+    // Again with the same client: every body is revalidated, none downloaded.
+    let again = client.render("default", &req).expect("second remote render");
+    let second = client.stats();
+    assert_eq!(second.fetched, first.fetched, "nothing downloaded again");
+    assert_eq!(second.body_bytes, first.body_bytes);
+    assert_eq!(second.revalidated, first.fetched, "every body revalidated with a 304");
+    assert_eq!(again.image.display(), remote.image.display());
+
+    // The command line: `render --server` writes the same picture as a local render.
+    let dir = tempfile::tempdir().unwrap();
+    let (remote_png, local_png) = (dir.path().join("remote.png"), dir.path().join("local.png"));
+    let args = [
+        "render",
+        "--world",
+        "default",
+        "--camera",
+        "12800,6000,7000,0,-50,70",
+        "--t",
+        "43200",
+        "--size",
+        "96x54",
+        "--quality",
+        "fast",
+    ];
+    let bin = env!("CARGO_BIN_EXE_cloudscape");
+    let out = Command::new(bin)
+        .args(args)
+        .args(["--server", server.base.as_str(), "--out"])
+        .arg(&remote_png)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new(bin)
+        .args(args)
+        .arg("--out")
+        .arg(&local_png)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let (w, h, a) = decode_png(&remote_png);
+    let (w2, h2, b) = decode_png(&local_png);
+    assert_eq!((w, h), (w2, h2));
+    assert_eq!((w, h), (96, 54));
+    let mean = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y) as f64).sum::<f64>() / a.len() as f64 / 255.0;
+    let max = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y)).max().unwrap() as f64 / 255.0;
+    assert!(
+        mean <= MEAN_TOLERANCE && max <= MAX_TOLERANCE,
+        "CLI remote vs local: mean |Δ| {mean:.5}, max |Δ| {max:.5}"
+    );
+}
+
+#[test]
+fn remote_errors_are_one_clear_sentence() {
+    // Nothing listens on a port we just released.
+    let port = std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let url = format!("http://127.0.0.1:{port}");
+    let mut client = TileClient::new(&url).unwrap();
+    assert!(matches!(client.world("default"), Err(ClientError::Transport { .. })));
+
+    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args([
+            "render",
+            "--world",
+            "default",
+            "--camera",
+            "0,0,900,0,5,60",
+            "--t",
+            "0",
+            "--size",
+            "8x8",
+            "--server",
+        ])
+        .arg(&url)
+        .args(["--out", "/dev/null/never.png"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains(&url), "{stderr}");
+
+    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args([
+            "render",
+            "--world",
+            "default",
+            "--camera",
+            "0,0,900,0,5,60",
+            "--t",
+            "0",
+            "--size",
+            "8x8",
+            "--server",
+            "localhost:1",
+            "--out",
+            "x.png",
+        ])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("http://HOST:PORT"));
+}
+
+#[test]
+fn an_unknown_remote_world_is_the_servers_404() {
+    let server = start_server();
+    let mut client = TileClient::new(&server.base).unwrap();
+    match client.world("nope") {
+        Err(ClientError::Status { status, message, .. }) => {
+            assert_eq!(status, 404);
+            assert!(message.contains("nope"), "{message}");
+        }
+        other => panic!("expected a 404, got {other:?}", other = other.map(|w| w.name)),
+    }
+}

@@ -1,0 +1,1060 @@
+// cloudscape viewer: a thin WebGL2 client of the tile server.
+//
+// It fetches, for the tiles around the camera, the shaded metaball instances
+// (`billboards.bin`) and ground shadow maps (`shadow.png`), plus the splat sprite
+// sheet (`/v1/splats.png`), and draws camera-facing billboards textured with their
+// splat, sorted back to front and blended over a sky and a shadowed ground plane.
+// Level choice follows the server's renderer (src/render/scene.rs `plan`): a quadtree
+// per layer, split while a column would span more than the preset's `lod_pixels`.
+//
+// Every fetch revalidates with the ETag it was last given (kept in the Cache Storage
+// API, so reloads revalidate too); a 304 reuses the stored bytes. Tiles held in memory
+// are never fetched again; tiles that leave the view are dropped.
+//
+// State can be given in the URL: ?world=&t=&camera=X,Y,Z,YAW,PITCH,FOV&quality=
+// &sun=AZ,EL&layers=a,b&view=METRES (the page keeps the URL up to date).
+
+'use strict';
+
+// ---------------------------------------------------------------------------
+// Constants shared with the server (src/render/*.rs).
+// ---------------------------------------------------------------------------
+
+/** Splits a tile while one of its columns would cover more pixels than this (QualitySettings::lod_pixels). */
+const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
+/** Columns per tile side. */
+const TILE_COLUMNS = 256;
+/** ShadingParams::default(). */
+const SHADING = { albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5 };
+/** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
+const MAX_TILES = 48;
+/** Requests in flight at once (the server computes tiles on a bounded queue). */
+const MAX_IN_FLIGHT = 4;
+/** Bytes of billboards.bin (src/products/billboards.rs). */
+const BIN_HEADER = 64;
+const BIN_RECORD = 32;
+/** Floats per instance in the GPU buffer: centre xyz, radius, colour rgb, splat, T. */
+const INSTANCE_FLOATS = 9;
+/** Cache Storage bucket of revalidatable responses. */
+const CACHE_NAME = 'cloudscape-v1';
+
+// ---------------------------------------------------------------------------
+// Small maths.
+// ---------------------------------------------------------------------------
+
+const rad = (d) => (d * Math.PI) / 180;
+const clamp = (v, a, b) => Math.min(b, Math.max(a, v));
+const smoothstep = (e0, e1, x) => {
+  const t = clamp((x - e0) / (e1 - e0), 0, 1);
+  return t * t * (3 - 2 * t);
+};
+const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+
+/** Camera basis as in src/render/camera.rs: yaw clockwise from north, pitch above the horizon. */
+function basis(cam) {
+  const yaw = rad(cam.yaw);
+  const pitch = rad(cam.pitch);
+  const forward = [Math.sin(yaw) * Math.cos(pitch), Math.cos(yaw) * Math.cos(pitch), Math.sin(pitch)];
+  const right = [Math.cos(yaw), -Math.sin(yaw), 0];
+  const up = cross(right, forward);
+  return { forward, right, up };
+}
+
+function sunDirection(az, el) {
+  return [Math.sin(rad(az)) * Math.cos(rad(el)), Math.cos(rad(az)) * Math.cos(rad(el)), Math.sin(rad(el))];
+}
+
+/** Lighting::new (src/render/light.rs): sun colour reddened by air mass, ambient scaled by daylight. */
+function lighting(az, el) {
+  el = clamp(el, -90, 90);
+  const h = Math.max(el, 0);
+  const airMass = 1 / (Math.sin(rad(h)) + 0.50572 * Math.pow(h + 6.07995, -1.6364));
+  const visible = smoothstep(-6, 0, el);
+  const sunRgb = [0.05, 0.1, 0.22].map((b) => SHADING.sunIntensity * visible * Math.exp(-b * airMass));
+  const daylight = 0.03 + 0.97 * smoothstep(-12, 10, el);
+  return { dir: sunDirection(az, el), sunRgb, ambient: SHADING.ambient.map((a) => a * daylight), daylight };
+}
+
+// ---------------------------------------------------------------------------
+// State: URL parameters, then the controls.
+// ---------------------------------------------------------------------------
+
+const query = new URLSearchParams(location.search);
+
+function parseNumbers(s, n) {
+  if (!s) return null;
+  const v = s.split(',').map(Number);
+  return v.length === n && v.every(Number.isFinite) ? v : null;
+}
+
+const DEFAULT_CAMERA = [12800, -6000, 900, 0, 6, 75];
+const camArr = parseNumbers(query.get('camera'), 6) || DEFAULT_CAMERA;
+const state = {
+  world: query.get('world') || 'default',
+  quality: LOD_PIXELS[query.get('quality')] ? query.get('quality') : 'fast',
+  t: Number.isFinite(Number(query.get('t'))) && query.get('t') !== null ? Number(query.get('t')) : 43200,
+  camera: { x: camArr[0], y: camArr[1], z: camArr[2], yaw: camArr[3], pitch: camArr[4], fov: camArr[5] },
+  /** Manual sun [az, el], or null to follow the world clock (the server's choice). */
+  sun: parseNumbers(query.get('sun'), 2),
+  /** Names of the layers drawn (`layers=` alone: none), or null for all. */
+  layers: query.has('layers') ? query.get('layers').split(',').filter(Boolean) : null,
+  viewDistance: Number(query.get('view')) > 0 ? Number(query.get('view')) : 20000,
+  playing: false,
+};
+
+/** Counters the HUD shows and tests read. */
+const stats = {
+  requests: 0,
+  /** Responses with a body (200). */
+  fetched: 0,
+  /** 304 answers to If-None-Match: the stored bytes were reused. */
+  revalidations: 0,
+  /** Decoded body bytes of 200 responses. */
+  bodyBytes: 0,
+  /** Bytes on the wire (Resource Timing transferSize: headers + encoded body). */
+  transferBytes: 0,
+  failures: 0,
+  drawCalls: 0,
+  billboards: 0,
+  frameMs: 0,
+  /** Tile URLs requested, in order. */
+  urls: [],
+};
+
+let worldInfo = null;
+let splatInfo = null;
+
+// ---------------------------------------------------------------------------
+// Network: ETag revalidation through the Cache Storage API.
+// ---------------------------------------------------------------------------
+
+const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
+let cacheStore = null;
+const cacheReady = (async () => {
+  try {
+    cacheStore = await caches.open(CACHE_NAME);
+  } catch {
+    cacheStore = null; // no Cache Storage (insecure context): plain fetches
+  }
+})();
+
+performance.setResourceTimingBufferSize?.(100000);
+new PerformanceObserver((list) => {
+  for (const e of list.getEntries()) stats.transferBytes += e.transferSize || 0;
+}).observe({ type: 'resource', buffered: true });
+
+/**
+ * GETs `url` and returns its body, revalidating a stored copy with If-None-Match.
+ * Retries 503 (overload) after Retry-After.
+ */
+async function fetchBytes(url, { track = true } = {}) {
+  await cacheReady;
+  const stored = cacheStore ? await cacheStore.match(url) : undefined;
+  const etag = stored && stored.headers.get('ETag');
+  const headers = etag ? { 'If-None-Match': etag } : {};
+  for (let attempt = 0; ; attempt++) {
+    stats.requests++;
+    if (track) stats.urls.push(url);
+    const res = await fetch(url, { cache: 'no-store', headers });
+    if (res.status === 304 && stored) {
+      stats.revalidations++;
+      return stored.arrayBuffer();
+    }
+    if (res.status === 503 && attempt < 10) {
+      const after = Number(res.headers.get('Retry-After'));
+      await sleep(Number.isFinite(after) && after > 0 ? after * 1000 : 250 * 2 ** Math.min(attempt, 4));
+      continue;
+    }
+    if (!res.ok) {
+      let message = `${res.status}`;
+      try {
+        message = (await res.json()).message || message;
+      } catch { /* not JSON */ }
+      throw new Error(`${url}: ${message}`);
+    }
+    const body = await res.arrayBuffer();
+    stats.fetched++;
+    stats.bodyBytes += body.byteLength;
+    const tag = res.headers.get('ETag');
+    if (cacheStore && tag) {
+      const h = { ETag: tag, 'Content-Type': res.headers.get('Content-Type') || 'application/octet-stream' };
+      await cacheStore.put(url, new Response(body.slice(0), { headers: h }));
+    }
+    return body;
+  }
+}
+
+async function fetchJson(url) {
+  return JSON.parse(new TextDecoder().decode(await fetchBytes(url, { track: false })));
+}
+
+async function decodeImage(bytes, type) {
+  return createImageBitmap(new Blob([bytes], { type }), {
+    premultiplyAlpha: 'none',
+    colorSpaceConversion: 'none',
+  });
+}
+
+// ---------------------------------------------------------------------------
+// WebGL.
+// ---------------------------------------------------------------------------
+
+const canvas = document.getElementById('view');
+const gl = canvas.getContext('webgl2', { antialias: false, preserveDrawingBuffer: true, alpha: false });
+if (!gl) throw new Error('WebGL2 is not available in this browser');
+
+function compile(vs, fs) {
+  const shader = (type, src) => {
+    const s = gl.createShader(type);
+    gl.shaderSource(s, src);
+    gl.compileShader(s);
+    if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+    return s;
+  };
+  const p = gl.createProgram();
+  gl.attachShader(p, shader(gl.VERTEX_SHADER, vs));
+  gl.attachShader(p, shader(gl.FRAGMENT_SHADER, fs));
+  gl.linkProgram(p);
+  if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(p));
+  const uniforms = {};
+  for (let i = 0; i < gl.getProgramParameter(p, gl.ACTIVE_UNIFORMS); i++) {
+    const name = gl.getActiveUniform(p, i).name;
+    uniforms[name] = gl.getUniformLocation(p, name);
+  }
+  return { program: p, u: uniforms };
+}
+
+// Display mapping of src/render/light.rs `tone_map`: 1 − exp(−x), then gamma 1/2.2.
+const TONE = `
+vec3 tone(vec3 x) { return pow(1.0 - exp(-max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
+`;
+
+// Sky and unshadowed ground, per pixel from the view ray (Lighting::background).
+const skyProgram = compile(
+  `#version 300 es
+  out vec2 ndc;
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    ndc = p;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  in vec2 ndc;
+  uniform vec3 forward, right, up;
+  uniform vec2 tanHalf;
+  uniform vec3 sunDir, sunRgb, ambient;
+  uniform float daylight, eyeZ;
+  out vec4 colour;
+  ${TONE}
+  void main() {
+    vec3 d = normalize(forward + ndc.x * tanHalf.x * right + ndc.y * tanHalf.y * up);
+    vec3 c;
+    if (d.z >= 0.0 || eyeZ <= 0.0) {
+      float k = sqrt(clamp(d.z, 0.0, 1.0));
+      c = daylight * mix(vec3(0.62, 0.70, 0.80), vec3(0.22, 0.38, 0.70), k);
+      float s = max(dot(d, sunDir), 0.0);
+      c += sunRgb * (pow(s, 2000.0) * 40.0 + pow(s, 12.0) * 0.15);
+    } else {
+      c = vec3(0.26, 0.25, 0.21) * (sunRgb * max(sunDir.z, 0.0) + ambient);
+    }
+    colour = vec4(tone(c), 1.0);
+  }`,
+);
+
+// Ground shadow of one tile: multiplies the ground by (lit with T) / (lit with T = 1).
+const shadowProgram = compile(
+  `#version 300 es
+  uniform mat4 viewProj;
+  uniform vec4 rect; // x0, y0 relative to the eye; side; eye altitude
+  out vec2 uv;
+  void main() {
+    vec2 q = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
+    uv = vec2(q.x, 1.0 - q.y); // shadow.png row 0 is the northern edge
+    gl_Position = viewProj * vec4(rect.xy + q * rect.z, -rect.w, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  in vec2 uv;
+  uniform sampler2D shadow;
+  uniform vec3 sunDir, sunRgb, ambient;
+  out vec4 colour;
+  ${TONE}
+  void main() {
+    float t = texture(shadow, uv).r;
+    vec3 g = vec3(0.26, 0.25, 0.21);
+    float c = max(sunDir.z, 0.0);
+    vec3 lit = tone(g * (sunRgb * c + ambient));
+    vec3 shadowed = tone(g * (sunRgb * c * t + ambient));
+    colour = vec4(shadowed / max(lit, vec3(1e-4)), 1.0);
+  }`,
+);
+
+// Camera-facing billboards textured with their splat (premultiplied `over`).
+const billboardProgram = compile(
+  `#version 300 es
+  layout(location = 0) in vec4 centreRadius; // centre relative to the buffer origin; radius
+  layout(location = 1) in vec3 rgb;          // colour, isotropic phase (linear)
+  layout(location = 2) in vec2 splatT;       // splat index, sun transmittance
+  uniform mat4 viewProj;
+  uniform vec3 eye, right, up, sunDir, sunRgb;
+  uniform vec4 sheet; // columns, size (texels), texture width, texture height
+  uniform float albedo;
+  uniform vec3 phase; // g1, g2, mix
+  out vec2 corner;
+  out vec2 cellOrigin;
+  out vec3 radiance;
+  float hg(float g, float c) { float d = 1.0 + g * g - 2.0 * g * c; return (1.0 - g * g) / (d * sqrt(d)); }
+  void main() {
+    corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
+    vec3 c = centreRadius.xyz - eye;
+    vec3 p = c + (corner.x * right + corner.y * up) * centreRadius.w;
+    gl_Position = viewProj * vec4(p, 1.0);
+    float k = splatT.x;
+    cellOrigin = vec2(mod(k, sheet.x), floor(k / sheet.x)) * sheet.y;
+    float cosTheta = dot(normalize(c), sunDir);
+    float ph = mix(hg(phase.y, cosTheta), hg(phase.x, cosTheta), phase.z);
+    radiance = rgb + albedo * sunRgb * splatT.y * (ph - 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  in vec2 corner;
+  in vec2 cellOrigin;
+  in vec3 radiance;
+  uniform sampler2D splats;
+  uniform vec4 sheet;
+  out vec4 colour;
+  ${TONE}
+  void main() {
+    if (dot(corner, corner) >= 1.0) discard;
+    float c = (sheet.y - 1.0) * 0.5; // SplatSheet::sample: texel centres span [-1, 1]
+    vec2 texel = cellOrigin + 0.5 + c + corner * c;
+    float a = texture(splats, texel / sheet.zw).a;
+    colour = vec4(tone(radiance) * a, a);
+  }`,
+);
+
+const billboardVao = gl.createVertexArray();
+const instanceBuffer = gl.createBuffer();
+gl.bindVertexArray(billboardVao);
+gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+const stride = INSTANCE_FLOATS * 4;
+gl.enableVertexAttribArray(0);
+gl.vertexAttribPointer(0, 4, gl.FLOAT, false, stride, 0);
+gl.vertexAttribDivisor(0, 1);
+gl.enableVertexAttribArray(1);
+gl.vertexAttribPointer(1, 3, gl.FLOAT, false, stride, 16);
+gl.vertexAttribDivisor(1, 1);
+gl.enableVertexAttribArray(2);
+gl.vertexAttribPointer(2, 2, gl.FLOAT, false, stride, 28);
+gl.vertexAttribDivisor(2, 1);
+gl.bindVertexArray(null);
+const emptyVao = gl.createVertexArray();
+
+let splatTexture = null;
+
+function texture(image, filter) {
+  const tex = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, tex);
+  gl.pixelStorei(gl.UNPACK_PREMULTIPLY_ALPHA_WEBGL, false);
+  gl.pixelStorei(gl.UNPACK_COLORSPACE_CONVERSION_WEBGL, gl.NONE);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE, image);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, filter);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, filter);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+  return tex;
+}
+
+/** View-projection of eye-relative coordinates (column-major), horizontal FOV. */
+function viewProjection(cam, aspect) {
+  const { forward: f, right: r, up: u } = basis(cam);
+  const sx = 1 / Math.tan(rad(cam.fov) / 2);
+  const sy = sx * aspect;
+  const near = 5;
+  const far = 400000;
+  const a = (far + near) / (near - far);
+  const b = (2 * far * near) / (near - far);
+  // Rows of the view matrix: right, up, -forward; then a standard perspective.
+  const m = new Float32Array(16);
+  const rows = [
+    [sx * r[0], sx * r[1], sx * r[2], 0],
+    [sy * u[0], sy * u[1], sy * u[2], 0],
+    [-a * f[0], -a * f[1], -a * f[2], b],
+    [f[0], f[1], f[2], 0],
+  ];
+  for (let row = 0; row < 4; row++) for (let col = 0; col < 4; col++) m[col * 4 + row] = rows[row][col];
+  return m;
+}
+
+/** Canvas pixel (CSS pixels, origin top-left) of world point p, or null when behind the eye. */
+function project(p) {
+  const cam = state.camera;
+  const { forward, right, up } = basis(cam);
+  const d = [p[0] - cam.x, p[1] - cam.y, p[2] - cam.z];
+  const depth = dot(d, forward);
+  if (depth <= 0) return null;
+  const tanH = Math.tan(rad(cam.fov) / 2);
+  const w = canvas.clientWidth;
+  const h = canvas.clientHeight;
+  const tanV = (tanH * h) / w;
+  const x = dot(d, right) / depth / tanH;
+  const y = dot(d, up) / depth / tanV;
+  return [((x + 1) / 2) * w, ((1 - y) / 2) * h];
+}
+
+// ---------------------------------------------------------------------------
+// Tiles: which ones the camera needs, loading, dropping.
+// ---------------------------------------------------------------------------
+
+/** Frame time of a layer's grid: what the server snaps `t` to. */
+function snapTime(t) {
+  const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
+  return Math.round(t / period) * period;
+}
+
+function drawnLayers() {
+  return worldInfo.layers
+    .map((l, i) => ({ ...l, index: i }))
+    .filter((l) => !state.layers || state.layers.includes(l.name));
+}
+
+/**
+ * The tiles the camera sees (src/render/scene.rs `plan`), coarsened until at most
+ * MAX_TILES remain.
+ */
+function plan() {
+  const cam = state.camera;
+  const w = Math.max(1, canvas.clientWidth);
+  const h = Math.max(1, canvas.clientHeight);
+  const { forward, right, up } = basis(cam);
+  const tanH = Math.tan(rad(cam.fov) / 2);
+  const tanV = (tanH * h) / w;
+  const pixelAngle = (2 * tanH) / w;
+  const view = state.viewDistance;
+  for (let lod = LOD_PIXELS[state.quality]; ; lod *= 2) {
+    const out = [];
+    let tooMany = false;
+    for (const l of drawnLayers()) {
+      const zb = l.base;
+      const zt = l.top;
+      const tileSize = (z) => TILE_COLUMNS * l.cell_size * 2 ** z;
+      let zTop = 0;
+      while (tileSize(zTop) < 2 * view && zTop < worldInfo.maxzoom) zTop++;
+      const s = tileSize(zTop);
+      const stack = [];
+      for (let y = Math.floor((cam.y - view) / s); y <= Math.floor((cam.y + view) / s); y++) {
+        for (let x = Math.floor((cam.x - view) / s); x <= Math.floor((cam.x + view) / s); x++) stack.push([zTop, x, y]);
+      }
+      while (stack.length) {
+        const [z, x, y] = stack.pop();
+        const size = tileSize(z);
+        const x0 = x * size;
+        const y0 = y * size;
+        const x1 = x0 + size;
+        const y1 = y0 + size;
+        const dx = Math.max(x0 - cam.x, 0, cam.x - x1);
+        const dy = Math.max(y0 - cam.y, 0, cam.y - y1);
+        const dz = Math.max(zb - cam.z, 0, cam.z - zt);
+        if (Math.hypot(dx, dy) > view) continue;
+        const outside = [true, true, true, true, true];
+        for (const cx of [x0, x1]) {
+          for (const cy of [y0, y1]) {
+            for (const cz of [zb, zt]) {
+              const r = [cx - cam.x, cy - cam.y, cz - cam.z];
+              const a = dot(r, right);
+              const b = dot(r, up);
+              const f = dot(r, forward);
+              const tests = [f < 0, a > f * tanH, a < -f * tanH, b > f * tanV, b < -f * tanV];
+              for (let i = 0; i < 5; i++) outside[i] = outside[i] && tests[i];
+            }
+          }
+        }
+        if (outside.some(Boolean)) continue;
+        const dist = Math.max(Math.hypot(dx, dy, dz), 1);
+        const column = l.cell_size * 2 ** z;
+        if (z > 0 && column / (dist * pixelAngle) > lod) {
+          for (const [ox, oy] of [[0, 0], [1, 0], [0, 1], [1, 1]]) stack.push([z - 1, x * 2 + ox, y * 2 + oy]);
+          if (out.length + stack.length > 64 * MAX_TILES) {
+            tooMany = true;
+            break;
+          }
+          continue;
+        }
+        out.push({ layer: l.index, layerName: l.name, z, x, y, origin: [x0, y0], size });
+      }
+      if (tooMany) break;
+    }
+    if (!tooMany && out.length <= MAX_TILES) return out;
+  }
+}
+
+/** The parameters every tile URL of the current view shares. */
+function generation() {
+  const t = snapTime(state.t);
+  let q = `t=${t}&quality=${state.quality}`;
+  if (state.sun) q += `&sun=${state.sun[0]},${state.sun[1]}`;
+  return q;
+}
+
+function tileUrl(tile, product, gen) {
+  return (
+    `/v1/worlds/${encodeURIComponent(state.world)}/tiles/${tile.z}/${tile.x}/${tile.y}/${product}` +
+    `?${gen}&layer=${encodeURIComponent(tile.layerName)}`
+  );
+}
+
+/** Loaded or loading tiles by key (`gen|layer/z/x/y`). */
+const tiles = new Map();
+/** Keys the current plan wants. */
+let wanted = [];
+let queue = [];
+let inFlight = 0;
+let instancesDirty = true;
+
+/** Decodes billboards.bin into instance floats (centres relative to `origin`). */
+function decodeBillboards(buf) {
+  const v = new DataView(buf);
+  const magic = String.fromCharCode(v.getUint8(0), v.getUint8(1), v.getUint8(2), v.getUint8(3));
+  if (magic !== 'CSBB' || v.getUint16(4, true) !== 1 || v.getUint16(6, true) !== BIN_RECORD) {
+    throw new Error('billboards.bin: unknown format');
+  }
+  const count = v.getUint32(8, true);
+  if (buf.byteLength !== BIN_HEADER + count * BIN_RECORD) throw new Error('billboards.bin: truncated');
+  const header = {
+    origin: [v.getFloat64(32, true), v.getFloat64(40, true)],
+    sun: [v.getFloat32(48, true), v.getFloat32(52, true)],
+    splatCount: v.getUint16(56, true),
+  };
+  const data = new Float32Array(count * INSTANCE_FLOATS);
+  for (let i = 0; i < count; i++) {
+    const o = BIN_HEADER + i * BIN_RECORD;
+    const d = i * INSTANCE_FLOATS;
+    data[d] = v.getFloat32(o, true);
+    data[d + 1] = v.getFloat32(o + 4, true);
+    data[d + 2] = v.getFloat32(o + 8, true);
+    data[d + 3] = v.getFloat32(o + 12, true);
+    data[d + 4] = v.getFloat32(o + 20, true);
+    data[d + 5] = v.getFloat32(o + 24, true);
+    data[d + 6] = v.getFloat32(o + 28, true);
+    data[d + 7] = v.getUint16(o + 16, true);
+    data[d + 8] = v.getUint8(o + 19) / 255;
+  }
+  return { header, count, data };
+}
+
+async function loadTile(tile) {
+  const gen = tile.gen;
+  const [bin, png] = await Promise.all([
+    fetchBytes(tileUrl(tile, 'billboards.bin', gen)),
+    fetchBytes(tileUrl(tile, 'shadow.png', gen)),
+  ]);
+  const decoded = decodeBillboards(bin);
+  const image = await decodeImage(png, 'image/png');
+  return { decoded, image };
+}
+
+function pump() {
+  while (inFlight < MAX_IN_FLIGHT && queue.length) {
+    const tile = queue.shift();
+    if (!wanted.includes(tile.key)) {
+      tiles.delete(tile.key);
+      continue;
+    }
+    inFlight++;
+    loadTile(tile)
+      .then(({ decoded, image }) => {
+        if (!tiles.has(tile.key)) return;
+        tile.billboards = decoded;
+        tile.sun = decoded.header.sun;
+        tile.shadow = texture(image, gl.LINEAR);
+        image.close?.();
+        tile.state = 'ready';
+        instancesDirty = true;
+        dropUnneeded();
+      })
+      .catch((e) => {
+        stats.failures++;
+        tile.state = 'failed';
+        showError(e.message);
+      })
+      .finally(() => {
+        inFlight--;
+        pump();
+      });
+  }
+}
+
+/** Re-plans, queues the new tiles and drops the ones no longer needed. */
+function updateTiles() {
+  if (!worldInfo) return;
+  const gen = generation();
+  const planned = plan();
+  wanted = planned.map((p) => `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}`);
+  planned.forEach((p, i) => {
+    const key = wanted[i];
+    if (!tiles.has(key)) {
+      const tile = { ...p, key, gen, state: 'queued' };
+      tiles.set(key, tile);
+      queue.push(tile);
+    }
+  });
+  // Nearest first.
+  const cam = state.camera;
+  const centreDistance = (t) => Math.hypot(t.origin[0] + t.size / 2 - cam.x, t.origin[1] + t.size / 2 - cam.y);
+  queue.sort((a, b) => centreDistance(a) - centreDistance(b));
+  dropUnneeded();
+  pump();
+}
+
+/** Drops tiles that are neither wanted nor standing in for a wanted tile still loading. */
+function dropUnneeded() {
+  const missing = wanted.map((k) => tiles.get(k)).filter((t) => t && t.state !== 'ready');
+  for (const [key, tile] of tiles) {
+    if (wanted.includes(key)) continue;
+    const standsIn =
+      tile.state === 'ready' &&
+      missing.some(
+        (m) =>
+          m.layer === tile.layer &&
+          m.origin[0] < tile.origin[0] + tile.size &&
+          tile.origin[0] < m.origin[0] + m.size &&
+          m.origin[1] < tile.origin[1] + tile.size &&
+          tile.origin[1] < m.origin[1] + m.size,
+      );
+    if (!standsIn) dropTile(key);
+  }
+}
+
+function dropTile(key) {
+  const tile = tiles.get(key);
+  if (!tile) return;
+  if (tile.shadow) gl.deleteTexture(tile.shadow);
+  tiles.delete(key);
+  queue = queue.filter((t) => t.key !== key);
+  instancesDirty = true;
+}
+
+function drawnTiles() {
+  return [...tiles.values()].filter((t) => t.state === 'ready');
+}
+
+// ---------------------------------------------------------------------------
+// Drawing.
+// ---------------------------------------------------------------------------
+
+/** All drawn instances, centres relative to `bufferOrigin`, and a sorted copy for the GPU. */
+let instances = new Float32Array(0);
+let sorted = new Float32Array(0);
+let bufferOrigin = [0, 0];
+let lastSortEye = null;
+
+function rebuildInstances() {
+  const drawn = drawnTiles();
+  const total = drawn.reduce((n, t) => n + t.billboards.count, 0);
+  instances = new Float32Array(total * INSTANCE_FLOATS);
+  sorted = new Float32Array(total * INSTANCE_FLOATS);
+  bufferOrigin = [Math.round(state.camera.x), Math.round(state.camera.y)];
+  let at = 0;
+  for (const t of drawn) {
+    const { data, count, header } = t.billboards;
+    instances.set(data, at);
+    const ox = header.origin[0] - bufferOrigin[0];
+    const oy = header.origin[1] - bufferOrigin[1];
+    for (let i = 0; i < count; i++) {
+      instances[at + i * INSTANCE_FLOATS] += ox;
+      instances[at + i * INSTANCE_FLOATS + 1] += oy;
+    }
+    at += data.length;
+  }
+  stats.billboards = total;
+  instancesDirty = false;
+  lastSortEye = null;
+}
+
+/** Sorts instances back to front from the eye and uploads them. */
+function sortInstances(eye) {
+  const n = instances.length / INSTANCE_FLOATS;
+  const dist = new Float64Array(n);
+  const order = new Uint32Array(n);
+  for (let i = 0; i < n; i++) {
+    const o = i * INSTANCE_FLOATS;
+    const dx = instances[o] - eye[0];
+    const dy = instances[o + 1] - eye[1];
+    const dz = instances[o + 2] - eye[2];
+    dist[i] = dx * dx + dy * dy + dz * dz;
+    order[i] = i;
+  }
+  order.sort((a, b) => dist[b] - dist[a]);
+  for (let i = 0; i < n; i++) {
+    sorted.set(instances.subarray(order[i] * INSTANCE_FLOATS, (order[i] + 1) * INSTANCE_FLOATS), i * INSTANCE_FLOATS);
+  }
+  gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
+  gl.bufferData(gl.ARRAY_BUFFER, sorted, gl.DYNAMIC_DRAW);
+  lastSortEye = eye;
+}
+
+/** The sun drawn: the manual one, else the one the server shaded the tiles for. */
+function currentSun() {
+  if (state.sun) return state.sun;
+  const t = drawnTiles().find((t) => t.sun);
+  return t ? t.sun : [180, 45];
+}
+
+function resize() {
+  const dpr = Math.min(window.devicePixelRatio || 1, 2);
+  const w = Math.max(1, Math.round(canvas.clientWidth * dpr));
+  const h = Math.max(1, Math.round(canvas.clientHeight * dpr));
+  if (canvas.width !== w || canvas.height !== h) {
+    canvas.width = w;
+    canvas.height = h;
+  }
+}
+
+function draw() {
+  resize();
+  if (instancesDirty) rebuildInstances();
+  const cam = state.camera;
+  const aspect = canvas.width / canvas.height;
+  const { forward, right, up } = basis(cam);
+  const [az, el] = currentSun();
+  const light = lighting(az, el);
+  const vp = viewProjection(cam, aspect);
+  const tanH = Math.tan(rad(cam.fov) / 2);
+  let calls = 0;
+
+  gl.viewport(0, 0, canvas.width, canvas.height);
+  gl.disable(gl.DEPTH_TEST);
+  gl.disable(gl.CULL_FACE);
+
+  // Sky and ground.
+  gl.disable(gl.BLEND);
+  gl.useProgram(skyProgram.program);
+  const su = skyProgram.u;
+  gl.uniform3fv(su.forward, forward);
+  gl.uniform3fv(su.right, right);
+  gl.uniform3fv(su.up, up);
+  gl.uniform2f(su.tanHalf, tanH, tanH / aspect);
+  gl.uniform3fv(su.sunDir, light.dir);
+  gl.uniform3fv(su.sunRgb, light.sunRgb);
+  gl.uniform3fv(su.ambient, light.ambient);
+  gl.uniform1f(su.daylight, light.daylight);
+  gl.uniform1f(su.eyeZ, cam.z);
+  gl.bindVertexArray(emptyVao);
+  gl.drawArrays(gl.TRIANGLES, 0, 3);
+  calls++;
+
+  // Ground shadows: one quad per tile, multiplied in.
+  const drawn = drawnTiles();
+  if (cam.z > 0 && light.dir[2] > 0) {
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.DST_COLOR, gl.ZERO);
+    gl.useProgram(shadowProgram.program);
+    const hu = shadowProgram.u;
+    gl.uniformMatrix4fv(hu.viewProj, false, vp);
+    gl.uniform3fv(hu.sunDir, light.dir);
+    gl.uniform3fv(hu.sunRgb, light.sunRgb);
+    gl.uniform3fv(hu.ambient, light.ambient);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.uniform1i(hu.shadow, 0);
+    for (const t of drawn) {
+      gl.bindTexture(gl.TEXTURE_2D, t.shadow);
+      gl.uniform4f(hu.rect, t.origin[0] - cam.x, t.origin[1] - cam.y, t.size, cam.z);
+      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      calls++;
+    }
+  }
+
+  // Billboards, back to front.
+  const n = instances.length / INSTANCE_FLOATS;
+  if (n > 0 && splatTexture) {
+    const eye = [cam.x - bufferOrigin[0], cam.y - bufferOrigin[1], cam.z];
+    if (!lastSortEye || Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1) {
+      sortInstances(eye);
+    }
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    gl.useProgram(billboardProgram.program);
+    const bu = billboardProgram.u;
+    gl.uniformMatrix4fv(bu.viewProj, false, vp);
+    gl.uniform3fv(bu.eye, eye);
+    gl.uniform3fv(bu.right, right);
+    gl.uniform3fv(bu.up, up);
+    gl.uniform3fv(bu.sunDir, light.dir);
+    gl.uniform3fv(bu.sunRgb, light.sunRgb);
+    gl.uniform1f(bu.albedo, SHADING.albedo);
+    gl.uniform3f(bu.phase, SHADING.g1, SHADING.g2, SHADING.mix);
+    gl.uniform4f(bu.sheet, splatInfo.columns, splatInfo.size, splatInfo.width, splatInfo.height);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, splatTexture);
+    gl.uniform1i(bu.splats, 0);
+    gl.bindVertexArray(billboardVao);
+    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, n);
+    calls++;
+    gl.bindVertexArray(null);
+  }
+  stats.drawCalls = calls;
+}
+
+// ---------------------------------------------------------------------------
+// Controls.
+// ---------------------------------------------------------------------------
+
+const $ = (id) => document.getElementById(id);
+const keys = new Set();
+let speed = 150; // m/s
+
+function showError(message) {
+  const el = $('error');
+  el.textContent = message;
+  el.hidden = false;
+}
+
+function syncUrl() {
+  const c = state.camera;
+  const p = new URLSearchParams();
+  p.set('world', state.world);
+  p.set('t', String(state.t));
+  p.set('camera', [c.x, c.y, c.z, c.yaw, c.pitch, c.fov].map((v) => Math.round(v * 10) / 10).join(','));
+  p.set('quality', state.quality);
+  if (state.sun) p.set('sun', state.sun.join(','));
+  if (state.layers) p.set('layers', state.layers.join(','));
+  if (query.has('view')) p.set('view', String(state.viewDistance));
+  history.replaceState(null, '', `?${p}`);
+}
+
+function formatTime(t) {
+  const day = Math.floor(t / 86400);
+  const s = t - day * 86400;
+  const hh = String(Math.floor(s / 3600)).padStart(2, '0');
+  const mm = String(Math.floor((s % 3600) / 60)).padStart(2, '0');
+  return `day ${day} ${hh}:${mm} (t = ${t} s)`;
+}
+
+function setTime(t) {
+  state.t = clamp(t, 0, worldInfo ? worldInfo.max_time : 1e12);
+  $('time').value = String(state.t);
+  $('time-out').textContent = formatTime(snapTime(state.t));
+  updateTiles();
+  syncUrl();
+}
+
+function setupControls() {
+  canvas.addEventListener('pointerdown', (e) => {
+    canvas.setPointerCapture(e.pointerId);
+    const move = (m) => {
+      state.camera.yaw = (state.camera.yaw + m.movementX * 0.2 + 360) % 360;
+      state.camera.pitch = clamp(state.camera.pitch - m.movementY * 0.2, -89.9, 89.9);
+    };
+    canvas.addEventListener('pointermove', move);
+    canvas.addEventListener('pointerup', () => canvas.removeEventListener('pointermove', move), { once: true });
+  });
+  canvas.addEventListener('wheel', (e) => {
+    speed = clamp(speed * (e.deltaY < 0 ? 1.25 : 0.8), 5, 20000);
+    e.preventDefault();
+  }, { passive: false });
+  window.addEventListener('keydown', (e) => {
+    if (e.target instanceof HTMLInputElement || e.target instanceof HTMLSelectElement) return;
+    keys.add(e.key.toLowerCase());
+  });
+  window.addEventListener('keyup', (e) => keys.delete(e.key.toLowerCase()));
+  window.addEventListener('blur', () => keys.clear());
+
+  const time = $('time');
+  time.addEventListener('input', () => setTime(Number(time.value)));
+  $('play').addEventListener('click', () => {
+    state.playing = !state.playing;
+    $('play').textContent = state.playing ? 'Pause' : 'Play';
+  });
+
+  const quality = $('quality');
+  quality.value = state.quality;
+  quality.addEventListener('change', async () => {
+    state.quality = quality.value;
+    await loadSplats();
+    updateTiles();
+    syncUrl();
+  });
+
+  const world = $('world');
+  world.addEventListener('change', () => switchWorld(world.value));
+  $('seed-go').addEventListener('click', () => {
+    const s = $('seed').value.trim();
+    if (/^[0-9]+$/.test(s)) switchWorld(s);
+    else showError(`a seed is a decimal u64, got "${s}"`);
+  });
+
+  const clock = $('sun-clock');
+  const az = $('sun-az');
+  const el = $('sun-el');
+  const sunChanged = () => {
+    state.sun = clock.checked ? null : [Number(az.value), Number(el.value)];
+    az.disabled = el.disabled = clock.checked;
+    $('sun-out').textContent = state.sun ? `${state.sun[0]}°, ${state.sun[1]}°` : 'clock';
+    updateTiles();
+    syncUrl();
+  };
+  if (state.sun) {
+    clock.checked = false;
+    az.value = String(state.sun[0]);
+    el.value = String(state.sun[1]);
+  }
+  clock.addEventListener('change', sunChanged);
+  az.addEventListener('change', sunChanged);
+  el.addEventListener('change', sunChanged);
+  sunChanged();
+}
+
+function renderLayerToggles() {
+  const box = $('layers');
+  box.textContent = '';
+  for (const l of worldInfo.layers) {
+    const label = document.createElement('label');
+    const input = document.createElement('input');
+    input.type = 'checkbox';
+    input.checked = !state.layers || state.layers.includes(l.name);
+    input.addEventListener('change', () => {
+      const on = [...box.querySelectorAll('input')].filter((i) => i.checked).map((i) => i.dataset.layer);
+      state.layers = on.length === worldInfo.layers.length ? null : on;
+      updateTiles();
+      syncUrl();
+    });
+    input.dataset.layer = l.name;
+    label.append(input, ` ${l.name}`);
+    box.append(label);
+  }
+}
+
+/** Moves the camera from the keys held; returns true when it moved. */
+function fly(dt) {
+  const { forward, right } = basis(state.camera);
+  const v = speed * (keys.has('shift') ? 5 : 1) * dt;
+  const move = [0, 0, 0];
+  const add = (d, k) => { for (let i = 0; i < 3; i++) move[i] += d[i] * k; };
+  if (keys.has('w')) add(forward, v);
+  if (keys.has('s')) add(forward, -v);
+  if (keys.has('d')) add(right, v);
+  if (keys.has('a')) add(right, -v);
+  if (keys.has('r')) move[2] += v;
+  if (keys.has('f')) move[2] -= v;
+  if (move.every((m) => m === 0)) return false;
+  state.camera.x += move[0];
+  state.camera.y += move[1];
+  state.camera.z = Math.max(2, state.camera.z + move[2]);
+  return true;
+}
+
+/** True when every wanted tile is drawn. */
+function settled() {
+  return worldInfo !== null && splatTexture !== null && wanted.every((k) => tiles.get(k)?.state === 'ready');
+}
+
+// ---------------------------------------------------------------------------
+// Main loop and start-up.
+// ---------------------------------------------------------------------------
+
+let lastFrame = performance.now();
+let lastPlan = 0;
+let lastPlanCamera = '';
+let lastUrlSync = 0;
+let lastPlayStep = 0;
+
+function frame(now) {
+  const dt = Math.min((now - lastFrame) / 1000, 0.1);
+  lastFrame = now;
+  const started = performance.now();
+  fly(dt);
+  const c = state.camera;
+  const camKey = [c.x, c.y, c.z, c.yaw, c.pitch, c.fov].map((v) => Math.round(v)).join(',');
+  if (worldInfo && camKey !== lastPlanCamera && now - lastPlan > 200) {
+    lastPlan = now;
+    lastPlanCamera = camKey;
+    updateTiles();
+    if (now - lastUrlSync > 1000) {
+      lastUrlSync = now;
+      syncUrl();
+    }
+  }
+  if (state.playing && worldInfo && settled() && now - lastPlayStep > 250) {
+    lastPlayStep = now;
+    const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
+    setTime(snapTime(state.t) + period);
+  }
+  if (splatTexture) draw();
+  const cpu = performance.now() - started;
+  stats.frameMs = stats.frameMs ? stats.frameMs * 0.9 + cpu * 0.1 : cpu;
+  stats.frameInterval = stats.frameInterval ? stats.frameInterval * 0.9 + dt * 100 : dt * 1000;
+  updateHud();
+  requestAnimationFrame(frame);
+}
+
+function updateHud() {
+  const ready = wanted.filter((k) => tiles.get(k)?.state === 'ready').length;
+  const kb = (b) => `${(b / 1024).toFixed(1)} KiB`;
+  $('hud').textContent = [
+    `frame      ${stats.frameMs.toFixed(2)} ms cpu, ${(stats.frameInterval || 0).toFixed(1)} ms interval`,
+    `tiles      ${ready}/${wanted.length} loaded, ${inFlight} in flight, ${drawnTiles().length} drawn`,
+    `billboards ${stats.billboards}, ${stats.drawCalls} draw calls`,
+    `fetched    ${stats.fetched} (${kb(stats.bodyBytes)} bodies, ${kb(stats.transferBytes)} on the wire)`,
+    `revalidated ${stats.revalidations} (304)`,
+    `camera     ${[c().x, c().y, c().z].map((v) => v.toFixed(0)).join(', ')}  yaw ${c().yaw.toFixed(0)}° pitch ${c().pitch.toFixed(0)}°`,
+    `sun        ${currentSun().map((v) => Number(v).toFixed(0)).join('°, ')}°${state.sun ? '' : ' (clock)'}`,
+  ].join('\n');
+  function c() { return state.camera; }
+}
+
+async function loadSplats() {
+  const q = `quality=${state.quality}`;
+  const [json, png] = await Promise.all([
+    fetchJson(`/v1/splats.json?${q}`),
+    fetchBytes(`/v1/splats.png?${q}`, { track: false }),
+  ]);
+  const image = await decodeImage(png, 'image/png');
+  if (splatTexture) gl.deleteTexture(splatTexture);
+  splatTexture = texture(image, gl.LINEAR);
+  splatInfo = { columns: json.columns, size: json.size, width: image.width, height: image.height, count: json.count };
+  image.close?.();
+}
+
+async function switchWorld(name) {
+  state.world = name;
+  $('error').hidden = true;
+  for (const key of [...tiles.keys()]) dropTile(key);
+  worldInfo = await fetchJson(`/v1/worlds/${encodeURIComponent(name)}`);
+  const world = $('world');
+  if (![...world.options].some((o) => o.value === name)) {
+    world.append(new Option(`seed ${name}`, name));
+  }
+  world.value = name;
+  const time = $('time');
+  time.step = String(Math.min(...worldInfo.layers.map((l) => l.frame_seconds)));
+  renderLayerToggles();
+  setTime(state.t);
+}
+
+async function start() {
+  setupControls();
+  const list = await fetchJson('/v1/worlds');
+  const world = $('world');
+  for (const w of list.worlds) world.append(new Option(`${w.name} (seed ${w.seed})`, w.name));
+  await loadSplats();
+  await switchWorld(state.world);
+  requestAnimationFrame(frame);
+}
+
+/** For tests and the console: read-only views of the viewer's state. */
+window.cloudscape = {
+  state,
+  stats,
+  settled,
+  project,
+  tiles: () => drawnTiles().map((t) => ({ layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count, gen: t.gen })),
+  wanted: () => wanted.slice(),
+  tileUrl: (tile, product) => tileUrl(tile, product, generation()),
+};
+
+start().catch((e) => {
+  showError(e.message);
+  throw e;
+});

@@ -89,6 +89,12 @@ pub(crate) fn write_atomically(path: &str, bytes: &[u8]) -> Result<(), String> {
     };
     let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
     tmp.write_all(bytes).map_err(|e| format!("cannot write {path}: {e}"))?;
+    // A temporary file is private (0600); the product is an ordinary file.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644));
+    }
     tmp.persist(target)
         .map_err(|e| format!("cannot write {path}: {}", e.error))?;
     Ok(())

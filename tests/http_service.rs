@@ -2,6 +2,8 @@
 //! shedding, metrics and shutdown. Each test starts its own server on 127.0.0.1:0
 //! with a small test config (tiny layers) so the suite stays fast.
 
+mod common;
+
 use std::collections::HashMap;
 use std::time::Duration;
 
@@ -864,43 +866,8 @@ fn serve_command_prints_config_and_stops_on_sigterm() {
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("nope"));
 
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let listen = format!("127.0.0.1:{port}");
-    let mut child = Command::new(exe)
-        .args(["serve", "--config", config.to_str().unwrap(), "--listen", &listen])
-        .env("CLOUDSCAPE_SERVER_DRAIN_MS", "0")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    let rt = tokio::runtime::Runtime::new().unwrap();
-    let ready = rt.block_on(async {
-        let client = reqwest::Client::builder().no_proxy().build().unwrap();
-        for _ in 0..1200 {
-            if let Ok(r) = client.get(format!("http://{listen}/readyz")).send().await {
-                if r.status() == StatusCode::OK {
-                    return true;
-                }
-            }
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
-        false
-    });
-    if !ready {
-        let _ = child.kill();
-    }
-    assert!(ready, "cloudscape serve became ready on {listen}");
-    let killed = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let status = child.wait().unwrap();
-    assert!(status.success(), "graceful exit on SIGTERM: {status:?}");
+    let server = common::ServeProcess::start(&["--config", config.to_str().unwrap()], &[]);
+    assert!(server.terminate(), "graceful exit on SIGTERM");
 }
 
 const PNG_SIGNATURE: &[u8] = b"\x89PNG\r\n\x1a\n";

@@ -20,7 +20,7 @@
 //! (`cld ∨ (act ∧ …)`) no cloud could ever disappear, which contradicts the text.
 //! Cells outside the grid read as empty ("out of range results in a false value").
 
-use super::random::{Draw, bernoulli, row_key, word_key};
+use super::random::{Draw, bernoulli, row_key};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -125,12 +125,12 @@ impl Level {
 #[derive(Clone, Debug)]
 pub enum Drives {
     /// Dobashi: per word, bit planes of the three probabilities (see `random`),
-    /// and a per-word mask of which are non-zero anywhere (bit 0 hum, 1 act, 2 ext).
+    /// and per word the lanes of each (hum, act, ext) with a non-zero probability.
     Stochastic {
         hum: Vec<[u64; 17]>,
         act: Vec<[u64; 17]>,
         ext: Vec<[u64; 17]>,
-        nonzero: Vec<u8>,
+        live: Vec<[u64; 3]>,
     },
     /// Rosa: per word, `tex_hum > p_hum`, `tex_act > p_act`, and `tex_cld > p_ext` (keep).
     Threshold {
@@ -267,24 +267,13 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
             let cld_det = c | a;
             let i = base + w;
             let (nh, na, nc) = match drives {
-                Drives::Stochastic { hum, act, ext, nonzero } => {
-                    let nz = nonzero[i];
+                Drives::Stochastic { hum, act, ext, live } => {
+                    let live = live[i];
                     let wx = x.div_euclid(64);
-                    let bh = if nz & 1 != 0 && keep_h != !0 {
-                        bernoulli(&hum[i], word_key(keys[0], wx))
-                    } else {
-                        0
-                    };
-                    let ba = if nz & 2 != 0 {
-                        bernoulli(&act[i], word_key(keys[1], wx))
-                    } else {
-                        0
-                    };
-                    let be = if nz & 4 != 0 && cld_det != 0 {
-                        bernoulli(&ext[i], word_key(keys[2], wx))
-                    } else {
-                        0
-                    };
+                    // Each draw is decided only where it can fire and change the result.
+                    let bh = bernoulli(&hum[i], keys[0], wx, live[0] & !keep_h);
+                    let ba = bernoulli(&act[i], keys[1], wx, live[1] & !act_det);
+                    let be = bernoulli(&ext[i], keys[2], wx, live[2] & cld_det);
                     (keep_h | bh, act_det | ba, cld_det & !be)
                 }
                 Drives::Threshold { hum, act, keep } => (keep_h | hum[i], act_det | act[i], cld_det & keep[i]),

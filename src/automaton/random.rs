@@ -65,14 +65,23 @@ pub fn plane(word_key: u64, j: usize) -> u64 {
     wymix(word_key ^ PLANE_SECRETS[j], 0x8ebc_6af0_9c88_c6e3)
 }
 
-/// 64 Bernoulli bits at once. `p[0]` marks lanes that always fire (q = 65536);
-/// `p[1 + j]` holds bit 15−j of q for the other lanes.
+/// 64 Bernoulli bits at once, decided only for the lanes in `care`. `p[0]` marks
+/// lanes that always fire (q = 65536); `p[1 + j]` holds bit 15−j of q for the
+/// other lanes. The caller combines the result so that lanes outside `care` do not
+/// matter (they are OR-ed with a 1 or AND-ed with a 0), and leaves out of `care`
+/// the lanes with q = 0 (see [`live_lanes`]), which never fire; so the loop stops as
+/// soon as every lane that matters is decided, and no random word is made when
+/// none does. The bits that matter are the same as deciding all 64 lanes.
 #[inline]
-pub fn bernoulli(p: &[u64; 17], word_key: u64) -> u64 {
-    let mut fired = p[0];
-    let mut undecided = !p[0];
+pub fn bernoulli(p: &[u64; 17], row_key: u64, wx: i64, care: u64) -> u64 {
+    let mut fired = p[0] & care;
+    let mut undecided = care & !p[0];
+    if undecided == 0 {
+        return fired;
+    }
+    let key = word_key(row_key, wx);
     for j in 0..16 {
-        let r = plane(word_key, j);
+        let r = plane(key, j);
         let pj = p[1 + j];
         // r bit 0 where q bit 1: r < q for this lane; r bit 1 where q bit 0: r > q.
         fired |= undecided & pj & !r;
@@ -82,6 +91,11 @@ pub fn bernoulli(p: &[u64; 17], word_key: u64) -> u64 {
         }
     }
     fired
+}
+
+/// The lanes of a bit-plane threshold with q > 0: the only ones that can fire.
+pub fn live_lanes(p: &[u64; 17]) -> u64 {
+    p.iter().fold(0, |a, &w| a | w)
 }
 
 /// The 16-bit draw of lane `bit` of a word (the naive kernel's view).
@@ -103,6 +117,19 @@ pub fn fires(word_key: u64, bit: u32, q: u32) -> bool {
 /// Bit-plane form of 64 thresholds. A lane with q = 65536 goes to the
 /// "always" mask; its bits 0..15 are zero, so it adds nothing to the planes.
 pub fn planes_of(q: &[u32; 64]) -> [u64; 17] {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
+        unsafe { planes_of_avx2(q) }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        planes_of_scalar(q)
+    }
+}
+
+/// The plain form of [`planes_of`]: one lane at a time.
+pub fn planes_of_scalar(q: &[u32; 64]) -> [u64; 17] {
     let mut p = [0u64; 17];
     let any = q.iter().fold(0u32, |a, &v| a | v);
     if any == 0 {
@@ -125,6 +152,41 @@ pub fn planes_of(q: &[u32; 64]) -> [u64; 17] {
     p
 }
 
+/// [`planes_of`] with AVX2: the wanted bit of 8 lanes is shifted into their sign
+/// bits and collected by one `movemask`. Building drives is a bit-matrix transpose
+/// done for every word of every run, and no crate offers this 64×17 shape.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[target_feature(enable = "avx2")]
+unsafe fn planes_of_avx2(q: &[u32; 64]) -> [u64; 17] {
+    use std::arch::x86_64::*;
+    let mut p = [0u64; 17];
+    let any = q.iter().fold(0u32, |a, &v| a | v);
+    if any == 0 {
+        return p;
+    }
+    let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
+    // Bit `bit` of every lane, as a 64-bit mask.
+    let gather = |bit: i32| -> u64 {
+        let count = _mm_cvtsi32_si128(31 - bit);
+        let mut w = 0u64;
+        for (i, x) in v.iter().enumerate() {
+            let m = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_sll_epi32(*x, count)));
+            w |= (m as u32 as u64) << (8 * i);
+        }
+        w
+    };
+    if any >> 16 != 0 {
+        p[0] = gather(16);
+    }
+    for j in 0..16 {
+        let shift = 15 - j as i32;
+        if (any >> shift) & 1 != 0 {
+            p[1 + j] = gather(shift);
+        }
+    }
+    p
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -142,11 +204,34 @@ mod tests {
                     _ => (s >> 20) as u32 % 65537,
                 };
             }
-            let key = mix64(s ^ 99);
-            let packed = bernoulli(&planes_of(&q), key);
+            let (rk, wx) = (mix64(s ^ 99), (s % 1000) as i64 - 500);
+            let key = word_key(rk, wx);
+            let care = mix64(s ^ 7) | if s % 3 == 0 { !0 } else { 0 };
+            let packed = bernoulli(&planes_of(&q), rk, wx, care);
             for b in 0..64 {
+                if (care >> b) & 1 == 0 {
+                    continue;
+                }
                 assert_eq!((packed >> b) & 1 == 1, fires(key, b, q[b as usize]));
             }
+        }
+    }
+
+    #[test]
+    fn planes_of_equals_its_scalar_form() {
+        let mut s = 99u64;
+        for _ in 0..2000 {
+            let mut q = [0u32; 64];
+            let top = 1 + (mix64(s) % 17) as u32;
+            for v in q.iter_mut() {
+                s = mix64(s);
+                *v = match s % 7 {
+                    0 => 0,
+                    1 => 65536,
+                    _ => (s >> 20) as u32 % (1 << top).min(65537),
+                };
+            }
+            assert_eq!(planes_of(&q), planes_of_scalar(&q), "{q:?}");
         }
     }
 
@@ -159,7 +244,7 @@ mod tests {
             let mut count = 0u64;
             let n = 10_000u64;
             for w in 0..n {
-                count += bernoulli(&pl, word_key(row_key(7, Draw::Activation, 3, 11, 5), w as i64)).count_ones() as u64;
+                count += bernoulli(&pl, row_key(7, Draw::Activation, 3, 11, 5), w as i64, !0).count_ones() as u64;
             }
             let trials = (n * 64) as f64;
             let qp = q as f64 / 65536.0;

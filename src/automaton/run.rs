@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
-use super::random::planes_of;
+use super::random::{live_lanes, planes_of};
 use crate::fields::noise::mix64;
 use crate::fields::{LayerFields, quantize};
 use crate::world::{Mode, World};
@@ -136,6 +136,7 @@ impl LayerSim {
         );
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;
+        let has_ellipsoids = !layer.ellipsoids.is_empty();
         levels
             .par_iter()
             .enumerate()
@@ -154,40 +155,47 @@ impl LayerSim {
                 } else {
                     thr = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
                 }
+                let level = f.level_mapping(k as u32);
+                let mut ew = [1.0f32; 64];
+                let mut p = [[0f32; 64]; 3];
                 for r in 0..lv.rows {
                     let y = lv.y0 + r as i64 + sy;
+                    let row = (y - hull.y0) as usize * window.w;
                     for w in 0..lv.wpr {
-                        let mut q = [[0u32; 64]; 3];
-                        for b in 0..64 {
-                            let x = lv.x0 + 64 * w as i64 + b as i64 + sx;
-                            let bright = [0, 1, 2]
-                                .map(|i| window.b[i][(y - hull.y0) as usize * window.w + (x - hull.x0) as usize]);
-                            let ew = f.ellipsoid_weight(
-                                (x as f64 + 0.5) * layer.cell_size,
-                                (y as f64 + 0.5) * layer.cell_size,
-                                k as u32,
-                            );
-                            let p = f.level_values(k as u32, bright, ew);
-                            match mode {
-                                Mode::Dobashi => {
-                                    q[0][b] = quantize(p.hum);
-                                    q[1][b] = quantize(p.act);
-                                    q[2][b] = quantize(p.ext);
-                                }
-                                Mode::Rosa => {
-                                    let i = r * lv.wpr + w;
-                                    thr.0[i] |= ((p.hum > thresholds[0]) as u64) << b;
-                                    thr.1[i] |= ((p.act > thresholds[1]) as u64) << b;
-                                    thr.2[i] |= ((p.ext > thresholds[2]) as u64) << b;
-                                }
+                        // Lane b is frame cell x0 + b; its brightness is at column x0 + b − hull.x0.
+                        let x0 = lv.x0 + 64 * w as i64 + sx;
+                        let at = row + (x0 - hull.x0) as usize;
+                        let bright: [&[f32; 64]; 3] =
+                            std::array::from_fn(|i| window.b[i][at..at + 64].try_into().expect("64 lanes"));
+                        if has_ellipsoids {
+                            for (b, e) in ew.iter_mut().enumerate() {
+                                let x = x0 + b as i64;
+                                *e = f.ellipsoid_weight(
+                                    (x as f64 + 0.5) * layer.cell_size,
+                                    (y as f64 + 0.5) * layer.cell_size,
+                                    k as u32,
+                                );
                             }
                         }
-                        if mode == Mode::Dobashi {
-                            let nz = |q: &[u32; 64]| q.iter().any(|&v| v > 0) as u8;
-                            stoch.3.push(nz(&q[0]) | nz(&q[1]) << 1 | nz(&q[2]) << 2);
-                            stoch.0.push(planes_of(&q[0]));
-                            stoch.1.push(planes_of(&q[1]));
-                            stoch.2.push(planes_of(&q[2]));
+                        level.values(bright, &ew, &mut p);
+                        match mode {
+                            Mode::Dobashi => {
+                                let q: [[u32; 64]; 3] = std::array::from_fn(|i| p[i].map(quantize));
+                                let planes = q.each_ref().map(planes_of);
+                                stoch.3.push(planes.each_ref().map(live_lanes));
+                                let [h, a, e] = planes;
+                                stoch.0.push(h);
+                                stoch.1.push(a);
+                                stoch.2.push(e);
+                            }
+                            Mode::Rosa => {
+                                let i = r * lv.wpr + w;
+                                for b in 0..64 {
+                                    thr.0[i] |= ((p[0][b] > thresholds[0]) as u64) << b;
+                                    thr.1[i] |= ((p[1][b] > thresholds[1]) as u64) << b;
+                                    thr.2[i] |= ((p[2][b] > thresholds[2]) as u64) << b;
+                                }
+                            }
                         }
                     }
                 }
@@ -196,7 +204,7 @@ impl LayerSim {
                         hum: stoch.0,
                         act: stoch.1,
                         ext: stoch.2,
-                        nonzero: stoch.3,
+                        live: stoch.3,
                     },
                     Mode::Rosa => Drives::Threshold {
                         hum: thr.0,

@@ -6,7 +6,7 @@ use proptest::prelude::*;
 
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::naive::{NaiveDrives, NaiveLevel, step};
-use super::random::planes_of;
+use super::random::{live_lanes, planes_of};
 use crate::fields::noise::mix64;
 
 /// A random scene: per level a grid origin, cells and thresholds.
@@ -100,10 +100,9 @@ proptest! {
                 Rules::Dobashi => {
                     let q: Vec<Vec<u32>> = (0..3).map(|_| (0..w * sc.rows).map(|_| threshold(&mut s)).collect()).collect();
                     let planes = |v: &Vec<u32>| -> Vec<[u64; 17]> { v.chunks(64).map(|c| planes_of(c.try_into().unwrap())).collect() };
-                    let nz = |v: &Vec<u32>| -> Vec<bool> { v.chunks(64).map(|c| c.iter().any(|&x| x > 0)).collect() };
-                    let (a, b, c) = (nz(&q[0]), nz(&q[1]), nz(&q[2]));
-                    let nonzero = (0..a.len()).map(|i| a[i] as u8 | (b[i] as u8) << 1 | (c[i] as u8) << 2).collect();
-                    pdrives.push(Drives::Stochastic { hum: planes(&q[0]), act: planes(&q[1]), ext: planes(&q[2]), nonzero });
+                    let (hum, act, ext) = (planes(&q[0]), planes(&q[1]), planes(&q[2]));
+                    let live = (0..hum.len()).map(|i| [live_lanes(&hum[i]), live_lanes(&act[i]), live_lanes(&ext[i])]).collect();
+                    pdrives.push(Drives::Stochastic { hum, act, ext, live });
                     ndrives.push(NaiveDrives::Stochastic { hum: q[0].clone(), act: q[1].clone(), ext: q[2].clone() });
                 }
                 Rules::Rosa => {

@@ -254,6 +254,19 @@ impl LayerFields {
         best.clamp(0.0, 1.0) as f32
     }
 
+    /// The per-level constants of [`LayerFields::level_values`], for 64 lanes at a time.
+    pub fn level_mapping(&self, k: u32) -> LevelMapping {
+        let h = (k as f32 + 0.5) / self.layer.depth as f32;
+        LevelMapping {
+            mode: self.layer.preset.mode,
+            narrowing: self.layer.preset.top_narrowing as f32 * h * h,
+            ranges: std::array::from_fn(|i| {
+                let r = self.specs[i].range;
+                [r[0] as f32, (r[1] - r[0]) as f32]
+            }),
+        }
+    }
+
     /// Probabilities (Dobashi) or textures (Rosa) at level `k` from the three brightness values.
     #[inline]
     pub fn level_values(&self, k: u32, b: [f32; 3], ellipsoid: f32) -> Probabilities {
@@ -276,6 +289,44 @@ impl LayerFields {
                 act: act_v,
                 ext: (hum_v + act_v) * 0.5,
             },
+        }
+    }
+}
+
+/// [`LayerFields::level_values`] for one level, with its constants worked out once,
+/// applied to 64 lanes at a time (the same arithmetic per lane, so the same bits).
+#[derive(Clone, Copy, Debug)]
+pub struct LevelMapping {
+    mode: Mode,
+    /// `top_narrowing · h²` at this level (see [`LayerFields::shape`]).
+    narrowing: f32,
+    /// Probability range `[low, high − low]` of each field (Dobashi).
+    ranges: [[f32; 2]; 3],
+}
+
+impl LevelMapping {
+    /// Probabilities (Dobashi) or textures (Rosa) of 64 lanes from their brightness
+    /// and ellipsoid weights.
+    #[inline]
+    pub fn values(&self, b: [&[f32; 64]; 3], ellipsoid: &[f32; 64], out: &mut [[f32; 64]; 3]) {
+        let n = self.narrowing;
+        let shape = |v: f32| ((v - n) / (1.0 - n)).clamp(0.0, 1.0);
+        let map = |r: [f32; 2], v: f32| (r[0] + r[1] * v).clamp(0.0, 1.0);
+        for l in 0..64 {
+            let hum_v = shape(b[0][l]) * ellipsoid[l];
+            let act_v = shape(b[1][l]) * ellipsoid[l];
+            match self.mode {
+                Mode::Dobashi => {
+                    out[0][l] = map(self.ranges[0], hum_v);
+                    out[1][l] = map(self.ranges[1], act_v);
+                    out[2][l] = map(self.ranges[2], b[2][l]);
+                }
+                Mode::Rosa => {
+                    out[0][l] = hum_v;
+                    out[1][l] = act_v;
+                    out[2][l] = (hum_v + act_v) * 0.5;
+                }
+            }
         }
     }
 }

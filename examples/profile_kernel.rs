@@ -1,0 +1,73 @@
+//! Profiling driver (not a benchmark): `valgrind --tool=callgrind` counts the
+//! instructions of the packed kernel or of one cold tile, repeatably on a busy machine.
+//!
+//!     cargo build --release --example profile_kernel
+//!     valgrind --tool=callgrind --toggle-collect='*step_level*' target/release/examples/profile_kernel kernel
+//!     valgrind --tool=callgrind target/release/examples/profile_kernel tile
+
+use std::hint::black_box;
+
+use cloudscape::automaton::kernel::{Level, Rect, StepContext, step_level};
+use cloudscape::automaton::{LayerSim, RunSpec};
+use cloudscape::density::{self, Region};
+use cloudscape::world::Config;
+
+fn main() {
+    let world = Config::embedded().world("default").unwrap();
+    let what = std::env::args().nth(1).unwrap_or_else(|| "kernel".into());
+    if what == "tile" {
+        let region = Region {
+            x0: 768,
+            y0: -512,
+            cols: 256,
+            rows: 256,
+        };
+        let start = std::time::Instant::now();
+        black_box(density::density(&world, 0, 0, region, 1234.5).unwrap());
+        eprintln!("tile {:?}", start.elapsed());
+        return;
+    }
+    let sim = LayerSim::new(&world, 0);
+    let size = 192;
+    let window = Rect {
+        x0: 0,
+        x1: size,
+        y0: 0,
+        y1: size,
+    };
+    let spec = RunSpec {
+        reference_step: 64,
+        start: 56,
+        snapshots: vec![64],
+        windows: vec![window; sim.depth()],
+    };
+    let levels = sim.run(&spec).remove(0).levels;
+    let drives = sim.drives(&levels, 64);
+    let mut cur = levels.clone();
+    let mut next = levels.clone();
+    let start = std::time::Instant::now();
+    let steps = 8;
+    for n in 0..steps {
+        let offsets = sim.offsets(64 + n);
+        let ctx = StepContext {
+            rules: sim.rules(),
+            stream: sim.stream,
+            n: 64 + n,
+            offsets: &offsets,
+        };
+        for (k, o) in next.iter_mut().enumerate() {
+            let lv: &Level = &cur[k];
+            let all = Rect {
+                x0: lv.x0,
+                x1: lv.x0 + 64 * lv.wpr as i64,
+                y0: lv.y0,
+                y1: lv.y0 + lv.rows as i64,
+            };
+            step_level(&cur, k, &drives[k], &ctx, all, o);
+        }
+        std::mem::swap(&mut cur, &mut next);
+    }
+    let cells: usize = cur.iter().map(|l| l.wpr * 64 * l.rows).sum::<usize>() * steps as usize;
+    eprintln!("{cells} cell-steps in {:?}", start.elapsed());
+    black_box(&cur);
+}

@@ -142,7 +142,7 @@ pub fn automaton(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let markdown = format!(
         "Default stratocumulus layer (spatially varying probabilities), state after a warm-up run.\n\n\
          | kernel | grid | time (median of {} / {}) | cell-steps/s |\n|---|---|---|---|\n\
-         | packed (64 cells/u64, {threads} threads) | {size}×{size}×{depth}, {steps} steps | {} | {} |\n\
+         | packed (64 cells/u64, {threads} threads) | {size}×{size}×{depth}, {steps} step(s) | {} | {} |\n\
          | naive (1 byte/cell, 1 thread) | {naive_size}×{naive_size}×{depth}, 1 step | {} | {} |\n\n\
          Packed / naive: **{:.0}×** (same run).\n",
         packed.iters,

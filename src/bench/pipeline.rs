@@ -119,7 +119,7 @@ pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         let mut bytes = 0;
         let t = time(effort, || bytes = f());
         md += &format!(
-            "| {product} | {encoder} | {bytes} | {} | {:.0} |\n",
+            "| {product} | {encoder} | {bytes} | {} | {:.1} |\n",
             fmt_s(t.median_s),
             bytes as f64 / t.median_s / 1e6
         );

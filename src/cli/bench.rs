@@ -51,7 +51,7 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         Err(e) => return Err(format!("cannot read {}: {e}", out.display())),
     };
     // Fail on broken markers before spending minutes measuring.
-    bench::merge_sections(&existing, &[])?;
+    bench::check_markers(&existing)?;
     std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
 
     let start = Instant::now();

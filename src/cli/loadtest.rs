@@ -25,16 +25,16 @@ pub struct LoadtestArgs {
     scenario: String,
     /// Open loop at this many requests per second, latency from the intended send
     /// time (coordinated-omission corrected). Default: closed loop.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     rate: Option<f64>,
     /// World name or decimal seed.
     #[arg(long, default_value = "default")]
     world: String,
     /// World-clock time at the start, seconds.
-    #[arg(long, default_value_t = 43_200.0)]
+    #[arg(long, default_value_t = 43_200.0, allow_hyphen_values = true)]
     t: f64,
     /// World seconds per real second (0 freezes the clock, so views only revalidate).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
     clock: f64,
     /// Seed of the players' paths and views.
     #[arg(long, default_value_t = 1)]

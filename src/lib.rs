@@ -5,10 +5,13 @@
 //! shading → encoding → HTTP. A stage depends only on the stages before it.
 
 pub mod automaton;
+pub mod bench;
+pub mod chart;
 pub mod cli;
 pub mod client;
 pub mod density;
 pub mod fields;
+pub mod loadtest;
 pub mod products;
 pub mod render;
 pub mod service;

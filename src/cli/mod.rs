@@ -1,7 +1,9 @@
 //! The `cloudscape` command line: one file per subcommand. Errors go to stderr as
 //! one sentence and the process exits non-zero.
 
+mod bench;
 mod density;
+mod loadtest;
 mod render;
 mod serve;
 
@@ -21,8 +23,12 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Measure the pipeline and regenerate BENCHMARKS.md sections and plots.
+    Bench(bench::BenchArgs),
     /// Write the density or cloud grid of a region to a file.
     Density(density::DensityArgs),
+    /// Load-test a running server with simulated MMO players and game servers.
+    Loadtest(loadtest::LoadtestArgs),
     /// Render what a client would see from a camera to a PNG.
     Render(render::RenderArgs),
     /// Serve tiles, region queries and metrics over HTTP.
@@ -40,7 +46,9 @@ pub fn main() -> ExitCode {
         }
     };
     let result = match cli.command {
+        Command::Bench(args) => bench::run(args),
         Command::Density(args) => density::run(args),
+        Command::Loadtest(args) => loadtest::run(args),
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
     };

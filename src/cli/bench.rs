@@ -1,0 +1,97 @@
+//! `cloudscape bench`: runs the measurements of `crate::bench` and writes their
+//! sections into BENCHMARKS.md (between generated-section markers) and the plots.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use clap::Args;
+
+use crate::bench::{self, Effort};
+
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Smaller sizes and budgets: about a minute on a 2-core machine.
+    #[arg(long)]
+    quick: bool,
+    /// The smallest sizes that still run every section (CI smoke test).
+    #[arg(long, hide = true, conflicts_with = "quick")]
+    smoke: bool,
+    /// The Markdown file whose generated sections are replaced (created if missing).
+    #[arg(long, default_value = "BENCHMARKS.md")]
+    out: String,
+    /// Directory for the PNG plots (default: `bench/` beside the Markdown file).
+    #[arg(long)]
+    plots: Option<String>,
+}
+
+/// `to` relative to directory `from` when `to` is inside it, else `to` as given.
+fn link(from: &Path, to: &Path) -> String {
+    let rel = to.strip_prefix(from).unwrap_or(to);
+    let s = rel.to_string_lossy().replace('\\', "/");
+    if s.is_empty() { ".".into() } else { s }
+}
+
+pub fn run(a: BenchArgs) -> Result<(), String> {
+    let effort = if a.smoke {
+        Effort::Smoke
+    } else if a.quick {
+        Effort::Quick
+    } else {
+        Effort::Full
+    };
+    let out = PathBuf::from(&a.out);
+    let out_dir = match out.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let plots = a.plots.map(PathBuf::from).unwrap_or_else(|| out_dir.join("bench"));
+    let existing = match std::fs::read_to_string(&out) {
+        Ok(s) => s,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "# Benchmarks\n".to_string(),
+        Err(e) => return Err(format!("cannot read {}: {e}", out.display())),
+    };
+    // Fail on broken markers before spending minutes measuring.
+    bench::check_markers(&existing)?;
+    std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
+
+    let start = Instant::now();
+    let run = bench::run(effort, |name| {
+        eprintln!("[{:>6.1} s] bench: {name}", start.elapsed().as_secs_f64());
+    })?;
+    let prefix = link(&out_dir, &plots);
+    let sections: Vec<_> = run
+        .sections
+        .into_iter()
+        .map(|mut s| {
+            s.markdown = s.markdown.replace("@plots@", &prefix);
+            s
+        })
+        .collect();
+    let merged = bench::merge_sections(&existing, &sections)?;
+    for p in &run.plots {
+        let path = plots.join(&p.file);
+        super::write_atomically(&path.to_string_lossy(), &p.png)?;
+    }
+    super::write_atomically(&a.out, merged.as_bytes())?;
+    eprintln!(
+        "[{:>6.1} s] bench: wrote {} sections to {} and {} plots to {}",
+        start.elapsed().as_secs_f64(),
+        sections.len(),
+        a.out,
+        run.plots.len(),
+        plots.display()
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plot_links_are_relative_to_the_markdown() {
+        assert_eq!(link(Path::new("."), Path::new("./bench")), "bench");
+        assert_eq!(link(Path::new("/tmp/x"), Path::new("/tmp/x/plots")), "plots");
+        assert_eq!(link(Path::new("/tmp/x"), Path::new("/elsewhere")), "/elsewhere");
+    }
+}

@@ -1,0 +1,133 @@
+//! `cloudscape loadtest`: simulated MMO players and game servers against a running
+//! server (the generator is `crate::loadtest`); prints a summary, optionally writes
+//! the report as JSON and a latency plot.
+
+use std::time::Duration;
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+use crate::loadtest::{self, LoadSpec, Scenario};
+
+#[derive(Args)]
+pub struct LoadtestArgs {
+    /// The server, http://HOST:PORT.
+    #[arg(long)]
+    target: String,
+    /// Simulated players (mmo, mixed; in groups of 8) or game servers (queries).
+    #[arg(long, default_value_t = 32)]
+    players: usize,
+    /// How long to send: 30s, 2m, 500ms, or plain seconds.
+    #[arg(long, default_value = "30s")]
+    duration: String,
+    /// mmo (players fetching tiles), queries (/region and /series) or mixed.
+    #[arg(long, default_value = "mmo")]
+    scenario: String,
+    /// Open loop at this many requests per second, latency from the intended send
+    /// time (coordinated-omission corrected). Default: closed loop.
+    #[arg(long, allow_hyphen_values = true)]
+    rate: Option<f64>,
+    /// World name or decimal seed.
+    #[arg(long, default_value = "default")]
+    world: String,
+    /// World-clock time at the start, seconds.
+    #[arg(long, default_value_t = 43_200.0, allow_hyphen_values = true)]
+    t: f64,
+    /// World seconds per real second (0 freezes the clock, so views only revalidate).
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
+    clock: f64,
+    /// Seed of the players' paths and views.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Write the full report (figures, status counts, per-second timeline) as JSON.
+    #[arg(long)]
+    json: Option<String>,
+    /// Write a latency plot (PNG).
+    #[arg(long)]
+    plot: Option<String>,
+}
+
+/// Parses `30s`, `2m`, `1h`, `500ms` or plain seconds.
+pub(crate) fn parse_duration(s: &str) -> Result<Duration, String> {
+    let t = s.trim();
+    let (num, unit) = match t.find(|c: char| c.is_ascii_alphabetic()) {
+        Some(i) => t.split_at(i),
+        None => (t, "s"),
+    };
+    let scale = match unit {
+        "ms" => 1e-3,
+        "s" => 1.0,
+        "m" => 60.0,
+        "h" => 3600.0,
+        _ => return Err(format!("duration must look like 30s, 2m, 1h or 500ms, got `{s}`")),
+    };
+    match num.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v * scale <= 7.0 * 86_400.0 => Ok(Duration::from_secs_f64(v * scale)),
+        _ => Err(format!(
+            "duration must be a positive time up to a week, like 30s or 2m, got `{s}`"
+        )),
+    }
+}
+
+pub fn run(a: LoadtestArgs) -> Result<(), String> {
+    let scenario = Scenario::parse(&a.scenario)
+        .ok_or_else(|| format!("--scenario must be mmo, queries or mixed, got `{}`", a.scenario))?;
+    let spec = LoadSpec {
+        target: a.target,
+        world: a.world,
+        players: a.players,
+        duration: parse_duration(&a.duration)?,
+        scenario,
+        rate: a.rate,
+        t0: a.t,
+        clock: a.clock,
+        seed: a.seed,
+    };
+    // Hidden when stderr is not a terminal (indicatif checks).
+    let bar = ProgressBar::with_draw_target(
+        Some(spec.duration.as_millis() as u64),
+        ProgressDrawTarget::stderr_with_hz(5),
+    );
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {elapsed}/{duration} {msg}")
+            .expect("a valid template")
+            .progress_chars("=> "),
+    );
+    let report = loadtest::run(&spec, |p| {
+        bar.set_position(((p.elapsed_s * 1000.0) as u64).min(spec.duration.as_millis() as u64));
+        bar.set_message(format!("{} requests, {} shed (503)", p.requests, p.shed));
+    })
+    .map_err(|e| e.to_string())?;
+    bar.finish_and_clear();
+    print!("{}", report.summary());
+    if let Some(path) = &a.json {
+        let json = serde_json::to_vec_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
+        super::write_atomically(path, &json)?;
+    }
+    if let Some(path) = &a.plot {
+        super::write_atomically(path, &report.plot()?)?;
+    }
+    if report.totals.requests == 0 {
+        return Err(match &report.first_error {
+            Some(e) => format!("no request was answered: {e}"),
+            None => "no request was sent (is the duration shorter than the first tick?)".into(),
+        });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn durations_parse_with_units() {
+        assert_eq!(parse_duration("30s").unwrap(), Duration::from_secs(30));
+        assert_eq!(parse_duration("2m").unwrap(), Duration::from_secs(120));
+        assert_eq!(parse_duration("500ms").unwrap(), Duration::from_millis(500));
+        assert_eq!(parse_duration("3").unwrap(), Duration::from_secs(3));
+        for bad in ["", "-1s", "0", "3x", "nan", "1e9h"] {
+            assert!(parse_duration(bad).is_err(), "{bad}");
+        }
+    }
+}

@@ -1,0 +1,197 @@
+//! CI smoke of `cloudscape bench` and `cloudscape loadtest` through the built binary:
+//! they run, write what they say, and report sane figures. No timing thresholds.
+
+mod common;
+
+use std::process::{Command, Output};
+
+use common::ServeProcess;
+
+fn cloudscape(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(args)
+        .output()
+        .expect("run cloudscape")
+}
+
+fn ok(out: &Output) {
+    assert!(
+        out.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Decodes a PNG and returns its size.
+fn png_size(path: &std::path::Path) -> (u32, u32) {
+    let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let reader = png::Decoder::new(std::io::Cursor::new(bytes))
+        .read_info()
+        .unwrap_or_else(|e| panic!("{} is not a PNG: {e}", path.display()));
+    (reader.info().width, reader.info().height)
+}
+
+fn f(v: &serde_json::Value, path: &[&str]) -> f64 {
+    let mut v = v;
+    for p in path {
+        v = &v[p];
+    }
+    v.as_f64().unwrap_or_else(|| panic!("{path:?} is not a number: {v}"))
+}
+
+#[test]
+fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
+    let dir = tempfile::tempdir().unwrap();
+    let md = dir.path().join("BENCHMARKS.md");
+    let prose = "# Benchmarks\n\nHand-written prose.\n\n<!-- bench:http:begin -->\nstale\n<!-- bench:http:end -->\n\nAfter the markers.\n";
+    std::fs::write(&md, prose).unwrap();
+    let plots = dir.path().join("plots");
+    let out = cloudscape(&[
+        "bench",
+        "--smoke",
+        "--out",
+        md.to_str().unwrap(),
+        "--plots",
+        plots.to_str().unwrap(),
+    ]);
+    ok(&out);
+    let text = std::fs::read_to_string(&md).unwrap();
+    assert!(text.starts_with("# Benchmarks\n\nHand-written prose.\n\n<!-- bench:http:begin -->\n"));
+    assert!(text.contains("<!-- bench:http:end -->\n\nAfter the markers.\n"));
+    assert!(!text.contains("stale"));
+    for id in [
+        "machine",
+        "automaton",
+        "fields",
+        "tiles",
+        "encoders",
+        "quality",
+        "http",
+        "rosa",
+        "scaling",
+    ] {
+        let (b, e) = (format!("<!-- bench:{id}:begin -->"), format!("<!-- bench:{id}:end -->"));
+        let (i, j) = (text.find(&b), text.find(&e));
+        assert!(matches!((i, j), (Some(i), Some(j)) if i < j), "section {id} missing");
+        let body = &text[i.unwrap() + b.len()..j.unwrap()];
+        assert!(body.contains("| "), "section {id} has no table: {body}");
+        assert_eq!(text.matches(&b).count(), 1, "section {id} written twice");
+    }
+    assert!(text.contains("| cores | "));
+    assert!(text.contains("| 10 × 100 × 10 | 10000 | 0.28 |"), "Rosa's first row");
+    for plot in ["scaling.png", "rosa.png", "quality.png"] {
+        let (w, h) = png_size(&plots.join(plot));
+        assert!(w >= 200 && h >= 200, "{plot}: {w}×{h}");
+        assert!(text.contains(&format!("](plots/{plot})")), "{plot} is linked");
+    }
+}
+
+#[test]
+fn loadtest_reports_sane_figures_against_a_live_server() {
+    let server = ServeProcess::start(&[], &[("RUST_LOG", "warn")]);
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("report.json");
+    let plot = dir.path().join("latency.png");
+
+    // Closed loop, players and game servers, a frozen clock (so views revalidate).
+    let out = cloudscape(&[
+        "loadtest",
+        "--target",
+        &server.base,
+        "--players",
+        "8",
+        "--duration",
+        "4s",
+        "--scenario",
+        "mixed",
+        "--clock",
+        "0",
+        "--json",
+        json.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    ok(&out);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("latency ms: p50"), "{stdout}");
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(r["mode"], "closed");
+    assert_eq!((r["players"].as_u64(), r["game_servers"].as_u64()), (Some(8), Some(1)));
+    let requests = f(&r, &["totals", "requests"]);
+    assert!(requests > 0.0, "{r}");
+    let counted: f64 = ["ok", "not_modified", "shed", "other_status", "transport_errors"]
+        .iter()
+        .map(|k| f(&r, &["totals", k]))
+        .sum();
+    assert_eq!(counted, requests);
+    assert_eq!(f(&r, &["totals", "transport_errors"]), 0.0, "{r}");
+    let lat: Vec<f64> = ["min_ms", "p50_ms", "p90_ms", "p99_ms", "max_ms"]
+        .iter()
+        .map(|k| f(&r, &["latency", k]))
+        .collect();
+    assert!(lat[0] > 0.0 && lat.windows(2).all(|w| w[0] <= w[1]), "{lat:?}");
+    assert!(f(&r, &["throughput_rps"]) > 0.0);
+    assert!(
+        r["by_kind"]["tile"]["requests"].as_u64().unwrap() > 0,
+        "players fetched tiles: {r}"
+    );
+    // The server's cache counters moved: every answered request looked the cache up or revalidated.
+    let hits = f(&r, &["cache", "hits"]);
+    let misses = f(&r, &["cache", "misses"]);
+    assert!(hits + misses > 0.0, "{r}");
+    let (w, h) = png_size(&plot);
+    assert!(w > 400 && h > 200);
+
+    // Open loop at a fixed rate: latency from the intended send time.
+    let out = cloudscape(&[
+        "loadtest",
+        "--target",
+        &server.base,
+        "--players",
+        "2",
+        "--duration",
+        "2s",
+        "--scenario",
+        "queries",
+        "--rate",
+        "10",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    ok(&out);
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_eq!(r["mode"], "open");
+    let requests = f(&r, &["totals", "requests"]);
+    assert!((10.0..=21.0).contains(&requests), "about rate × duration requests: {r}");
+    assert!(r["by_kind"]["region"]["requests"].as_u64().unwrap() > 0);
+    assert!(f(&r, &["latency", "p50_ms"]) <= f(&r, &["latency", "max_ms"]));
+}
+
+#[test]
+fn bad_input_is_one_error_line_and_a_failure() {
+    for args in [
+        &["loadtest", "--target", "http://127.0.0.1:1", "--scenario", "raid"][..],
+        &["loadtest", "--target", "127.0.0.1:1"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--duration", "forever"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--rate", "-3"],
+        // Nothing listens there: discovery fails with the URL named.
+        &["loadtest", "--target", "http://127.0.0.1:1", "--duration", "1s"],
+    ] {
+        let out = cloudscape(args);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{args:?} succeeded");
+        assert!(
+            stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1,
+            "{args:?}: {stderr}"
+        );
+    }
+    // Broken markers are refused before any measuring.
+    let dir = tempfile::tempdir().unwrap();
+    let md = dir.path().join("B.md");
+    std::fs::write(&md, "<!-- bench:rosa:end -->\n<!-- bench:rosa:begin -->\n").unwrap();
+    let out = cloudscape(&["bench", "--smoke", "--out", md.to_str().unwrap()]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("markers of section `rosa`"));
+}

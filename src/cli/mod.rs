@@ -2,6 +2,7 @@
 //! one sentence and the process exits non-zero.
 
 mod density;
+mod probe;
 mod render;
 mod serve;
 
@@ -23,6 +24,8 @@ struct Cli {
 enum Command {
     /// Write the density or cloud grid of a region to a file.
     Density(density::DensityArgs),
+    /// Check that a running server answers (exit 0 on a 2xx from its /healthz).
+    Probe(probe::ProbeArgs),
     /// Render what a client would see from a camera to a PNG.
     Render(render::RenderArgs),
     /// Serve tiles, region queries and metrics over HTTP.
@@ -41,6 +44,7 @@ pub fn main() -> ExitCode {
     };
     let result = match cli.command {
         Command::Density(args) => density::run(args),
+        Command::Probe(args) => probe::run(args),
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
     };

@@ -232,6 +232,19 @@ fn replicas_agree_and_nginx_caches_and_coalesces() {
         assert_eq!(revalidated.status, 304, "{path}");
     }
 
+    // The image's HEALTHCHECK: `cloudscape probe` succeeds on a live replica, and fails
+    // with one sentence where nothing listens.
+    let probe = |url: &str| {
+        Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+            .args(["probe", "--url", url])
+            .output()
+            .unwrap()
+    };
+    assert!(probe(&format!("{}/healthz", replicas[0].base)).status.success());
+    let dead = probe(&format!("http://127.0.0.1:{}/healthz", free_port()));
+    assert!(!dead.status.success());
+    assert!(String::from_utf8_lossy(&dead.stderr).starts_with("error: "));
+
     // Operator routes say no-store and are never cached.
     for _ in 0..2 {
         assert_eq!(get(&nginx.base, "/readyz", &[]).cache, "MISS");

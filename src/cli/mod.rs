@@ -4,6 +4,7 @@
 mod bench;
 mod density;
 mod loadtest;
+mod probe;
 mod render;
 mod serve;
 
@@ -29,6 +30,8 @@ enum Command {
     Density(density::DensityArgs),
     /// Load-test a running server with simulated MMO players and game servers.
     Loadtest(loadtest::LoadtestArgs),
+    /// Check that a running server answers (exit 0 on a 2xx from its /healthz).
+    Probe(probe::ProbeArgs),
     /// Render what a client would see from a camera to a PNG.
     Render(render::RenderArgs),
     /// Serve tiles, region queries and metrics over HTTP.
@@ -49,6 +52,7 @@ pub fn main() -> ExitCode {
         Command::Bench(args) => bench::run(args),
         Command::Density(args) => density::run(args),
         Command::Loadtest(args) => loadtest::run(args),
+        Command::Probe(args) => probe::run(args),
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
     };

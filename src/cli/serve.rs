@@ -132,9 +132,10 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         .map_err(|e| format!("cannot start the async runtime: {e}"))?;
     runtime.block_on(async move {
         let listen = config.server.listen.clone();
-        let server = Server::bind(config)
-            .await
-            .map_err(|e| format!("cannot listen on {listen}: {e}"))?;
+        let server = Server::bind(config).await.map_err(|e| match e.kind() {
+            std::io::ErrorKind::InvalidInput => e.to_string(),
+            _ => format!("cannot listen on {listen}: {e}"),
+        })?;
         let addr = server.local_addr().map_err(|e| e.to_string())?;
         tracing::info!(%addr, "listening on http://{addr}");
         let shutdown = server.shutdown_handle();
@@ -194,6 +195,13 @@ mod tests {
         assert_eq!(c.limits.max_level, 7);
         let c = effective_config(None, Some("127.0.0.1:1"), vars).unwrap();
         assert_eq!(c.server.listen, "127.0.0.1:1");
+        let redis = vec![(
+            "CLOUDSCAPE_SERVER_REDIS_URL".to_string(),
+            "redis://10.0.0.5:6379/2".to_string(),
+        )];
+        let c = effective_config(None, None, redis).unwrap();
+        assert_eq!(c.server.redis_url, "redis://10.0.0.5:6379/2");
+        assert_eq!(Config::embedded().server.redis_url, "", "no Redis unless configured");
     }
 
     #[test]
@@ -207,5 +215,12 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("frames_per_step"), "{e}");
+        let e = effective_config(
+            None,
+            None,
+            vec![("CLOUDSCAPE_SERVER_REDIS_URL".into(), "http://cache:6379".into())],
+        )
+        .unwrap_err();
+        assert!(e.contains("redis_url"), "{e}");
     }
 }

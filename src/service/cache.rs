@@ -5,6 +5,9 @@
 //! Concurrent misses on one key join one computation (moka's `try_get_with`). The
 //! computation runs in its own task, so a request whose time budget runs out (503)
 //! still leaves the bytes in the cache for its retry.
+//!
+//! With a [`SharedCache`] (Redis) configured, the one computation of a key first asks
+//! it, and stores what it computed there afterwards without waiting.
 
 use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
@@ -17,6 +20,7 @@ use tokio::sync::{Semaphore, oneshot};
 use super::error::ApiError;
 use super::key::CacheKey;
 use super::metrics::Metrics;
+use super::shared::{Lookup, SharedCache};
 
 /// Bounded CPU work: at most `capacity` jobs running or waiting for a rayon thread.
 pub struct ComputeQueue {
@@ -83,10 +87,12 @@ pub struct ResponseCache {
     queue: ComputeQueue,
     /// Time budget of one request.
     budget: Duration,
+    /// The second-level cache shared by replicas, if configured.
+    shared: Option<Arc<SharedCache>>,
 }
 
 impl ResponseCache {
-    pub fn new(max_bytes: u64, queue_capacity: usize, budget: Duration) -> ResponseCache {
+    pub fn new(max_bytes: u64, queue_capacity: usize, budget: Duration, shared: Option<SharedCache>) -> ResponseCache {
         let cache = Cache::builder()
             .weigher(|k: &CacheKey, v: &Bytes| (k.weight() + v.len()).try_into().unwrap_or(u32::MAX))
             .max_capacity(max_bytes)
@@ -95,6 +101,7 @@ impl ResponseCache {
             cache,
             queue: ComputeQueue::new(queue_capacity),
             budget,
+            shared: shared.map(Arc::new),
         }
     }
 
@@ -134,14 +141,28 @@ impl ResponseCache {
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
             let cache = this.cache.clone();
+            let shared = this.shared.clone();
             let init = async {
+                if let Some(shared) = &shared {
+                    if let Lookup::Hit(bytes) = shared.get(&m, kind, &key).await {
+                        return Ok(bytes);
+                    }
+                }
                 let (bytes, siblings) = this.queue.run(&m, kind, job).await?;
-                for (k, b) in siblings {
-                    cache.insert(k, b).await;
+                for (k, b) in &siblings {
+                    cache.insert(k.clone(), b.clone()).await;
+                }
+                if let Some(shared) = &shared {
+                    let mut entries = siblings;
+                    entries.push((key.clone(), bytes.clone()));
+                    shared.put(&m, entries);
                 }
                 Ok::<_, ApiError>(bytes)
             };
-            this.cache.try_get_with(key, init).await.map_err(|e| (*e).clone())
+            this.cache
+                .try_get_with(key.clone(), init)
+                .await
+                .map_err(|e| (*e).clone())
         });
         match tokio::time::timeout(self.budget, task).await {
             Ok(Ok(result)) => result,

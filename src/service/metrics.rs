@@ -3,7 +3,7 @@
 //! number of series.
 
 use prometheus::{
-    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
+    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
 };
 
 /// Every metric the service exports. Owned by `AppState`; handlers and the compute
@@ -34,7 +34,20 @@ pub struct Metrics {
     pub cache_bytes: IntGauge,
     /// 1 while ready, 0 while starting or draining.
     pub ready: IntGauge,
+    /// Shared-cache (Redis) lookups that found the bytes, by product kind.
+    pub redis_hits: IntCounterVec,
+    /// Shared-cache lookups that did not (the request then computes).
+    pub redis_misses: IntCounterVec,
+    /// Shared-cache calls that failed or timed out, by operation (`get`, `set`).
+    pub redis_errors: IntCounterVec,
+    /// Lookups that skipped Redis because it failed recently.
+    pub redis_skipped: IntCounter,
+    /// Entries written to the shared cache.
+    pub redis_writes: IntCounter,
 }
+
+/// The `op` label values of `redis_errors`.
+pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
 pub const KINDS: [&str; 8] = [
@@ -57,10 +70,21 @@ impl Metrics {
         let m = Metrics::unlabelled();
         // Export every kind from the start, at zero, so dashboards and alerts see the series.
         for kind in KINDS {
-            for v in [&m.cache_hits, &m.cache_misses, &m.computations, &m.shed, &m.timeouts] {
+            for v in [
+                &m.cache_hits,
+                &m.cache_misses,
+                &m.computations,
+                &m.shed,
+                &m.timeouts,
+                &m.redis_hits,
+                &m.redis_misses,
+            ] {
                 v.with_label_values(&[kind]);
             }
             m.compute_seconds.with_label_values(&[kind]);
+        }
+        for op in REDIS_OPS {
+            m.redis_errors.with_label_values(&[op]);
         }
         m
     }
@@ -77,6 +101,11 @@ impl Metrics {
                 .expect("valid metric");
             registry.register(Box::new(h.clone())).expect("unique metric");
             h
+        };
+        let plain_counter = |name: &str, help: &str| {
+            let c = IntCounter::new(name, help).expect("valid metric");
+            registry.register(Box::new(c.clone())).expect("unique metric");
+            c
         };
         let gauge = |name: &str, help: &str| {
             let g = IntGauge::new(name, help).expect("valid metric");
@@ -116,6 +145,22 @@ impl Metrics {
             ),
             cache_bytes: gauge("cloudscape_cache_bytes", "bytes held by the response cache"),
             ready: gauge("cloudscape_ready", "1 when ready to serve"),
+            redis_hits: counter("cloudscape_redis_hits_total", "shared (Redis) cache hits", &["kind"]),
+            redis_misses: counter(
+                "cloudscape_redis_misses_total",
+                "shared (Redis) cache misses",
+                &["kind"],
+            ),
+            redis_errors: counter(
+                "cloudscape_redis_errors_total",
+                "shared (Redis) cache calls that failed or timed out",
+                &["op"],
+            ),
+            redis_skipped: plain_counter(
+                "cloudscape_redis_skipped_total",
+                "lookups that skipped Redis because it failed recently",
+            ),
+            redis_writes: plain_counter("cloudscape_redis_writes_total", "entries written to the shared cache"),
             registry,
         }
     }

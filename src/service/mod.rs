@@ -28,6 +28,7 @@ mod ops;
 mod params;
 mod queries;
 mod render;
+mod shared;
 mod stats;
 mod tiles;
 mod web;
@@ -58,6 +59,7 @@ pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
 use self::cache::ResponseCache;
 use self::key::{Frame, Worlds};
 use self::metrics::Metrics;
+use self::shared::SharedCache;
 
 /// Where the server is in its life, as `/readyz` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -108,7 +110,7 @@ pub struct AppState {
 }
 
 impl AppState {
-    fn new(config: Config) -> AppState {
+    fn new(config: Config) -> Result<AppState, String> {
         let settings = config.server.clone();
         let queue = match settings.compute_queue {
             0 => 4 * std::thread::available_parallelism().map_or(1, |n| n.get()),
@@ -118,18 +120,19 @@ impl AppState {
             settings.cache_bytes,
             queue,
             Duration::from_millis(settings.request_timeout_ms),
+            SharedCache::new(&settings)?,
         );
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
-        AppState {
+        Ok(AppState {
             worlds: Worlds::new(config),
             settings,
             cache: Arc::new(cache),
             metrics: Arc::new(Metrics::new()),
             readiness: Readiness(AtomicU8::new(Phase::Starting as u8)),
             request_ids: (prefix, AtomicU64::new(0)),
-        }
+        })
     }
 
     fn next_request_id(&self) -> String {
@@ -169,12 +172,13 @@ pub struct Server {
 }
 
 impl Server {
-    /// Binds `config.server.listen`.
+    /// Binds `config.server.listen` (and sets up, without connecting, the shared cache).
     pub async fn bind(config: Config) -> io::Result<Server> {
-        let listener = TcpListener::bind(config.server.listen.as_str()).await?;
+        let state = AppState::new(config).map_err(|e| io::Error::new(io::ErrorKind::InvalidInput, e))?;
+        let listener = TcpListener::bind(state.settings.listen.as_str()).await?;
         Ok(Server {
             listener,
-            state: Arc::new(AppState::new(config)),
+            state: Arc::new(state),
             stop: Arc::new(watch::channel(false).0),
         })
     }

@@ -52,7 +52,21 @@ pub struct ServerConfig {
     pub shutdown_timeout_ms: u64,
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
+    /// URL of an optional Redis shared by replicas as a second-level cache
+    /// (`redis://HOST:PORT/DB`, `redis+unix:///PATH`); empty means none.
+    pub redis_url: String,
+    /// Longest a Redis lookup or write may take (connecting included) before the
+    /// request goes on without it, milliseconds.
+    pub redis_timeout_ms: u64,
+    /// After a Redis failure, how long requests skip Redis before trying it again, ms.
+    pub redis_retry_ms: u64,
+    /// Expiry of the entries written to Redis, seconds; 0 means none (rely on Redis's
+    /// `maxmemory-policy`).
+    pub redis_ttl_s: u64,
 }
+
+/// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
+const REDIS_SCHEMES: [&str; 3] = ["redis://", "redis+unix://", "unix://"];
 
 fn default_listen() -> String {
     "127.0.0.1:8080".to_string()
@@ -71,6 +85,10 @@ impl Default for ServerConfig {
             drain_ms: 1000,
             shutdown_timeout_ms: 30_000,
             max_series: 256,
+            redis_url: String::new(),
+            redis_timeout_ms: 100,
+            redis_retry_ms: 1000,
+            redis_ttl_s: 86_400,
         }
     }
 }
@@ -90,6 +108,15 @@ impl ServerConfig {
             if !v.bytes().all(|b| (0x20..0x7f).contains(&b)) {
                 return Err(invalid(key, "must be printable ASCII (it is an HTTP header value)"));
             }
+        }
+        if !self.redis_url.is_empty() && !REDIS_SCHEMES.iter().any(|s| self.redis_url.starts_with(s)) {
+            return Err(invalid(
+                "server.redis_url",
+                "must start with redis:// or redis+unix:// (or be empty for no Redis)",
+            ));
+        }
+        if !self.redis_url.is_empty() && self.redis_timeout_ms == 0 {
+            return Err(invalid("server.redis_timeout_ms", "must be positive"));
         }
         Ok(())
     }

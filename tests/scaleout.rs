@@ -1,0 +1,334 @@
+//! Scale-out on one machine: three `cloudscape serve` replicas behind Debian's nginx,
+//! run with docker/nginx.conf (the file docker/compose.yaml uses) with loopback ports
+//! and temporary paths substituted. Shows that replicas agree byte for byte, that
+//! nginx serves repeats from its cache and coalesces concurrent misses, and that a
+//! replica killed under load costs no request.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
+
+use common::{ServeProcess, free_port};
+
+const SMALL_CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
+const NGINX_CONF: &str = include_str!("../docker/nginx.conf");
+
+/// Replaces `from` (which must be there: the test runs the real file, not a copy).
+fn substitute(conf: &mut String, from: &str, to: &str) {
+    assert!(conf.contains(from), "docker/nginx.conf no longer contains `{from}`");
+    *conf = conf.replace(from, to);
+}
+
+/// docker/nginx.conf for loopback: listen on `port`, proxy to `replicas`, keep pid,
+/// logs and cache in `dir`.
+fn local_nginx_conf(dir: &Path, port: u16, replicas: &[u16; 3]) -> String {
+    let d = dir.display();
+    let mut conf = NGINX_CONF.to_string();
+    substitute(&mut conf, "pid /tmp/nginx.pid;", &format!("pid {d}/nginx.pid;"));
+    substitute(&mut conf, "error_log /dev/stderr", &format!("error_log {d}/error.log"));
+    substitute(
+        &mut conf,
+        "access_log /dev/stdout",
+        &format!("access_log {d}/access.log"),
+    );
+    substitute(&mut conf, "/var/cache/nginx/cloudscape", &format!("{d}/cache"));
+    substitute(&mut conf, "listen 8080;", &format!("listen 127.0.0.1:{port};"));
+    for (i, p) in replicas.iter().enumerate() {
+        substitute(
+            &mut conf,
+            &format!("server cloudscape-{}:8080", i + 1),
+            &format!("server 127.0.0.1:{p}"),
+        );
+    }
+    conf
+}
+
+/// nginx in the foreground with its own prefix, config and logs; stopped when dropped.
+struct Nginx {
+    child: Child,
+    base: String,
+    dir: tempfile::TempDir,
+}
+
+impl Nginx {
+    fn start(replicas: &[u16; 3]) -> Nginx {
+        let dir = tempfile::tempdir().unwrap();
+        // Run as root, nginx's workers drop to an unprivileged user that must reach the cache.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            std::fs::set_permissions(dir.path(), std::fs::Permissions::from_mode(0o755)).unwrap();
+        }
+        let port = free_port();
+        let conf = dir.path().join("nginx.conf");
+        std::fs::write(&conf, local_nginx_conf(dir.path(), port, replicas)).unwrap();
+        let exe = ["/usr/sbin/nginx", "nginx"]
+            .into_iter()
+            .find(|e| Command::new(e).arg("-v").stderr(Stdio::null()).status().is_ok())
+            .expect("nginx is not installed: this test needs it (Debian: apt-get install nginx)");
+        let child = Command::new(exe)
+            .arg("-p")
+            .arg(dir.path())
+            .arg("-c")
+            .arg(&conf)
+            .arg("-e")
+            .arg(dir.path().join("error.log"))
+            .args(["-g", "daemon off;"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("spawn nginx");
+        let mut nginx = Nginx {
+            child,
+            base: format!("http://127.0.0.1:{port}"),
+            dir,
+        };
+        let start = Instant::now();
+        loop {
+            if let Ok(Some(status)) = nginx.child.try_wait() {
+                panic!("nginx exited ({status}): {}", nginx.error_log());
+            }
+            if let Ok(r) = client().get(format!("{}/healthz", nginx.base)).send() {
+                if r.status() == 200 {
+                    break;
+                }
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(20),
+                "nginx never answered: {}",
+                nginx.error_log()
+            );
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        nginx
+    }
+
+    fn error_log(&self) -> String {
+        std::fs::read_to_string(self.dir.path().join("error.log")).unwrap_or_default()
+    }
+}
+
+impl Drop for Nginx {
+    fn drop(&mut self) {
+        // SIGQUIT: graceful stop of the master and its workers.
+        let _ = Command::new("kill")
+            .args(["-QUIT", &self.child.id().to_string()])
+            .status();
+        let start = Instant::now();
+        while start.elapsed() < Duration::from_secs(5) {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn client() -> reqwest::blocking::Client {
+    reqwest::blocking::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs(30))
+        .build()
+        .unwrap()
+}
+
+struct Answer {
+    status: u16,
+    etag: String,
+    cache: String,
+    body: Vec<u8>,
+}
+
+fn get(base: &str, path: &str, headers: &[(&str, &str)]) -> Answer {
+    let mut req = client().get(format!("{base}{path}"));
+    for (k, v) in headers {
+        req = req.header(*k, *v);
+    }
+    let r = req.send().unwrap();
+    let header = |name: &str| {
+        r.headers()
+            .get(name)
+            .map(|v| v.to_str().unwrap().to_string())
+            .unwrap_or_default()
+    };
+    let (status, etag, cache) = (r.status().as_u16(), header("etag"), header("x-cache-status"));
+    Answer {
+        status,
+        etag,
+        cache,
+        body: r.bytes().unwrap().to_vec(),
+    }
+}
+
+fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
+    let text = client()
+        .get(format!("{}/metrics", server.base))
+        .send()
+        .unwrap()
+        .text()
+        .unwrap();
+    text.lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
+        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum()
+}
+
+fn computations(replicas: &[ServeProcess]) -> f64 {
+    replicas
+        .iter()
+        .map(|r| metric(r, "cloudscape_computations_total", &[]))
+        .sum()
+}
+
+fn start_replicas() -> Vec<ServeProcess> {
+    (0..3)
+        .map(|_| ServeProcess::start(&["--config", SMALL_CONFIG], &[]))
+        .collect()
+}
+
+fn ports(replicas: &[ServeProcess]) -> [u16; 3] {
+    [replicas[0].port, replicas[1].port, replicas[2].port]
+}
+
+#[test]
+fn replicas_agree_and_nginx_caches_and_coalesces() {
+    let replicas = start_replicas();
+    let nginx = Nginx::start(&ports(&replicas));
+
+    // Every replica answers a key with the same bytes under the same ETag.
+    for path in [
+        "/v1/worlds/default/tiles/0/2/-1/density.npy?t=40",
+        "/v1/worlds/default/tiles/0/2/-1/coverage.png?t=40",
+        "/v1/worlds/default/tiles/0/2/-1/billboards.bin?t=40&sun=90,20",
+        "/v1/worlds/77/region?bbox=0,0,25600,25600&t=40",
+    ] {
+        let answers: Vec<Answer> = replicas.iter().map(|r| get(&r.base, path, &[])).collect();
+        for a in &answers {
+            assert_eq!(a.status, 200, "{path}");
+            assert!(!a.etag.is_empty(), "{path} has an ETag");
+            assert_eq!(a.etag, answers[0].etag, "{path}: ETags differ between replicas");
+            assert!(a.body == answers[0].body, "{path}: bytes differ between replicas");
+        }
+        // Through nginx: the same bytes and ETag, computed once, then from nginx's cache.
+        let first = get(&nginx.base, path, &[]);
+        assert_eq!((first.status, first.cache.as_str()), (200, "MISS"), "{path}");
+        assert!(first.body == answers[0].body && first.etag == answers[0].etag, "{path}");
+        let before = computations(&replicas);
+        for _ in 0..3 {
+            let again = get(&nginx.base, path, &[]);
+            assert_eq!((again.status, again.cache.as_str()), (200, "HIT"), "{path}");
+            assert!(again.body == answers[0].body && again.etag == answers[0].etag, "{path}");
+        }
+        assert_eq!(computations(&replicas), before, "{path}: cache hits reach no replica");
+        // Revalidation against nginx's copy: 304, no body.
+        let revalidated = get(&nginx.base, path, &[("if-none-match", &answers[0].etag)]);
+        assert_eq!(revalidated.status, 304, "{path}");
+    }
+
+    // The image's HEALTHCHECK: `cloudscape probe` succeeds on a live replica, and fails
+    // with one sentence where nothing listens.
+    let probe = |url: &str| {
+        Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+            .args(["probe", "--url", url])
+            .output()
+            .unwrap()
+    };
+    assert!(probe(&format!("{}/healthz", replicas[0].base)).status.success());
+    let dead = probe(&format!("http://127.0.0.1:{}/healthz", free_port()));
+    assert!(!dead.status.success());
+    assert!(String::from_utf8_lossy(&dead.stderr).starts_with("error: "));
+
+    // Operator routes say no-store and are never cached.
+    for _ in 0..2 {
+        assert_eq!(get(&nginx.base, "/readyz", &[]).cache, "MISS");
+    }
+    assert_eq!(
+        get(&nginx.base, "/metrics", &[]).status,
+        404,
+        "replicas are scraped directly"
+    );
+
+    // Eight clients ask for one cold URL at once: one of them goes upstream, the others
+    // wait for its answer (proxy_cache_lock), so one replica computes it once.
+    let path = "/v1/worlds/default/tiles/0/-5/4/density.f32?t=80";
+    let before = computations(&replicas);
+    let answers: Vec<Answer> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..8).map(|_| s.spawn(|| get(&nginx.base, path, &[]))).collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    assert!(answers.iter().all(|a| a.status == 200 && a.body == answers[0].body));
+    assert_eq!(
+        answers.iter().filter(|a| a.cache == "MISS").count(),
+        1,
+        "one request went upstream"
+    );
+    assert_eq!(computations(&replicas) - before, 1.0, "concurrent misses computed once");
+}
+
+#[test]
+fn killing_a_replica_under_load_loses_no_request() {
+    let mut replicas = start_replicas();
+    let nginx = Nginx::start(&ports(&replicas));
+    let clients = 4;
+    let per_client = 60;
+    let done = AtomicUsize::new(0);
+    let (failures, done_at_kill): (Vec<String>, usize) = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..clients)
+            .map(|c| {
+                let (base, done) = (&nginx.base, &done);
+                s.spawn(move || {
+                    let mut failures = Vec::new();
+                    for i in 0..per_client {
+                        // Distinct cold URLs (cheap point samples), so every request goes
+                        // upstream to some replica.
+                        let path = format!("/v1/worlds/default/sample?x={}&y={}&z=1050&t=20", i * 150, c * 150);
+                        let a = get(base, &path, &[]);
+                        if a.status != 200 || !a.body.starts_with(b"{") {
+                            failures.push(format!("{path}: {} ({} bytes)", a.status, a.body.len()));
+                        }
+                        done.fetch_add(1, Ordering::SeqCst);
+                    }
+                    failures
+                })
+            })
+            .collect();
+        // A sixth of the way through, SIGKILL one replica: no drain, its connections die.
+        let start = Instant::now();
+        while done.load(Ordering::SeqCst) < clients * per_client / 6 && start.elapsed() < Duration::from_secs(60) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        replicas[1].child.kill().unwrap();
+        let done_at_kill = done.load(Ordering::SeqCst);
+        replicas[1].child.wait().unwrap();
+        let failures = handles.into_iter().flat_map(|h| h.join().unwrap()).collect();
+        (failures, done_at_kill)
+    });
+    assert!(failures.is_empty(), "requests lost: {failures:?}");
+    assert!(
+        done_at_kill < clients * per_client / 2,
+        "the replica died while most of the load was still to come ({done_at_kill} done)"
+    );
+    // The survivors computed everything the dead replica had not.
+    let survivors: f64 = [&replicas[0], &replicas[2]]
+        .iter()
+        .map(|r| metric(r, "cloudscape_computations_total", &[("kind", "sample")]))
+        .sum();
+    assert!(survivors >= (clients * per_client - done_at_kill) as f64);
+    let log = std::fs::read_to_string(nginx.dir.path().join("access.log")).unwrap();
+    let samples: Vec<&str> = log.lines().filter(|l| l.contains("/sample?")).collect();
+    assert_eq!(samples.len(), clients * per_client);
+    // nginx logs every upstream a request tried: some tried the dead replica, then another.
+    let dead = format!("127.0.0.1:{}, ", replicas[1].port);
+    assert!(
+        samples.iter().any(|l| l.contains(&dead) && l.contains(" 200 ")),
+        "no request was retried on a live replica:\n{}",
+        samples.join("\n")
+    );
+}

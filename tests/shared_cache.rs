@@ -1,0 +1,293 @@
+//! The optional Redis second-level cache, against a real `redis-server` (Debian
+//! package `redis-server`; CI installs it) started on a free loopback port: replicas
+//! share products through it, and a Redis that dies, stops answering or never answered
+//! costs requests no more than its deadline (they compute instead).
+
+mod common;
+
+use std::io::Read;
+use std::net::TcpListener;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{ServeProcess, free_port};
+
+const SMALL_CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
+
+/// A `redis-server` child process with no persistence; killed when dropped.
+struct RedisServer {
+    child: Child,
+    port: u16,
+}
+
+impl RedisServer {
+    fn start() -> RedisServer {
+        Self::start_on(free_port())
+    }
+
+    fn start_on(port: u16) -> RedisServer {
+        let child = Command::new("redis-server")
+            .args(["--port", &port.to_string(), "--bind", "127.0.0.1"])
+            .args([
+                "--save",
+                "",
+                "--appendonly",
+                "no",
+                "--daemonize",
+                "no",
+                "--loglevel",
+                "warning",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| {
+                panic!("cannot run redis-server ({e}): these tests need it (Debian: apt-get install redis-server)")
+            });
+        let redis = RedisServer { child, port };
+        let start = Instant::now();
+        while redis.connection().is_err() {
+            assert!(start.elapsed() < Duration::from_secs(10), "redis-server did not start");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        redis
+    }
+
+    fn url(&self) -> String {
+        format!("redis://127.0.0.1:{}/0", self.port)
+    }
+
+    fn connection(&self) -> redis::RedisResult<redis::Connection> {
+        let client = redis::Client::open(self.url())?;
+        let mut c = client.get_connection_with_timeout(Duration::from_secs(1))?;
+        redis::cmd("PING").query::<String>(&mut c)?;
+        Ok(c)
+    }
+
+    fn keys(&self) -> Vec<String> {
+        let mut c = self.connection().expect("redis answers");
+        redis::cmd("KEYS").arg("*").query(&mut c).unwrap()
+    }
+
+    /// Waits (up to 10 s) until Redis holds at least `n` keys.
+    fn wait_for_keys(&self, n: usize) -> Vec<String> {
+        let start = Instant::now();
+        loop {
+            let keys = self.keys();
+            if keys.len() >= n {
+                return keys;
+            }
+            assert!(
+                start.elapsed() < Duration::from_secs(10),
+                "Redis holds {keys:?}, wanted {n} keys"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    fn signal(&self, signal: &str) {
+        let ok = Command::new("kill")
+            .args([signal, &self.child.id().to_string()])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok, "kill {signal}");
+    }
+}
+
+impl Drop for RedisServer {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn client() -> reqwest::blocking::Client {
+    reqwest::blocking::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs(30))
+        .build()
+        .unwrap()
+}
+
+/// GET `path`: (status, ETag, body, seconds taken).
+fn get(server: &ServeProcess, path: &str) -> (u16, String, Vec<u8>, f64) {
+    let started = Instant::now();
+    let r = client().get(format!("{}{path}", server.base)).send().unwrap();
+    let status = r.status().as_u16();
+    let etag = r
+        .headers()
+        .get("etag")
+        .map(|v| v.to_str().unwrap().to_string())
+        .unwrap_or_default();
+    let body = r.bytes().unwrap().to_vec();
+    (status, etag, body, started.elapsed().as_secs_f64())
+}
+
+fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
+    let text = client()
+        .get(format!("{}/metrics", server.base))
+        .send()
+        .unwrap()
+        .text()
+        .unwrap();
+    text.lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
+        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum()
+}
+
+fn serve_with_redis(url: &str, extra: &[(&str, &str)]) -> ServeProcess {
+    let mut env = vec![("CLOUDSCAPE_SERVER_REDIS_URL", url)];
+    env.extend_from_slice(extra);
+    ServeProcess::start(&["--config", SMALL_CONFIG], &env)
+}
+
+#[test]
+fn a_second_replica_gets_products_from_redis_with_identical_bytes_and_etags() {
+    let redis = RedisServer::start();
+    let a = serve_with_redis(&redis.url(), &[]);
+    let density = "/v1/worlds/default/tiles/0/3/-2/density.npy?t=40";
+    let billboards = "/v1/worlds/default/tiles/0/1/1/billboards.json?t=40&sun=120,30";
+    let atlas = "/v1/worlds/default/tiles/0/1/1/atlas.json?t=40&sun=120,30";
+    let (status, etag_a, body_a, _) = get(&a, density);
+    assert_eq!(status, 200);
+    assert_eq!(
+        metric(&a, "cloudscape_redis_misses_total", &[("kind", "tile_density")]),
+        1.0
+    );
+    assert_eq!(get(&a, billboards).0, 200);
+    // Written after the responses, in the background: the density grid, and the shaded
+    // tile's products (billboards and its siblings).
+    let keys = redis.wait_for_keys(3);
+    assert!(keys.iter().all(|k| k.starts_with("cloudscape:")), "{keys:?}");
+    assert!(
+        keys.iter().any(|k| k.contains("|a") && k.contains("|p=density.npy")),
+        "{keys:?}"
+    );
+
+    // A fresh replica: empty memory cache, same config, same Redis.
+    let b = serve_with_redis(&redis.url(), &[]);
+    let (status, etag_b, body_b, _) = get(&b, density);
+    assert_eq!(status, 200);
+    assert_eq!(etag_a, etag_b, "replicas name the same bytes with the same ETag");
+    assert!(body_a == body_b, "bytes from Redis are the bytes computed");
+    assert_eq!(
+        metric(&b, "cloudscape_redis_hits_total", &[("kind", "tile_density")]),
+        1.0
+    );
+    assert_eq!(
+        metric(&b, "cloudscape_computations_total", &[("kind", "tile_density")]),
+        0.0
+    );
+    // A sibling product of the shaded tile that replica A computed but nobody asked A for.
+    let (status, _, atlas_b, _) = get(&b, atlas);
+    assert_eq!(status, 200);
+    assert_eq!(
+        metric(&b, "cloudscape_computations_total", &[("kind", "tile_shaded")]),
+        0.0
+    );
+    assert!(atlas_b == get(&a, atlas).2);
+    // The second request on B is a memory hit: Redis is not asked again.
+    assert_eq!(get(&b, density).0, 200);
+    assert_eq!(metric(&b, "cloudscape_redis_hits_total", &[]), 2.0);
+    assert_eq!(
+        metric(&b, "cloudscape_cache_hits_total", &[("kind", "tile_density")]),
+        1.0
+    );
+}
+
+/// Settings that make failures show quickly: a 150 ms Redis deadline, 300 ms back-off,
+/// and a request budget far below the test client's, so a stalled request would be a 503.
+const FAST_FAILURE: [(&str, &str); 3] = [
+    ("CLOUDSCAPE_SERVER_REDIS_TIMEOUT_MS", "150"),
+    ("CLOUDSCAPE_SERVER_REDIS_RETRY_MS", "300"),
+    ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "5000"),
+];
+
+/// Requests `n` tiles nobody asked for yet (so each one consults Redis, then computes)
+/// and checks every one is answered in time.
+fn cold_tiles_succeed(server: &ServeProcess, row: i64, n: i64) {
+    for x in 0..n {
+        let (status, _, body, seconds) = get(server, &format!("/v1/worlds/default/tiles/0/{x}/{row}/density.u8?t=30"));
+        assert_eq!(status, 200, "tile ({x}, {row}) while Redis misbehaves");
+        assert_eq!(body.len(), 2 * 256 * 256);
+        assert!(seconds < 5.0, "tile ({x}, {row}) took {seconds:.2} s");
+    }
+}
+
+#[test]
+fn a_stopped_then_killed_redis_never_fails_a_request_and_is_used_again_once_back() {
+    let redis = RedisServer::start();
+    let port = redis.port;
+    let server = serve_with_redis(&redis.url(), &FAST_FAILURE);
+    cold_tiles_succeed(&server, 0, 2);
+    redis.wait_for_keys(2);
+
+    // Connected, then silent: every call meets its deadline.
+    redis.signal("-STOP");
+    cold_tiles_succeed(&server, 1, 6);
+    let errors = metric(&server, "cloudscape_redis_errors_total", &[]);
+    assert!(errors >= 1.0, "a silent Redis counts as an error");
+    // Killed while stopped: connections are refused or reset.
+    redis.signal("-KILL");
+    drop(redis);
+    cold_tiles_succeed(&server, 2, 6);
+    assert_eq!(metric(&server, "cloudscape_timeouts_total", &[]), 0.0);
+
+    // Back on the same port: within a few back-off periods, products are written again.
+    let redis = RedisServer::start_on(port);
+    let start = Instant::now();
+    let mut x = 0;
+    while redis.keys().is_empty() {
+        assert!(
+            start.elapsed() < Duration::from_secs(15),
+            "the server never reconnected to Redis"
+        );
+        cold_tiles_succeed_one(&server, 3, x);
+        x += 1;
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn cold_tiles_succeed_one(server: &ServeProcess, row: i64, x: i64) {
+    let (status, ..) = get(server, &format!("/v1/worlds/default/tiles/0/{x}/{row}/density.u8?t=30"));
+    assert_eq!(status, 200);
+}
+
+#[test]
+fn a_redis_that_accepts_connections_but_never_answers_does_not_stall_requests() {
+    // A listener that reads whatever is sent and never writes a byte.
+    let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+    let url = format!("redis://{}/0", listener.local_addr().unwrap());
+    std::thread::spawn(move || {
+        for stream in listener.incoming().flatten() {
+            std::thread::spawn(move || {
+                let mut stream = stream;
+                let mut buf = [0u8; 4096];
+                while matches!(stream.read(&mut buf), Ok(n) if n > 0) {}
+            });
+        }
+    });
+    let server = serve_with_redis(&url, &FAST_FAILURE);
+    cold_tiles_succeed(&server, 0, 8);
+    assert!(metric(&server, "cloudscape_redis_errors_total", &[("op", "get")]) >= 1.0);
+    assert!(
+        metric(&server, "cloudscape_redis_skipped_total", &[]) >= 1.0,
+        "after a failure, lookups skip Redis for a while instead of waiting again"
+    );
+    assert_eq!(metric(&server, "cloudscape_redis_hits_total", &[]), 0.0);
+}
+
+#[test]
+fn an_invalid_redis_url_is_refused_at_start() {
+    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["serve", "--print-config"])
+        .env("CLOUDSCAPE_SERVER_REDIS_URL", "http://cache:6379")
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("redis_url"));
+}

@@ -10,8 +10,9 @@
 use std::hint::black_box;
 use std::time::Duration;
 
-use cloudscape::automaton::kernel::{Level, Rect, StepContext, step_level};
-use cloudscape::automaton::naive::{self, NaiveDrives, NaiveLevel};
+use cloudscape::automaton::kernel::Rect;
+use cloudscape::automaton::naive;
+use cloudscape::bench::core::{packed_steps, scene, to_naive};
 use cloudscape::automaton::{LayerSim, RunSpec, plan_step};
 use cloudscape::density::{self, Region};
 use cloudscape::fields::noise::Fbm;
@@ -19,109 +20,9 @@ use cloudscape::fields::probability::Which;
 use cloudscape::world::{Config, World};
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
-use rayon::prelude::*;
 
 fn world() -> World {
     Config::embedded().world("default").unwrap()
-}
-
-/// A realistic state: the default stratocumulus layer after a warm-up run, with
-/// its spatially varying drives, over `size × size` cells.
-fn scene(size: i64) -> (LayerSim, Vec<Level>, Vec<cloudscape::automaton::kernel::Drives>) {
-    let sim = LayerSim::new(&world(), 0);
-    let window = Rect {
-        x0: 0,
-        x1: size,
-        y0: 0,
-        y1: size,
-    };
-    let spec = RunSpec {
-        reference_step: 64,
-        start: 40,
-        snapshots: vec![64],
-        windows: vec![window; sim.depth()],
-    };
-    let snap = sim.run(&spec).remove(0);
-    let levels: Vec<Level> = snap.levels.iter().map(|l| crop(l, window)).collect();
-    let drives = sim.drives(&levels, 64);
-    (sim, levels, drives)
-}
-
-fn crop(l: &Level, r: Rect) -> Level {
-    let mut out = Level::covering(r);
-    for y in r.y0..r.y1 {
-        for x in r.x0..r.x1 {
-            if l.cld_at(x, y) {
-                let i = (y - out.y0) as usize * out.wpr + ((x - out.x0) / 64) as usize;
-                out.cld[i] |= 1 << ((x - out.x0) % 64);
-            }
-        }
-    }
-    // hum and act are seeded from cld so activity spreads during the benchmark.
-    out.act = out.cld.iter().map(|w| w & 0x5555_5555_5555_5555).collect();
-    out.hum = out.cld.iter().map(|w| !w).collect();
-    out
-}
-
-fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[cloudscape::automaton::kernel::Drives], steps: i64) {
-    let mut cur = levels.to_vec();
-    let mut next = levels.to_vec();
-    for n in 0..steps {
-        let offsets = sim.offsets(64 + n);
-        let ctx = StepContext {
-            rules: sim.rules(),
-            stream: sim.stream,
-            n: 64 + n,
-            offsets: &offsets,
-        };
-        next.par_iter_mut().enumerate().for_each(|(k, o)| {
-            let lv = &cur[k];
-            let all = Rect {
-                x0: lv.x0,
-                x1: lv.x0 + 64 * lv.wpr as i64,
-                y0: lv.y0,
-                y1: lv.y0 + lv.rows as i64,
-            };
-            step_level(&cur, k, &drives[k], &ctx, all, o)
-        });
-        std::mem::swap(&mut cur, &mut next);
-    }
-    black_box(&cur);
-}
-
-fn to_naive(levels: &[Level], drives: &[cloudscape::automaton::kernel::Drives]) -> (Vec<NaiveLevel>, Vec<NaiveDrives>) {
-    let mut nl = Vec::new();
-    let mut nd = Vec::new();
-    for (l, d) in levels.iter().zip(drives) {
-        let w = l.wpr * 64;
-        let bit = |v: &[u64], c: usize| ((v[(c / w) * l.wpr + (c % w) / 64] >> (c % 64)) & 1) as u8;
-        let n = w * l.rows;
-        nl.push(NaiveLevel {
-            x0: l.x0,
-            y0: l.y0,
-            w,
-            h: l.rows,
-            hum: (0..n).map(|c| bit(&l.hum, c)).collect(),
-            act: (0..n).map(|c| bit(&l.act, c)).collect(),
-            cld: (0..n).map(|c| bit(&l.cld, c)).collect(),
-        });
-        if let cloudscape::automaton::kernel::Drives::Stochastic { hum, act, ext, .. } = d {
-            let q = |p: &Vec<[u64; 17]>, c: usize| -> u32 {
-                let word = &p[(c / w) * l.wpr + (c % w) / 64];
-                let b = c % 64;
-                if (word[0] >> b) & 1 == 1 {
-                    return 65536;
-                }
-                (0..16).fold(0u32, |acc, j| (acc << 1) | ((word[1 + j] >> b) & 1) as u32)
-            };
-            nd.push(NaiveDrives::Stochastic {
-                hum: (0..n).map(|c| q(hum, c)).collect(),
-                act: (0..n).map(|c| q(act, c)).collect(),
-                ext: (0..n).map(|c| q(ext, c)).collect(),
-            });
-        }
-    }
-    (nl, nd)
 }
 
 fn automaton(c: &mut Criterion) {

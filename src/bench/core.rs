@@ -22,8 +22,8 @@ fn world() -> World {
 }
 
 /// The default stratocumulus layer after a warm-up run, over `size × size` cells, with
-/// its spatially varying drives.
-fn scene(size: i64) -> (LayerSim, Vec<Level>, Vec<Drives>) {
+/// its spatially varying drives. Shared with `benches/core.rs` (criterion).
+pub fn scene(size: i64) -> (LayerSim, Vec<Level>, Vec<Drives>) {
     let sim = LayerSim::new(&world(), 0);
     let window = Rect {
         x0: 0,
@@ -59,7 +59,8 @@ fn crop(l: &Level, r: Rect) -> Level {
     out
 }
 
-fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[Drives], steps: i64) {
+/// `steps` steps of the packed kernel over every word of every level, levels in parallel.
+pub fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[Drives], steps: i64) {
     let mut cur = levels.to_vec();
     let mut next = levels.to_vec();
     for n in 0..steps {
@@ -85,7 +86,8 @@ fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[Drives], steps: i64)
     black_box(&cur);
 }
 
-fn to_naive(levels: &[Level], drives: &[Drives]) -> (Vec<NaiveLevel>, Vec<NaiveDrives>) {
+/// The same scene in the naive kernel's one-byte-per-cell form.
+pub fn to_naive(levels: &[Level], drives: &[Drives]) -> (Vec<NaiveLevel>, Vec<NaiveDrives>) {
     let mut nl = Vec::new();
     let mut nd = Vec::new();
     for (l, d) in levels.iter().zip(drives) {

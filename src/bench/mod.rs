@@ -17,7 +17,7 @@
 //! measurement; [`Effort`] sets sizes and budgets. Ratios in a table are measured in
 //! the same run, side by side.
 
-mod core;
+pub mod core;
 mod http;
 mod pipeline;
 mod quality;

@@ -9,6 +9,7 @@ pub mod cli;
 pub mod client;
 pub mod density;
 pub mod fields;
+pub mod fuzz;
 pub mod products;
 pub mod render;
 pub mod service;

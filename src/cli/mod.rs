@@ -2,6 +2,7 @@
 //! one sentence and the process exits non-zero.
 
 mod density;
+mod fuzz;
 mod render;
 mod serve;
 
@@ -27,6 +28,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Serve tiles, region queries and metrics over HTTP.
     Serve(serve::ServeArgs),
+    /// Send generated hostile requests to a running server and judge every answer.
+    Fuzz(fuzz::FuzzArgs),
 }
 
 /// Runs the command line and returns the process exit code.
@@ -43,6 +46,7 @@ pub fn main() -> ExitCode {
         Command::Density(args) => density::run(args),
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
+        Command::Fuzz(args) => fuzz::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

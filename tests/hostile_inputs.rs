@@ -243,9 +243,9 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     let pid = server.child.id();
 
     // Tiles: every path segment and query parameter.
-    let world = text(&["default", "default", "7", "18446744073709551616", "mars", "%FF", ".."]);
+    let world = || text(&["default", "default", "7", "18446744073709551616", "mars", "%FF", ".."]);
     let tile = (
-        world.clone(),
+        world(),
         prop_oneof![3 => (0u32..4).prop_map(|z| z.to_string().into_bytes()), 1 => value(-2.0, 30.0)],
         prop_oneof![3 => (-4i64..4).prop_map(|x| x.to_string().into_bytes()), 1 => value(-1e19, 1e19)],
         prop_oneof![3 => (-4i64..4).prop_map(|x| x.to_string().into_bytes()), 1 => value(-1e19, 1e19)],
@@ -292,7 +292,7 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
 
     // /sample, /region, /series.
     let sample = (
-        world.clone(),
+        world(),
         prop::option::weighted(0.95, value(-1e6, 1e6)),
         prop::option::weighted(0.95, value(-1e6, 1e6)),
         prop::option::weighted(0.95, value(0.0, 8000.0)),
@@ -307,7 +307,7 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
         })
         .unwrap();
     let region = (
-        world.clone(),
+        world(),
         prop::option::weighted(0.95, list(4, -30000.0, 30000.0)),
         prop::option::weighted(0.95, value(0.0, 1e5)),
         prop::option::weighted(0.4, value(0.0, 25.0)),
@@ -321,7 +321,7 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
         })
         .unwrap();
     let series = (
-        world.clone(),
+        world(),
         prop::option::weighted(0.95, list(4, -20000.0, 20000.0)),
         prop::option::weighted(0.95, value(0.0, 1e5)),
         prop::option::weighted(0.95, value(0.0, 1e5)),
@@ -344,7 +344,7 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
 
     // render.png and the splat sheets.
     let render = (
-        world.clone(),
+        world(),
         prop::option::weighted(0.95, list(6, -90.0, 170.0)),
         prop::option::weighted(0.95, value(0.0, 1e5)),
         prop::option::weighted(

@@ -45,6 +45,8 @@ pub struct Violation {
     pub method: String,
     /// The request target (lossy UTF-8, truncated).
     pub target: String,
+    /// Extra headers sent (values truncated).
+    pub headers: Vec<String>,
 }
 
 /// The health checks after the soak.
@@ -133,7 +135,7 @@ impl SoakReport {
             self.server_errors, self.violation_count
         );
         for v in &self.violations {
-            s += &format!("  #{} {}: {} {}\n", v.index, v.what, v.method, v.target);
+            s += &format!("  #{} {}: {} {} {:?}\n", v.index, v.what, v.method, v.target, v.headers);
         }
         s
     }
@@ -163,7 +165,14 @@ pub fn judge(req: &FuzzRequest, a: &Answer) -> Option<String> {
     if req.kind == Kind::Protocol {
         return None;
     }
+    // A compressed body (the request may have asked for one) is judged by its type.
+    let compressed = a
+        .header("content-encoding")
+        .is_some_and(|e| !e.eq_ignore_ascii_case("identity"));
     if a.status >= 400 {
+        if compressed {
+            return (!ctype.starts_with("application/json")).then(|| format!("{} without a JSON type", a.status));
+        }
         let body: Option<serde_json::Value> = serde_json::from_slice(&a.body).ok();
         let well_formed = body.as_ref().is_some_and(|b| {
             b["error"].as_str().is_some_and(|c| !c.is_empty()) && b["message"].as_str().is_some_and(|m| !m.is_empty())
@@ -181,11 +190,12 @@ pub fn judge(req: &FuzzRequest, a: &Answer) -> Option<String> {
             if !ctype.starts_with(want) {
                 return Some(format!("200 with type `{ctype}`, expected `{want}`"));
             }
-            let magic_ok = match want {
-                "image/png" => a.body.starts_with(b"\x89PNG\r\n\x1a\n"),
-                "application/json" => matches!(a.body.first(), Some(b'{' | b'[')),
-                _ => a.body_len > 0,
-            };
+            let magic_ok = compressed
+                || match want {
+                    "image/png" => a.body.starts_with(b"\x89PNG\r\n\x1a\n"),
+                    "application/json" => matches!(a.body.first(), Some(b'{' | b'[')),
+                    _ => a.body_len > 0,
+                };
             if !magic_ok {
                 return Some(format!("200 `{want}` whose body is not one"));
             }
@@ -231,6 +241,11 @@ impl Tally {
                 what,
                 method: req.method.chars().take(20).collect(),
                 target: req.display_target(300),
+                headers: req
+                    .headers
+                    .iter()
+                    .map(|(k, v)| format!("{k}: {}", String::from_utf8_lossy(&v[..v.len().min(40)])))
+                    .collect(),
             });
         }
     }

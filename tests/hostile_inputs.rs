@@ -25,8 +25,8 @@ const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 const CONFIG: &str = r#"
 [server]
 cache_bytes = 33554432
-compute_queue = 8
-request_timeout_ms = 30000
+compute_queue = 2
+request_timeout_ms = 5000
 drain_ms = 0
 max_series = 4
 
@@ -454,7 +454,8 @@ fn check_cli(args: &[String], out: &std::path::Path, magic: &[u8]) -> Result<(),
 /// An argument value as a string (lossy: the OS passes bytes, but clap wants UTF-8;
 /// invalid UTF-8 is covered by one fixed case below).
 fn arg(v: Vec<u8>) -> String {
-    String::from_utf8_lossy(&v).into_owned()
+    // An OS argument cannot hold NUL.
+    String::from_utf8_lossy(&v).replace('\0', "")
 }
 
 #[test]

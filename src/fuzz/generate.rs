@@ -319,7 +319,6 @@ const ODD_PATHS: &[&str] = &[
     "/%",
     "/%00",
     "/v1/worlds/default/tiles/%30/0/0/density.npy?t=0",
-    "*",
 ];
 
 /// Generates the hostile requests of one seed.
@@ -702,7 +701,7 @@ fn odd_header(d: &mut Draws) -> (String, Vec<u8>) {
         ),
         2 => (
             "X-Request-Id".into(),
-            d.pick(&["", "a b", "x".repeat(200).as_str(), "\u{7f}"]).into(),
+            d.pick(&["", "a b", "x".repeat(200).as_str(), "\"", "%FF"]).into(),
         ),
         3 => (
             "If-None-Match".into(),
@@ -752,13 +751,13 @@ fn protocol_request(d: &mut Draws) -> FuzzRequest {
                 (0..n).map(|i| (format!("X-H{i}"), b"v".to_vec())).collect(),
             )
         }
-        // Header values with invalid bytes.
+        // Header values with control or non-ASCII bytes.
         5 => (
             "GET".into(),
             good,
             vec![(
-                "X-Bin".into(),
-                (0..1 + d.below(64)).map(|_| (0x80 + d.below(0x80)) as u8).collect(),
+                "X-Request-Id".into(),
+                (0..1 + d.below(64)).map(|_| [0x7f, 0x01, 0xff][d.below(3)]).collect(),
             )],
         ),
         // Unknown or malformed methods.
@@ -771,6 +770,7 @@ fn protocol_request(d: &mut Draws) -> FuzzRequest {
         _ => (
             "GET".into(),
             d.pick(&[
+                "*",
                 "v1/worlds",
                 "http://evil/v1/worlds",
                 "/v1/worlds#frag",

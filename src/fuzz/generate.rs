@@ -538,6 +538,9 @@ fn route_request(d: &mut Draws) -> FuzzRequest {
         "w".repeat(d.below(20_000))
     } else if d.chance(0.05) {
         format!("{}", d.next())
+    } else if d.chance(0.6) {
+        // Mostly a world that exists, so that the parameters behind it get parsed.
+        "default".to_string()
     } else {
         d.pick(WORLDS).to_string()
     };

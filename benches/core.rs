@@ -12,8 +12,8 @@ use std::time::Duration;
 
 use cloudscape::automaton::kernel::Rect;
 use cloudscape::automaton::naive;
-use cloudscape::bench::core::{packed_steps, scene, to_naive};
 use cloudscape::automaton::{LayerSim, RunSpec, plan_step};
+use cloudscape::bench::core::{packed_steps, scene, to_naive};
 use cloudscape::density::{self, Region};
 use cloudscape::fields::noise::Fbm;
 use cloudscape::fields::probability::Which;

@@ -11,6 +11,7 @@ pub mod cli;
 pub mod client;
 pub mod density;
 pub mod fields;
+pub mod fuzz;
 pub mod loadtest;
 pub mod products;
 pub mod render;

@@ -3,6 +3,7 @@
 
 mod bench;
 mod density;
+mod fuzz;
 mod loadtest;
 mod probe;
 mod render;
@@ -36,6 +37,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Serve tiles, region queries and metrics over HTTP.
     Serve(serve::ServeArgs),
+    /// Send generated hostile requests to a running server and judge every answer.
+    Fuzz(fuzz::FuzzArgs),
 }
 
 /// Runs the command line and returns the process exit code.
@@ -55,6 +58,7 @@ pub fn main() -> ExitCode {
         Command::Probe(args) => probe::run(args),
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
+        Command::Fuzz(args) => fuzz::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -55,8 +55,17 @@ pub const BIN_HEADER_BYTES: usize = 64;
 pub const BIN_RECORD_BYTES: usize = 32;
 
 /// Rounds an f64 to a value that prints shortly in JSON (f32 precision), never NaN.
+/// A finite value beyond f32's range keeps its f64 value (rounding it would give ±∞,
+/// which JSON writes as `null`).
 fn f(v: f64) -> f64 {
-    if v.is_finite() { v as f32 as f64 } else { 0.0 }
+    let short = v as f32 as f64;
+    if short.is_finite() {
+        short
+    } else if v.is_finite() {
+        v
+    } else {
+        0.0
+    }
 }
 
 /// The header fields shared by the JSON and the atlas manifest.

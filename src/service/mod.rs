@@ -25,7 +25,7 @@ mod key;
 mod metrics;
 mod openapi;
 mod ops;
-mod params;
+pub mod params;
 mod queries;
 mod render;
 mod shared;

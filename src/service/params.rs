@@ -164,17 +164,25 @@ mod tests {
     }
 }
 
+impl Params {
+    /// The query of `uri`, percent-decoded, as the handlers see it (also the entry point
+    /// of the `query` fuzz target).
+    pub fn from_uri(uri: &axum::http::Uri) -> Result<Params, ApiError> {
+        let axum::extract::Query(pairs) =
+            axum::extract::Query::<Vec<(String, String)>>::try_from_uri(uri).map_err(|e| {
+                ApiError::InvalidParameter {
+                    name: "query".to_string(),
+                    message: e.body_text(),
+                }
+            })?;
+        Ok(Params(pairs))
+    }
+}
+
 impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Params {
     type Rejection = ApiError;
 
-    async fn from_request_parts(parts: &mut axum::http::request::Parts, state: &S) -> Result<Self, ApiError> {
-        let axum::extract::Query(pairs) =
-            axum::extract::Query::<Vec<(String, String)>>::from_request_parts(parts, state)
-                .await
-                .map_err(|e| ApiError::InvalidParameter {
-                    name: "query".to_string(),
-                    message: e.body_text(),
-                })?;
-        Ok(Params(pairs))
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, _state: &S) -> Result<Self, ApiError> {
+        Params::from_uri(&parts.uri)
     }
 }

@@ -37,7 +37,10 @@ pub fn stable_hash_hex(bytes: &[u8]) -> String {
 /// A world resolved for a request, with the fingerprint its keys use.
 pub struct ResolvedWorld {
     pub world: World,
-    /// Hash of seed + climate: equal fingerprints compute equal bytes.
+    /// Hash of seed + climate + the server's frame grid (`frames_per_step`, which
+    /// decides what time a frame index stands for): equal fingerprints compute equal
+    /// bytes, so replicas configured alike share ETags and shared-cache entries, and
+    /// replicas configured differently never do.
     pub fingerprint: String,
 }
 
@@ -87,7 +90,8 @@ impl Worlds {
         } else {
             return Err(unknown());
         };
-        let fingerprint = stable_hash_hex(format!("{}:{climate}", world.seed).as_bytes());
+        let fps = self.config.server.frames_per_step;
+        let fingerprint = stable_hash_hex(format!("{}:{climate}:fps{fps}", world.seed).as_bytes());
         Ok(ResolvedWorld { world, fingerprint })
     }
 }
@@ -178,6 +182,10 @@ pub fn if_none_match(header: &str, etag: &str) -> bool {
 mod tests {
     use super::*;
 
+    fn a_default(w: &Worlds) -> String {
+        w.resolve("default").unwrap().fingerprint
+    }
+
     #[test]
     fn numeric_worlds_share_keys_and_configured_worlds_differ() {
         let w = Worlds::new(Config::embedded());
@@ -193,6 +201,13 @@ mod tests {
             w.resolve("1").unwrap().fingerprint
         );
         assert!(w.resolve("99999999999999999999").is_err());
+        // Another frame grid gives other times for the same frame index: other keys.
+        let mut config = Config::embedded();
+        config.server.frames_per_step += 1;
+        assert_ne!(
+            Worlds::new(config).resolve("default").unwrap().fingerprint,
+            a_default(&w)
+        );
         assert!(w.resolve("nope").is_err());
         assert!(w.resolve("").is_err());
     }

@@ -22,78 +22,7 @@ use cloudscape::world::{Config, World};
 
 const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
 
-/// One-layer worlds for the scene set.
-const SCENE_WORLDS: &str = r#"
-[worlds.stratus]
-seed = 11
-[[worlds.stratus.layers]]
-name = "stratus"
-preset = "stratus"
-base = 600.0
-cell_size = 100.0
-cell_height = 80.0
-depth = 6
-dt = 20.0
-wind = [5.0, 1.0]
-
-[worlds.cumulus]
-seed = 12
-[[worlds.cumulus.layers]]
-name = "cumulus"
-preset = "cumulus"
-base = 1200.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 12
-dt = 20.0
-wind = [6.0, 0.0]
-
-[worlds.altocumulus]
-seed = 13
-[[worlds.altocumulus.layers]]
-name = "altocumulus"
-preset = "altocumulus"
-base = 4000.0
-cell_size = 80.0
-cell_height = 80.0
-depth = 8
-dt = 20.0
-wind = [12.0, -2.0]
-"#;
-
-struct Scene {
-    name: &'static str,
-    world: &'static str,
-    camera: &'static str,
-    sun: (f64, f64),
-}
-
-const SCENES: [Scene; 4] = [
-    Scene {
-        name: "stratus deck from below",
-        world: "stratus",
-        camera: "12800,12800,20,0,35,70",
-        sun: (150.0, 45.0),
-    },
-    Scene {
-        name: "cumulus field at 45°",
-        world: "cumulus",
-        camera: "12800,6000,5000,0,-45,60",
-        sun: (200.0, 45.0),
-    },
-    Scene {
-        name: "altocumulus from above",
-        world: "altocumulus",
-        camera: "10240,10240,7000,30,-60,60",
-        sun: (120.0, 50.0),
-    },
-    Scene {
-        name: "low sun at the horizon",
-        world: "cumulus",
-        camera: "12800,3000,700,0,6,70",
-        sun: (5.0, 1.0),
-    },
-];
+use cloudscape::bench::quality::{SCENE_WORLDS, SCENES, Scene};
 
 const SIZE: usize = 512;
 const CONVERGENCE_SIZE: usize = 192;

@@ -20,7 +20,7 @@
 pub mod core;
 mod http;
 mod pipeline;
-mod quality;
+pub mod quality;
 
 use std::time::{Duration, Instant};
 

@@ -15,8 +15,8 @@ use crate::world::{Config, World};
 
 use super::{BenchRun, Effort, Plot, Section};
 
-/// One-layer worlds of the scene set (as in `benches/render_trade.rs`).
-const SCENE_WORLDS: &str = r#"
+/// One-layer worlds of the scene set (shared with `benches/render_trade.rs`).
+pub const SCENE_WORLDS: &str = r#"
 [worlds.stratus]
 seed = 11
 [[worlds.stratus.layers]]
@@ -54,14 +54,16 @@ dt = 20.0
 wind = [12.0, -2.0]
 "#;
 
-struct Scene {
-    name: &'static str,
-    world: &'static str,
-    camera: &'static str,
-    sun: (f64, f64),
+/// A camera over one of [`SCENE_WORLDS`], with the sun (azimuth, elevation in degrees).
+pub struct Scene {
+    pub name: &'static str,
+    pub world: &'static str,
+    pub camera: &'static str,
+    pub sun: (f64, f64),
 }
 
-const SCENES: [Scene; 4] = [
+/// The speed–accuracy scene set.
+pub const SCENES: [Scene; 4] = [
     Scene {
         name: "stratus deck from below",
         world: "stratus",

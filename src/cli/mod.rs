@@ -63,7 +63,15 @@ pub fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(message) => {
-            eprintln!("error: {message}");
+            // One line whatever the message quotes (a world name may hold a newline).
+            let line: String = message
+                .chars()
+                .flat_map(|c| {
+                    let escaped = c.is_control().then(|| c.escape_default());
+                    escaped.into_iter().flatten().chain((!c.is_control()).then_some(c))
+                })
+                .collect();
+            eprintln!("error: {line}");
             ExitCode::FAILURE
         }
     }

@@ -838,7 +838,7 @@ async fn graceful_shutdown_drains_and_finishes_in_flight_requests() {
 
 #[test]
 fn serve_command_prints_config_and_stops_on_sigterm() {
-    use std::process::{Command, Stdio};
+    use std::process::Command;
     let exe = env!("CARGO_BIN_EXE_cloudscape");
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("test.toml");

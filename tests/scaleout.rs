@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use common::{ServeProcess, free_port};
+use common::{ServeProcess, client, free_port, metric};
 
 const SMALL_CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
 const NGINX_CONF: &str = include_str!("../docker/nginx.conf");
@@ -129,14 +129,6 @@ impl Drop for Nginx {
     }
 }
 
-fn client() -> reqwest::blocking::Client {
-    reqwest::blocking::Client::builder()
-        .no_proxy()
-        .timeout(Duration::from_secs(30))
-        .build()
-        .unwrap()
-}
-
 struct Answer {
     status: u16,
     etag: String,
@@ -163,21 +155,6 @@ fn get(base: &str, path: &str, headers: &[(&str, &str)]) -> Answer {
         cache,
         body: r.bytes().unwrap().to_vec(),
     }
-}
-
-fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
-    let text = client()
-        .get(format!("{}/metrics", server.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
-    text.lines()
-        .filter(|l| !l.starts_with('#'))
-        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
-        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
-        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
-        .sum()
 }
 
 fn computations(replicas: &[ServeProcess]) -> f64 {

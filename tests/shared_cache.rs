@@ -10,7 +10,7 @@ use std::net::TcpListener;
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{ServeProcess, free_port};
+use common::{ServeProcess, client, free_port, metric};
 
 const SMALL_CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
 
@@ -102,14 +102,6 @@ impl Drop for RedisServer {
     }
 }
 
-fn client() -> reqwest::blocking::Client {
-    reqwest::blocking::Client::builder()
-        .no_proxy()
-        .timeout(Duration::from_secs(30))
-        .build()
-        .unwrap()
-}
-
 /// GET `path`: (status, ETag, body, seconds taken).
 fn get(server: &ServeProcess, path: &str) -> (u16, String, Vec<u8>, f64) {
     let started = Instant::now();
@@ -122,21 +114,6 @@ fn get(server: &ServeProcess, path: &str) -> (u16, String, Vec<u8>, f64) {
         .unwrap_or_default();
     let body = r.bytes().unwrap().to_vec();
     (status, etag, body, started.elapsed().as_secs_f64())
-}
-
-fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
-    let text = client()
-        .get(format!("{}/metrics", server.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
-    text.lines()
-        .filter(|l| !l.starts_with('#'))
-        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
-        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
-        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
-        .sum()
 }
 
 fn serve_with_redis(url: &str, extra: &[(&str, &str)]) -> ServeProcess {

@@ -94,3 +94,29 @@ impl Drop for ServeProcess {
         let _ = self.child.wait();
     }
 }
+
+/// A blocking HTTP client for the tests: no proxy, 30 s timeout.
+pub fn client() -> reqwest::blocking::Client {
+    reqwest::blocking::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs(30))
+        .build()
+        .unwrap()
+}
+
+/// Sum of every sample of the Prometheus metric `name` on `server` whose labels include
+/// all of `labels`.
+pub fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
+    let text = client()
+        .get(format!("{}/metrics", server.base))
+        .send()
+        .unwrap()
+        .text()
+        .unwrap();
+    text.lines()
+        .filter(|l| !l.starts_with('#'))
+        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
+        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
+        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
+        .sum()
+}

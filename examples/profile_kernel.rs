@@ -46,7 +46,7 @@ fn main() {
     let mut cur = levels.clone();
     let mut next = levels.clone();
     let start = std::time::Instant::now();
-    let steps = 8;
+    let steps: i64 = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(8);
     for n in 0..steps {
         let offsets = sim.offsets(64 + n);
         let ctx = StepContext {

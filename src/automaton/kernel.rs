@@ -20,7 +20,7 @@
 //! (`cld ∨ (act ∧ …)`) no cloud could ever disappear, which contradicts the text.
 //! Cells outside the grid read as empty ("out of range results in a false value").
 
-use super::random::{Draw, bernoulli, row_key};
+use super::random::{Draw, Tie, WordDrive, bernoulli_high, row_key, step_key};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -124,20 +124,30 @@ impl Level {
 /// What drives formation and extinction for one level (same geometry as its `Level`).
 #[derive(Clone, Debug)]
 pub enum Drives {
-    /// Dobashi: per word, bit planes of the three probabilities (see `random`),
-    /// and per word the lanes of each (hum, act, ext) with a non-zero probability.
-    Stochastic {
-        hum: Vec<[u64; 17]>,
-        act: Vec<[u64; 17]>,
-        ext: Vec<[u64; 17]>,
-        live: Vec<[u64; 3]>,
-    },
+    /// Dobashi: per word, the three probabilities as thresholds (see `random`).
+    Stochastic(Vec<WordDrive>),
     /// Rosa: per word, `tex_hum > p_hum`, `tex_act > p_act`, and `tex_cld > p_ext` (keep).
     Threshold {
         hum: Vec<u64>,
         act: Vec<u64>,
         keep: Vec<u64>,
     },
+}
+
+impl Drives {
+    /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext),
+    /// 64 cells per word, in the level's word order.
+    pub fn stochastic(q: [&[u32]; 3]) -> Drives {
+        let words = q[0].len() / 64;
+        Drives::Stochastic(
+            (0..words)
+                .map(|i| {
+                    let lane = |e: usize| -> &[u32; 64] { q[e][64 * i..64 * (i + 1)].try_into().expect("64 lanes") };
+                    WordDrive::new([lane(0), lane(1), lane(2)])
+                })
+                .collect(),
+        )
+    }
 }
 
 /// Which rule set a step applies.
@@ -195,6 +205,9 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
     };
     // f_act of the words being computed in the current row.
     let mut f_row = vec![0u64; wpr];
+    let mut ties: Vec<(usize, Tie)> = Vec::new();
+    let step_keys =
+        [Draw::Humidity, Draw::Activation, Draw::Extinction].map(|d| step_key(ctx.stream, d, k as u32, ctx.n));
     for r in r_lo..r_hi {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
@@ -232,55 +245,78 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
             }
             let nrow = &nl.act[rr as usize * nl.wpr..(rr as usize + 1) * nl.wpr];
             let pos = lv.x0 + rx - nl.x0;
-            let q = pos.div_euclid(64);
-            let sh = pos.rem_euclid(64) as u32;
-            let word = |i: i64| {
-                if i >= 0 && (i as usize) < nrow.len() {
-                    nrow[i as usize]
-                } else {
-                    0
+            or_shifted(&mut f_row[w_lo..w_hi], nrow, pos + 64 * w_lo as i64);
+        }
+        match drives {
+            Drives::Stochastic(words) => {
+                let keys = step_keys.map(|s| row_key(s, y));
+                let wx0 = lv.x0.div_euclid(64);
+                // Ties are collected without a branch and decided after the row.
+                ties.clear();
+                ties.resize(3 * (w_hi - w_lo) + 1, (0, Tie::default()));
+                let mut n_ties = 0;
+                for w in w_lo..w_hi {
+                    let i = base + w;
+                    let (a, h, c, f) = (act_row[w], lv.hum[i], lv.cld[i], f_row[w]);
+                    let keep_h = h & !a;
+                    let act_det = !a & h & f;
+                    let cld_det = c | a;
+                    let (d, wx) = (&words[i], wx0 + w as i64);
+                    // Each draw is decided only where it can change the result.
+                    let (bh, th) = bernoulli_high(d, 0, keys[0], wx, !keep_h);
+                    let (ba, ta) = bernoulli_high(d, 1, keys[1], wx, !act_det);
+                    let (be, te) = bernoulli_high(d, 2, keys[2], wx, cld_det);
+                    for t in [th, ta, te] {
+                        ties[n_ties] = (i, t);
+                        n_ties += usize::from(t.lanes != 0);
+                    }
+                    out.hum[i] = keep_h | bh;
+                    out.act[i] = act_det | ba;
+                    out.cld[i] = cld_det & !be;
                 }
-            };
-            for (w, f) in f_row.iter_mut().enumerate().take(w_hi).skip(w_lo) {
-                let qi = q + w as i64;
-                *f |= if sh == 0 {
-                    word(qi)
-                } else {
-                    (word(qi) >> sh) | (word(qi + 1) << (64 - sh))
-                };
+                for &(i, t) in &ties[..n_ties] {
+                    let fired = t.resolve(&words[i]);
+                    match t.e {
+                        0 => out.hum[i] |= fired,
+                        1 => out.act[i] |= fired,
+                        _ => out.cld[i] &= !fired,
+                    }
+                }
+            }
+            Drives::Threshold { hum, act, keep } => {
+                for w in w_lo..w_hi {
+                    let i = base + w;
+                    let (a, h, c, f) = (act_row[w], lv.hum[i], lv.cld[i], f_row[w]);
+                    out.hum[i] = (h & !a) | hum[i];
+                    out.act[i] = (!a & h & f) | act[i];
+                    out.cld[i] = (c | a) & keep[i];
+                }
             }
         }
-        let keys = match ctx.rules {
-            Rules::Dobashi => {
-                [Draw::Humidity, Draw::Activation, Draw::Extinction].map(|d| row_key(ctx.stream, d, k as u32, y, ctx.n))
-            }
-            Rules::Rosa => [0; 3],
-        };
-        for w in w_lo..w_hi {
-            let a = act_row[w];
-            let f = f_row[w];
-            let x = lv.x0 + 64 * w as i64;
-            let h = lv.hum[base + w];
-            let c = lv.cld[base + w];
-            let keep_h = h & !a;
-            let act_det = !a & h & f;
-            let cld_det = c | a;
-            let i = base + w;
-            let (nh, na, nc) = match drives {
-                Drives::Stochastic { hum, act, ext, live } => {
-                    let live = live[i];
-                    let wx = x.div_euclid(64);
-                    // Each draw is decided only where it can fire and change the result.
-                    let bh = bernoulli(&hum[i], keys[0], wx, live[0] & !keep_h);
-                    let ba = bernoulli(&act[i], keys[1], wx, live[1] & !act_det);
-                    let be = bernoulli(&ext[i], keys[2], wx, live[2] & cld_det);
-                    (keep_h | bh, act_det | ba, cld_det & !be)
-                }
-                Drives::Threshold { hum, act, keep } => (keep_h | hum[i], act_det | act[i], cld_det & keep[i]),
-            };
-            out.hum[i] = nh;
-            out.act[i] = na;
-            out.cld[i] = nc;
-        }
+    }
+}
+
+/// ORs into `dst[j]` the 64 bits of `src` that start at bit `pos + 64 j`
+/// (bits outside `src` read as 0).
+fn or_shifted(dst: &mut [u64], src: &[u64], pos: i64) {
+    let q = pos.div_euclid(64);
+    let sh = pos.rem_euclid(64) as u32;
+    let n = src.len() as i64;
+    let word = |i: i64| if i >= 0 && i < n { src[i as usize] } else { 0 };
+    // Words j whose two source words q + j and q + j + 1 are both inside `src`.
+    let inner_lo = (-q).clamp(0, dst.len() as i64) as usize;
+    let inner_hi = (n - 1 - q).clamp(inner_lo as i64, dst.len() as i64) as usize;
+    let join = |a: u64, b: u64| ((((b as u128) << 64) | a as u128) >> sh) as u64;
+    for (j, d) in dst.iter_mut().enumerate().take(inner_lo) {
+        let i = q + j as i64;
+        *d |= join(word(i), word(i + 1));
+    }
+    let off = (q + inner_lo as i64).max(0) as usize;
+    for (j, d) in dst[inner_lo..inner_hi].iter_mut().enumerate() {
+        *d |= join(src[off + j], src[off + j + 1]);
+    }
+    for (j, d) in dst.iter_mut().enumerate().skip(inner_hi) {
+        let i = q + j as i64;
+        *d |= join(word(i), word(i + 1));
     }
 }

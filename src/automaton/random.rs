@@ -1,13 +1,24 @@
 //! Counter-based randomness: every draw is a hash of (seed, layer, kind, level,
-//! row, word, step, bit plane); there is no generator state, so any machine can
+//! step, row, word, lane); there is no generator state, so any machine can
 //! compute any cell at any step.
 //!
-//! A draw for a cell is a 16-bit number `r` whose bits come from 16 random words
-//! (bit plane j holds bit 15−j of `r` for the 64 cells of a word). A Bernoulli
-//! event with probability `q / 65536` fires when `r < q`. The packed kernel
-//! compares all 64 lanes at once from the most significant plane down and stops
-//! as soon as every lane is decided; the naive kernel assembles `r` per cell.
-//! Both give the same bits.
+//! A Bernoulli event with probability `q / 65536` fires for a cell when its
+//! 16-bit draw `r` is below `q`. The draw is read a byte at a time: the high
+//! byte `r_hi` comes from one 32-bit hash per 4 lanes (16 hashes per 64-cell
+//! word, made 8 at a time with AVX2), and only where `r_hi` equals the high
+//! byte of `q` (1 lane in 256) is the low byte `r_lo` hashed for that lane. So
+//! `r < q` ⇔ `r_hi < q_hi`, or `r_hi = q_hi` and `r_lo < q_lo`: the same event
+//! as comparing all 16 bits, with a fixed amount of work per word and almost
+//! no branches. The naive kernel computes the same bytes one lane at a time
+//! ([`fires`]); the unit tests hold the two forms equal.
+//!
+//! The hash of the high bytes is lowbias32 (Chris Wellons' integer hash, a
+//! bijection with good avalanche) applied to the word key's two halves, each
+//! XOR-ed with 8 lane constants; the word key itself comes from wyhash's mix
+//! of the row key and the word index. We write this instead of using a crate
+//! because the bytes are part of the output contract (ALGORITHM_VERSION): they
+//! must not change with a dependency's release, and the AVX2 and scalar forms
+//! must agree bit for bit.
 
 use crate::fields::noise::mix64;
 
@@ -26,31 +37,48 @@ fn wymix(a: u64, b: u64) -> u64 {
     (r as u64) ^ ((r >> 64) as u64)
 }
 
-const PLANE_SECRETS: [u64; 16] = [
-    0xa076_1d64_78bd_642f,
-    0xe703_7ed1_a0b4_28db,
-    0x8ebc_6af0_9c88_c6e3,
-    0x5899_65cc_7537_4cc3,
-    0x1d8e_4e27_c47d_124f,
-    0x9e37_79b9_7f4a_7c15,
-    0xc2b2_ae3d_27d4_eb4f,
-    0x1656_67b1_9e37_79f9,
-    0x27d4_eb2f_1656_67c5,
-    0x94d0_49bb_1331_11eb,
-    0xbf58_476d_1ce4_e5b9,
-    0x2545_f491_4f6c_dd1d,
-    0x6a09_e667_f3bc_c909,
-    0xbb67_ae85_84ca_a73b,
-    0x3c6e_f372_fe94_f82b,
-    0xa54f_f53a_5f1d_36f1,
+/// Chris Wellons' lowbias32: a 32-bit bijection with low avalanche bias.
+#[inline(always)]
+fn lowbias32(mut x: u32) -> u32 {
+    x ^= x >> 16;
+    x = x.wrapping_mul(0x7feb_352d);
+    x ^= x >> 15;
+    x = x.wrapping_mul(0x846c_a68b);
+    x ^ (x >> 16)
+}
+
+/// Per-lane-group constants: hash `i` (lanes 4i..4i+3) uses the low key half
+/// for i < 8 and the high half for i ≥ 8, XOR-ed with `LANE[i]`.
+const LANE: [u32; 16] = [
+    0x9e37_79b9,
+    0x7f4a_7c15,
+    0xf39c_c060,
+    0x5ced_c834,
+    0x1082_276b,
+    0xf58b_4ab1,
+    0x6a09_e667,
+    0xbb67_ae85,
+    0x3c6e_f372,
+    0xa54f_f53a,
+    0x510e_527f,
+    0x9b05_688c,
+    0x1f83_d9ab,
+    0x5be0_cd19,
+    0xcbbb_9d5d,
+    0x629a_292a,
 ];
 
-/// Key of one (layer stream, draw kind, level, frame row, step).
+/// Key of one (layer stream, draw kind, level, step): made once per level and step.
 #[inline]
-pub fn row_key(stream: u64, draw: Draw, level: u32, row: i64, step: i64) -> u64 {
+pub fn step_key(stream: u64, draw: Draw, level: u32, step: i64) -> u64 {
     let a = mix64(stream ^ ((draw as u64) << 56) ^ ((level as u64) << 48));
-    let b = mix64(a ^ (row as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15));
-    mix64(b ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
+    mix64(a ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
+}
+
+/// Key of one frame row under a [`step_key`].
+#[inline]
+pub fn row_key(step_key: u64, row: i64) -> u64 {
+    mix64(step_key ^ (row as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15))
 }
 
 /// Key of one 64-cell word (frame word index `wx` = frame x / 64) in a row.
@@ -59,197 +87,347 @@ pub fn word_key(row_key: u64, wx: i64) -> u64 {
     wymix(row_key ^ (wx as u64), 0xe703_7ed1_a0b4_28db)
 }
 
-/// Random bit plane `j` (0 = most significant) of a word.
-#[inline(always)]
-pub fn plane(word_key: u64, j: usize) -> u64 {
-    wymix(word_key ^ PLANE_SECRETS[j], 0x8ebc_6af0_9c88_c6e3)
-}
-
-/// 64 Bernoulli bits at once, decided only for the lanes in `care`. `p[0]` marks
-/// lanes that always fire (q = 65536); `p[1 + j]` holds bit 15−j of q for the
-/// other lanes. The caller combines the result so that lanes outside `care` do not
-/// matter (they are OR-ed with a 1 or AND-ed with a 0), and leaves out of `care`
-/// the lanes with q = 0 (see [`live_lanes`]), which never fire; so the loop stops as
-/// soon as every lane that matters is decided, and no random word is made when
-/// none does. The bits that matter are the same as deciding all 64 lanes.
+/// The high byte of lane `bit`'s draw.
 #[inline]
-pub fn bernoulli(p: &[u64; 17], row_key: u64, wx: i64, care: u64) -> u64 {
-    let mut fired = p[0] & care;
-    let mut undecided = care & !p[0];
-    if undecided == 0 {
-        return fired;
-    }
-    let key = word_key(row_key, wx);
-    for j in 0..16 {
-        let r = plane(key, j);
-        let pj = p[1 + j];
-        // r bit 0 where q bit 1: r < q for this lane; r bit 1 where q bit 0: r > q.
-        fired |= undecided & pj & !r;
-        undecided &= !(pj ^ r);
-        if undecided == 0 {
-            break;
-        }
-    }
-    fired
+pub fn high_byte(word_key: u64, bit: u32) -> u8 {
+    let i = (bit / 4) as usize;
+    let half = if i < 8 {
+        word_key as u32
+    } else {
+        (word_key >> 32) as u32
+    };
+    (lowbias32(half ^ LANE[i]) >> (8 * (bit % 4))) as u8
 }
 
-/// The lanes of a bit-plane threshold with q > 0: the only ones that can fire.
-pub fn live_lanes(p: &[u64; 17]) -> u64 {
-    p.iter().fold(0, |a, &w| a | w)
-}
-
-/// The 16-bit draw of lane `bit` of a word (the naive kernel's view).
+/// The low byte of lane `bit`'s draw (needed only when the high byte ties).
 #[inline]
-pub fn draw16(word_key: u64, bit: u32) -> u32 {
-    let mut r = 0u32;
-    for j in 0..16 {
-        r = (r << 1) | ((plane(word_key, j) >> bit) & 1) as u32;
-    }
-    r
+pub fn low_byte(word_key: u64, bit: u32) -> u8 {
+    let k = wymix(word_key ^ 0x8ebc_6af0_9c88_c6e3, 0x5899_65cc_7537_4cc3);
+    (lowbias32((k as u32) ^ bit.wrapping_mul(0x9e37_79b9) ^ (k >> 32) as u32) >> 24) as u8
 }
 
 /// Whether a single cell's event with threshold `q` (0..=65536) fires.
 #[inline]
 pub fn fires(word_key: u64, bit: u32, q: u32) -> bool {
-    q >= 65536 || draw16(word_key, bit) < q
+    if q >= 65536 {
+        return true;
+    }
+    let (hi, lo) = ((q >> 8) as u8, q as u8);
+    let r = high_byte(word_key, bit);
+    r < hi || (r == hi && low_byte(word_key, bit) < lo)
 }
 
-/// Bit-plane form of 64 thresholds. A lane with q = 65536 goes to the
-/// "always" mask; its bits 0..15 are zero, so it adds nothing to the planes.
-pub fn planes_of(q: &[u32; 64]) -> [u64; 17] {
+/// The thresholds of one event for the 64 cells of a word in a per-word
+/// floating form: lane b's threshold is `m[b] << (8 − shift)` (so the high byte
+/// is `m[b] >> shift` and the low byte `m[b] << (8 − shift)`), with `shift` as
+/// large as the word's largest threshold allows. Everything a draw reads is in
+/// these 64 bytes, so a tie never waits for memory. Against 16-bit fixed point
+/// a lane keeps at least 8 significant bits relative to the largest threshold
+/// of its word, and every threshold below 1/256 stays exact.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C, align(64))]
+pub struct Thresholds {
+    pub m: [u8; 64],
+}
+
+/// The drives of one word: the three events' thresholds and masks. A lane with
+/// q = 65536 is in `always`; a lane whose threshold is 0 is not in `live`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C, align(64))]
+pub struct WordDrive {
+    pub t: [Thresholds; 3],
+    pub always: [u64; 3],
+    pub live: [u64; 3],
+    pub shift: [u8; 3],
+}
+
+impl WordDrive {
+    /// From the 16-bit thresholds q (0..=65536) of the three events (hum, act, ext).
+    pub fn new(q: [&[u32; 64]; 3]) -> WordDrive {
+        let mut d = WordDrive {
+            t: [Thresholds { m: [0; 64] }; 3],
+            always: [0; 3],
+            live: [0; 3],
+            shift: [0; 3],
+        };
+        for (e, q) in q.iter().enumerate() {
+            // Written lane-parallel (no branch per lane) so the compiler vectorises it.
+            let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
+            // The largest shift (most low bits kept) whose mantissas still fit in a byte.
+            let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
+            let step = 8 - shift;
+            let m: [u8; 64] = std::array::from_fn(|b| {
+                let v = q[b];
+                if v < 65536 {
+                    ((v + ((1 << step) >> 1)) >> step).min(255) as u8
+                } else {
+                    0
+                }
+            });
+            let (mut always, mut live) = (0u64, 0u64);
+            for (b, (&v, &m)) in q.iter().zip(&m).enumerate() {
+                always |= u64::from(v >= 65536) << b;
+                live |= u64::from(m > 0) << b;
+            }
+            d.t[e].m = m;
+            d.shift[e] = shift as u8;
+            d.always[e] = always;
+            d.live[e] = live;
+        }
+        d
+    }
+
+    /// The 16-bit threshold lane `bit` of event `e` is drawn against (0..=65536).
+    pub fn q(&self, e: usize, bit: u32) -> u32 {
+        if (self.always[e] >> bit) & 1 == 1 {
+            65536
+        } else {
+            (self.t[e].m[bit as usize] as u32) << (8 - self.shift[e])
+        }
+    }
+}
+
+/// 64 Bernoulli bits of event `e` at once, decided for the lanes in `care`
+/// (lanes outside it come back 0; the caller combines the result so that they
+/// do not matter). No hash is made when no lane in `care` can fire.
+#[inline(always)]
+pub fn bernoulli(d: &WordDrive, e: usize, row_key: u64, wx: i64, care: u64) -> u64 {
+    let (fired, tie) = bernoulli_high(d, e, row_key, wx, care);
+    fired | tie.resolve(d)
+}
+
+/// Lanes of one word and event whose high bytes tied, to be decided by their low bytes.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Tie {
+    pub lanes: u64,
+    pub key: u64,
+    pub e: u8,
+}
+
+impl Tie {
+    /// The lanes among `self.lanes` that fire.
+    #[inline]
+    pub fn resolve(&self, d: &WordDrive) -> u64 {
+        let (e, shift) = (self.e as usize, d.shift[self.e as usize] as u32);
+        let mut lanes = self.lanes;
+        let mut fired = 0;
+        while lanes != 0 {
+            let b = lanes.trailing_zeros();
+            lanes &= lanes - 1;
+            let lo = ((d.t[e].m[b as usize] as u32) << (8 - shift)) as u8;
+            fired |= u64::from(low_byte(self.key, b) < lo) << b;
+        }
+        fired
+    }
+}
+
+/// The part of [`bernoulli`] decided by the high bytes: the lanes that fire, and
+/// the lanes left to [`Tie::resolve`] (1 in 256 of the open ones). Kept apart so
+/// the kernel can decide the rare ties after a row instead of branching per word.
+#[inline(always)]
+pub fn bernoulli_high(d: &WordDrive, e: usize, row_key: u64, wx: i64, care: u64) -> (u64, Tie) {
+    let care = care & (d.live[e] | d.always[e]);
+    let fired = d.always[e] & care;
+    let open = care & !d.always[e];
+    if open == 0 {
+        return (fired, Tie::default());
+    }
+    let key = word_key(row_key, wx);
+    let (below, ties) = compare_high(&d.t[e], d.shift[e] as u32, key);
+    let tie = Tie {
+        lanes: ties & open,
+        key,
+        e: e as u8,
+    };
+    (fired | (below & open), tie)
+}
+
+/// For every lane: (high byte of the draw < high byte of the threshold, the two are equal).
+#[inline(always)]
+pub fn compare_high(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
-        // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
-        unsafe { planes_of_avx2(q) }
+        // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is
+        // present; `Thresholds` is 64 bytes, read as two unaligned 32-byte vectors.
+        unsafe { compare_high_avx2(t, shift, key) }
     }
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     {
-        planes_of_scalar(q)
+        compare_high_scalar(t, shift, key)
     }
 }
 
-/// The plain form of [`planes_of`]: one lane at a time.
-pub fn planes_of_scalar(q: &[u32; 64]) -> [u64; 17] {
-    let mut p = [0u64; 17];
-    let any = q.iter().fold(0u32, |a, &v| a | v);
-    if any == 0 {
-        return p;
+/// The plain form of [`compare_high`]: one lane at a time.
+pub fn compare_high_scalar(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
+    let (mut below, mut ties) = (0u64, 0u64);
+    for b in 0..64u32 {
+        let r = high_byte(key, b);
+        let q = (t.m[b as usize] as u32 >> shift) as u8;
+        below |= u64::from(r < q) << b;
+        ties |= u64::from(r == q) << b;
     }
-    for (b, &v) in q.iter().enumerate() {
-        p[0] |= ((v >> 16) as u64 & 1) << b;
-    }
-    for j in 0..16 {
-        let shift = 15 - j;
-        if (any >> shift) & 1 == 0 {
-            continue;
-        }
-        let mut w = 0u64;
-        for (b, &v) in q.iter().enumerate() {
-            w |= (((v >> shift) & 1) as u64) << b;
-        }
-        p[1 + j] = w;
-    }
-    p
+    (below, ties)
 }
 
-/// [`planes_of`] with AVX2: the wanted bit of 8 lanes is shifted into their sign
-/// bits and collected by one `movemask`. Building drives is a bit-matrix transpose
-/// done for every word of every run, and no crate offers this 64×17 shape.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[target_feature(enable = "avx2")]
-unsafe fn planes_of_avx2(q: &[u32; 64]) -> [u64; 17] {
+#[inline(always)]
+unsafe fn compare_high_avx2(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
     use std::arch::x86_64::*;
-    let mut p = [0u64; 17];
-    let any = q.iter().fold(0u32, |a, &v| a | v);
-    if any == 0 {
-        return p;
+    // SAFETY (whole body): AVX2 is enabled for the crate; loads stay inside `t` and `LANE`.
+    unsafe {
+        let hash = |half: u32, consts: *const u32| -> __m256i {
+            let mut x = _mm256_xor_si256(_mm256_set1_epi32(half as i32), _mm256_loadu_si256(consts.cast()));
+            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
+            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7feb_352d));
+            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
+            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x846c_a68bu32 as i32));
+            _mm256_xor_si256(x, _mm256_srli_epi32(x, 16))
+        };
+        let r0 = hash(key as u32, LANE.as_ptr());
+        let r1 = hash((key >> 32) as u32, LANE.as_ptr().add(8));
+        // High bytes m >> shift: a 16-bit shift, then the bits that crossed from the
+        // neighbouring byte cleared.
+        let count = _mm_cvtsi32_si128(shift as i32);
+        let keep = _mm256_set1_epi8((0xffu32 >> shift) as u8 as i8);
+        let high = |p: *const u8| _mm256_and_si256(_mm256_srl_epi16(_mm256_loadu_si256(p.cast()), count), keep);
+        let q0 = high(t.m.as_ptr());
+        let q1 = high(t.m.as_ptr().add(32));
+        // r >= q ⇔ max(r, q) = r (unsigned bytes).
+        let ge0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(r0, q0), r0)) as u32 as u64;
+        let ge1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(r1, q1), r1)) as u32 as u64;
+        let eq0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(r0, q0)) as u32 as u64;
+        let eq1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(r1, q1)) as u32 as u64;
+        (!(ge0 | (ge1 << 32)), eq0 | (eq1 << 32))
     }
-    let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
-    // Bit `bit` of every lane, as a 64-bit mask.
-    let gather = |bit: i32| -> u64 {
-        let count = _mm_cvtsi32_si128(31 - bit);
-        let mut w = 0u64;
-        for (i, x) in v.iter().enumerate() {
-            let m = _mm256_movemask_ps(_mm256_castsi256_ps(_mm256_sll_epi32(*x, count)));
-            w |= (m as u32 as u64) << (8 * i);
-        }
-        w
-    };
-    if any >> 16 != 0 {
-        p[0] = gather(16);
-    }
-    for j in 0..16 {
-        let shift = 15 - j as i32;
-        if (any >> shift) & 1 != 0 {
-            p[1 + j] = gather(shift);
-        }
-    }
-    p
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
+    fn random_q(s: &mut u64) -> [u32; 64] {
+        let mut q = [0u32; 64];
+        for v in q.iter_mut() {
+            *s = mix64(*s);
+            *v = match *s % 6 {
+                0 => 0,
+                1 => 65536,
+                2 => (*s >> 20) as u32 % 300,
+                _ => (*s >> 20) as u32 % 65537,
+            };
+        }
+        q
+    }
+
     #[test]
     fn packed_bernoulli_equals_per_lane_comparison() {
         let mut s = 12345u64;
-        for _ in 0..500 {
-            let mut q = [0u32; 64];
-            for v in q.iter_mut() {
-                s = mix64(s);
-                *v = match s % 5 {
-                    0 => 0,
-                    1 => 65536,
-                    _ => (s >> 20) as u32 % 65537,
-                };
-            }
+        for _ in 0..2000 {
+            let qs = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
+            let d = WordDrive::new([&qs[0], &qs[1], &qs[2]]);
             let (rk, wx) = (mix64(s ^ 99), (s % 1000) as i64 - 500);
             let key = word_key(rk, wx);
             let care = mix64(s ^ 7) | if s % 3 == 0 { !0 } else { 0 };
-            let packed = bernoulli(&planes_of(&q), rk, wx, care);
-            for b in 0..64 {
-                if (care >> b) & 1 == 0 {
-                    continue;
+            for e in 0..3 {
+                let packed = bernoulli(&d, e, rk, wx, care);
+                for b in 0..64 {
+                    let want = (care >> b) & 1 == 1 && fires(key, b, d.q(e, b));
+                    assert_eq!((packed >> b) & 1 == 1, want, "lane {b} q {}", d.q(e, b));
                 }
-                assert_eq!((packed >> b) & 1 == 1, fires(key, b, q[b as usize]));
             }
         }
     }
 
     #[test]
-    fn planes_of_equals_its_scalar_form() {
+    fn compare_high_equals_its_scalar_form() {
         let mut s = 99u64;
-        for _ in 0..2000 {
-            let mut q = [0u32; 64];
-            let top = 1 + (mix64(s) % 17) as u32;
-            for v in q.iter_mut() {
-                s = mix64(s);
-                *v = match s % 7 {
-                    0 => 0,
-                    1 => 65536,
-                    _ => (s >> 20) as u32 % (1 << top).min(65537),
-                };
+        for _ in 0..5000 {
+            s = mix64(s);
+            let mut t = Thresholds { m: [0; 64] };
+            for (b, v) in t.m.iter_mut().enumerate() {
+                *v = (mix64(s ^ b as u64) >> (s % 50)) as u8;
             }
-            assert_eq!(planes_of(&q), planes_of_scalar(&q), "{q:?}");
+            let shift = (s % 9) as u32;
+            assert_eq!(compare_high(&t, shift, s), compare_high_scalar(&t, shift, s));
         }
+    }
+
+    #[test]
+    fn thresholds_keep_eight_bits_relative_to_the_word_maximum() {
+        let mut s = 5u64;
+        for _ in 0..3000 {
+            let q = random_q(&mut s);
+            let d = WordDrive::new([&q, &q, &q]);
+            let max = q.iter().filter(|&&v| v < 65536).fold(0, |a, &v| a.max(v));
+            for b in 0..64u32 {
+                let (want, got) = (q[b as usize], d.q(0, b));
+                if want >= 65536 || max < 256 {
+                    assert_eq!(got, want, "exact below 1/256 and at 1");
+                } else {
+                    // Half a unit of the word's scale, the scale being at most max / 128.
+                    let unit = 1u32 << (8 - d.shift[0]);
+                    assert!(unit <= max.div_ceil(128).next_power_of_two(), "unit {unit} max {max}");
+                    assert!(
+                        got.abs_diff(want) <= unit / 2 || (got == 255 * unit && want > got),
+                        "q {want} -> {got}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Runs 640k draws through `fires` for threshold q and checks the rate within
+    /// 5 standard deviations.
+    fn check_rate(q: u32) {
+        let n = 10_000u64;
+        let mut count = 0u64;
+        for w in 0..n {
+            let key = word_key(row_key(step_key(7, Draw::Activation, 3, 5), 11), w as i64);
+            count += (0..64).filter(|&b| fires(key, b, q)).count() as u64;
+        }
+        let trials = (n * 64) as f64;
+        let qp = q as f64 / 65536.0;
+        let sd = (trials * qp * (1.0 - qp)).sqrt().max(1.0);
+        assert!(
+            (count as f64 - trials * qp).abs() < 5.0 * sd,
+            "q={q} got {count} want {}",
+            trials * qp
+        );
     }
 
     #[test]
     fn rate_matches_probability() {
-        // 640k draws at p = 0.1 and p = 0.001: within 5 standard deviations.
-        for &p in &[0.1f64, 0.001] {
-            let q = (p * 65536.0).round() as u32;
-            let pl = planes_of(&[q; 64]);
-            let mut count = 0u64;
-            let n = 10_000u64;
-            for w in 0..n {
-                count += bernoulli(&pl, row_key(7, Draw::Activation, 3, 11, 5), w as i64, !0).count_ones() as u64;
+        // Large, small (ties of the high byte decide), below one high-byte step, and exact bytes.
+        for q in [6554, 66, 200, 1, 256, 32768, 65535] {
+            check_rate(q);
+        }
+    }
+
+    #[test]
+    fn lanes_words_and_steps_are_uncorrelated() {
+        // At p = 1/2 the 64 lanes of a word, a word and its neighbour, and a step and
+        // the next must agree about half the time; a shared or shifted stream would not.
+        let q = 32768;
+        let n = 20_000i64;
+        let (mut same_lane, mut same_word, mut same_step, mut pairs) = (0u64, 0u64, 0u64, 0u64);
+        for w in 0..n {
+            let k0 = word_key(row_key(step_key(3, Draw::Humidity, 0, 100), 5), w);
+            let k1 = word_key(row_key(step_key(3, Draw::Humidity, 0, 100), 5), w + 1);
+            let k2 = word_key(row_key(step_key(3, Draw::Humidity, 0, 101), 5), w);
+            for b in 0..64u32 {
+                let f = fires(k0, b, q);
+                same_lane += u64::from(f == fires(k0, (b + 1) % 64, q));
+                same_word += u64::from(f == fires(k1, b, q));
+                same_step += u64::from(f == fires(k2, b, q));
+                pairs += 1;
             }
-            let trials = (n * 64) as f64;
-            let qp = q as f64 / 65536.0;
-            let sd = (trials * qp * (1.0 - qp)).sqrt();
-            assert!((count as f64 - trials * qp).abs() < 5.0 * sd, "p={p} got {count}");
+        }
+        let sd = (pairs as f64 * 0.25).sqrt();
+        for (name, c) in [("lane", same_lane), ("word", same_word), ("step", same_step)] {
+            assert!(
+                (c as f64 - pairs as f64 / 2.0).abs() < 5.0 * sd,
+                "{name}: {c} of {pairs}"
+            );
         }
     }
 }

@@ -13,7 +13,6 @@ use rayon::prelude::*;
 
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
-use super::random::{live_lanes, planes_of};
 use crate::fields::noise::mix64;
 use crate::fields::{LayerFields, quantize};
 use crate::world::{Mode, World};
@@ -143,15 +142,10 @@ impl LayerSim {
             .map(|(k, lv)| {
                 let (sx, sy) = shifts[k];
                 let words = lv.wpr * lv.rows;
-                let mut stoch = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+                let mut stoch: [Vec<u32>; 3] = Default::default();
                 let mut thr = (Vec::new(), Vec::new(), Vec::new());
                 if mode == Mode::Dobashi {
-                    stoch = (
-                        Vec::with_capacity(words),
-                        Vec::with_capacity(words),
-                        Vec::with_capacity(words),
-                        Vec::with_capacity(words),
-                    );
+                    stoch = std::array::from_fn(|_| Vec::with_capacity(64 * words));
                 } else {
                     thr = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
                 }
@@ -180,13 +174,9 @@ impl LayerSim {
                         level.values(bright, &ew, &mut p);
                         match mode {
                             Mode::Dobashi => {
-                                let q: [[u32; 64]; 3] = std::array::from_fn(|i| p[i].map(quantize));
-                                let planes = q.each_ref().map(planes_of);
-                                stoch.3.push(planes.each_ref().map(live_lanes));
-                                let [h, a, e] = planes;
-                                stoch.0.push(h);
-                                stoch.1.push(a);
-                                stoch.2.push(e);
+                                for (q, p) in stoch.iter_mut().zip(&p) {
+                                    q.extend(p.iter().map(|&v| quantize(v)));
+                                }
                             }
                             Mode::Rosa => {
                                 let i = r * lv.wpr + w;
@@ -200,12 +190,7 @@ impl LayerSim {
                     }
                 }
                 match mode {
-                    Mode::Dobashi => Drives::Stochastic {
-                        hum: stoch.0,
-                        act: stoch.1,
-                        ext: stoch.2,
-                        live: stoch.3,
-                    },
+                    Mode::Dobashi => Drives::stochastic(stoch.each_ref().map(|v| v.as_slice())),
                     Mode::Rosa => Drives::Threshold {
                         hum: thr.0,
                         act: thr.1,

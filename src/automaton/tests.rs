@@ -6,7 +6,6 @@ use proptest::prelude::*;
 
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::naive::{NaiveDrives, NaiveLevel, step};
-use super::random::{live_lanes, planes_of};
 use crate::fields::noise::mix64;
 
 /// A random scene: per level a grid origin, cells and thresholds.
@@ -99,11 +98,12 @@ proptest! {
             match sc.rules {
                 Rules::Dobashi => {
                     let q: Vec<Vec<u32>> = (0..3).map(|_| (0..w * sc.rows).map(|_| threshold(&mut s)).collect()).collect();
-                    let planes = |v: &Vec<u32>| -> Vec<[u64; 17]> { v.chunks(64).map(|c| planes_of(c.try_into().unwrap())).collect() };
-                    let (hum, act, ext) = (planes(&q[0]), planes(&q[1]), planes(&q[2]));
-                    let live = (0..hum.len()).map(|i| [live_lanes(&hum[i]), live_lanes(&act[i]), live_lanes(&ext[i])]).collect();
-                    pdrives.push(Drives::Stochastic { hum, act, ext, live });
-                    ndrives.push(NaiveDrives::Stochastic { hum: q[0].clone(), act: q[1].clone(), ext: q[2].clone() });
+                    let d = Drives::stochastic([&q[0], &q[1], &q[2]]);
+                    // The naive kernel draws against the thresholds the packed drives hold.
+                    let Drives::Stochastic(words) = &d else { unreachable!() };
+                    let held = |e: usize| -> Vec<u32> { (0..w * sc.rows).map(|c| words[c / 64].q(e, (c % 64) as u32)).collect() };
+                    ndrives.push(NaiveDrives::Stochastic { hum: held(0), act: held(1), ext: held(2) });
+                    pdrives.push(d);
                 }
                 Rules::Rosa => {
                     let m: Vec<Vec<u64>> = (0..3).map(|_| (0..lv.hum.len()).map(|_| random_bits(&mut s, 1)).collect()).collect();

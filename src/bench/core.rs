@@ -103,19 +103,12 @@ pub fn to_naive(levels: &[Level], drives: &[Drives]) -> (Vec<NaiveLevel>, Vec<Na
             act: (0..n).map(|c| bit(&l.act, c)).collect(),
             cld: (0..n).map(|c| bit(&l.cld, c)).collect(),
         });
-        if let Drives::Stochastic { hum, act, ext, .. } = d {
-            let q = |p: &Vec<[u64; 17]>, c: usize| -> u32 {
-                let word = &p[(c / w) * l.wpr + (c % w) / 64];
-                let b = c % 64;
-                if (word[0] >> b) & 1 == 1 {
-                    return 65536;
-                }
-                (0..16).fold(0u32, |acc, j| (acc << 1) | ((word[1 + j] >> b) & 1) as u32)
-            };
+        if let Drives::Stochastic(words) = d {
+            let q = |e: usize, c: usize| -> u32 { words[(c / w) * l.wpr + (c % w) / 64].q(e, (c % 64) as u32) };
             nd.push(NaiveDrives::Stochastic {
-                hum: (0..n).map(|c| q(hum, c)).collect(),
-                act: (0..n).map(|c| q(act, c)).collect(),
-                ext: (0..n).map(|c| q(ext, c)).collect(),
+                hum: (0..n).map(|c| q(0, c)).collect(),
+                act: (0..n).map(|c| q(1, c)).collect(),
+                ext: (0..n).map(|c| q(2, c)).collect(),
             });
         }
     }

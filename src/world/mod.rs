@@ -12,7 +12,8 @@ pub use config::{Config, ConfigError, Limits, ServerConfig, SunConfig};
 use serde::Deserialize;
 
 /// Bumped whenever any change alters output bytes. Baked into cache keys and ETags.
-pub const ALGORITHM_VERSION: u32 = 1;
+/// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
+pub const ALGORITHM_VERSION: u32 = 2;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

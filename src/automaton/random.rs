@@ -151,26 +151,9 @@ impl WordDrive {
             shift: [0; 3],
         };
         for (e, q) in q.iter().enumerate() {
-            // Written lane-parallel (no branch per lane) so the compiler vectorises it.
-            let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
-            // The largest shift (most low bits kept) whose mantissas still fit in a byte.
-            let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
-            let step = 8 - shift;
-            let m: [u8; 64] = std::array::from_fn(|b| {
-                let v = q[b];
-                if v < 65536 {
-                    ((v + ((1 << step) >> 1)) >> step).min(255) as u8
-                } else {
-                    0
-                }
-            });
-            let (mut always, mut live) = (0u64, 0u64);
-            for (b, (&v, &m)) in q.iter().zip(&m).enumerate() {
-                always |= u64::from(v >= 65536) << b;
-                live |= u64::from(m > 0) << b;
-            }
+            let (m, shift, always, live) = event_thresholds(q);
             d.t[e].m = m;
-            d.shift[e] = shift as u8;
+            d.shift[e] = shift;
             d.always[e] = always;
             d.live[e] = live;
         }
@@ -185,6 +168,91 @@ impl WordDrive {
             (self.t[e].m[bit as usize] as u32) << (8 - self.shift[e])
         }
     }
+}
+
+/// One event's (mantissas, shift, always, live) from 16-bit thresholds.
+#[inline]
+fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
+        unsafe { event_thresholds_avx2(q) }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        event_thresholds_scalar(q)
+    }
+}
+
+/// The plain form of [`event_thresholds`]: one lane at a time.
+pub fn event_thresholds_scalar(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+    let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
+    // The largest shift (most low bits kept) whose mantissas still fit in a byte.
+    let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
+    let step = 8 - shift;
+    let mut m = [0u8; 64];
+    let (mut always, mut live) = (0u64, 0u64);
+    for (b, &v) in q.iter().enumerate() {
+        if v >= 65536 {
+            always |= 1 << b;
+        } else {
+            m[b] = ((v + ((1 << step) >> 1)) >> step).min(255) as u8;
+            live |= u64::from(m[b] > 0) << b;
+        }
+    }
+    (m, shift as u8, always, live)
+}
+
+/// [`event_thresholds`] with AVX2, 8 lanes per vector. Drives are built for every
+/// word of every run, so this conversion is on the path of every cold tile.
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[target_feature(enable = "avx2")]
+unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+    use std::arch::x86_64::*;
+    let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
+    let limit = _mm256_set1_epi32(65535);
+    // Lanes at q = 65536 (or above): always fire, mantissa 0.
+    let over: [__m256i; 8] = v.map(|x| _mm256_cmpgt_epi32(_mm256_min_epu32(x, _mm256_set1_epi32(65536)), limit));
+    let kept: [__m256i; 8] = std::array::from_fn(|i| _mm256_andnot_si256(over[i], v[i]));
+    let mut mx = kept[0];
+    for k in &kept[1..] {
+        mx = _mm256_max_epu32(mx, *k);
+    }
+    let mut lanes = [0u32; 8];
+    unsafe { _mm256_storeu_si256(lanes.as_mut_ptr().cast(), mx) };
+    let max = lanes.iter().fold(0, |a, &b| a.max(b));
+    let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
+    let step = 8 - shift;
+    let count = _mm_cvtsi32_si128(step as i32);
+    let half = _mm256_set1_epi32(((1u32 << step) >> 1) as i32);
+    let cap = _mm256_set1_epi32(255);
+    let mant: [__m256i; 8] = kept.map(|k| _mm256_min_epu32(_mm256_srl_epi32(_mm256_add_epi32(k, half), count), cap));
+    // u32 → u8 in lane order: packs work within 128-bit halves, so fix the order after.
+    let w01 = _mm256_packus_epi32(mant[0], mant[1]);
+    let w23 = _mm256_packus_epi32(mant[2], mant[3]);
+    let w45 = _mm256_packus_epi32(mant[4], mant[5]);
+    let w67 = _mm256_packus_epi32(mant[6], mant[7]);
+    let b0 = _mm256_packus_epi16(w01, w23);
+    let b1 = _mm256_packus_epi16(w45, w67);
+    // After the two packs, 32-bit group g of a 256-bit result holds lanes in the order
+    // [0, 2, 4, 6, 1, 3, 5, 7] of its four source vectors' halves.
+    let order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
+    let b0 = _mm256_permutevar8x32_epi32(b0, order);
+    let b1 = _mm256_permutevar8x32_epi32(b1, order);
+    let mut m = [0u8; 64];
+    unsafe {
+        _mm256_storeu_si256(m.as_mut_ptr().cast(), b0);
+        _mm256_storeu_si256(m.as_mut_ptr().add(32).cast(), b1);
+    }
+    let mut always = 0u64;
+    for (i, o) in over.iter().enumerate() {
+        always |= (_mm256_movemask_ps(_mm256_castsi256_ps(*o)) as u32 as u64) << (8 * i);
+    }
+    let zero = _mm256_setzero_si256();
+    let z0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b0, zero)) as u32 as u64;
+    let z1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b1, zero)) as u32 as u64;
+    let live = !(z0 | (z1 << 32));
+    (m, shift as u8, always, live)
 }
 
 /// 64 Bernoulli bits of event `e` at once, decided for the lanes in `care`
@@ -349,6 +417,22 @@ mod tests {
             }
             let shift = (s % 9) as u32;
             assert_eq!(compare_high(&t, shift, s), compare_high_scalar(&t, shift, s));
+        }
+    }
+
+    #[test]
+    fn event_thresholds_equal_their_scalar_form() {
+        let mut s = 77u64;
+        for _ in 0..3000 {
+            let mut q = random_q(&mut s);
+            // Words whose largest threshold sits at every bit length.
+            let top = 1 + (mix64(s) % 17) as u32;
+            for v in q.iter_mut() {
+                if *v < 65536 {
+                    *v %= 1 << top.min(16);
+                }
+            }
+            assert_eq!(event_thresholds(&q), event_thresholds_scalar(&q), "{q:?}");
         }
     }
 

@@ -20,7 +20,7 @@
 //! (`cld ∨ (act ∧ …)`) no cloud could ever disappear, which contradicts the text.
 //! Cells outside the grid read as empty ("out of range results in a false value").
 
-use super::random::{Draw, Tie, WordDrive, bernoulli_high, row_key, step_key};
+use super::random::{Tie, WordDrive, bernoulli_high, row_key, step_key, word_key};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -206,8 +206,7 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
     // f_act of the words being computed in the current row.
     let mut f_row = vec![0u64; wpr];
     let mut ties: Vec<(usize, Tie)> = Vec::new();
-    let step_keys =
-        [Draw::Humidity, Draw::Activation, Draw::Extinction].map(|d| step_key(ctx.stream, d, k as u32, ctx.n));
+    let step_key = step_key(ctx.stream, k as u32, ctx.n);
     for r in r_lo..r_hi {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
@@ -249,7 +248,7 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
         }
         match drives {
             Drives::Stochastic(words) => {
-                let keys = step_keys.map(|s| row_key(s, y));
+                let row_key = row_key(step_key, y);
                 let wx0 = lv.x0.div_euclid(64);
                 // Ties are collected without a branch and decided after the row.
                 ties.clear();
@@ -261,11 +260,11 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
                     let keep_h = h & !a;
                     let act_det = !a & h & f;
                     let cld_det = c | a;
-                    let (d, wx) = (&words[i], wx0 + w as i64);
+                    let (d, key) = (&words[i], word_key(row_key, wx0 + w as i64));
                     // Each draw is decided only where it can change the result.
-                    let (bh, th) = bernoulli_high(d, 0, keys[0], wx, !keep_h);
-                    let (ba, ta) = bernoulli_high(d, 1, keys[1], wx, !act_det);
-                    let (be, te) = bernoulli_high(d, 2, keys[2], wx, cld_det);
+                    let (bh, th) = bernoulli_high(d, 0, key, !keep_h);
+                    let (ba, ta) = bernoulli_high(d, 1, key, !act_det);
+                    let (be, te) = bernoulli_high(d, 2, key, cld_det);
                     for t in [th, ta, te] {
                         ties[n_ties] = (i, t);
                         n_ties += usize::from(t.lanes != 0);

@@ -2,7 +2,7 @@
 //! the same counter-based draws. It exists to check the packed kernel bit for bit.
 
 use super::kernel::Rules;
-use super::random::{Draw, fires, row_key, step_key, word_key};
+use super::random::{Draw, event_key, fires, row_key, step_key, word_key};
 
 /// One level, one byte per cell, over `w × h` frame cells from (`x0`, `y0`).
 #[derive(Clone, Debug, PartialEq)]
@@ -84,7 +84,9 @@ pub fn step(
                         act: qa,
                         ext: qe,
                     } => {
-                        let key = |d: Draw| word_key(row_key(step_key(stream, d, k as u32, n), y), x.div_euclid(64));
+                        let key = |d: Draw| {
+                            event_key(word_key(row_key(step_key(stream, k as u32, n), y), x.div_euclid(64)), d)
+                        };
                         let bit = x.rem_euclid(64) as u32;
                         (
                             fires(key(Draw::Humidity), bit, qh[i]),

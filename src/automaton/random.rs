@@ -1,5 +1,5 @@
-//! Counter-based randomness: every draw is a hash of (seed, layer, kind, level,
-//! step, row, word, lane); there is no generator state, so any machine can
+//! Counter-based randomness: every draw is a hash of (seed, layer, level, step,
+//! row, word, event, lane); there is no generator state, so any machine can
 //! compute any cell at any step.
 //!
 //! A Bernoulli event with probability `q / 65536` fires for a cell when its
@@ -68,10 +68,10 @@ const LANE: [u32; 16] = [
     0x629a_292a,
 ];
 
-/// Key of one (layer stream, draw kind, level, step): made once per level and step.
+/// Key of one (layer stream, level, step): made once per level and step.
 #[inline]
-pub fn step_key(stream: u64, draw: Draw, level: u32, step: i64) -> u64 {
-    let a = mix64(stream ^ ((draw as u64) << 56) ^ ((level as u64) << 48));
+pub fn step_key(stream: u64, level: u32, step: i64) -> u64 {
+    let a = mix64(stream ^ ((level as u64) << 48));
     mix64(a ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
 }
 
@@ -85,6 +85,17 @@ pub fn row_key(step_key: u64, row: i64) -> u64 {
 #[inline(always)]
 pub fn word_key(row_key: u64, wx: i64) -> u64 {
     wymix(row_key ^ (wx as u64), 0xe703_7ed1_a0b4_28db)
+}
+
+/// Per-event salts of a word key. The three events' hash inputs differ from each
+/// other and from every other lane group's (a unit test checks all 48 per key
+/// half are distinct), so no two lanes of a word share a draw.
+const SALT: [u64; 3] = [0x2d35_8dcc_aa6c_78a5, 0x8bb8_4b93_962e_acc9, 0x4b33_a62e_d433_d4a3];
+
+/// Key of one event (hum, act, ext) of a word: the word key with the event's salt.
+#[inline(always)]
+pub fn event_key(word_key: u64, draw: Draw) -> u64 {
+    word_key ^ SALT[draw as usize - 1]
 }
 
 /// The high byte of lane `bit`'s draw.
@@ -259,8 +270,8 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
 /// (lanes outside it come back 0; the caller combines the result so that they
 /// do not matter). No hash is made when no lane in `care` can fire.
 #[inline(always)]
-pub fn bernoulli(d: &WordDrive, e: usize, row_key: u64, wx: i64, care: u64) -> u64 {
-    let (fired, tie) = bernoulli_high(d, e, row_key, wx, care);
+pub fn bernoulli(d: &WordDrive, e: usize, word_key: u64, care: u64) -> u64 {
+    let (fired, tie) = bernoulli_high(d, e, word_key, care);
     fired | tie.resolve(d)
 }
 
@@ -293,14 +304,14 @@ impl Tie {
 /// the lanes left to [`Tie::resolve`] (1 in 256 of the open ones). Kept apart so
 /// the kernel can decide the rare ties after a row instead of branching per word.
 #[inline(always)]
-pub fn bernoulli_high(d: &WordDrive, e: usize, row_key: u64, wx: i64, care: u64) -> (u64, Tie) {
+pub fn bernoulli_high(d: &WordDrive, e: usize, word_key: u64, care: u64) -> (u64, Tie) {
     let care = care & (d.live[e] | d.always[e]);
     let fired = d.always[e] & care;
     let open = care & !d.always[e];
     if open == 0 {
         return (fired, Tie::default());
     }
-    let key = word_key(row_key, wx);
+    let key = word_key ^ SALT[e];
     let (below, ties) = compare_high(&d.t[e], d.shift[e] as u32, key);
     let tie = Tie {
         lanes: ties & open,
@@ -394,10 +405,11 @@ mod tests {
             let qs = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
             let d = WordDrive::new([&qs[0], &qs[1], &qs[2]]);
             let (rk, wx) = (mix64(s ^ 99), (s % 1000) as i64 - 500);
-            let key = word_key(rk, wx);
+            let wk = word_key(rk, wx);
             let care = mix64(s ^ 7) | if s % 3 == 0 { !0 } else { 0 };
             for e in 0..3 {
-                let packed = bernoulli(&d, e, rk, wx, care);
+                let packed = bernoulli(&d, e, wk, care);
+                let key = event_key(wk, [Draw::Humidity, Draw::Activation, Draw::Extinction][e]);
                 for b in 0..64 {
                     let want = (care >> b) & 1 == 1 && fires(key, b, d.q(e, b));
                     assert_eq!((packed >> b) & 1 == 1, want, "lane {b} q {}", d.q(e, b));
@@ -466,7 +478,7 @@ mod tests {
         let n = 10_000u64;
         let mut count = 0u64;
         for w in 0..n {
-            let key = word_key(row_key(step_key(7, Draw::Activation, 3, 5), 11), w as i64);
+            let key = event_key(word_key(row_key(step_key(7, 3, 5), 11), w as i64), Draw::Activation);
             count += (0..64).filter(|&b| fires(key, b, q)).count() as u64;
         }
         let trials = (n * 64) as f64;
@@ -488,26 +500,45 @@ mod tests {
     }
 
     #[test]
+    fn no_two_lane_groups_of_a_word_share_a_hash_input() {
+        for (half, lanes) in [(0u32, 0..8), (32, 8..16)] {
+            let mut inputs: Vec<u32> = SALT
+                .iter()
+                .flat_map(|s| LANE[lanes.clone()].iter().map(move |k| k ^ (s >> half) as u32))
+                .collect();
+            inputs.sort_unstable();
+            inputs.dedup();
+            assert_eq!(inputs.len(), 24);
+        }
+    }
+
+    #[test]
     fn lanes_words_and_steps_are_uncorrelated() {
         // At p = 1/2 the 64 lanes of a word, a word and its neighbour, and a step and
         // the next must agree about half the time; a shared or shifted stream would not.
         let q = 32768;
         let n = 20_000i64;
-        let (mut same_lane, mut same_word, mut same_step, mut pairs) = (0u64, 0u64, 0u64, 0u64);
+        let (mut same_lane, mut same_word, mut same_step, mut same_event, mut pairs) = (0u64, 0u64, 0u64, 0u64, 0u64);
         for w in 0..n {
-            let k0 = word_key(row_key(step_key(3, Draw::Humidity, 0, 100), 5), w);
-            let k1 = word_key(row_key(step_key(3, Draw::Humidity, 0, 100), 5), w + 1);
-            let k2 = word_key(row_key(step_key(3, Draw::Humidity, 0, 101), 5), w);
+            let k0 = event_key(word_key(row_key(step_key(3, 0, 100), 5), w), Draw::Humidity);
+            let k1 = event_key(word_key(row_key(step_key(3, 0, 100), 5), w + 1), Draw::Humidity);
+            let k2 = event_key(word_key(row_key(step_key(3, 0, 101), 5), w), Draw::Humidity);
             for b in 0..64u32 {
                 let f = fires(k0, b, q);
                 same_lane += u64::from(f == fires(k0, (b + 1) % 64, q));
                 same_word += u64::from(f == fires(k1, b, q));
                 same_step += u64::from(f == fires(k2, b, q));
+                same_event += u64::from(f == fires(k0 ^ SALT[0] ^ SALT[2], b, q));
                 pairs += 1;
             }
         }
         let sd = (pairs as f64 * 0.25).sqrt();
-        for (name, c) in [("lane", same_lane), ("word", same_word), ("step", same_step)] {
+        for (name, c) in [
+            ("lane", same_lane),
+            ("word", same_word),
+            ("step", same_step),
+            ("event", same_event),
+        ] {
             assert!(
                 (c as f64 - pairs as f64 / 2.0).abs() < 5.0 * sd,
                 "{name}: {c} of {pairs}"

@@ -4,6 +4,9 @@
 //!     cargo build --release --example profile_kernel
 //!     valgrind --tool=callgrind --toggle-collect='*step_level*' target/release/examples/profile_kernel kernel
 //!     valgrind --tool=callgrind target/release/examples/profile_kernel tile
+//!
+//! `STEPS=N` (default 8) sets the kernel run's length, e.g. `STEPS=100` for a
+//! wall-clock or `perf record` run long enough to sample.
 
 use std::hint::black_box;
 

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
+use super::random::WordDrive;
 use crate::fields::noise::mix64;
 use crate::fields::{LayerFields, quantize};
 use crate::world::{Mode, World};
@@ -142,10 +143,10 @@ impl LayerSim {
             .map(|(k, lv)| {
                 let (sx, sy) = shifts[k];
                 let words = lv.wpr * lv.rows;
-                let mut stoch: [Vec<u32>; 3] = Default::default();
+                let mut stoch: Vec<WordDrive> = Vec::new();
                 let mut thr = (Vec::new(), Vec::new(), Vec::new());
                 if mode == Mode::Dobashi {
-                    stoch = std::array::from_fn(|_| Vec::with_capacity(64 * words));
+                    stoch.reserve_exact(words);
                 } else {
                     thr = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
                 }
@@ -174,9 +175,8 @@ impl LayerSim {
                         level.values(bright, &ew, &mut p);
                         match mode {
                             Mode::Dobashi => {
-                                for (q, p) in stoch.iter_mut().zip(&p) {
-                                    q.extend(p.iter().map(|&v| quantize(v)));
-                                }
+                                let q = p.each_ref().map(|p| p.map(quantize));
+                                stoch.push(WordDrive::new(q.each_ref()));
                             }
                             Mode::Rosa => {
                                 let i = r * lv.wpr + w;
@@ -190,7 +190,7 @@ impl LayerSim {
                     }
                 }
                 match mode {
-                    Mode::Dobashi => Drives::stochastic(stoch.each_ref().map(|v| v.as_slice())),
+                    Mode::Dobashi => Drives::Stochastic(stoch),
                     Mode::Rosa => Drives::Threshold {
                         hum: thr.0,
                         act: thr.1,

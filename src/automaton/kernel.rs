@@ -134,22 +134,6 @@ pub enum Drives {
     },
 }
 
-impl Drives {
-    /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext),
-    /// 64 cells per word, in the level's word order.
-    pub fn stochastic(q: [&[u32]; 3]) -> Drives {
-        let words = q[0].len() / 64;
-        Drives::Stochastic(
-            (0..words)
-                .map(|i| {
-                    let lane = |e: usize| -> &[u32; 64] { q[e][64 * i..64 * (i + 1)].try_into().expect("64 lanes") };
-                    WordDrive::new([lane(0), lane(1), lane(2)])
-                })
-                .collect(),
-        )
-    }
-}
-
 /// Which rule set a step applies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Rules {

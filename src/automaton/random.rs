@@ -266,15 +266,6 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
     (m, shift as u8, always, live)
 }
 
-/// 64 Bernoulli bits of event `e` at once, decided for the lanes in `care`
-/// (lanes outside it come back 0; the caller combines the result so that they
-/// do not matter). No hash is made when no lane in `care` can fire.
-#[inline(always)]
-pub fn bernoulli(d: &WordDrive, e: usize, word_key: u64, care: u64) -> u64 {
-    let (fired, tie) = bernoulli_high(d, e, word_key, care);
-    fired | tie.resolve(d)
-}
-
 /// Lanes of one word and event whose high bytes tied, to be decided by their low bytes.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Tie {
@@ -300,7 +291,7 @@ impl Tie {
     }
 }
 
-/// The part of [`bernoulli`] decided by the high bytes: the lanes that fire, and
+/// The part of a 64-lane Bernoulli draw decided by the high bytes: the lanes that fire, and
 /// the lanes left to [`Tie::resolve`] (1 in 256 of the open ones). Kept apart so
 /// the kernel can decide the rare ties after a row instead of branching per word.
 #[inline(always)]
@@ -383,6 +374,14 @@ unsafe fn compare_high_avx2(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// 64 Bernoulli bits of event `e` at once, decided for the lanes in `care`
+    /// (lanes outside it come back 0; the caller combines the result so that they
+    /// do not matter). No hash is made when no lane in `care` can fire.
+    fn bernoulli(d: &WordDrive, e: usize, word_key: u64, care: u64) -> u64 {
+        let (fired, tie) = bernoulli_high(d, e, word_key, care);
+        fired | tie.resolve(d)
+    }
 
     fn random_q(s: &mut u64) -> [u32; 64] {
         let mut q = [0u32; 64];

@@ -6,7 +6,18 @@ use proptest::prelude::*;
 
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::naive::{NaiveDrives, NaiveLevel, step};
+use super::random::WordDrive;
 use crate::fields::noise::mix64;
+
+/// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext), 64 cells per word.
+fn stochastic(q: [&[u32]; 3]) -> Drives {
+    let lanes = |e: usize, i: usize| -> &[u32; 64] { q[e][64 * i..64 * (i + 1)].try_into().expect("64 lanes") };
+    Drives::Stochastic(
+        (0..q[0].len() / 64)
+            .map(|i| WordDrive::new([lanes(0, i), lanes(1, i), lanes(2, i)]))
+            .collect(),
+    )
+}
 
 /// A random scene: per level a grid origin, cells and thresholds.
 #[derive(Debug, Clone)]
@@ -98,7 +109,7 @@ proptest! {
             match sc.rules {
                 Rules::Dobashi => {
                     let q: Vec<Vec<u32>> = (0..3).map(|_| (0..w * sc.rows).map(|_| threshold(&mut s)).collect()).collect();
-                    let d = Drives::stochastic([&q[0], &q[1], &q[2]]);
+                    let d = stochastic([&q[0], &q[1], &q[2]]);
                     // The naive kernel draws against the thresholds the packed drives hold.
                     let Drives::Stochastic(words) = &d else { unreachable!() };
                     let held = |e: usize| -> Vec<u32> { (0..w * sc.rows).map(|c| words[c / 64].q(e, (c % 64) as u32)).collect() };

@@ -6,7 +6,10 @@
 //!     valgrind --tool=callgrind target/release/examples/profile_kernel tile
 //!
 //! `STEPS=N` (default 8) sets the kernel run's length, e.g. `STEPS=100` for a
-//! wall-clock or `perf record` run long enough to sample.
+//! wall-clock or `perf record` run long enough to sample; `SIZE=N` (default 192)
+//! the side of the window in cells.
+//!
+//! valgrind does not run AVX-512, so under callgrind the kernel takes its portable draws.
 
 use std::hint::black_box;
 
@@ -31,7 +34,7 @@ fn main() {
         return;
     }
     let sim = LayerSim::new(&world, 0);
-    let size = 192;
+    let size: i64 = std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(192);
     let window = Rect {
         x0: 0,
         x1: size,

@@ -20,7 +20,9 @@
 //! (`cld ∨ (act ∧ …)`) no cloud could ever disappear, which contradicts the text.
 //! Cells outside the grid read as empty ("out of range results in a false value").
 
-use super::random::{Tie, WordDrive, bernoulli_high, row_key, step_key, word_key};
+use std::ops::Range;
+
+use super::random::{Backend, StepKeys, WordDrive, below_portable};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -157,6 +159,19 @@ pub struct StepContext<'a> {
 /// Advances level `k` from `old` (all levels at step n) into `out` (level k at
 /// step n + 1, same geometry as `old[k]`), computing the words covering `window`.
 pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, window: Rect, out: &mut Level) {
+    step_level_on(Backend::detect(), old, k, drives, ctx, window, out)
+}
+
+/// [`step_level`] with the draws made by `backend` (one of [`Backend::available`]).
+pub fn step_level_on(
+    backend: Backend,
+    old: &[Level],
+    k: usize,
+    drives: &Drives,
+    ctx: &StepContext,
+    window: Rect,
+    out: &mut Level,
+) {
     let lv = &old[k];
     debug_assert_eq!((lv.x0, lv.y0, lv.wpr, lv.rows), (out.x0, out.y0, out.wpr, out.rows));
     if window.is_empty() || lv.wpr == 0 {
@@ -189,8 +204,8 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
     };
     // f_act of the words being computed in the current row.
     let mut f_row = vec![0u64; wpr];
-    let mut ties: Vec<(usize, Tie)> = Vec::new();
-    let step_key = step_key(ctx.stream, k as u32, ctx.n);
+    let keys = StepKeys::new(ctx.stream, k as u32, ctx.n);
+    let draws = StepDraws::new(backend, &keys);
     for r in r_lo..r_hi {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
@@ -232,39 +247,21 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
         }
         match drives {
             Drives::Stochastic(words) => {
-                let row_key = row_key(step_key, y);
-                let wx0 = lv.x0.div_euclid(64);
-                // Ties are collected without a branch and decided after the row.
-                ties.clear();
-                ties.resize(3 * (w_hi - w_lo) + 1, (0, Tie::default()));
-                let mut n_ties = 0;
-                for w in w_lo..w_hi {
-                    let i = base + w;
-                    let (a, h, c, f) = (act_row[w], lv.hum[i], lv.cld[i], f_row[w]);
-                    let keep_h = h & !a;
-                    let act_det = !a & h & f;
-                    let cld_det = c | a;
-                    let (d, key) = (&words[i], word_key(row_key, wx0 + w as i64));
-                    // Each draw is decided only where it can change the result.
-                    let (bh, th) = bernoulli_high(d, 0, key, !keep_h);
-                    let (ba, ta) = bernoulli_high(d, 1, key, !act_det);
-                    let (be, te) = bernoulli_high(d, 2, key, cld_det);
-                    for t in [th, ta, te] {
-                        ties[n_ties] = (i, t);
-                        n_ties += usize::from(t.lanes != 0);
-                    }
-                    out.hum[i] = keep_h | bh;
-                    out.act[i] = act_det | ba;
-                    out.cld[i] = cld_det & !be;
-                }
-                for &(i, t) in &ties[..n_ties] {
-                    let fired = t.resolve(&words[i]);
-                    match t.e {
-                        0 => out.hum[i] |= fired,
-                        1 => out.act[i] |= fired,
-                        _ => out.cld[i] &= !fired,
-                    }
-                }
+                let row = Row {
+                    y,
+                    wx0: lv.x0.div_euclid(64),
+                    act: act_row,
+                    hum: &lv.hum[base..base + wpr],
+                    cld: &lv.cld[base..base + wpr],
+                    f: &f_row,
+                    drives: &words[base..base + wpr],
+                };
+                let out = RowOut {
+                    hum: &mut out.hum[base..base + wpr],
+                    act: &mut out.act[base..base + wpr],
+                    cld: &mut out.cld[base..base + wpr],
+                };
+                draws.row(&row, out, w_lo..w_hi);
             }
             Drives::Threshold { hum, act, keep } => {
                 for w in w_lo..w_hi {
@@ -276,6 +273,86 @@ pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, w
                 }
             }
         }
+    }
+}
+
+/// One row of a Dobashi step: the inputs, indexed by word.
+struct Row<'a> {
+    y: i64,
+    /// Global word index of word 0.
+    wx0: i64,
+    act: &'a [u64],
+    hum: &'a [u64],
+    cld: &'a [u64],
+    f: &'a [u64],
+    drives: &'a [WordDrive],
+}
+
+struct RowOut<'a> {
+    hum: &'a mut [u64],
+    act: &'a mut [u64],
+    cld: &'a mut [u64],
+}
+
+/// The draws of one step in the form a backend uses.
+enum StepDraws<'a> {
+    #[cfg(target_arch = "x86_64")]
+    Avx512(super::random::avx512::Keys),
+    Portable(&'a StepKeys),
+}
+
+impl<'a> StepDraws<'a> {
+    fn new(backend: Backend, keys: &'a StepKeys) -> StepDraws<'a> {
+        match backend {
+            #[cfg(target_arch = "x86_64")]
+            Backend::Avx512 => {
+                assert!(Backend::available().contains(&Backend::Avx512), "AVX-512 draws on a CPU without them");
+                // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
+                StepDraws::Avx512(unsafe { super::random::avx512::keys(keys) })
+            }
+            _ => StepDraws::Portable(keys),
+        }
+    }
+
+    /// Words `ws` of a Dobashi row.
+    fn row(&self, row: &Row, out: RowOut, ws: Range<usize>) {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: made only after the CPU's features were checked (`new`).
+            StepDraws::Avx512(keys) => unsafe { stochastic_row_avx512(keys, row, out, ws) },
+            StepDraws::Portable(keys) => rules_row(row, out, ws, |d, e, wx| {
+                below_portable(keys, row.y, wx, e, &d.t[e], d.shift[e])
+            }),
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,vaes")]
+unsafe fn stochastic_row_avx512(keys: &super::random::avx512::Keys, row: &Row, out: RowOut, ws: Range<usize>) {
+    use super::random::avx512;
+    // SAFETY (both calls): the caller checked the CPU's features.
+    let y = unsafe { avx512::row(row.y) };
+    rules_row(row, out, ws, |d, e, wx| unsafe { avx512::below(keys, y, e, wx, &d.t[e], d.shift[e]) })
+}
+
+/// The Dobashi rules over words `ws`, with `below(drive, event, wx)` the lanes
+/// whose draw is below their threshold. A lane in `always` fires whatever its draw.
+#[inline(always)]
+fn rules_row(row: &Row, out: RowOut, ws: Range<usize>, below: impl Fn(&WordDrive, usize, i64) -> u64) {
+    // Slices cut to the range's end, so the indexing below needs no bounds checks.
+    let n = ws.end;
+    let (act, hum, cld, f, drives) = (&row.act[..n], &row.hum[..n], &row.cld[..n], &row.f[..n], &row.drives[..n]);
+    let (out_hum, out_act, out_cld) = (&mut out.hum[..n], &mut out.act[..n], &mut out.cld[..n]);
+    for w in ws {
+        let (a, h, c, d) = (act[w], hum[w], cld[w], &drives[w]);
+        let wx = row.wx0 + w as i64;
+        let fire = |e: usize| d.always[e] | below(d, e, wx);
+        // Where a draw cannot change the result (hum kept, act already set, no
+        // cloud to remove) it is made anyway: no branches.
+        out_hum[w] = (h & !a) | fire(0);
+        out_act[w] = (!a & h & f[w]) | fire(1);
+        out_cld[w] = (c | a) & !fire(2);
     }
 }
 

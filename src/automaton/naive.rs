@@ -2,7 +2,7 @@
 //! the same counter-based draws. It exists to check the packed kernel bit for bit.
 
 use super::kernel::Rules;
-use super::random::{Draw, event_key, fires, row_key, step_key, word_key};
+use super::random::{Draw, StepKeys, fires};
 
 /// One level, one byte per cell, over `w × h` frame cells from (`x0`, `y0`).
 #[derive(Clone, Debug, PartialEq)]
@@ -84,14 +84,13 @@ pub fn step(
                         act: qa,
                         ext: qe,
                     } => {
-                        let key = |d: Draw| {
-                            event_key(word_key(row_key(step_key(stream, k as u32, n), y), x.div_euclid(64)), d)
-                        };
-                        let bit = x.rem_euclid(64) as u32;
+                        let keys = StepKeys::new(stream, k as u32, n);
+                        let (wx, bit) = (x.div_euclid(64), x.rem_euclid(64) as u32);
+                        let fire = |d: Draw, q: u32| fires(&keys, y, wx, d, bit, q);
                         (
-                            fires(key(Draw::Humidity), bit, qh[i]),
-                            fires(key(Draw::Activation), bit, qa[i]),
-                            !fires(key(Draw::Extinction), bit, qe[i]),
+                            fire(Draw::Humidity, qh[i]),
+                            fire(Draw::Activation, qa[i]),
+                            !fire(Draw::Extinction, qe[i]),
                         )
                     }
                     NaiveDrives::Threshold {

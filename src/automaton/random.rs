@@ -1,154 +1,131 @@
-//! Counter-based randomness: every draw is a hash of (seed, layer, level, step,
-//! row, word, event, lane); there is no generator state, so any machine can
-//! compute any cell at any step.
+//! Counter-based randomness: every draw is a function of (seed, layer, level,
+//! step, row, word, event, lane); there is no generator state, so any machine
+//! can compute any cell at any step.
 //!
 //! A Bernoulli event with probability `q / 65536` fires for a cell when its
-//! 16-bit draw `r` is below `q`. The draw is read a byte at a time: the high
-//! byte `r_hi` comes from one 32-bit hash per 4 lanes (16 hashes per 64-cell
-//! word, made 8 at a time with AVX2), and only where `r_hi` equals the high
-//! byte of `q` (1 lane in 256) is the low byte `r_lo` hashed for that lane. So
-//! `r < q` ⇔ `r_hi < q_hi`, or `r_hi = q_hi` and `r_lo < q_lo`: the same event
-//! as comparing all 16 bits, with a fixed amount of work per word and almost
-//! no branches. The naive kernel computes the same bytes one lane at a time
-//! ([`fires`]); the unit tests hold the two forms equal.
+//! 16-bit draw is below `q`. The draws are ARS-5 (Salmon et al. 2011, "Parallel
+//! random numbers: as easy as 1, 2, 3"; Intel MKL ships it as its ARS5
+//! generator): five AES rounds over a 128-bit counter, with round keys stepped by
+//! Weyl constants from a key of (layer stream, level, step). The counter is
+//! (word index, row, event, block): one 128-bit block gives 8 lanes' 16-bit
+//! draws, so a 64-cell word takes 8 blocks per event. With AVX-512 and VAES one
+//! instruction runs a round on 4 blocks, so the three events of a word are 6
+//! vectors × 5 rounds, and the 64 lanes' comparisons are two mask compares per
+//! event. There are no branches and no ties: every threshold is compared in
+//! full.
 //!
-//! The hash of the high bytes is lowbias32 (Chris Wellons' integer hash, a
-//! bijection with good avalanche) applied to the word key's two halves, each
-//! XOR-ed with 8 lane constants; the word key itself comes from wyhash's mix
-//! of the row key and the word index. We write this instead of using a crate
-//! because the bytes are part of the output contract (ALGORITHM_VERSION): they
-//! must not change with a dependency's release, and the AVX2 and scalar forms
-//! must agree bit for bit.
+//! One difference from ARS-5 as published: the last round is a full AES round
+//! (AESENC) where ARS-5 leaves out MixColumns (AESENCLAST). MixColumns is an
+//! invertible linear map of each 32-bit column, so it changes no distribution,
+//! and the full round is what `aes::hazmat::cipher_round` offers.
+//!
+//! Two implementations give the same bits: AVX-512 + VAES (detected at run
+//! time) and the portable form through `aes::hazmat` (AES-NI where the CPU has
+//! it, the crate's software AES otherwise). The unit tests hold them equal, and
+//! the naive kernel draws one lane at a time through [`draw`]. We build on AES
+//! rather than a generator crate because the bits are part of the output
+//! contract (ALGORITHM_VERSION): AES is fixed by FIPS-197, a generator crate's
+//! stream is not.
+
+use std::sync::OnceLock;
+
+use aes::Block;
+use aes::hazmat::{cipher_round, cipher_round_par};
 
 use crate::fields::noise::mix64;
 
-/// Which random event.
+/// AES rounds per block (ARS-5).
+pub const ROUNDS: usize = 5;
+
+/// Which random event; the value is the event's index in a [`WordDrive`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Draw {
-    Humidity = 1,
-    Activation = 2,
-    Extinction = 3,
+    Humidity = 0,
+    Activation = 1,
+    Extinction = 2,
 }
 
-/// wyhash's mixing step: a 64×64→128 multiply folded to 64 bits.
-#[inline(always)]
-fn wymix(a: u64, b: u64) -> u64 {
-    let r = (a as u128).wrapping_mul(b as u128);
-    (r as u64) ^ ((r >> 64) as u64)
+/// The round keys of one (layer stream, level, step): `k[0]` is XOR-ed into the
+/// counter, `k[1..]` are the rounds' keys, each the previous plus ARS's Weyl
+/// constants (per 64-bit half).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepKeys {
+    pub k: [[u64; 2]; ROUNDS + 1],
 }
 
-/// Chris Wellons' lowbias32: a 32-bit bijection with low avalanche bias.
-#[inline(always)]
-fn lowbias32(mut x: u32) -> u32 {
-    x ^= x >> 16;
-    x = x.wrapping_mul(0x7feb_352d);
-    x ^= x >> 15;
-    x = x.wrapping_mul(0x846c_a68b);
-    x ^ (x >> 16)
-}
-
-/// Per-lane-group constants: hash `i` (lanes 4i..4i+3) uses the low key half
-/// for i < 8 and the high half for i ≥ 8, XOR-ed with `LANE[i]`.
-const LANE: [u32; 16] = [
-    0x9e37_79b9,
-    0x7f4a_7c15,
-    0xf39c_c060,
-    0x5ced_c834,
-    0x1082_276b,
-    0xf58b_4ab1,
-    0x6a09_e667,
-    0xbb67_ae85,
-    0x3c6e_f372,
-    0xa54f_f53a,
-    0x510e_527f,
-    0x9b05_688c,
-    0x1f83_d9ab,
-    0x5be0_cd19,
-    0xcbbb_9d5d,
-    0x629a_292a,
-];
-
-/// Key of one (layer stream, level, step): made once per level and step.
-#[inline]
-pub fn step_key(stream: u64, level: u32, step: i64) -> u64 {
-    let a = mix64(stream ^ ((level as u64) << 48));
-    mix64(a ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f))
-}
-
-/// Key of one frame row under a [`step_key`].
-#[inline]
-pub fn row_key(step_key: u64, row: i64) -> u64 {
-    mix64(step_key ^ (row as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15))
-}
-
-/// Key of one 64-cell word (frame word index `wx` = frame x / 64) in a row.
-#[inline(always)]
-pub fn word_key(row_key: u64, wx: i64) -> u64 {
-    wymix(row_key ^ (wx as u64), 0xe703_7ed1_a0b4_28db)
-}
-
-/// Per-event salts of a word key. The three events' hash inputs differ from each
-/// other and from every other lane group's (a unit test checks all 48 per key
-/// half are distinct), so no two lanes of a word share a draw.
-const SALT: [u64; 3] = [0x2d35_8dcc_aa6c_78a5, 0x8bb8_4b93_962e_acc9, 0x4b33_a62e_d433_d4a3];
-
-/// Key of one event (hum, act, ext) of a word: the word key with the event's salt.
-#[inline(always)]
-pub fn event_key(word_key: u64, draw: Draw) -> u64 {
-    word_key ^ SALT[draw as usize - 1]
-}
-
-/// The high byte of lane `bit`'s draw.
-#[inline]
-pub fn high_byte(word_key: u64, bit: u32) -> u8 {
-    let i = (bit / 4) as usize;
-    let half = if i < 8 {
-        word_key as u32
-    } else {
-        (word_key >> 32) as u32
-    };
-    (lowbias32(half ^ LANE[i]) >> (8 * (bit % 4))) as u8
-}
-
-/// The low byte of lane `bit`'s draw (needed only when the high byte ties).
-#[inline]
-pub fn low_byte(word_key: u64, bit: u32) -> u8 {
-    let k = wymix(word_key ^ 0x8ebc_6af0_9c88_c6e3, 0x5899_65cc_7537_4cc3);
-    (lowbias32((k as u32) ^ bit.wrapping_mul(0x9e37_79b9) ^ (k >> 32) as u32) >> 24) as u8
-}
-
-/// Whether a single cell's event with threshold `q` (0..=65536) fires.
-#[inline]
-pub fn fires(word_key: u64, bit: u32, q: u32) -> bool {
-    if q >= 65536 {
-        return true;
+impl StepKeys {
+    pub fn new(stream: u64, level: u32, step: i64) -> StepKeys {
+        let a = mix64(stream ^ ((level as u64) << 48));
+        let lo = mix64(a ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f));
+        let hi = mix64(lo ^ 0x6a09_e667_f3bc_c909);
+        let mut k = [[lo, hi]; ROUNDS + 1];
+        for i in 1..=ROUNDS {
+            k[i] = [
+                k[i - 1][0].wrapping_add(0x9e37_79b9_7f4a_7c15),
+                k[i - 1][1].wrapping_add(0xbb67_ae85_84ca_a73b),
+            ];
+        }
+        StepKeys { k }
     }
-    let (hi, lo) = ((q >> 8) as u8, q as u8);
-    let r = high_byte(word_key, bit);
-    r < hi || (r == hi && low_byte(word_key, bit) < lo)
+}
+
+/// The counter of block `g` (lanes 8g..8g+7) of event `e` for word `wx` of frame
+/// row `y`: the word index in the low half, the row above the event and block
+/// indices in the high half. Distinct for every (y, wx, e, g) with |y| < 2^58.
+#[inline]
+pub fn counter(y: i64, wx: i64, e: usize, g: usize) -> [u64; 2] {
+    [wx as u64, ((y as u64) << 5) | ((e as u64) << 3) | g as u64]
+}
+
+fn block(v: [u64; 2]) -> Block {
+    let mut b = Block::default();
+    b[..8].copy_from_slice(&v[0].to_le_bytes());
+    b[8..].copy_from_slice(&v[1].to_le_bytes());
+    b
+}
+
+/// ARS-5 of one counter, through the portable round function.
+pub fn ars5(keys: &StepKeys, ctr: [u64; 2]) -> [u8; 16] {
+    let mut b = block([ctr[0] ^ keys.k[0][0], ctr[1] ^ keys.k[0][1]]);
+    for k in &keys.k[1..] {
+        cipher_round(&mut b, &block(*k));
+    }
+    b.into()
+}
+
+/// Lane `bit`'s 16-bit draw for event `e` of word `wx` in frame row `y`: bytes
+/// 2j, 2j+1 (little-endian) of block `bit / 8`, j = `bit % 8`.
+pub fn draw(keys: &StepKeys, y: i64, wx: i64, e: Draw, bit: u32) -> u16 {
+    let b = ars5(keys, counter(y, wx, e as usize, bit as usize / 8));
+    let j = 2 * (bit as usize % 8);
+    u16::from_le_bytes([b[j], b[j + 1]])
+}
+
+/// Whether one cell's event with threshold `q` (0..=65536) fires.
+pub fn fires(keys: &StepKeys, y: i64, wx: i64, e: Draw, bit: u32, q: u32) -> bool {
+    q >= 65536 || u32::from(draw(keys, y, wx, e, bit)) < q
 }
 
 /// The thresholds of one event for the 64 cells of a word in a per-word
-/// floating form: lane b's threshold is `m[b] << (8 − shift)` (so the high byte
-/// is `m[b] >> shift` and the low byte `m[b] << (8 − shift)`), with `shift` as
-/// large as the word's largest threshold allows. Everything a draw reads is in
-/// these 64 bytes, so a tie never waits for memory. Against 16-bit fixed point
-/// a lane keeps at least 8 significant bits relative to the largest threshold
-/// of its word, and every threshold below 1/256 stays exact.
+/// floating form: lane b's threshold is `m[b] << (8 − shift)`, with `shift` as
+/// large as the word's largest threshold allows, so an event's thresholds fill
+/// one 64-byte line (drives are read on every step of a run, and their size is
+/// what the kernel streams from memory). Against 16-bit fixed point a lane keeps
+/// at least 8 significant bits relative to the largest threshold of its word,
+/// and every threshold below 1/256 stays exact.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(64))]
 pub struct Thresholds {
     pub m: [u8; 64],
 }
 
-/// The drives of one word: the three events' thresholds and masks. A lane with
-/// q = 65536 is in `always`; a lane whose threshold is 0 is not in `live`.
+/// The drives of one word: the three events' thresholds, and the lanes with
+/// q = 65536 (`always`; their mantissa is 0).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(64))]
 pub struct WordDrive {
     pub t: [Thresholds; 3],
     pub always: [u64; 3],
-    pub live: [u64; 3],
     pub shift: [u8; 3],
 }
 
@@ -158,15 +135,13 @@ impl WordDrive {
         let mut d = WordDrive {
             t: [Thresholds { m: [0; 64] }; 3],
             always: [0; 3],
-            live: [0; 3],
             shift: [0; 3],
         };
         for (e, q) in q.iter().enumerate() {
-            let (m, shift, always, live) = event_thresholds(q);
+            let (m, shift, always) = event_thresholds(q);
             d.t[e].m = m;
             d.shift[e] = shift;
             d.always[e] = always;
-            d.live[e] = live;
         }
         d
     }
@@ -181,9 +156,9 @@ impl WordDrive {
     }
 }
 
-/// One event's (mantissas, shift, always, live) from 16-bit thresholds.
+/// One event's (mantissas, shift, always) from 16-bit thresholds.
 #[inline]
-fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
@@ -196,29 +171,28 @@ fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
 }
 
 /// The plain form of [`event_thresholds`]: one lane at a time.
-pub fn event_thresholds_scalar(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+pub fn event_thresholds_scalar(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
     let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
     // The largest shift (most low bits kept) whose mantissas still fit in a byte.
     let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
     let step = 8 - shift;
     let mut m = [0u8; 64];
-    let (mut always, mut live) = (0u64, 0u64);
+    let mut always = 0u64;
     for (b, &v) in q.iter().enumerate() {
         if v >= 65536 {
             always |= 1 << b;
         } else {
             m[b] = ((v + ((1 << step) >> 1)) >> step).min(255) as u8;
-            live |= u64::from(m[b] > 0) << b;
         }
     }
-    (m, shift as u8, always, live)
+    (m, shift as u8, always)
 }
 
 /// [`event_thresholds`] with AVX2, 8 lanes per vector. Drives are built for every
 /// word of every run, so this conversion is on the path of every cold tile.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[target_feature(enable = "avx2")]
-unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
+unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
     use std::arch::x86_64::*;
     let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
     let limit = _mm256_set1_epi32(65535);
@@ -259,129 +233,156 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
     for (i, o) in over.iter().enumerate() {
         always |= (_mm256_movemask_ps(_mm256_castsi256_ps(*o)) as u32 as u64) << (8 * i);
     }
-    let zero = _mm256_setzero_si256();
-    let z0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b0, zero)) as u32 as u64;
-    let z1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b1, zero)) as u32 as u64;
-    let live = !(z0 | (z1 << 32));
-    (m, shift as u8, always, live)
+    (m, shift as u8, always)
 }
 
-/// Lanes of one word and event whose high bytes tied, to be decided by their low bytes.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct Tie {
-    pub lanes: u64,
-    pub key: u64,
-    pub e: u8,
+/// An implementation of the per-word draws.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    /// AVX-512 (F, BW) with VAES: four AES blocks per instruction.
+    Avx512,
+    /// `aes::hazmat`, eight blocks per call.
+    Portable,
 }
 
-impl Tie {
-    /// The lanes among `self.lanes` that fire.
-    #[inline]
-    pub fn resolve(&self, d: &WordDrive) -> u64 {
-        let (e, shift) = (self.e as usize, d.shift[self.e as usize] as u32);
-        let mut lanes = self.lanes;
-        let mut fired = 0;
-        while lanes != 0 {
-            let b = lanes.trailing_zeros();
-            lanes &= lanes - 1;
-            let lo = ((d.t[e].m[b as usize] as u32) << (8 - shift)) as u8;
-            fired |= u64::from(low_byte(self.key, b) < lo) << b;
+impl Backend {
+    /// The fastest backend this CPU runs (detected once).
+    pub fn detect() -> Backend {
+        static BACKEND: OnceLock<Backend> = OnceLock::new();
+        *BACKEND.get_or_init(|| {
+            if Backend::available().contains(&Backend::Avx512) {
+                Backend::Avx512
+            } else {
+                Backend::Portable
+            }
+        })
+    }
+
+    /// Every backend this CPU runs.
+    pub fn available() -> Vec<Backend> {
+        let mut out = vec![Backend::Portable];
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512bw")
+            && std::is_x86_feature_detected!("vaes")
+        {
+            out.push(Backend::Avx512);
         }
-        fired
+        out
     }
 }
 
-/// The part of a 64-lane Bernoulli draw decided by the high bytes: the lanes that fire, and
-/// the lanes left to [`Tie::resolve`] (1 in 256 of the open ones). Kept apart so
-/// the kernel can decide the rare ties after a row instead of branching per word.
-#[inline(always)]
-pub fn bernoulli_high(d: &WordDrive, e: usize, word_key: u64, care: u64) -> (u64, Tie) {
-    let care = care & (d.live[e] | d.always[e]);
-    let fired = d.always[e] & care;
-    let open = care & !d.always[e];
-    if open == 0 {
-        return (fired, Tie::default());
+/// The lanes of one word whose draw for event `e` is below its threshold in
+/// `t` (with `shift`; lanes in `always` are not included), one event at a time
+/// through the portable round function.
+pub fn below_portable(keys: &StepKeys, y: i64, wx: i64, e: usize, t: &Thresholds, shift: u8) -> u64 {
+    let mut blocks: aes::Block8 = Default::default();
+    for (g, b) in blocks.iter_mut().enumerate() {
+        let c = counter(y, wx, e, g);
+        *b = block([c[0] ^ keys.k[0][0], c[1] ^ keys.k[0][1]]);
     }
-    let key = word_key ^ SALT[e];
-    let (below, ties) = compare_high(&d.t[e], d.shift[e] as u32, key);
-    let tie = Tie {
-        lanes: ties & open,
-        key,
-        e: e as u8,
-    };
-    (fired | (below & open), tie)
+    for k in &keys.k[1..] {
+        let k = block(*k);
+        cipher_round_par(&mut blocks, &[k; 8].into());
+    }
+    let step = 8 - shift as u32;
+    let mut below = 0u64;
+    for (b, &m) in t.m.iter().enumerate() {
+        let blk = &blocks[b / 8];
+        let r = u16::from_le_bytes([blk[2 * (b % 8)], blk[2 * (b % 8) + 1]]);
+        below |= u64::from(u32::from(r) < (m as u32) << step) << b;
+    }
+    below
 }
 
-/// For every lane: (high byte of the draw < high byte of the threshold, the two are equal).
-#[inline(always)]
-pub fn compare_high(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    {
-        // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is
-        // present; `Thresholds` is 64 bytes, read as two unaligned 32-byte vectors.
-        unsafe { compare_high_avx2(t, shift, key) }
-    }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
-    {
-        compare_high_scalar(t, shift, key)
-    }
-}
-
-/// The plain form of [`compare_high`]: one lane at a time.
-pub fn compare_high_scalar(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
-    let (mut below, mut ties) = (0u64, 0u64);
-    for b in 0..64u32 {
-        let r = high_byte(key, b);
-        let q = (t.m[b as usize] as u32 >> shift) as u8;
-        below |= u64::from(r < q) << b;
-        ties |= u64::from(r == q) << b;
-    }
-    (below, ties)
-}
-
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-#[inline(always)]
-unsafe fn compare_high_avx2(t: &Thresholds, shift: u32, key: u64) -> (u64, u64) {
+/// The AVX-512 + VAES form of the draws: per step, the round keys and the
+/// events' counter bases in vectors; per word, 2 vectors of 4 blocks per event.
+#[cfg(target_arch = "x86_64")]
+pub mod avx512 {
     use std::arch::x86_64::*;
-    // SAFETY (whole body): AVX2 is enabled for the crate; loads stay inside `t` and `LANE`.
-    unsafe {
-        let hash = |half: u32, consts: *const u32| -> __m256i {
-            let mut x = _mm256_xor_si256(_mm256_set1_epi32(half as i32), _mm256_loadu_si256(consts.cast()));
-            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 16));
-            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x7feb_352d));
-            x = _mm256_xor_si256(x, _mm256_srli_epi32(x, 15));
-            x = _mm256_mullo_epi32(x, _mm256_set1_epi32(0x846c_a68bu32 as i32));
-            _mm256_xor_si256(x, _mm256_srli_epi32(x, 16))
+
+    use super::{ROUNDS, StepKeys, Thresholds, counter};
+
+
+    /// One step's keys in vectors: the rounds' keys, and per event the counters
+    /// of its 8 blocks with word 0 and row 0, XOR-ed with the first key.
+    #[derive(Clone, Copy)]
+    pub struct Keys {
+        k: [__m512i; ROUNDS],
+        base: [[__m512i; 2]; 3],
+    }
+
+    /// # Safety
+    /// The CPU must have AVX-512 F and BW and VAES ([`super::Backend::Avx512`]).
+    #[target_feature(enable = "avx512f,avx512bw,vaes")]
+    pub unsafe fn keys(keys: &StepKeys) -> Keys {
+        let k0 = keys.k[0];
+        let four = |v: [[u64; 2]; 4]| {
+            _mm512_set_epi64(
+                v[3][1] as i64,
+                v[3][0] as i64,
+                v[2][1] as i64,
+                v[2][0] as i64,
+                v[1][1] as i64,
+                v[1][0] as i64,
+                v[0][1] as i64,
+                v[0][0] as i64,
+            )
         };
-        let r0 = hash(key as u32, LANE.as_ptr());
-        let r1 = hash((key >> 32) as u32, LANE.as_ptr().add(8));
-        // High bytes m >> shift: a 16-bit shift, then the bits that crossed from the
-        // neighbouring byte cleared.
-        let count = _mm_cvtsi32_si128(shift as i32);
-        let keep = _mm256_set1_epi8((0xffu32 >> shift) as u8 as i8);
-        let high = |p: *const u8| _mm256_and_si256(_mm256_srl_epi16(_mm256_loadu_si256(p.cast()), count), keep);
-        let q0 = high(t.m.as_ptr());
-        let q1 = high(t.m.as_ptr().add(32));
-        // r >= q ⇔ max(r, q) = r (unsigned bytes).
-        let ge0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(r0, q0), r0)) as u32 as u64;
-        let ge1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(_mm256_max_epu8(r1, q1), r1)) as u32 as u64;
-        let eq0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(r0, q0)) as u32 as u64;
-        let eq1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(r1, q1)) as u32 as u64;
-        (!(ge0 | (ge1 << 32)), eq0 | (eq1 << 32))
+        let k = std::array::from_fn(|i| four([keys.k[i + 1]; 4]));
+        let base = std::array::from_fn(|e| {
+            std::array::from_fn(|h| {
+                four(std::array::from_fn(|g| {
+                    let c = counter(0, 0, e, 4 * h + g);
+                    [c[0] ^ k0[0], c[1] ^ k0[1]]
+                }))
+            })
+        });
+        Keys { k, base }
+    }
+
+    /// The (word, row) part of the counters of a row's words: the row in every
+    /// block's high half, ready for [`below`] to put the word in the low halves.
+    /// (The row's bits and the event and block bits of [`counter`] do not
+    /// overlap, so OR is XOR.)
+    ///
+    /// # Safety
+    /// As [`keys`].
+    #[target_feature(enable = "avx512f,avx512bw,vaes")]
+    #[inline]
+    pub unsafe fn row(y: i64) -> __m512i {
+        _mm512_set1_epi64(counter(y, 0, 0, 0)[1] as i64)
+    }
+
+    /// [`super::below_portable`] for word `wx` of the row made by [`row`].
+    ///
+    /// # Safety
+    /// As [`row_keys`].
+    #[target_feature(enable = "avx512f,avx512bw,vaes")]
+    #[inline]
+    pub unsafe fn below(keys: &Keys, row: __m512i, e: usize, wx: i64, t: &Thresholds, shift: u8) -> u64 {
+        // The word index goes into the low half of every block.
+        let w = _mm512_mask_set1_epi64(row, 0x55, wx);
+        let mut x0 = _mm512_xor_si512(keys.base[e][0], w);
+        let mut x1 = _mm512_xor_si512(keys.base[e][1], w);
+        for k in &keys.k {
+            x0 = _mm512_aesenc_epi128(x0, *k);
+            x1 = _mm512_aesenc_epi128(x1, *k);
+        }
+        // SAFETY: `Thresholds` is 64 bytes.
+        let m = unsafe { _mm512_loadu_si512(t.m.as_ptr().cast()) };
+        let count = _mm_cvtsi32_si128(8 - shift as i32);
+        let q0 = _mm512_sll_epi16(_mm512_cvtepu8_epi16(_mm512_castsi512_si256(m)), count);
+        let q1 = _mm512_sll_epi16(_mm512_cvtepu8_epi16(_mm512_extracti64x4_epi64::<1>(m)), count);
+        let b0 = _mm512_cmplt_epu16_mask(x0, q0) as u64;
+        let b1 = _mm512_cmplt_epu16_mask(x1, q1) as u64;
+        b0 | (b1 << 32)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// 64 Bernoulli bits of event `e` at once, decided for the lanes in `care`
-    /// (lanes outside it come back 0; the caller combines the result so that they
-    /// do not matter). No hash is made when no lane in `care` can fire.
-    fn bernoulli(d: &WordDrive, e: usize, word_key: u64, care: u64) -> u64 {
-        let (fired, tie) = bernoulli_high(d, e, word_key, care);
-        fired | tie.resolve(d)
-    }
 
     fn random_q(s: &mut u64) -> [u32; 64] {
         let mut q = [0u32; 64];
@@ -398,36 +399,88 @@ mod tests {
     }
 
     #[test]
-    fn packed_bernoulli_equals_per_lane_comparison() {
-        let mut s = 12345u64;
-        for _ in 0..2000 {
-            let qs = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
-            let d = WordDrive::new([&qs[0], &qs[1], &qs[2]]);
-            let (rk, wx) = (mix64(s ^ 99), (s % 1000) as i64 - 500);
-            let wk = word_key(rk, wx);
-            let care = mix64(s ^ 7) | if s % 3 == 0 { !0 } else { 0 };
-            for e in 0..3 {
-                let packed = bernoulli(&d, e, wk, care);
-                let key = event_key(wk, [Draw::Humidity, Draw::Activation, Draw::Extinction][e]);
-                for b in 0..64 {
-                    let want = (care >> b) & 1 == 1 && fires(key, b, d.q(e, b));
-                    assert_eq!((packed >> b) & 1 == 1, want, "lane {b} q {}", d.q(e, b));
+    fn ars5_is_aes_rounds_over_the_counter() {
+        // An independent AES round (FIPS-197 steps written out here) against the crate's.
+        fn xtime(b: u8) -> u8 {
+            (b << 1) ^ if b & 0x80 != 0 { 0x1b } else { 0 }
+        }
+        fn sbox(x: u8) -> u8 {
+            // Multiplicative inverse in GF(2^8) (x^254), then the affine map.
+            let mul = |mut a: u8, mut b: u8| {
+                let mut p = 0u8;
+                while b != 0 {
+                    if b & 1 != 0 {
+                        p ^= a;
+                    }
+                    a = xtime(a);
+                    b >>= 1;
+                }
+                p
+            };
+            let mut inv = 1u8;
+            for _ in 0..254 {
+                inv = mul(inv, x);
+            }
+            let inv = if x == 0 { 0 } else { inv };
+            inv ^ inv.rotate_left(1) ^ inv.rotate_left(2) ^ inv.rotate_left(3) ^ inv.rotate_left(4) ^ 0x63
+        }
+        fn round(s: [u8; 16], k: [u8; 16]) -> [u8; 16] {
+            // State byte (row r, column c) is s[r + 4c].
+            let sub: Vec<u8> = s.iter().map(|&b| sbox(b)).collect();
+            let mut sh = [0u8; 16];
+            for c in 0..4 {
+                for r in 0..4 {
+                    sh[r + 4 * c] = sub[r + 4 * ((c + r) % 4)];
                 }
             }
+            let mut out = [0u8; 16];
+            for c in 0..4 {
+                let a = &sh[4 * c..4 * c + 4];
+                for r in 0..4 {
+                    let (a0, a1, a2, a3) = (a[r], a[(r + 1) % 4], a[(r + 2) % 4], a[(r + 3) % 4]);
+                    out[r + 4 * c] = xtime(a0) ^ (xtime(a1) ^ a1) ^ a2 ^ a3 ^ k[r + 4 * c];
+                }
+            }
+            out
+        }
+        assert_eq!(sbox(0x00), 0x63);
+        assert_eq!(sbox(0x53), 0xed);
+        let bytes = |v: [u64; 2]| -> [u8; 16] { block(v).into() };
+        let mut s = 3u64;
+        for _ in 0..50 {
+            s = mix64(s);
+            let keys = StepKeys::new(s, (s % 7) as u32, (s >> 8) as i64);
+            let ctr = [mix64(s ^ 1), mix64(s ^ 2)];
+            let mut st = bytes([ctr[0] ^ keys.k[0][0], ctr[1] ^ keys.k[0][1]]);
+            for k in &keys.k[1..] {
+                st = round(st, bytes(*k));
+            }
+            assert_eq!(ars5(&keys, ctr), st);
         }
     }
 
     #[test]
-    fn compare_high_equals_its_scalar_form() {
-        let mut s = 99u64;
-        for _ in 0..5000 {
+    fn word_draws_equal_lane_draws_on_every_backend() {
+        let mut s = 12345u64;
+        for _ in 0..300 {
             s = mix64(s);
-            let mut t = Thresholds { m: [0; 64] };
-            for (b, v) in t.m.iter_mut().enumerate() {
-                *v = (mix64(s ^ b as u64) >> (s % 50)) as u8;
+            let keys = StepKeys::new(s, (s % 11) as u32, (s >> 3) as i64 - (1 << 40));
+            let y = (mix64(s ^ 5) >> 20) as i64 - (1 << 43);
+            let wx = (mix64(s ^ 6) >> 4) as i64;
+            let d = WordDrive::new([&random_q(&mut s), &random_q(&mut s), &random_q(&mut s)]);
+            for (e, draw_e) in [Draw::Humidity, Draw::Activation, Draw::Extinction].into_iter().enumerate() {
+                let want: u64 = (0..64u32)
+                    .filter(|&b| d.always[e] >> b & 1 == 0 && fires(&keys, y, wx, draw_e, b, d.q(e, b)))
+                    .map(|b| 1u64 << b)
+                    .sum();
+                assert_eq!(below_portable(&keys, y, wx, e, &d.t[e], d.shift[e]), want);
+                #[cfg(target_arch = "x86_64")]
+                if Backend::available().contains(&Backend::Avx512) {
+                    // SAFETY: the CPU has the features (just checked).
+                    let got = unsafe { avx512::below(&avx512::keys(&keys), avx512::row(y), e, wx, &d.t[e], d.shift[e]) };
+                    assert_eq!(got, want);
+                }
             }
-            let shift = (s % 9) as u32;
-            assert_eq!(compare_high(&t, shift, s), compare_high_scalar(&t, shift, s));
         }
     }
 
@@ -474,11 +527,11 @@ mod tests {
     /// Runs 640k draws through `fires` for threshold q and checks the rate within
     /// 5 standard deviations.
     fn check_rate(q: u32) {
-        let n = 10_000u64;
+        let n = 10_000i64;
+        let keys = StepKeys::new(7, 3, 5);
         let mut count = 0u64;
         for w in 0..n {
-            let key = event_key(word_key(row_key(step_key(7, 3, 5), 11), w as i64), Draw::Activation);
-            count += (0..64).filter(|&b| fires(key, b, q)).count() as u64;
+            count += (0..64).filter(|&b| fires(&keys, 11, w, Draw::Activation, b, q)).count() as u64;
         }
         let trials = (n * 64) as f64;
         let qp = q as f64 / 65536.0;
@@ -492,56 +545,75 @@ mod tests {
 
     #[test]
     fn rate_matches_probability() {
-        // Large, small (ties of the high byte decide), below one high-byte step, and exact bytes.
         for q in [6554, 66, 200, 1, 256, 32768, 65535] {
             check_rate(q);
         }
     }
 
     #[test]
-    fn no_two_lane_groups_of_a_word_share_a_hash_input() {
-        for (half, lanes) in [(0u32, 0..8), (32, 8..16)] {
-            let mut inputs: Vec<u32> = SALT
-                .iter()
-                .flat_map(|s| LANE[lanes.clone()].iter().map(move |k| k ^ (s >> half) as u32))
-                .collect();
-            inputs.sort_unstable();
-            inputs.dedup();
-            assert_eq!(inputs.len(), 24);
+    fn draws_are_uniform_in_every_lane() {
+        // 2^16 draws per lane position, histogram of the high byte: chi-square with
+        // 255 degrees of freedom stays below its 1e-6 tail (about 386).
+        let keys = StepKeys::new(11, 2, 9);
+        for bit in [0u32, 1, 7, 8, 33, 63] {
+            let mut hist = [0u32; 256];
+            for w in 0..65536i64 {
+                hist[(draw(&keys, w >> 8, w & 255, Draw::Humidity, bit) >> 8) as usize] += 1;
+            }
+            let exp = 256.0;
+            let chi2: f64 = hist.iter().map(|&c| (c as f64 - exp).powi(2) / exp).sum();
+            assert!(chi2 < 386.0, "lane {bit}: chi2 {chi2}");
         }
     }
 
     #[test]
-    fn lanes_words_and_steps_are_uncorrelated() {
-        // At p = 1/2 the 64 lanes of a word, a word and its neighbour, and a step and
-        // the next must agree about half the time; a shared or shifted stream would not.
+    fn lanes_words_rows_steps_and_events_are_uncorrelated() {
+        // At p = 1/2 a lane and its neighbours in lane, word, row, step and event
+        // must agree about half the time; a shared or shifted stream would not.
         let q = 32768;
-        let n = 20_000i64;
-        let (mut same_lane, mut same_word, mut same_step, mut same_event, mut pairs) = (0u64, 0u64, 0u64, 0u64, 0u64);
+        let n = 4_000i64;
+        let k0 = StepKeys::new(3, 0, 100);
+        let k1 = StepKeys::new(3, 0, 101);
+        let kl = StepKeys::new(3, 1, 100);
+        let mut same = [0u64; 6];
+        let mut pairs = 0u64;
         for w in 0..n {
-            let k0 = event_key(word_key(row_key(step_key(3, 0, 100), 5), w), Draw::Humidity);
-            let k1 = event_key(word_key(row_key(step_key(3, 0, 100), 5), w + 1), Draw::Humidity);
-            let k2 = event_key(word_key(row_key(step_key(3, 0, 101), 5), w), Draw::Humidity);
             for b in 0..64u32 {
-                let f = fires(k0, b, q);
-                same_lane += u64::from(f == fires(k0, (b + 1) % 64, q));
-                same_word += u64::from(f == fires(k1, b, q));
-                same_step += u64::from(f == fires(k2, b, q));
-                same_event += u64::from(f == fires(k0 ^ SALT[0] ^ SALT[2], b, q));
+                let f = fires(&k0, 5, w, Draw::Humidity, b, q);
+                let others = [
+                    fires(&k0, 5, w, Draw::Humidity, (b + 1) % 64, q),
+                    fires(&k0, 5, w + 1, Draw::Humidity, b, q),
+                    fires(&k0, 6, w, Draw::Humidity, b, q),
+                    fires(&k1, 5, w, Draw::Humidity, b, q),
+                    fires(&k0, 5, w, Draw::Extinction, b, q),
+                    fires(&kl, 5, w, Draw::Humidity, b, q),
+                ];
+                for (s, o) in same.iter_mut().zip(others) {
+                    *s += u64::from(f == o);
+                }
                 pairs += 1;
             }
         }
         let sd = (pairs as f64 * 0.25).sqrt();
-        for (name, c) in [
-            ("lane", same_lane),
-            ("word", same_word),
-            ("step", same_step),
-            ("event", same_event),
-        ] {
+        for (name, c) in ["lane", "word", "row", "step", "event", "level"].iter().zip(same) {
             assert!(
                 (c as f64 - pairs as f64 / 2.0).abs() < 5.0 * sd,
                 "{name}: {c} of {pairs}"
             );
+        }
+    }
+
+    #[test]
+    fn counters_are_distinct() {
+        let mut seen = std::collections::HashSet::new();
+        for y in [-(1i64 << 57), -1, 0, 1, 1 << 40] {
+            for wx in [i64::MIN, -1, 0, 1, i64::MAX] {
+                for e in 0..3 {
+                    for g in 0..8 {
+                        assert!(seen.insert(counter(y, wx, e, g)));
+                    }
+                }
+            }
         }
     }
 }

@@ -4,9 +4,9 @@
 
 use proptest::prelude::*;
 
-use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
+use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level, step_level_on};
 use super::naive::{NaiveDrives, NaiveLevel, step};
-use super::random::WordDrive;
+use super::random::{Backend, WordDrive};
 use crate::fields::noise::mix64;
 
 /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext), 64 cells per word.
@@ -128,13 +128,25 @@ proptest! {
         for (i, offsets) in sc.offsets.iter().enumerate() {
             let n = -5 + i as i64 * 1_000_003;
             let ctx = StepContext { rules: sc.rules, stream, n, offsets };
-            let mut next = packed.clone();
-            for k in 0..depth {
-                let lv = &packed[k];
-                let all = Rect { x0: lv.x0, x1: lv.x0 + 64 * lv.wpr as i64, y0: lv.y0, y1: lv.y0 + lv.rows as i64 };
-                step_level(&packed, k, &pdrives[k], &ctx, all, &mut next[k]);
+            // Every backend this CPU has (the default one first) makes the same step.
+            let mut results: Vec<Vec<Level>> = Vec::new();
+            for backend in std::iter::once(Backend::detect()).chain(Backend::available()) {
+                let mut next = packed.clone();
+                for k in 0..depth {
+                    let lv = &packed[k];
+                    let all = Rect { x0: lv.x0, x1: lv.x0 + 64 * lv.wpr as i64, y0: lv.y0, y1: lv.y0 + lv.rows as i64 };
+                    if backend == Backend::detect() {
+                        step_level(&packed, k, &pdrives[k], &ctx, all, &mut next[k]);
+                    } else {
+                        step_level_on(backend, &packed, k, &pdrives[k], &ctx, all, &mut next[k]);
+                    }
+                }
+                results.push(next);
             }
-            packed = next;
+            for r in &results[1..] {
+                prop_assert_eq!(r, &results[0]);
+            }
+            packed = results.swap_remove(0);
             naive = step(&naive, &ndrives, sc.rules, stream, n, offsets);
             for k in 0..depth {
                 let (p, q) = (&packed[k], &naive[k]);

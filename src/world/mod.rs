@@ -14,7 +14,8 @@ use serde::Deserialize;
 /// Bumped whenever any change alters output bytes. Baked into cache keys and ETags.
 /// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
 /// 3: one random key per word, salted per event.
-pub const ALGORITHM_VERSION: u32 = 3;
+/// 4: ARS-5 (AES-round) 16-bit draws, compared in full (no high-byte ties).
+pub const ALGORITHM_VERSION: u32 = 4;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

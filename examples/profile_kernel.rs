@@ -4,6 +4,7 @@
 //!     cargo build --release --example profile_kernel
 //!     valgrind --tool=callgrind --toggle-collect='*step_level*' target/release/examples/profile_kernel kernel
 //!     valgrind --tool=callgrind target/release/examples/profile_kernel tile
+//!     target/release/examples/profile_kernel scene   # best of 30 rounds of the criterion scene
 //!
 //! `STEPS=N` (default 8) sets the kernel run's length, e.g. `STEPS=100` for a
 //! wall-clock or `perf record` run long enough to sample; `SIZE=N` (default 192)
@@ -21,6 +22,20 @@ use cloudscape::world::Config;
 fn main() {
     let world = Config::embedded().world("default").unwrap();
     let what = std::env::args().nth(1).unwrap_or_else(|| "kernel".into());
+    if what == "scene" {
+        // The criterion scene (`cargo bench --bench core -- automaton/packed`):
+        // 512×512×10 cells, 8 steps on all threads; prints the best of 30 rounds.
+        let (sim, levels, drives) = cloudscape::bench::core::scene(512);
+        let mut best = f64::INFINITY;
+        for _ in 0..30 {
+            let start = std::time::Instant::now();
+            cloudscape::bench::core::packed_steps(&sim, &levels, &drives, 8);
+            best = best.min(start.elapsed().as_secs_f64());
+        }
+        let cells = levels.iter().map(|l| l.wpr * 64 * l.rows).sum::<usize>() * 8;
+        eprintln!("scene: {:.3} ms best, {:.3e} cell-steps/s", best * 1e3, cells as f64 / best);
+        return;
+    }
     if what == "tile" {
         let region = Region {
             x0: 768,

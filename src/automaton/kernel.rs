@@ -177,20 +177,106 @@ pub fn step_level_on(
     if window.is_empty() || lv.wpr == 0 {
         return;
     }
+    match drives {
+        Drives::Stochastic(words) => {
+            let keys = StepKeys::new(ctx.stream, k as u32, ctx.n);
+            match backend {
+                #[cfg(target_arch = "x86_64")]
+                Backend::Avx512 => {
+                    assert!(Backend::available().contains(&Backend::Avx512), "AVX-512 draws on a CPU without them");
+                    // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
+                    unsafe { step_avx512(old, k, words, &keys, ctx, window, out) }
+                }
+                _ => step_rows(old, k, ctx, window, out, |y, wx, i, s| {
+                    dobashi(s, &words[i], |d, e| below_portable(&keys, y, wx, e, &d.t[e], d.shift[e]))
+                }),
+            }
+        }
+        Drives::Threshold { hum, act, keep } => step_rows(old, k, ctx, window, out, |_, _, i, [a, h, c, f]| {
+            [(h & !a) | hum[i], (!a & h & f) | act[i], (c | a) & keep[i]]
+        }),
+    }
+}
+
+/// A Dobashi step with the AVX-512 draws, compiled as one function so that the
+/// keys stay in registers across rows.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512bw,vaes")]
+unsafe fn step_avx512(
+    old: &[Level],
+    k: usize,
+    words: &[WordDrive],
+    keys: &StepKeys,
+    ctx: &StepContext,
+    window: Rect,
+    out: &mut Level,
+) {
+    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+
+    use super::random::avx512;
+    // SAFETY (all four calls): the caller checked the CPU's features.
+    let keys = unsafe { avx512::keys(keys) };
+    step_rows(old, k, ctx, window, out, |y, wx, i, s| {
+        // The drives are the one large stream the kernel reads (256 bytes a word):
+        // fetch a few words ahead. A prefetch past the end is harmless.
+        let ahead = words.as_ptr().wrapping_add(i + 6).cast::<i8>();
+        for line in 0..4 {
+            _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
+        }
+        let row = unsafe { avx512::row(y) };
+        dobashi(s, &words[i], |d, e| unsafe { avx512::below(&keys, row, e, wx, &d.t[e], d.shift[e]) })
+    })
+}
+
+/// The Dobashi rules for one word from its state `[act, hum, cld, f_act]`, with
+/// `below(drive, event)` the lanes whose draw is below their threshold. A lane
+/// in `always` fires whatever its draw.
+#[inline(always)]
+fn dobashi(s: [u64; 4], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64) -> [u64; 3] {
+    let [a, h, c, f] = s;
+    let (keep_h, act_det, cld_det) = (h & !a, !a & h & f, c | a);
+    // An event's draws are made only where a live lane could change the result
+    // (hum not kept, act not already set, a cloud to remove). Fields are smooth,
+    // so this branch goes the same way for long runs of words.
+    let fire = |e: usize, care: u64| {
+        let hit = if care & d.live[e] != 0 { below(d, e) } else { 0 };
+        (d.always[e] | hit) & care
+    };
+    [keep_h | fire(0, !keep_h), act_det | fire(1, !act_det), cld_det & !fire(2, cld_det)]
+}
+
+/// Walks the rows and words of `window`, computing each word's f_act (x and y
+/// neighbours in this level, z neighbours through the other levels' frame
+/// shifts) and storing what `word(y, wx, index, [act, hum, cld, f_act])`
+/// returns as the new `[hum, act, cld]`.
+#[inline(always)]
+fn step_rows(
+    old: &[Level],
+    k: usize,
+    ctx: &StepContext,
+    window: Rect,
+    out: &mut Level,
+    mut word: impl FnMut(i64, i64, usize, [u64; 4]) -> [u64; 3],
+) {
+    let lv = &old[k];
     let wpr = lv.wpr;
     let r_lo = (window.y0 - lv.y0).clamp(0, lv.rows as i64) as usize;
     let r_hi = (window.y1 - lv.y0).clamp(0, lv.rows as i64) as usize;
     let w_lo = (window.x0 - lv.x0).div_euclid(64).clamp(0, wpr as i64) as usize;
     let w_hi = ((window.x1 - lv.x0 + 63).div_euclid(64)).clamp(0, wpr as i64) as usize;
-    // z neighbours: (+1, −1, −2) levels, each with the relative shift of its frame.
-    let mut zn: [Option<(&Level, i64, i64)>; 3] = [None, None, None];
+    let wx0 = lv.x0.div_euclid(64);
+    // z neighbours: (+1, −1, −2) levels, each with the relative shift of its
+    // frame, which is the same for every row.
+    let mut zn: [Option<(&Level, i64, Shift)>; 3] = [None, None, None];
     if ctx.rules == Rules::Dobashi {
         for (slot, dz) in [1i64, -1, -2].into_iter().enumerate() {
             let kk = k as i64 + dz;
             if kk >= 0 && (kk as usize) < old.len() {
+                let nl = &old[kk as usize];
                 let (ox, oy) = ctx.offsets[k];
                 let (nx, ny) = ctx.offsets[kk as usize];
-                zn[slot] = Some((&old[kk as usize], ox - nx, oy - ny));
+                let pos = lv.x0 + ox - nx - nl.x0 + 64 * w_lo as i64;
+                zn[slot] = Some((nl, oy - ny, Shift::new(pos, nl.wpr, w_hi - w_lo)));
             }
         }
     }
@@ -204,8 +290,6 @@ pub fn step_level_on(
     };
     // f_act of the words being computed in the current row.
     let mut f_row = vec![0u64; wpr];
-    let keys = StepKeys::new(ctx.stream, k as u32, ctx.n);
-    let draws = StepDraws::new(backend, &keys);
     for r in r_lo..r_hi {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
@@ -234,149 +318,68 @@ pub fn step_level_on(
                 | yp1[w]
                 | yp2[w];
         }
-        // z neighbours: the same frame cells read from the other level's grid, whose
-        // words are offset by a whole-word part `q` and a bit part `sh`.
-        for (nl, rx, ry) in zn.iter().flatten() {
+        // z neighbours: the same frame cells read from the other level's grid.
+        for (nl, ry, shift) in zn.iter().flatten() {
             let rr = y + ry - nl.y0;
-            if rr < 0 || rr >= nl.rows as i64 {
-                continue;
+            if rr >= 0 && rr < nl.rows as i64 {
+                let nrow = &nl.act[rr as usize * nl.wpr..(rr as usize + 1) * nl.wpr];
+                shift.or_into(&mut f_row[w_lo..w_hi], nrow);
             }
-            let nrow = &nl.act[rr as usize * nl.wpr..(rr as usize + 1) * nl.wpr];
-            let pos = lv.x0 + rx - nl.x0;
-            or_shifted(&mut f_row[w_lo..w_hi], nrow, pos + 64 * w_lo as i64);
         }
-        match drives {
-            Drives::Stochastic(words) => {
-                let row = Row {
-                    y,
-                    wx0: lv.x0.div_euclid(64),
-                    act: act_row,
-                    hum: &lv.hum[base..base + wpr],
-                    cld: &lv.cld[base..base + wpr],
-                    f: &f_row,
-                    drives: &words[base..base + wpr],
-                };
-                let out = RowOut {
-                    hum: &mut out.hum[base..base + wpr],
-                    act: &mut out.act[base..base + wpr],
-                    cld: &mut out.cld[base..base + wpr],
-                };
-                draws.row(&row, out, w_lo..w_hi);
-            }
-            Drives::Threshold { hum, act, keep } => {
-                for w in w_lo..w_hi {
-                    let i = base + w;
-                    let (a, h, c, f) = (act_row[w], lv.hum[i], lv.cld[i], f_row[w]);
-                    out.hum[i] = (h & !a) | hum[i];
-                    out.act[i] = (!a & h & f) | act[i];
-                    out.cld[i] = (c | a) & keep[i];
-                }
-            }
+        let (hum, cld) = (&lv.hum[base..base + wpr], &lv.cld[base..base + wpr]);
+        let (o_hum, o_act, o_cld) = (
+            &mut out.hum[base..base + wpr],
+            &mut out.act[base..base + wpr],
+            &mut out.cld[base..base + wpr],
+        );
+        for w in w_lo..w_hi {
+            let [h, a, c] = word(y, wx0 + w as i64, base + w, [act_row[w], hum[w], cld[w], f_row[w]]);
+            (o_hum[w], o_act[w], o_cld[w]) = (h, a, c);
         }
     }
 }
 
-/// One row of a Dobashi step: the inputs, indexed by word.
-struct Row<'a> {
-    y: i64,
-    /// Global word index of word 0.
-    wx0: i64,
-    act: &'a [u64],
-    hum: &'a [u64],
-    cld: &'a [u64],
-    f: &'a [u64],
-    drives: &'a [WordDrive],
+/// Reading a row of another level at a bit offset: `dst[j]` gets the 64 bits of
+/// the source row that start at bit `pos + 64 j` (bits outside it read as 0),
+/// with the word part `q`, the bit part `sh`, and the `inner` range of `j`
+/// whose two source words are both inside the row, worked out once per level.
+struct Shift {
+    q: i64,
+    sh: u32,
+    n: i64,
+    inner: Range<usize>,
 }
 
-struct RowOut<'a> {
-    hum: &'a mut [u64],
-    act: &'a mut [u64],
-    cld: &'a mut [u64],
-}
-
-/// The draws of one step in the form a backend uses.
-enum StepDraws<'a> {
-    #[cfg(target_arch = "x86_64")]
-    Avx512(super::random::avx512::Keys),
-    Portable(&'a StepKeys),
-}
-
-impl<'a> StepDraws<'a> {
-    fn new(backend: Backend, keys: &'a StepKeys) -> StepDraws<'a> {
-        match backend {
-            #[cfg(target_arch = "x86_64")]
-            Backend::Avx512 => {
-                assert!(Backend::available().contains(&Backend::Avx512), "AVX-512 draws on a CPU without them");
-                // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
-                StepDraws::Avx512(unsafe { super::random::avx512::keys(keys) })
-            }
-            _ => StepDraws::Portable(keys),
+impl Shift {
+    fn new(pos: i64, src_len: usize, dst_len: usize) -> Shift {
+        let q = pos.div_euclid(64);
+        let n = src_len as i64;
+        let lo = (-q).clamp(0, dst_len as i64) as usize;
+        let hi = (n - 1 - q).clamp(lo as i64, dst_len as i64) as usize;
+        Shift {
+            q,
+            sh: pos.rem_euclid(64) as u32,
+            n,
+            inner: lo..hi,
         }
     }
 
-    /// Words `ws` of a Dobashi row.
-    fn row(&self, row: &Row, out: RowOut, ws: Range<usize>) {
-        match self {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: made only after the CPU's features were checked (`new`).
-            StepDraws::Avx512(keys) => unsafe { stochastic_row_avx512(keys, row, out, ws) },
-            StepDraws::Portable(keys) => rules_row(row, out, ws, |d, e, wx| {
-                below_portable(keys, row.y, wx, e, &d.t[e], d.shift[e])
-            }),
+    #[inline(always)]
+    fn or_into(&self, dst: &mut [u64], src: &[u64]) {
+        let (q, sh, n) = (self.q, self.sh, self.n);
+        let word = |i: i64| if i >= 0 && i < n { src[i as usize] } else { 0 };
+        let join = |a: u64, b: u64| ((((b as u128) << 64) | a as u128) >> sh) as u64;
+        for (j, d) in dst.iter_mut().enumerate().take(self.inner.start) {
+            let i = q + j as i64;
+            *d |= join(word(i), word(i + 1));
         }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw,vaes")]
-unsafe fn stochastic_row_avx512(keys: &super::random::avx512::Keys, row: &Row, out: RowOut, ws: Range<usize>) {
-    use super::random::avx512;
-    // SAFETY (both calls): the caller checked the CPU's features.
-    let y = unsafe { avx512::row(row.y) };
-    rules_row(row, out, ws, |d, e, wx| unsafe { avx512::below(keys, y, e, wx, &d.t[e], d.shift[e]) })
-}
-
-/// The Dobashi rules over words `ws`, with `below(drive, event, wx)` the lanes
-/// whose draw is below their threshold. A lane in `always` fires whatever its draw.
-#[inline(always)]
-fn rules_row(row: &Row, out: RowOut, ws: Range<usize>, below: impl Fn(&WordDrive, usize, i64) -> u64) {
-    // Slices cut to the range's end, so the indexing below needs no bounds checks.
-    let n = ws.end;
-    let (act, hum, cld, f, drives) = (&row.act[..n], &row.hum[..n], &row.cld[..n], &row.f[..n], &row.drives[..n]);
-    let (out_hum, out_act, out_cld) = (&mut out.hum[..n], &mut out.act[..n], &mut out.cld[..n]);
-    for w in ws {
-        let (a, h, c, d) = (act[w], hum[w], cld[w], &drives[w]);
-        let wx = row.wx0 + w as i64;
-        let fire = |e: usize| d.always[e] | below(d, e, wx);
-        // Where a draw cannot change the result (hum kept, act already set, no
-        // cloud to remove) it is made anyway: no branches.
-        out_hum[w] = (h & !a) | fire(0);
-        out_act[w] = (!a & h & f[w]) | fire(1);
-        out_cld[w] = (c | a) & !fire(2);
-    }
-}
-
-/// ORs into `dst[j]` the 64 bits of `src` that start at bit `pos + 64 j`
-/// (bits outside `src` read as 0).
-fn or_shifted(dst: &mut [u64], src: &[u64], pos: i64) {
-    let q = pos.div_euclid(64);
-    let sh = pos.rem_euclid(64) as u32;
-    let n = src.len() as i64;
-    let word = |i: i64| if i >= 0 && i < n { src[i as usize] } else { 0 };
-    // Words j whose two source words q + j and q + j + 1 are both inside `src`.
-    let inner_lo = (-q).clamp(0, dst.len() as i64) as usize;
-    let inner_hi = (n - 1 - q).clamp(inner_lo as i64, dst.len() as i64) as usize;
-    let join = |a: u64, b: u64| ((((b as u128) << 64) | a as u128) >> sh) as u64;
-    for (j, d) in dst.iter_mut().enumerate().take(inner_lo) {
-        let i = q + j as i64;
-        *d |= join(word(i), word(i + 1));
-    }
-    let off = (q + inner_lo as i64).max(0) as usize;
-    for (j, d) in dst[inner_lo..inner_hi].iter_mut().enumerate() {
-        *d |= join(src[off + j], src[off + j + 1]);
-    }
-    for (j, d) in dst.iter_mut().enumerate().skip(inner_hi) {
-        let i = q + j as i64;
-        *d |= join(word(i), word(i + 1));
+        let off = (q + self.inner.start as i64).max(0) as usize;
+        for (j, d) in dst[self.inner.clone()].iter_mut().enumerate() {
+            *d |= join(src[off + j], src[off + j + 1]);
+        }
+        for (j, d) in dst.iter_mut().enumerate().skip(self.inner.end) {
+            let i = q + j as i64;
+            *d |= join(word(i), word(i + 1));
+        }
     }
 }

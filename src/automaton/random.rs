@@ -119,13 +119,16 @@ pub struct Thresholds {
     pub m: [u8; 64],
 }
 
-/// The drives of one word: the three events' thresholds, and the lanes with
-/// q = 65536 (`always`; their mantissa is 0).
+/// The drives of one word: the three events' thresholds and masks. A lane with
+/// q = 65536 is in `always` (its mantissa is 0); a lane whose mantissa is not 0
+/// is in `live`. A word's draws for an event are made only if a lane that could
+/// change the result is live.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(64))]
 pub struct WordDrive {
     pub t: [Thresholds; 3],
     pub always: [u64; 3],
+    pub live: [u64; 3],
     pub shift: [u8; 3],
 }
 
@@ -135,13 +138,15 @@ impl WordDrive {
         let mut d = WordDrive {
             t: [Thresholds { m: [0; 64] }; 3],
             always: [0; 3],
+            live: [0; 3],
             shift: [0; 3],
         };
         for (e, q) in q.iter().enumerate() {
-            let (m, shift, always) = event_thresholds(q);
+            let (m, shift, always, live) = event_thresholds(q);
             d.t[e].m = m;
             d.shift[e] = shift;
             d.always[e] = always;
+            d.live[e] = live;
         }
         d
     }
@@ -156,9 +161,9 @@ impl WordDrive {
     }
 }
 
-/// One event's (mantissas, shift, always) from 16-bit thresholds.
+/// One event's (mantissas, shift, always, live) from 16-bit thresholds.
 #[inline]
-fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
+fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
@@ -171,28 +176,29 @@ fn event_thresholds(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
 }
 
 /// The plain form of [`event_thresholds`]: one lane at a time.
-pub fn event_thresholds_scalar(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
+pub fn event_thresholds_scalar(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
     let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
     // The largest shift (most low bits kept) whose mantissas still fit in a byte.
     let shift = 16u32.saturating_sub(32 - max.leading_zeros()).min(8);
     let step = 8 - shift;
     let mut m = [0u8; 64];
-    let mut always = 0u64;
+    let (mut always, mut live) = (0u64, 0u64);
     for (b, &v) in q.iter().enumerate() {
         if v >= 65536 {
             always |= 1 << b;
         } else {
             m[b] = ((v + ((1 << step) >> 1)) >> step).min(255) as u8;
+            live |= u64::from(m[b] > 0) << b;
         }
     }
-    (m, shift as u8, always)
+    (m, shift as u8, always, live)
 }
 
 /// [`event_thresholds`] with AVX2, 8 lanes per vector. Drives are built for every
 /// word of every run, so this conversion is on the path of every cold tile.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[target_feature(enable = "avx2")]
-unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
+unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64, u64) {
     use std::arch::x86_64::*;
     let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
     let limit = _mm256_set1_epi32(65535);
@@ -233,7 +239,10 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64]) -> ([u8; 64], u8, u64) {
     for (i, o) in over.iter().enumerate() {
         always |= (_mm256_movemask_ps(_mm256_castsi256_ps(*o)) as u32 as u64) << (8 * i);
     }
-    (m, shift as u8, always)
+    let zero = _mm256_setzero_si256();
+    let z0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b0, zero)) as u32 as u64;
+    let z1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b1, zero)) as u32 as u64;
+    (m, shift as u8, always, !(z0 | (z1 << 32)))
 }
 
 /// An implementation of the per-word draws.

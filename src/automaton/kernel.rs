@@ -368,14 +368,20 @@ impl Shift {
     fn or_into(&self, dst: &mut [u64], src: &[u64]) {
         let (q, sh, n) = (self.q, self.sh, self.n);
         let word = |i: i64| if i >= 0 && i < n { src[i as usize] } else { 0 };
-        let join = |a: u64, b: u64| ((((b as u128) << 64) | a as u128) >> sh) as u64;
+        // The 64 bits from bit `sh` of `a` on into `b`; `(b << 1) << (63 − sh)` is 0
+        // for sh = 0, so no branch is needed.
+        let join = |a: u64, b: u64| (a >> sh) | ((b << 1) << (63 - sh));
         for (j, d) in dst.iter_mut().enumerate().take(self.inner.start) {
             let i = q + j as i64;
             *d |= join(word(i), word(i + 1));
         }
-        let off = (q + self.inner.start as i64).max(0) as usize;
-        for (j, d) in dst[self.inner.clone()].iter_mut().enumerate() {
-            *d |= join(src[off + j], src[off + j + 1]);
+        if !self.inner.is_empty() {
+            let off = (q + self.inner.start as i64) as usize;
+            let inner = &mut dst[self.inner.clone()];
+            let pairs = src[off..off + inner.len() + 1].windows(2);
+            for (d, p) in inner.iter_mut().zip(pairs) {
+                *d |= join(p[0], p[1]);
+            }
         }
         for (j, d) in dst.iter_mut().enumerate().skip(self.inner.end) {
             let i = q + j as i64;

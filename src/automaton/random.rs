@@ -255,29 +255,25 @@ pub enum Backend {
 }
 
 impl Backend {
-    /// The fastest backend this CPU runs (detected once).
+    /// The fastest backend this CPU runs.
     pub fn detect() -> Backend {
-        static BACKEND: OnceLock<Backend> = OnceLock::new();
-        *BACKEND.get_or_init(|| {
-            if Backend::available().contains(&Backend::Avx512) {
-                Backend::Avx512
-            } else {
-                Backend::Portable
-            }
-        })
+        *Backend::available().last().expect("the portable backend is always there")
     }
 
-    /// Every backend this CPU runs.
-    pub fn available() -> Vec<Backend> {
-        let mut out = vec![Backend::Portable];
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx512f")
-            && std::is_x86_feature_detected!("avx512bw")
-            && std::is_x86_feature_detected!("vaes")
-        {
-            out.push(Backend::Avx512);
-        }
-        out
+    /// Every backend this CPU runs, slowest first (detected once).
+    pub fn available() -> &'static [Backend] {
+        static AVAILABLE: OnceLock<Vec<Backend>> = OnceLock::new();
+        AVAILABLE.get_or_init(|| {
+            let mut out = vec![Backend::Portable];
+            #[cfg(target_arch = "x86_64")]
+            if std::is_x86_feature_detected!("avx512f")
+                && std::is_x86_feature_detected!("avx512bw")
+                && std::is_x86_feature_detected!("vaes")
+            {
+                out.push(Backend::Avx512);
+            }
+            out
+        })
     }
 }
 

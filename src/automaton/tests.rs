@@ -130,7 +130,7 @@ proptest! {
             let ctx = StepContext { rules: sc.rules, stream, n, offsets };
             // Every backend this CPU has (the default one first) makes the same step.
             let mut results: Vec<Vec<Level>> = Vec::new();
-            for backend in std::iter::once(Backend::detect()).chain(Backend::available()) {
+            for backend in std::iter::once(Backend::detect()).chain(Backend::available().iter().copied()) {
                 let mut next = packed.clone();
                 for k in 0..depth {
                     let lv = &packed[k];

@@ -26,7 +26,11 @@ fn cpu_ns() -> u64 {
     let mut sum = 0;
     for task in std::fs::read_dir("/proc/self/task").into_iter().flatten().flatten() {
         if let Ok(s) = std::fs::read_to_string(task.path().join("schedstat")) {
-            sum += s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
+            sum += s
+                .split_whitespace()
+                .next()
+                .and_then(|v| v.parse::<u64>().ok())
+                .unwrap_or(0);
         }
     }
     sum
@@ -78,7 +82,11 @@ fn main() {
         };
         let (start, cpu) = (std::time::Instant::now(), cpu_ns());
         black_box(density::density(&world, 0, 0, region, 1234.5).unwrap());
-        eprintln!("tile {:?} ({:.1} ms of CPU)", start.elapsed(), (cpu_ns() - cpu) as f64 * 1e-6);
+        eprintln!(
+            "tile {:?} ({:.1} ms of CPU)",
+            start.elapsed(),
+            (cpu_ns() - cpu) as f64 * 1e-6
+        );
         return;
     }
     let sim = LayerSim::new(&world, 0);

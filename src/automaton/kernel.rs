@@ -183,12 +183,17 @@ pub fn step_level_on(
             match backend {
                 #[cfg(target_arch = "x86_64")]
                 Backend::Avx512 => {
-                    assert!(Backend::available().contains(&Backend::Avx512), "AVX-512 draws on a CPU without them");
+                    assert!(
+                        Backend::available().contains(&Backend::Avx512),
+                        "AVX-512 draws on a CPU without them"
+                    );
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
                     unsafe { step_avx512(old, k, words, &keys, ctx, window, out) }
                 }
                 _ => step_rows(old, k, ctx, window, out, |y, wx, i, s| {
-                    dobashi(s, &words[i], |d, e| below_portable(&keys, y, wx, e, &d.t[e], d.shift[e]))
+                    dobashi(s, &words[i], |d, e| {
+                        below_portable(&keys, y, wx, e, &d.t[e], d.shift[e])
+                    })
                 }),
             }
         }
@@ -224,7 +229,9 @@ unsafe fn step_avx512(
             _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
         }
         let row = unsafe { avx512::row(y) };
-        dobashi(s, &words[i], |d, e| unsafe { avx512::below(&keys, row, e, wx, &d.t[e], d.shift[e]) })
+        dobashi(s, &words[i], |d, e| unsafe {
+            avx512::below(&keys, row, e, wx, &d.t[e], d.shift[e])
+        })
     })
 }
 
@@ -242,7 +249,11 @@ fn dobashi(s: [u64; 4], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64)
         let hit = if care & d.live[e] != 0 { below(d, e) } else { 0 };
         (d.always[e] | hit) & care
     };
-    [keep_h | fire(0, !keep_h), act_det | fire(1, !act_det), cld_det & !fire(2, cld_det)]
+    [
+        keep_h | fire(0, !keep_h),
+        act_det | fire(1, !act_det),
+        cld_det & !fire(2, cld_det),
+    ]
 }
 
 /// Walks the rows and words of `window`, computing each word's f_act (x and y

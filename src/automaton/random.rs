@@ -257,7 +257,9 @@ pub enum Backend {
 impl Backend {
     /// The fastest backend this CPU runs.
     pub fn detect() -> Backend {
-        *Backend::available().last().expect("the portable backend is always there")
+        *Backend::available()
+            .last()
+            .expect("the portable backend is always there")
     }
 
     /// Every backend this CPU runs, slowest first (detected once).
@@ -307,7 +309,6 @@ pub mod avx512 {
     use std::arch::x86_64::*;
 
     use super::{ROUNDS, StepKeys, Thresholds, counter};
-
 
     /// One step's keys in vectors: the rounds' keys, and per event the counters
     /// of its 8 blocks with word 0 and row 0, XOR-ed with the first key.
@@ -473,7 +474,10 @@ mod tests {
             let y = (mix64(s ^ 5) >> 20) as i64 - (1 << 43);
             let wx = (mix64(s ^ 6) >> 4) as i64;
             let d = WordDrive::new([&random_q(&mut s), &random_q(&mut s), &random_q(&mut s)]);
-            for (e, draw_e) in [Draw::Humidity, Draw::Activation, Draw::Extinction].into_iter().enumerate() {
+            for (e, draw_e) in [Draw::Humidity, Draw::Activation, Draw::Extinction]
+                .into_iter()
+                .enumerate()
+            {
                 let want: u64 = (0..64u32)
                     .filter(|&b| d.always[e] >> b & 1 == 0 && fires(&keys, y, wx, draw_e, b, d.q(e, b)))
                     .map(|b| 1u64 << b)
@@ -482,7 +486,8 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 if Backend::available().contains(&Backend::Avx512) {
                     // SAFETY: the CPU has the features (just checked).
-                    let got = unsafe { avx512::below(&avx512::keys(&keys), avx512::row(y), e, wx, &d.t[e], d.shift[e]) };
+                    let got =
+                        unsafe { avx512::below(&avx512::keys(&keys), avx512::row(y), e, wx, &d.t[e], d.shift[e]) };
                     assert_eq!(got, want);
                 }
             }

@@ -67,6 +67,12 @@ impl StepKeys {
         }
         StepKeys { k }
     }
+
+    /// A counter XOR-ed with the first key: the state the rounds start from.
+    #[inline]
+    pub fn whiten(&self, ctr: [u64; 2]) -> [u64; 2] {
+        [ctr[0] ^ self.k[0][0], ctr[1] ^ self.k[0][1]]
+    }
 }
 
 /// The counter of block `g` (lanes 8g..8g+7) of event `e` for word `wx` of frame
@@ -86,7 +92,7 @@ fn block(v: [u64; 2]) -> Block {
 
 /// ARS-5 of one counter, through the portable round function.
 pub fn ars5(keys: &StepKeys, ctr: [u64; 2]) -> [u8; 16] {
-    let mut b = block([ctr[0] ^ keys.k[0][0], ctr[1] ^ keys.k[0][1]]);
+    let mut b = block(keys.whiten(ctr));
     for k in &keys.k[1..] {
         cipher_round(&mut b, &block(*k));
     }
@@ -285,8 +291,7 @@ impl Backend {
 pub fn below_portable(keys: &StepKeys, y: i64, wx: i64, e: usize, t: &Thresholds, shift: u8) -> u64 {
     let mut blocks: aes::Block8 = Default::default();
     for (g, b) in blocks.iter_mut().enumerate() {
-        let c = counter(y, wx, e, g);
-        *b = block([c[0] ^ keys.k[0][0], c[1] ^ keys.k[0][1]]);
+        *b = block(keys.whiten(counter(y, wx, e, g)));
     }
     for k in &keys.k[1..] {
         let k = block(*k);
@@ -322,7 +327,6 @@ pub mod avx512 {
     /// The CPU must have AVX-512 F and BW and VAES ([`super::Backend::Avx512`]).
     #[target_feature(enable = "avx512f,avx512bw,vaes")]
     pub unsafe fn keys(keys: &StepKeys) -> Keys {
-        let k0 = keys.k[0];
         let four = |v: [[u64; 2]; 4]| {
             _mm512_set_epi64(
                 v[3][1] as i64,
@@ -337,12 +341,7 @@ pub mod avx512 {
         };
         let k = std::array::from_fn(|i| four([keys.k[i + 1]; 4]));
         let base = std::array::from_fn(|e| {
-            std::array::from_fn(|h| {
-                four(std::array::from_fn(|g| {
-                    let c = counter(0, 0, e, 4 * h + g);
-                    [c[0] ^ k0[0], c[1] ^ k0[1]]
-                }))
-            })
+            std::array::from_fn(|h| four(std::array::from_fn(|g| keys.whiten(counter(0, 0, e, 4 * h + g)))))
         });
         Keys { k, base }
     }

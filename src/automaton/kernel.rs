@@ -228,10 +228,8 @@ unsafe fn step_avx512(
         for line in 0..4 {
             _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
         }
-        let row = unsafe { avx512::row(y) };
-        dobashi(s, &words[i], |d, e| unsafe {
-            avx512::below(&keys, row, e, wx, &d.t[e], d.shift[e])
-        })
+        let ctr = unsafe { avx512::word(avx512::row(y), wx) };
+        dobashi(s, &words[i], |d, e| unsafe { avx512::below(&keys, ctr, e, &d.t[e], d.shift[e]) })
     })
 }
 

@@ -359,17 +359,26 @@ pub mod avx512 {
         _mm512_set1_epi64(counter(y, 0, 0, 0)[1] as i64)
     }
 
-    /// [`super::below_portable`] for word `wx` of the row made by [`row`].
+    /// The counters of word `wx` in the row made by [`row`]: the word index in the
+    /// low half of every block.
     ///
     /// # Safety
-    /// As [`row_keys`].
+    /// As [`keys`].
     #[target_feature(enable = "avx512f,avx512bw,vaes")]
     #[inline]
-    pub unsafe fn below(keys: &Keys, row: __m512i, e: usize, wx: i64, t: &Thresholds, shift: u8) -> u64 {
-        // The word index goes into the low half of every block.
-        let w = _mm512_mask_set1_epi64(row, 0x55, wx);
-        let mut x0 = _mm512_xor_si512(keys.base[e][0], w);
-        let mut x1 = _mm512_xor_si512(keys.base[e][1], w);
+    pub unsafe fn word(row: __m512i, wx: i64) -> __m512i {
+        _mm512_mask_set1_epi64(row, 0x55, wx)
+    }
+
+    /// [`super::below_portable`] for the word whose counters [`word`] made.
+    ///
+    /// # Safety
+    /// As [`keys`].
+    #[target_feature(enable = "avx512f,avx512bw,vaes")]
+    #[inline]
+    pub unsafe fn below(keys: &Keys, word: __m512i, e: usize, t: &Thresholds, shift: u8) -> u64 {
+        let mut x0 = _mm512_xor_si512(keys.base[e][0], word);
+        let mut x1 = _mm512_xor_si512(keys.base[e][1], word);
         for k in &keys.k {
             x0 = _mm512_aesenc_epi128(x0, *k);
             x1 = _mm512_aesenc_epi128(x1, *k);
@@ -486,7 +495,7 @@ mod tests {
                 if Backend::available().contains(&Backend::Avx512) {
                     // SAFETY: the CPU has the features (just checked).
                     let got =
-                        unsafe { avx512::below(&avx512::keys(&keys), avx512::row(y), e, wx, &d.t[e], d.shift[e]) };
+                        unsafe { avx512::below(&avx512::keys(&keys), avx512::word(avx512::row(y), wx), e, &d.t[e], d.shift[e]) };
                     assert_eq!(got, want);
                 }
             }

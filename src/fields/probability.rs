@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use super::noise::{Coord, Fbm, Octave, mix64, sample_table};
+use super::noise::{Backend, Coord, Fbm, FbmGrid, Octave, mix64, sample_table};
 use crate::world::{FieldSpec, Layer, Mode, World};
 
 /// Which of a layer's three fields.
@@ -132,8 +132,14 @@ impl LayerFields {
         tau: Option<Coord>,
         world_shift: (i64, i64),
     ) -> f32 {
-        let spec = &self.specs[which as usize];
         let n = sample_table(&self.tables[which as usize], octaves, x, y, tau);
+        self.brightness_of(which, n, x, y, world_shift)
+    }
+
+    /// [`LayerFields::brightness`] from the field's fBm value `n` at that position.
+    #[inline]
+    fn brightness_of(&self, which: Which, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
+        let spec = &self.specs[which as usize];
         let mut v = (n + 1.0) * 0.5;
         if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
             let cs = self.layer.cell_size;
@@ -163,14 +169,26 @@ impl LayerFields {
         let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
         let which = [Which::Humidity, Which::Activation, Which::Extinction];
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
+        let backend = Backend::detect();
         for (f, out) in b.iter_mut().enumerate() {
+            // Noise at the grid of cell centres (x, y): the fBm row by row, then
+            // feather and cutoff per sample.
+            let grid_rows = |xs: &[(i64, f64)], y_of: &(dyn Fn(usize) -> i64 + Sync), out: &mut [f32]| {
+                let grid = FbmGrid::new(&self.tables[f], octs[f], xs, backend);
+                out.par_chunks_mut(xs.len().max(1)).enumerate().for_each_init(
+                    || vec![0.0; xs.len()],
+                    |n, (r, row)| {
+                        let y = (y_of(r), 0.5);
+                        grid.row(y, tau, n);
+                        for ((v, &n), &x) in row.iter_mut().zip(n.iter()).zip(xs) {
+                            *v = self.brightness_of(which[f], n, x, y, world_shift);
+                        }
+                    },
+                );
+            };
             if spacing[f] <= 1 {
-                out.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
-                    for (c, v) in row.iter_mut().enumerate() {
-                        let (x, y) = ((x0 + c as i64, 0.5), (y0 + r as i64, 0.5));
-                        *v = self.brightness(which[f], x, y, octs[f], tau, world_shift);
-                    }
-                });
+                let xs: Vec<(i64, f64)> = (0..w).map(|c| (x0 + c as i64, 0.5)).collect();
+                grid_rows(&xs, &|r| y0 + r as i64, out);
                 continue;
             }
             // Coarse lattice points are the centres of cells at multiples of `s`.
@@ -180,13 +198,8 @@ impl LayerFields {
             let gw = ((x0 + w as i64 - 1).div_euclid(s) + 2 - gx0) as usize;
             let gh = ((y0 + h as i64 - 1).div_euclid(s) + 2 - gy0) as usize;
             let mut g = vec![0f32; gw * gh];
-            g.par_chunks_mut(gw).enumerate().for_each(|(gr, row)| {
-                for (gc, v) in row.iter_mut().enumerate() {
-                    let cx = (gx0 + gc as i64) * s;
-                    let cy = (gy0 + gr as i64) * s;
-                    *v = self.brightness(which[f], (cx, 0.5), (cy, 0.5), octs[f], tau, world_shift);
-                }
-            });
+            let xs: Vec<(i64, f64)> = (0..gw).map(|gc| ((gx0 + gc as i64) * s, 0.5)).collect();
+            grid_rows(&xs, &|gr| (gy0 + gr as i64) * s, &mut g);
             let inv = 1.0 / s as f32;
             out.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
                 let y = y0 + r as i64;

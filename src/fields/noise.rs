@@ -838,7 +838,7 @@ mod tests {
         for _ in 0..20_000 {
             let seed = d.next();
             // Mostly nearby lattice points, so that all four corners matter.
-            let x: [Coord; 8] = if d.next() % 2 == 0 {
+            let x: [Coord; 8] = if d.next().is_multiple_of(2) {
                 std::array::from_fn(|_| d.coord())
             } else {
                 let c = d.coord();
@@ -846,7 +846,7 @@ mod tests {
             };
             let (y, z) = (d.coord(), d.coord());
             // Half of the draws in 2D.
-            let z = if d.next() % 2 == 0 { Some(z) } else { None };
+            let z = if d.next().is_multiple_of(2) { Some(z) } else { None };
             // SAFETY: the CPU has AVX-512 F and DQ (checked above).
             let fast = unsafe { avx512::noise_x8(seed, x, y, z) };
             for (l, &x) in x.iter().enumerate() {

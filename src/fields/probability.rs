@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use super::noise::{Coord, Fbm, Octave, mix64, sample_table};
+use super::noise::{Backend, Coord, Fbm, FbmGrid, Octave, mix64, sample_table};
 use crate::world::{FieldSpec, Layer, Mode, World};
 
 /// Which of a layer's three fields.
@@ -132,8 +132,14 @@ impl LayerFields {
         tau: Option<Coord>,
         world_shift: (i64, i64),
     ) -> f32 {
-        let spec = &self.specs[which as usize];
         let n = sample_table(&self.tables[which as usize], octaves, x, y, tau);
+        self.brightness_of(which, n, x, y, world_shift)
+    }
+
+    /// [`LayerFields::brightness`] from the field's fBm value `n` at that position.
+    #[inline]
+    fn brightness_of(&self, which: Which, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
+        let spec = &self.specs[which as usize];
         let mut v = (n + 1.0) * 0.5;
         if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
             let cs = self.layer.cell_size;
@@ -163,14 +169,26 @@ impl LayerFields {
         let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
         let which = [Which::Humidity, Which::Activation, Which::Extinction];
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
+        let backend = Backend::detect();
         for (f, out) in b.iter_mut().enumerate() {
+            // Noise at the grid of cell centres (x, y): the fBm row by row, then
+            // feather and cutoff per sample.
+            let grid_rows = |xs: &[(i64, f64)], y_of: &(dyn Fn(usize) -> i64 + Sync), out: &mut [f32]| {
+                let grid = FbmGrid::new(&self.tables[f], octs[f], xs, backend);
+                out.par_chunks_mut(xs.len().max(1)).enumerate().for_each_init(
+                    || vec![0.0; xs.len()],
+                    |n, (r, row)| {
+                        let y = (y_of(r), 0.5);
+                        grid.row(y, tau, n);
+                        for ((v, &n), &x) in row.iter_mut().zip(n.iter()).zip(xs) {
+                            *v = self.brightness_of(which[f], n, x, y, world_shift);
+                        }
+                    },
+                );
+            };
             if spacing[f] <= 1 {
-                out.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
-                    for (c, v) in row.iter_mut().enumerate() {
-                        let (x, y) = ((x0 + c as i64, 0.5), (y0 + r as i64, 0.5));
-                        *v = self.brightness(which[f], x, y, octs[f], tau, world_shift);
-                    }
-                });
+                let xs: Vec<(i64, f64)> = (0..w).map(|c| (x0 + c as i64, 0.5)).collect();
+                grid_rows(&xs, &|r| y0 + r as i64, out);
                 continue;
             }
             // Coarse lattice points are the centres of cells at multiples of `s`.
@@ -180,25 +198,31 @@ impl LayerFields {
             let gw = ((x0 + w as i64 - 1).div_euclid(s) + 2 - gx0) as usize;
             let gh = ((y0 + h as i64 - 1).div_euclid(s) + 2 - gy0) as usize;
             let mut g = vec![0f32; gw * gh];
-            g.par_chunks_mut(gw).enumerate().for_each(|(gr, row)| {
-                for (gc, v) in row.iter_mut().enumerate() {
-                    let cx = (gx0 + gc as i64) * s;
-                    let cy = (gy0 + gr as i64) * s;
-                    *v = self.brightness(which[f], (cx, 0.5), (cy, 0.5), octs[f], tau, world_shift);
+            let xs: Vec<(i64, f64)> = (0..gw).map(|gc| ((gx0 + gc as i64) * s, 0.5)).collect();
+            grid_rows(&xs, &|gr| (gy0 + gr as i64) * s, &mut g);
+            let inv = 1.0 / s as f32;
+            // Each column's coarse cell and weight are the same on every row, and
+            // each coarse row's interpolation along x serves the `s` rows above it:
+            // both are worked out once (the same arithmetic, so the same bits).
+            let cols: Vec<(usize, f32)> = (0..w as i64)
+                .map(|c| {
+                    let x = x0 + c;
+                    ((x.div_euclid(s) - gx0) as usize, x.rem_euclid(s) as f32 * inv)
+                })
+                .collect();
+            let mut along = vec![0f32; gh * w];
+            along.par_chunks_mut(w.max(1)).enumerate().for_each(|(gr, row)| {
+                let g = &g[gr * gw..(gr + 1) * gw];
+                for (v, &(i, fx)) in row.iter_mut().zip(&cols) {
+                    *v = g[i] + (g[i + 1] - g[i]) * fx;
                 }
             });
-            let inv = 1.0 / s as f32;
             out.par_chunks_mut(w.max(1)).enumerate().for_each(|(r, row)| {
                 let y = y0 + r as i64;
                 let fy = y.rem_euclid(s) as f32 * inv;
-                let row0 = (y.div_euclid(s) - gy0) as usize * gw;
-                let row1 = row0 + gw;
-                for (c, v) in row.iter_mut().enumerate() {
-                    let x = x0 + c as i64;
-                    let fx = x.rem_euclid(s) as f32 * inv;
-                    let i = (x.div_euclid(s) - gx0) as usize;
-                    let top = g[row0 + i] + (g[row0 + i + 1] - g[row0 + i]) * fx;
-                    let bot = g[row1 + i] + (g[row1 + i + 1] - g[row1 + i]) * fx;
+                let top = (y.div_euclid(s) - gy0) as usize * w;
+                let (top, bot) = (&along[top..top + w], &along[top + w..top + 2 * w]);
+                for ((v, &top), &bot) in row.iter_mut().zip(top).zip(bot) {
                     *v = top + (bot - top) * fy;
                 }
             });
@@ -415,6 +439,44 @@ mod tests {
                 max_err < 0.1,
                 "field {which} spacing {s}: interpolation error {max_err}"
             );
+        }
+    }
+
+    #[test]
+    fn window_has_the_bits_of_brightness_per_sample() {
+        let f = fields();
+        let (x0, y0, w, h, shift) = (-37, 101, 45, 23, (5, -3));
+        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        for tau in [None, f.tau(1234.5)] {
+            for spacing in [[1; 3], [2, 4, 16]] {
+                let win = f.window(x0, y0, w, h, spacing, tau, shift);
+                for (i, &s) in spacing.iter().enumerate() {
+                    let octaves = f.octaves(which[i], 1.0);
+                    let at = |x: i64, y: i64| f.brightness(which[i], (x, 0.5), (y, 0.5), octaves, tau, shift);
+                    let s = s as i64;
+                    for r in 0..h {
+                        for c in 0..w {
+                            let (x, y) = (x0 + c as i64, y0 + r as i64);
+                            // The interpolation as written before rows and columns were hoisted.
+                            let want = if s == 1 {
+                                at(x, y)
+                            } else {
+                                let (gx, gy) = (x.div_euclid(s) * s, y.div_euclid(s) * s);
+                                let inv = 1.0 / s as f32;
+                                let (fx, fy) = (x.rem_euclid(s) as f32 * inv, y.rem_euclid(s) as f32 * inv);
+                                let top = at(gx, gy) + (at(gx + s, gy) - at(gx, gy)) * fx;
+                                let bot = at(gx, gy + s) + (at(gx + s, gy + s) - at(gx, gy + s)) * fx;
+                                top + (bot - top) * fy
+                            };
+                            assert_eq!(
+                                win.get(which[i], x, y).to_bits(),
+                                want.to_bits(),
+                                "{tau:?} {spacing:?} {x} {y}"
+                            );
+                        }
+                    }
+                }
+            }
         }
     }
 

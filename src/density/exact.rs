@@ -82,9 +82,11 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
                             // `pick` names run 0 or 1 only.
                             cld_row(&snaps[1].levels[k], y, w.x0, &mut other, &mut row_bytes);
                             let h = &hashes[r * cols..(r + 1) * cols];
-                            // A select, not a conditional store, so the loop vectorizes.
+                            // A byte mask, not `if`: LLVM turns an `if` here into a load
+                            // through a selected pointer, one byte at a time.
                             for ((o, &b), &h) in row.iter_mut().zip(&other).zip(h) {
-                                *o = if u32::from(h) < switched { b } else { *o };
+                                let m = u8::from(u32::from(h) < switched).wrapping_neg();
+                                *o ^= (*o ^ b) & m;
                             }
                         }
                     }

@@ -664,7 +664,7 @@ mod tests {
                             0 => 0,
                             1 => 1,
                             2 => (s & 1) as u8,
-                            _ => u8::from(s % 5 == 0),
+                            _ => u8::from(s.is_multiple_of(5)),
                         }
                     })
                     .collect();

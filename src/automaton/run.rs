@@ -153,6 +153,7 @@ impl LayerSim {
                 let level = f.level_mapping(k as u32);
                 let mut ew = [1.0f32; 64];
                 let mut p = [[0f32; 64]; 3];
+                let mut q = [[0u32; 64]; 3];
                 for r in 0..lv.rows {
                     let y = lv.y0 + r as i64 + sy;
                     let row = (y - hull.y0) as usize * window.w;
@@ -175,7 +176,12 @@ impl LayerSim {
                         level.values(bright, &ew, &mut p);
                         match mode {
                             Mode::Dobashi => {
-                                let q = p.each_ref().map(|p| p.map(quantize));
+                                // Plain loops into a buffer kept across words, so `quantize` runs on 8 lanes at a time.
+                                for (q, p) in q.iter_mut().zip(&p) {
+                                    for (q, &p) in q.iter_mut().zip(p) {
+                                        *q = quantize(p);
+                                    }
+                                }
                                 stoch.push(WordDrive::new(q.each_ref()));
                             }
                             Mode::Rosa => {
@@ -204,6 +210,7 @@ impl LayerSim {
     /// Executes a run and returns its snapshots.
     pub fn run(&self, spec: &RunSpec) -> Vec<Snapshot> {
         let need = self.cone(spec);
+        let end = *spec.snapshots.last().expect("a run has a snapshot");
         let mut levels: Vec<Level> = need[0].iter().map(|r| Level::covering(*r)).collect();
         let drives = self.drives(&levels, spec.reference_step);
         let mut next = levels.clone();
@@ -228,6 +235,11 @@ impl LayerSim {
                 .enumerate()
                 .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
             std::mem::swap(&mut levels, &mut next);
+            if n + 1 == end {
+                // The last step: the grids are not needed after it, so no copy.
+                out.push(Snapshot { step: end, levels });
+                return out;
+            }
             if spec.snapshots.contains(&(n + 1)) {
                 out.push(Snapshot {
                     step: n + 1,

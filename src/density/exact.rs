@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
-use crate::automaton::{LayerSim, Rect, RunSpec, Snapshot, plan_step};
+use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
 use crate::fields::noise::mix64;
 
 /// Runs every run the plans of `steps` need, over the given per-level windows,
@@ -42,78 +42,218 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
         };
         results.insert(id, sim.run(&spec));
     }
-    plans
+    let snaps: Vec<Vec<&Snapshot>> = plans
         .iter()
         .map(|p| {
-            let snaps: Vec<&Snapshot> = p
-                .runs
+            p.runs
                 .iter()
                 .map(|id| results[id].iter().find(|s| s.step == p.step).expect("snapshot planned"))
-                .collect();
-            windows
-                .par_iter()
-                .enumerate()
-                .map(|(k, w)| {
-                    let mut out = Vec::with_capacity(((w.x1 - w.x0) * (w.y1 - w.y0)) as usize);
-                    for y in w.y0..w.y1 {
-                        for x in w.x0..w.x1 {
-                            let run = if snaps.len() > 1 {
-                                p.pick(switch_hash(sim.stream, k, x, y))
-                            } else {
-                                0
-                            };
-                            out.push(snaps[run].levels[k].cld_at(x, y) as u8);
+                .collect()
+        })
+        .collect();
+    // Per level, every step: the switch hashes depend on the cell and not on the
+    // step, so the steps of one level share them.
+    let per_level: Vec<Vec<Vec<u8>>> = windows
+        .par_iter()
+        .enumerate()
+        .map(|(k, w)| {
+            let cols = (w.x1 - w.x0).max(0) as usize;
+            let rows = (w.y1 - w.y0).max(0) as usize;
+            let hashes = if snaps.iter().any(|s| s.len() > 1) {
+                switch_hashes(sim.stream, k, *w)
+            } else {
+                Vec::new()
+            };
+            let mut row_bytes = Vec::new();
+            let mut other = vec![0u8; cols];
+            plans
+                .iter()
+                .zip(&snaps)
+                .map(|(p, snaps)| {
+                    let mut out = vec![0u8; cols * rows];
+                    if cols == 0 {
+                        return out;
+                    }
+                    let switched = switched_below(p);
+                    for (r, row) in out.chunks_exact_mut(cols).enumerate() {
+                        let y = w.y0 + r as i64;
+                        cld_row(&snaps[0].levels[k], y, w.x0, row, &mut row_bytes);
+                        if snaps.len() > 1 {
+                            // `pick` names run 0 or 1 only.
+                            cld_row(&snaps[1].levels[k], y, w.x0, &mut other, &mut row_bytes);
+                            let h = &hashes[r * cols..(r + 1) * cols];
+                            // A byte mask, not `if`: LLVM turns an `if` here into a load
+                            // through a selected pointer, one byte at a time.
+                            for ((o, &b), &h) in row.iter_mut().zip(&other).zip(h) {
+                                let m = u8::from(u32::from(h) < switched).wrapping_neg();
+                                *o ^= (*o ^ b) & m;
+                            }
                         }
                     }
                     out
                 })
                 .collect()
         })
-        .collect()
+        .collect();
+    // Level-major to step-major.
+    let mut by_step: Vec<Vec<Vec<u8>>> = plans.iter().map(|_| Vec::with_capacity(windows.len())).collect();
+    for steps in per_level {
+        for (s, cells) in steps.into_iter().enumerate() {
+            by_step[s].push(cells);
+        }
+    }
+    by_step
 }
 
-/// Tent-smoothed cloud field of one level over a window.
+/// The number of switch hashes (from 0 up) whose cells `p.pick` sends to run 1:
+/// `pick(h)` is 1 exactly when `h` is below it, since the phase `h·fade >> 16`
+/// does not decrease with `h`.
+fn switched_below(p: &StepPlan) -> u32 {
+    let (mut lo, mut hi) = (0u32, 65536u32);
+    while lo < hi {
+        let mid = (lo + hi) / 2;
+        if p.pick(mid) == 1 {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
+/// Each byte's 8 bits spread to the low bits of 8 bytes (little-endian), so a
+/// word of cloud bits becomes 64 bytes of 0/1 with 8 loads.
+const SPREAD: [u64; 256] = {
+    let mut t = [0u64; 256];
+    let mut v = 0;
+    while v < 256 {
+        let mut b = 0;
+        while b < 8 {
+            t[v] |= ((v as u64 >> b) & 1) << (8 * b);
+            b += 1;
+        }
+        v += 1;
+    }
+    t
+};
+
+/// [`Level::cld_at`] for frame cells `x0..x0 + out.len()` of row `y`, as 0/1
+/// bytes; `bytes` is scratch space for the row's words spread to bytes.
+fn cld_row(lv: &Level, y: i64, x0: i64, out: &mut [u8], bytes: &mut Vec<u8>) {
+    let dy = y - lv.y0;
+    if dy < 0 || dy >= lv.rows as i64 {
+        out.fill(0);
+        return;
+    }
+    let words = &lv.cld[dy as usize * lv.wpr..][..lv.wpr];
+    bytes.resize(lv.wpr * 64, 0);
+    for (w, chunk) in words.iter().zip(bytes.chunks_exact_mut(64)) {
+        for (i, lane) in chunk.chunks_exact_mut(8).enumerate() {
+            lane.copy_from_slice(&SPREAD[(w >> (8 * i)) as usize & 255].to_le_bytes());
+        }
+    }
+    // The level's cells are out[lo..hi]; the rest read as empty.
+    let len = out.len() as i64;
+    let lo = (lv.x0 - x0).clamp(0, len) as usize;
+    let hi = (lv.x0 + 64 * lv.wpr as i64 - x0).clamp(0, len) as usize;
+    out[..lo].fill(0);
+    out[hi..].fill(0);
+    if lo < hi {
+        let s = (x0 + lo as i64 - lv.x0) as usize;
+        out[lo..hi].copy_from_slice(&bytes[s..s + (hi - lo)]);
+    }
+}
+
+/// Per cell of a window (row-major), a uniform number in 0..65536 that sets when
+/// the cell switches runs: a hash of (stream, level, x, y), with the row's
+/// `mix64` worked out once per row.
+fn switch_hashes(stream: u64, k: usize, w: Rect) -> Vec<u16> {
+    let base = stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40);
+    let cols = (w.x1 - w.x0).max(0) as usize;
+    let rows = (w.y1 - w.y0).max(0) as usize;
+    let mut out = vec![0u16; cols * rows];
+    if cols == 0 {
+        return out;
+    }
+    for (r, row) in out.chunks_exact_mut(cols).enumerate() {
+        let my = mix64((w.y0 + r as i64) as u64);
+        for (c, h) in row.iter_mut().enumerate() {
+            let x = w.x0 + c as i64;
+            *h = (mix64(base ^ mix64(x as u64 ^ my)) >> 48) as u16;
+        }
+    }
+    out
+}
+
+/// Tent-smoothed cloud field of one level over a window, kept as the integer
+/// tent sums (0..=16; the density is the sum / 16).
 struct Smoothed {
     x0: i64,
     y0: i64,
     w: usize,
-    values: Vec<f32>,
+    sums: Vec<u8>,
 }
 
 impl Smoothed {
+    /// The [1,2,1] ⊗ [1,2,1] sums of 0/1 cloud bits (cells outside the window
+    /// read as 0), as a vertical pass then a horizontal one. Every partial sum is
+    /// a whole number at most 16, so this equals the f32 sum over the 9 taps in
+    /// any order, bit for bit.
     fn new(bits: &[u8], window: Rect) -> Smoothed {
-        let w = (window.x1 - window.x0) as usize;
-        let h = (window.y1 - window.y0) as usize;
-        let at = |c: i64, r: i64| {
-            if c < 0 || r < 0 || c >= w as i64 || r >= h as i64 {
-                0.0
-            } else {
-                bits[r as usize * w + c as usize] as f32
-            }
-        };
-        let mut values = vec![0f32; w * h];
-        for r in 0..h as i64 {
-            for c in 0..w as i64 {
-                let mut s = 0.0;
-                for (dy, wy) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
-                    for (dx, wx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
-                        s += wx * wy * at(c + dx, r + dy);
+        let w = (window.x1 - window.x0).max(0) as usize;
+        let h = (window.y1 - window.y0).max(0) as usize;
+        debug_assert!(bits.iter().all(|&b| b <= 1), "cloud bits are 0 or 1");
+        let mut sums = vec![0u8; w * h];
+        if w > 0 {
+            let mut vert = vec![0u8; w];
+            for (r, out) in sums.chunks_exact_mut(w).enumerate() {
+                let mid = &bits[r * w..(r + 1) * w];
+                for (v, &m) in vert.iter_mut().zip(mid) {
+                    *v = 2 * m;
+                }
+                if r > 0 {
+                    for (v, &u) in vert.iter_mut().zip(&bits[(r - 1) * w..r * w]) {
+                        *v += u;
                     }
                 }
-                values[r as usize * w + c as usize] = s / 16.0;
+                if r + 1 < h {
+                    for (v, &d) in vert.iter_mut().zip(&bits[(r + 1) * w..(r + 2) * w]) {
+                        *v += d;
+                    }
+                }
+                for (o, &v) in out.iter_mut().zip(&vert) {
+                    *o = 2 * v;
+                }
+                for (o, &l) in out[1..].iter_mut().zip(&vert) {
+                    *o += l;
+                }
+                for (o, &r) in out.iter_mut().zip(&vert[1..]) {
+                    *o += r;
+                }
             }
         }
         Smoothed {
             x0: window.x0,
             y0: window.y0,
             w,
-            values,
+            sums,
         }
     }
 
+    /// The tent sums of frame row `y` from frame column `x` on.
     #[inline]
-    fn get(&self, x: i64, y: i64) -> f32 {
-        self.values[(y - self.y0) as usize * self.w + (x - self.x0) as usize]
+    fn row_from(&self, x: i64, y: i64) -> &[u8] {
+        let r = (y - self.y0) as usize * self.w;
+        &self.sums[r + (x - self.x0) as usize..r + self.w]
+    }
+}
+
+/// The smoothed values of frame row `y` interpolated along x: `out[c]` is
+/// `s(fx0 + c)·(1 − wx) + s(fx0 + c + 1)·wx`, with `s` the tent sum / 16.
+fn lerp_row(s: &Smoothed, fx0: i64, y: i64, wx: f32, out: &mut [f32]) {
+    let row = &s.row_from(fx0, y)[..out.len() + 1];
+    for ((o, &a), &b) in out.iter_mut().zip(row).zip(&row[1..]) {
+        *o = (a as f32 / 16.0) * (1.0 - wx) + (b as f32 / 16.0) * wx;
     }
 }
 
@@ -143,6 +283,8 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
     let st = states(sim, &steps, &windows);
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
+    let cols = region.cols;
+    let f = f as f32;
     grid.data.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
         let smoothed: Vec<Smoothed> = st.iter().map(|levels| Smoothed::new(&levels[k], windows[k])).collect();
         let (cx, cy) = disp[k];
@@ -150,23 +292,37 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
         let (ox, wx) = if cx.frac > 0.0 { (1, 1.0 - cx.frac) } else { (0, 0.0) };
         let (oy, wy) = if cy.frac > 0.0 { (1, 1.0 - cy.frac) } else { (0, 0.0) };
         let (wx, wy) = (wx as f32, wy as f32);
-        for r in 0..region.rows {
-            let fy = region.y0 + r as i64 - cy.int - oy;
-            for c in 0..region.cols {
-                let fx = region.x0 + c as i64 - cx.int - ox;
-                let sample = |s: &Smoothed| {
-                    let top = s.get(fx, fy) * (1.0 - wx) + s.get(fx + 1, fy) * wx;
-                    let bot = s.get(fx, fy + 1) * (1.0 - wx) + s.get(fx + 1, fy + 1) * wx;
-                    top * (1.0 - wy) + bot * wy
-                };
-                let d0 = sample(&smoothed[0]);
-                let v = if smoothed.len() > 1 {
-                    d0 + (sample(&smoothed[1]) - d0) * f as f32
-                } else {
-                    d0
-                };
-                out[r * region.cols + c] = v.clamp(0.0, 1.0);
+        let fx0 = region.x0 - cx.int - ox;
+        let fy0 = region.y0 - cy.int - oy;
+        // Frame rows fy and fy + 1 of each step, interpolated along x; output row
+        // r + 1 reuses row r's lower row as its upper one.
+        let mut top: Vec<Vec<f32>> = smoothed
+            .iter()
+            .map(|s| {
+                let mut row = vec![0f32; cols];
+                lerp_row(s, fx0, fy0, wx, &mut row);
+                row
+            })
+            .collect();
+        let mut bot = top.clone();
+        for (r, out) in out.chunks_exact_mut(cols).enumerate() {
+            let fy = fy0 + r as i64;
+            for (s, row) in smoothed.iter().zip(bot.iter_mut()) {
+                lerp_row(s, fx0, fy + 1, wx, row);
             }
+            let lerp_y = |t: f32, b: f32| t * (1.0 - wy) + b * wy;
+            if smoothed.len() > 1 {
+                let (t0, b0, t1, b1) = (&top[0][..cols], &bot[0][..cols], &top[1][..cols], &bot[1][..cols]);
+                for ((((o, &t0), &b0), &t1), &b1) in out.iter_mut().zip(t0).zip(b0).zip(t1).zip(b1) {
+                    let d0 = lerp_y(t0, b0);
+                    *o = (d0 + (lerp_y(t1, b1) - d0) * f).clamp(0.0, 1.0);
+                }
+            } else {
+                for ((o, &t0), &b0) in out.iter_mut().zip(&top[0][..cols]).zip(&bot[0][..cols]) {
+                    *o = lerp_y(t0, b0).clamp(0.0, 1.0);
+                }
+            }
+            std::mem::swap(&mut top, &mut bot);
         }
     });
     grid
@@ -200,8 +356,332 @@ pub fn frame_cells(sim: &LayerSim, n: i64, windows: &[Rect]) -> Vec<Vec<u8>> {
     states(sim, &[n], windows).remove(0)
 }
 
-/// A per-cell uniform number in 0..65536 that sets when the cell switches runs.
-fn switch_hash(stream: u64, k: usize, x: i64, y: i64) -> u32 {
-    let h = mix64(stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40) ^ mix64(x as u64 ^ mix64(y as u64)));
-    (h >> 48) as u32
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::Config;
+
+    /// The per-cell switch hash the blend was first written with; `switch_hashes`
+    /// must equal it.
+    fn switch_hash(stream: u64, k: usize, x: i64, y: i64) -> u32 {
+        let h = mix64(stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40) ^ mix64(x as u64 ^ mix64(y as u64)));
+        (h >> 48) as u32
+    }
+
+    /// The plain form of `states`: one cell at a time.
+    fn states_reference(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
+        let layer = &sim.fields.layer;
+        let plans: Vec<_> = steps.iter().map(|&m| plan_step(layer, m)).collect();
+        let mut runs: BTreeMap<RunId, Vec<i64>> = BTreeMap::new();
+        for p in &plans {
+            for r in &p.runs {
+                let v = runs.entry(*r).or_default();
+                if !v.contains(&p.step) {
+                    v.push(p.step);
+                }
+            }
+        }
+        let mut results: BTreeMap<RunId, Vec<Snapshot>> = BTreeMap::new();
+        for (id, mut snaps) in runs {
+            snaps.sort_unstable();
+            let spec = RunSpec {
+                reference_step: id.reference,
+                start: id.start,
+                snapshots: snaps,
+                windows: windows.to_vec(),
+            };
+            results.insert(id, sim.run(&spec));
+        }
+        plans
+            .iter()
+            .map(|p| {
+                let snaps: Vec<&Snapshot> = p
+                    .runs
+                    .iter()
+                    .map(|id| results[id].iter().find(|s| s.step == p.step).expect("snapshot planned"))
+                    .collect();
+                windows
+                    .iter()
+                    .enumerate()
+                    .map(|(k, w)| {
+                        let mut out = Vec::new();
+                        for y in w.y0..w.y1 {
+                            for x in w.x0..w.x1 {
+                                let run = if snaps.len() > 1 {
+                                    p.pick(switch_hash(sim.stream, k, x, y))
+                                } else {
+                                    0
+                                };
+                                out.push(snaps[run].levels[k].cld_at(x, y) as u8);
+                            }
+                        }
+                        out
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The plain tent: nine bounds-checked taps per cell, summed in f32.
+    struct SmoothedReference {
+        x0: i64,
+        y0: i64,
+        w: usize,
+        values: Vec<f32>,
+    }
+
+    impl SmoothedReference {
+        fn new(bits: &[u8], window: Rect) -> SmoothedReference {
+            let w = (window.x1 - window.x0) as usize;
+            let h = (window.y1 - window.y0) as usize;
+            let at = |c: i64, r: i64| {
+                if c < 0 || r < 0 || c >= w as i64 || r >= h as i64 {
+                    0.0
+                } else {
+                    bits[r as usize * w + c as usize] as f32
+                }
+            };
+            let mut values = vec![0f32; w * h];
+            for r in 0..h as i64 {
+                for c in 0..w as i64 {
+                    let mut s = 0.0;
+                    for (dy, wy) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                        for (dx, wx) in [(-1, 1.0), (0, 2.0), (1, 1.0)] {
+                            s += wx * wy * at(c + dx, r + dy);
+                        }
+                    }
+                    values[r as usize * w + c as usize] = s / 16.0;
+                }
+            }
+            SmoothedReference {
+                x0: window.x0,
+                y0: window.y0,
+                w,
+                values,
+            }
+        }
+
+        fn get(&self, x: i64, y: i64) -> f32 {
+            self.values[(y - self.y0) as usize * self.w + (x - self.x0) as usize]
+        }
+    }
+
+    /// The plain form of `density`: per-cell states, the nine-tap tent and four
+    /// bounds-checked reads per sample.
+    fn density_reference(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
+        let layer = &sim.fields.layer;
+        let depth = sim.depth();
+        let (n, f) = split_time(t, layer.dt);
+        let steps: Vec<i64> = if f > 0.0 { vec![n, n + 1] } else { vec![n] };
+        let disp: Vec<_> = (0..depth as u32).map(|k| sim.frames.displacement(k, n, f)).collect();
+        let windows: Vec<Rect> = disp
+            .iter()
+            .map(|(cx, cy)| Rect {
+                x0: region.x0 - cx.int - 2,
+                x1: region.x0 + region.cols as i64 - cx.int + 2,
+                y0: region.y0 - cy.int - 2,
+                y1: region.y0 + region.rows as i64 - cy.int + 2,
+            })
+            .collect();
+        let st = states_reference(sim, &steps, &windows);
+        let mut grid = Grid::new(depth, region.rows, region.cols);
+        let plane = region.rows * region.cols;
+        for (k, out) in grid.data.chunks_mut(plane).enumerate() {
+            let smoothed: Vec<SmoothedReference> = st
+                .iter()
+                .map(|levels| SmoothedReference::new(&levels[k], windows[k]))
+                .collect();
+            let (cx, cy) = disp[k];
+            let (ox, wx) = if cx.frac > 0.0 { (1, 1.0 - cx.frac) } else { (0, 0.0) };
+            let (oy, wy) = if cy.frac > 0.0 { (1, 1.0 - cy.frac) } else { (0, 0.0) };
+            let (wx, wy) = (wx as f32, wy as f32);
+            for r in 0..region.rows {
+                let fy = region.y0 + r as i64 - cy.int - oy;
+                for c in 0..region.cols {
+                    let fx = region.x0 + c as i64 - cx.int - ox;
+                    let sample = |s: &SmoothedReference| {
+                        let top = s.get(fx, fy) * (1.0 - wx) + s.get(fx + 1, fy) * wx;
+                        let bot = s.get(fx, fy + 1) * (1.0 - wx) + s.get(fx + 1, fy + 1) * wx;
+                        top * (1.0 - wy) + bot * wy
+                    };
+                    let d0 = sample(&smoothed[0]);
+                    let v = if smoothed.len() > 1 {
+                        d0 + (sample(&smoothed[1]) - d0) * f as f32
+                    } else {
+                        d0
+                    };
+                    out[r * region.cols + c] = v.clamp(0.0, 1.0);
+                }
+            }
+        }
+        grid
+    }
+
+    fn bits(grid: &Grid<f32>) -> Vec<u32> {
+        grid.data.iter().map(|v| v.to_bits()).collect()
+    }
+
+    #[test]
+    fn density_and_cells_equal_their_plain_forms_through_run_switches() {
+        let world = Config::embedded().world("default").unwrap();
+        let sim = LayerSim::new(&world, 0);
+        let layer = &sim.fields.layer;
+        // Steps of the first epoch switch after a step with one run, so both kinds are covered.
+        let two = (1..10_000)
+            .find(|&m| plan_step(layer, m).runs.len() > 1 && plan_step(layer, m - 1).runs.len() == 1)
+            .expect("a step blending two runs");
+        let dt = layer.dt;
+        let regions = [
+            Region {
+                x0: -37,
+                y0: 5,
+                cols: 41,
+                rows: 23,
+            },
+            Region {
+                x0: 100_003,
+                y0: -7_777,
+                cols: 1,
+                rows: 3,
+            },
+        ];
+        for region in regions {
+            for t in [
+                two as f64 * dt,
+                (two as f64 - 0.5) * dt,
+                (two as f64 + 0.37) * dt,
+                (two as f64 + 1.0) * dt,
+                1234.5,
+            ] {
+                assert_eq!(
+                    bits(&density(&sim, region, t)),
+                    bits(&density_reference(&sim, region, t)),
+                    "{region:?} t={t}"
+                );
+            }
+            let (n, _) = split_time(two as f64 * dt, dt);
+            let windows: Vec<Rect> = (0..sim.depth() as i64)
+                .map(|k| Rect {
+                    x0: region.x0 - 3 * k,
+                    x1: region.x0 + region.cols as i64 + k,
+                    y0: region.y0 + k,
+                    y1: region.y0 + region.rows as i64 + 2 * k,
+                })
+                .collect();
+            assert_eq!(
+                states(&sim, &[n, n + 1], &windows),
+                states_reference(&sim, &[n, n + 1], &windows)
+            );
+        }
+    }
+
+    #[test]
+    fn switch_hashes_equal_the_per_cell_hash() {
+        let mut s = 9u64;
+        for _ in 0..50 {
+            s = mix64(s);
+            let x0 = (s % 2_000_000) as i64 - 1_000_000;
+            let y0 = (mix64(s) % 2_000_000) as i64 - 1_000_000;
+            let w = Rect {
+                x0,
+                x1: x0 + (s >> 40) as i64 % 70,
+                y0,
+                y1: y0 + (s >> 50) as i64 % 9,
+            };
+            let k = (s >> 20) as usize % 12;
+            let got = switch_hashes(s, k, w);
+            let want: Vec<u16> = (w.y0..w.y1)
+                .flat_map(|y| (w.x0..w.x1).map(move |x| switch_hash(s, k, x, y) as u16))
+                .collect();
+            assert_eq!(got, want);
+        }
+    }
+
+    #[test]
+    fn switched_below_splits_the_hashes_as_pick_does() {
+        let run = RunId { reference: 0, start: 0 };
+        for fade in [0u32, 1, 2, 3, 7, 64, 1000, 65535, 65536, u32::MAX] {
+            for phase in [-5i64, -1, 0, 1, 2, 6, 63, 999, 65535, 1 << 40] {
+                for runs in [vec![run], vec![run, run]] {
+                    let p = StepPlan {
+                        step: 0,
+                        runs,
+                        phase,
+                        fade,
+                    };
+                    let n1 = switched_below(&p);
+                    for h in 0..65536u32 {
+                        assert_eq!(p.pick(h), usize::from(h < n1), "fade {fade} phase {phase} h {h}");
+                    }
+                }
+            }
+        }
+    }
+
+    fn random_level(s: &mut u64) -> Level {
+        *s = mix64(*s);
+        let mut lv = Level::covering(Rect {
+            x0: (*s % 400) as i64 - 200,
+            x1: (*s % 400) as i64 - 200 + (*s >> 32) as i64 % 200,
+            y0: (*s >> 16) as i64 % 9 - 4,
+            y1: (*s >> 16) as i64 % 9 - 4 + (*s >> 24) as i64 % 7,
+        });
+        for w in lv.cld.iter_mut() {
+            *s = mix64(*s);
+            *w = *s;
+        }
+        lv
+    }
+
+    #[test]
+    fn cld_row_equals_cld_at_inside_and_outside_the_level() {
+        let mut s = 4u64;
+        let mut scratch = Vec::new();
+        for _ in 0..300 {
+            let lv = random_level(&mut s);
+            s = mix64(s);
+            let x0 = lv.x0 + (s % 300) as i64 - 150;
+            let y = lv.y0 + (s >> 20) as i64 % 12 - 3;
+            let mut out = vec![7u8; (s >> 40) as usize % 400];
+            cld_row(&lv, y, x0, &mut out, &mut scratch);
+            let want: Vec<u8> = (0..out.len() as i64).map(|i| lv.cld_at(x0 + i, y) as u8).collect();
+            assert_eq!(out, want, "{lv:?} x0 {x0} y {y}");
+        }
+    }
+
+    #[test]
+    fn tent_sums_equal_the_nine_tap_f32_tent() {
+        let mut s = 17u64;
+        let mut sizes: Vec<(i64, i64)> = (0..5).flat_map(|w| (0..5).map(move |h| (w, h))).collect();
+        sizes.extend([(67, 13), (260, 3), (1, 40)]);
+        for (w, h) in sizes {
+            for density in [0u64, 1, 2, 3] {
+                let cells: Vec<u8> = (0..w * h)
+                    .map(|_| {
+                        s = mix64(s);
+                        // All clear, all cloud, and two mixes.
+                        match density {
+                            0 => 0,
+                            1 => 1,
+                            2 => (s & 1) as u8,
+                            _ => u8::from(s.is_multiple_of(5)),
+                        }
+                    })
+                    .collect();
+                let window = Rect {
+                    x0: -3 * w,
+                    x1: -2 * w,
+                    y0: 11,
+                    y1: 11 + h,
+                };
+                let (got, want) = (Smoothed::new(&cells, window), SmoothedReference::new(&cells, window));
+                for y in window.y0..window.y1 {
+                    for x in window.x0..window.x1 {
+                        let g = got.row_from(x, y)[0] as f32 / 16.0;
+                        assert_eq!(g.to_bits(), want.get(x, y).to_bits(), "{w}×{h} at {x},{y}");
+                    }
+                }
+            }
+        }
+    }
 }

@@ -344,19 +344,31 @@ impl LevelMapping {
         let n = self.narrowing;
         let shape = |v: f32| ((v - n) / (1.0 - n)).clamp(0.0, 1.0);
         let map = |r: [f32; 2], v: f32| (r[0] + r[1] * v).clamp(0.0, 1.0);
-        for l in 0..64 {
-            let hum_v = shape(b[0][l]) * ellipsoid[l];
-            let act_v = shape(b[1][l]) * ellipsoid[l];
-            match self.mode {
-                Mode::Dobashi => {
-                    out[0][l] = map(self.ranges[0], hum_v);
-                    out[1][l] = map(self.ranges[1], act_v);
-                    out[2][l] = map(self.ranges[2], b[2][l]);
+        // One plain loop per output (the mode decided once), so each compiles to
+        // vector instructions; every lane does the arithmetic of `level_values`.
+        let [hum, act, ext] = out;
+        for ((o, &v), &e) in hum.iter_mut().zip(b[0]).zip(ellipsoid) {
+            *o = shape(v) * e;
+        }
+        for ((o, &v), &e) in act.iter_mut().zip(b[1]).zip(ellipsoid) {
+            *o = shape(v) * e;
+        }
+        match self.mode {
+            Mode::Dobashi => {
+                for o in hum.iter_mut() {
+                    *o = map(self.ranges[0], *o);
                 }
-                Mode::Rosa => {
-                    out[0][l] = hum_v;
-                    out[1][l] = act_v;
-                    out[2][l] = (hum_v + act_v) * 0.5;
+                for o in act.iter_mut() {
+                    *o = map(self.ranges[1], *o);
+                }
+                for (o, &v) in ext.iter_mut().zip(b[2]) {
+                    *o = map(self.ranges[2], v);
+                }
+            }
+            // Rosa eq. 3.5, as in `level_values`.
+            Mode::Rosa => {
+                for ((o, &h), &a) in ext.iter_mut().zip(hum.iter()).zip(act.iter()) {
+                    *o = (h + a) * 0.5;
                 }
             }
         }
@@ -383,6 +395,50 @@ mod tests {
     fn fields() -> LayerFields {
         let w = Config::embedded().world("default").unwrap();
         LayerFields::new(&w, 0)
+    }
+
+    #[test]
+    fn level_mapping_equals_level_values_in_every_lane() {
+        let mut s = 21u64;
+        let mut next = || {
+            s = mix64(s);
+            s
+        };
+        for mode in [Mode::Dobashi, Mode::Rosa] {
+            let mut f = fields();
+            f.layer.preset.mode = mode;
+            for k in 0..f.layer.depth {
+                let mapping = f.level_mapping(k);
+                for _ in 0..50 {
+                    // Brightness in [0, 1] with its ends, a little outside, and NaN.
+                    let mut lane = || match next() % 8 {
+                        0 => 0.0,
+                        1 => 1.0,
+                        2 => -0.25,
+                        3 => 1.5,
+                        4 => f32::NAN,
+                        _ => (next() >> 40) as f32 / (1u64 << 24) as f32,
+                    };
+                    let b: [[f32; 64]; 3] = std::array::from_fn(|_| std::array::from_fn(|_| lane()));
+                    let e: [f32; 64] = std::array::from_fn(|_| match next() % 3 {
+                        0 => 1.0,
+                        1 => 0.0,
+                        _ => (next() >> 40) as f32 / (1u64 << 24) as f32,
+                    });
+                    let mut out = [[0f32; 64]; 3];
+                    mapping.values(b.each_ref(), &e, &mut out);
+                    for l in 0..64 {
+                        let want = f.level_values(k, [b[0][l], b[1][l], b[2][l]], e[l]);
+                        let got = [out[0][l], out[1][l], out[2][l]];
+                        assert_eq!(
+                            got.map(f32::to_bits),
+                            [want.hum, want.act, want.ext].map(f32::to_bits),
+                            "{mode:?} level {k} lane {l}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -89,7 +89,11 @@ fn main() {
             best = best.min(start.elapsed().as_secs_f64());
             best_cpu = best_cpu.min((cpu_ns() - cpu) as f64 * 1e-9);
         }
-        eprintln!("tile: {:.1} ms best ({:.1} ms of CPU best) of {tiles}", best * 1e3, best_cpu * 1e3);
+        eprintln!(
+            "tile: {:.1} ms best ({:.1} ms of CPU best) of {tiles}",
+            best * 1e3,
+            best_cpu * 1e3
+        );
         return;
     }
     let sim = LayerSim::new(&world, 0);

@@ -229,7 +229,9 @@ unsafe fn step_avx512(
             _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
         }
         let ctr = unsafe { avx512::word(avx512::row(y), wx) };
-        dobashi(s, &words[i], |d, e| unsafe { avx512::below(&keys, ctr, e, &d.t[e], d.shift[e]) })
+        dobashi(s, &words[i], |d, e| unsafe {
+            avx512::below(&keys, ctr, e, &d.t[e], d.shift[e])
+        })
     })
 }
 

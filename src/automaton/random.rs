@@ -494,8 +494,15 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 if Backend::available().contains(&Backend::Avx512) {
                     // SAFETY: the CPU has the features (just checked).
-                    let got =
-                        unsafe { avx512::below(&avx512::keys(&keys), avx512::word(avx512::row(y), wx), e, &d.t[e], d.shift[e]) };
+                    let got = unsafe {
+                        avx512::below(
+                            &avx512::keys(&keys),
+                            avx512::word(avx512::row(y), wx),
+                            e,
+                            &d.t[e],
+                            d.shift[e],
+                        )
+                    };
                     assert_eq!(got, want);
                 }
             }

@@ -109,7 +109,9 @@ fn hash3(seed: u64, i: i64, j: i64, k: i64) -> u64 {
 // 2D gradients: 16 unit vectors evenly spaced on the circle.
 const GRAD2: [[f64; 2]; 16] = {
     let mut g = [[0.0; 2]; 16];
-    // cos/sin of k * 22.5°, written out so the table is exact and const.
+    // cos/sin of k * 22.5°, written out so the table is exact and const (the
+    // std constants such as FRAC_1_SQRT_2 are the same f64 values).
+    #[allow(clippy::approx_constant)]
     let c = [
         1.0,
         0.923_879_532_511_286_7,

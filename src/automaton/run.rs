@@ -209,6 +209,7 @@ impl LayerSim {
 
     /// Executes a run and returns its snapshots.
     pub fn run(&self, spec: &RunSpec) -> Vec<Snapshot> {
+        debug_assert!(spec.snapshots.is_sorted(), "snapshots ascending");
         let need = self.cone(spec);
         let end = *spec.snapshots.last().expect("a run has a snapshot");
         let mut levels: Vec<Level> = need[0].iter().map(|r| Level::covering(*r)).collect();

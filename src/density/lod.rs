@@ -143,34 +143,30 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
     // Brightness of each run's fields at every column centre (level 0's frame).
-    let brightness: Vec<Vec<[f32; 3]>> = plan
+    let which = [Which::Humidity, Which::Activation, Which::Extinction];
+    let brightness: Vec<[Vec<f32>; 3]> = plan
         .runs
         .iter()
         .map(|run| {
             let r_off = sim.frames.reference_offset(run.reference);
             let o0 = sim.frames.offset(0, run.reference);
             let tau = f.tau(run.reference as f64 * layer.dt);
-            let mut out = vec![[0f32; 3]; plane];
-            out.par_chunks_mut(region.cols).enumerate().for_each(|(r, row)| {
-                for (c, b) in row.iter_mut().enumerate() {
-                    // Column centre in level-0 cells, moved into the reference frame.
-                    let wx = Coord::new(
-                        (region.x0 + c as i64) * span - dx.int + o0.0 - r_off.0,
-                        span as f64 * 0.5 - dx.frac,
-                    );
-                    let wy = Coord::new(
-                        (region.y0 + r as i64) * span - dy.int + o0.1 - r_off.1,
-                        span as f64 * 0.5 - dy.frac,
-                    );
-                    for (i, which) in [Which::Humidity, Which::Activation, Which::Extinction]
-                        .into_iter()
-                        .enumerate()
-                    {
-                        b[i] = f.brightness(which, (wx.int, wx.frac), (wy.int, wy.frac), octaves[i], tau, r_off);
-                    }
-                }
-            });
-            out
+            // Column centres in level-0 cells, moved into the reference frame.
+            let centre = |i: i64, d: &Coord, o: i64, r: i64| {
+                let c = Coord::new(i * span - d.int + o - r, span as f64 * 0.5 - d.frac);
+                (c.int, c.frac)
+            };
+            let xs: Vec<(i64, f64)> = (0..region.cols as i64)
+                .map(|c| centre(region.x0 + c, &dx, o0.0, r_off.0))
+                .collect();
+            let ys: Vec<(i64, f64)> = (0..region.rows as i64)
+                .map(|r| centre(region.y0 + r, &dy, o0.1, r_off.1))
+                .collect();
+            std::array::from_fn(|i| {
+                let mut out = vec![0f32; plane];
+                f.brightness_grid(which[i], octaves[i], &xs, &ys, tau, r_off, &mut out);
+                out
+            })
         })
         .collect();
     let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
@@ -182,7 +178,7 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
             let ew = f.ellipsoid_weight(xm, ym, k as u32);
             let mut d = 0.0;
             for (b, w) in brightness.iter().zip(&weights) {
-                let p = f.level_values(k as u32, b[i], ew);
+                let p = f.level_values(k as u32, [b[0][i], b[1][i], b[2][i]], ew);
                 let e = match layer.preset.mode {
                     Mode::Dobashi => calibrate(expected_cloud(p.hum, p.act.max(SPREAD_ACT), p.ext)),
                     // Rosa: cloud where the textures pass their thresholds (eq. 3.6–3.8).

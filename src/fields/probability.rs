@@ -152,6 +152,34 @@ impl LayerFields {
         ((v - lo) / (hi - lo)).clamp(0.0, 1.0) as f32
     }
 
+    /// [`LayerFields::brightness`] at every (x, y) of a grid whose columns are at
+    /// `xs` and rows at `ys` (row-major into `out`): the fBm row by row with each
+    /// column's lattice x worked out once ([`FbmGrid`]), the same bits as one
+    /// sample at a time.
+    #[allow(clippy::too_many_arguments)]
+    pub fn brightness_grid(
+        &self,
+        which: Which,
+        octaves: u32,
+        xs: &[(i64, f64)],
+        ys: &[(i64, f64)],
+        tau: Option<Coord>,
+        world_shift: (i64, i64),
+        out: &mut [f32],
+    ) {
+        assert_eq!(out.len(), xs.len() * ys.len(), "one output per grid point");
+        let grid = FbmGrid::new(&self.tables[which as usize], octaves, xs, Backend::detect());
+        out.par_chunks_mut(xs.len().max(1)).zip(ys).for_each_init(
+            || vec![0.0; xs.len()],
+            |n, (row, &y)| {
+                grid.row(y, tau, n);
+                for ((v, &n), &x) in row.iter_mut().zip(n.iter()).zip(xs) {
+                    *v = self.brightness_of(which, n, x, y, world_shift);
+                }
+            },
+        );
+    }
+
     /// Evaluates the three brightness fields over a window of wind-frame cells,
     /// at cell centres. `spacing` > 1 evaluates noise on a coarser lattice aligned
     /// to multiples of `spacing` in frame coordinates and interpolates bilinearly
@@ -169,26 +197,11 @@ impl LayerFields {
         let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
         let which = [Which::Humidity, Which::Activation, Which::Extinction];
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
-        let backend = Backend::detect();
         for (f, out) in b.iter_mut().enumerate() {
-            // Noise at the grid of cell centres (x, y): the fBm row by row, then
-            // feather and cutoff per sample.
-            let grid_rows = |xs: &[(i64, f64)], y_of: &(dyn Fn(usize) -> i64 + Sync), out: &mut [f32]| {
-                let grid = FbmGrid::new(&self.tables[f], octs[f], xs, backend);
-                out.par_chunks_mut(xs.len().max(1)).enumerate().for_each_init(
-                    || vec![0.0; xs.len()],
-                    |n, (r, row)| {
-                        let y = (y_of(r), 0.5);
-                        grid.row(y, tau, n);
-                        for ((v, &n), &x) in row.iter_mut().zip(n.iter()).zip(xs) {
-                            *v = self.brightness_of(which[f], n, x, y, world_shift);
-                        }
-                    },
-                );
-            };
             if spacing[f] <= 1 {
                 let xs: Vec<(i64, f64)> = (0..w).map(|c| (x0 + c as i64, 0.5)).collect();
-                grid_rows(&xs, &|r| y0 + r as i64, out);
+                let ys: Vec<(i64, f64)> = (0..h).map(|r| (y0 + r as i64, 0.5)).collect();
+                self.brightness_grid(which[f], octs[f], &xs, &ys, tau, world_shift, out);
                 continue;
             }
             // Coarse lattice points are the centres of cells at multiples of `s`.
@@ -199,7 +212,8 @@ impl LayerFields {
             let gh = ((y0 + h as i64 - 1).div_euclid(s) + 2 - gy0) as usize;
             let mut g = vec![0f32; gw * gh];
             let xs: Vec<(i64, f64)> = (0..gw).map(|gc| ((gx0 + gc as i64) * s, 0.5)).collect();
-            grid_rows(&xs, &|gr| (gy0 + gr as i64) * s, &mut g);
+            let ys: Vec<(i64, f64)> = (0..gh).map(|gr| ((gy0 + gr as i64) * s, 0.5)).collect();
+            self.brightness_grid(which[f], octs[f], &xs, &ys, tau, world_shift, &mut g);
             let inv = 1.0 / s as f32;
             // Each column's coarse cell and weight are the same on every row, and
             // each coarse row's interpolation along x serves the `s` rows above it:
@@ -530,6 +544,33 @@ mod tests {
                                 "{tau:?} {spacing:?} {x} {y}"
                             );
                         }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn brightness_grid_has_the_bits_of_brightness_per_sample() {
+        // Arbitrary fractions and far-out indices, as the far-field levels ask for.
+        let f = fields();
+        let xs: Vec<(i64, f64)> = (0..19).map(|c| (c * 4 - (1 << 40), 0.03 * c as f64)).collect();
+        let ys: Vec<(i64, f64)> = (0..5)
+            .map(|r| ((1 << 40) - r * 4, 1.0 - 0.2 * r as f64 - 1e-12))
+            .collect();
+        for tau in [None, f.tau(1234.5), f.tau(-3e9)] {
+            for which in [Which::Humidity, Which::Activation, Which::Extinction] {
+                let octaves = f.octaves(which, 4.0);
+                let mut out = vec![0f32; xs.len() * ys.len()];
+                f.brightness_grid(which, octaves, &xs, &ys, tau, (7, -9), &mut out);
+                for (r, &y) in ys.iter().enumerate() {
+                    for (c, &x) in xs.iter().enumerate() {
+                        let want = f.brightness(which, x, y, octaves, tau, (7, -9));
+                        assert_eq!(
+                            out[r * xs.len() + c].to_bits(),
+                            want.to_bits(),
+                            "{which:?} {tau:?} {x:?} {y:?}"
+                        );
                     }
                 }
             }

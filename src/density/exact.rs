@@ -16,12 +16,12 @@ use crate::automaton::epoch::RunId;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
 use crate::fields::noise::mix64;
 
-/// Runs every run the plans of `steps` need, over the given per-level windows,
-/// and returns for each step the cloud bits of each level's window (row-major).
-fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
+/// The epoch plans of `steps` and the snapshots of every run they name, each run
+/// made once over the given per-level windows (one run serves every step that
+/// needs it).
+fn run_plans(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> (Vec<StepPlan>, BTreeMap<RunId, Vec<Snapshot>>) {
     let layer = &sim.fields.layer;
     let plans: Vec<_> = steps.iter().map(|&m| plan_step(layer, m)).collect();
-    // One run serves every step that needs it.
     let mut runs: BTreeMap<RunId, Vec<i64>> = BTreeMap::new();
     for p in &plans {
         for r in &p.runs {
@@ -42,6 +42,13 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
         };
         results.insert(id, sim.run(&spec));
     }
+    (plans, results)
+}
+
+/// Runs every run the plans of `steps` need, over the given per-level windows,
+/// and returns for each step the cloud bits of each level's window (row-major).
+fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
+    let (plans, results) = run_plans(sim, steps, windows);
     let snaps: Vec<Vec<&Snapshot>> = plans
         .iter()
         .map(|p| {
@@ -370,28 +377,8 @@ mod tests {
 
     /// The plain form of `states`: one cell at a time.
     fn states_reference(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
-        let layer = &sim.fields.layer;
-        let plans: Vec<_> = steps.iter().map(|&m| plan_step(layer, m)).collect();
-        let mut runs: BTreeMap<RunId, Vec<i64>> = BTreeMap::new();
-        for p in &plans {
-            for r in &p.runs {
-                let v = runs.entry(*r).or_default();
-                if !v.contains(&p.step) {
-                    v.push(p.step);
-                }
-            }
-        }
-        let mut results: BTreeMap<RunId, Vec<Snapshot>> = BTreeMap::new();
-        for (id, mut snaps) in runs {
-            snaps.sort_unstable();
-            let spec = RunSpec {
-                reference_step: id.reference,
-                start: id.start,
-                snapshots: snaps,
-                windows: windows.to_vec(),
-            };
-            results.insert(id, sim.run(&spec));
-        }
+        // The same runs as `states`; what differs is the per-cell read below.
+        let (plans, results) = run_plans(sim, steps, windows);
         plans
             .iter()
             .map(|p| {

@@ -204,9 +204,9 @@ pub fn step_level_on(
 }
 
 /// A Dobashi step with the AVX-512 draws, compiled as one function so that the
-/// keys stay in registers across rows. Each row is done in two passes: f_act and
-/// the rules' deterministic part for 8 words per vector, then the draws word by
-/// word, which add (hum, act) or remove (cld) the lanes their events fire in.
+/// keys stay in registers across rows. Each row goes 8 words at a time: f_act and
+/// the rules' deterministic part for the 8 words in vectors, then the draws word
+/// by word, which add (hum, act) or remove (cld) the lanes their events fire in.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,vaes")]
 unsafe fn step_avx512(
@@ -218,160 +218,137 @@ unsafe fn step_avx512(
     window: Rect,
     out: &mut Level,
 ) {
-    use std::arch::x86_64::{_MM_HINT_T0, _mm_prefetch};
+    use std::arch::x86_64::*;
 
     use super::random::avx512;
+    // OR of three operands, and ¬a ∧ b ∧ c, as `vpternlogq` truth tables.
+    const OR3: i32 = 0xfe;
+    const NA_B_C: i32 = 0x08;
     // SAFETY (all calls below): the caller checked the CPU's features.
     let keys = unsafe { avx512::keys(keys) };
     let span = Span::new(old, k, ctx, window);
     let lv = &old[k];
     let wpr = lv.wpr;
+    let (w_lo, w_hi) = (span.words.start, span.words.end);
+    // Index vectors: lane l of a chunk starting at word w is word w + l. A lane is
+    // read only where its index is in its row (0 ≤ i < n, one unsigned compare).
+    let iota = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+    let one = _mm512_set1_epi64(1);
+    let wpr_v = _mm512_set1_epi64(wpr as i64);
+    let inside = |i: __m512i, n: __m512i| _mm512_cmplt_epu64_mask(i, n);
     for r in span.rows.clone() {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
-        unsafe { avx512_rules_row(lv, &span, r, out) };
-        let (o_hum, o_act, o_cld) = (
-            &mut out.hum[base..base + wpr],
-            &mut out.act[base..base + wpr],
-            &mut out.cld[base..base + wpr],
-        );
+        let act = lv.act.as_ptr();
+        // The y neighbours' rows (cells outside the level read as empty).
+        let mut ys: [Option<*const u64>; 4] = [None; 4];
+        for (slot, d) in ys.iter_mut().zip([-2i64, -1, 1, 2]) {
+            let rr = r as i64 + d;
+            if rr >= 0 && (rr as usize) < lv.rows {
+                *slot = Some(act.wrapping_add(rr as usize * wpr));
+            }
+        }
+        // The z neighbours' rows, each with its source length, word offset and bit shift.
+        let mut zs: [Option<(*const u64, __m512i, i64, __m128i, __m128i, usize)>; 3] = [None; 3];
+        for (slot, z) in zs.iter_mut().zip(&span.z) {
+            if let Some((nl, ry, shift)) = z {
+                let rr = y + ry - nl.y0;
+                if rr >= 0 && rr < nl.rows as i64 {
+                    *slot = Some((
+                        nl.act.as_ptr().wrapping_add(rr as usize * nl.wpr),
+                        _mm512_set1_epi64(shift.n),
+                        shift.q - w_lo as i64,
+                        _mm_cvtsi64_si128(shift.sh as i64),
+                        _mm_cvtsi64_si128(63 - shift.sh as i64),
+                        nl.wpr,
+                    ));
+                }
+            }
+        }
+        let a_row = act.wrapping_add(base);
+        let (h_row, c_row) = (lv.hum.as_ptr().wrapping_add(base), lv.cld.as_ptr().wrapping_add(base));
         let row = unsafe { avx512::row(y) };
-        for w in span.words.clone() {
-            let i = base + w;
-            // The drives are the one large stream the kernel reads (256 bytes a word):
-            // fetch a few words ahead. A prefetch past the end is harmless.
-            let ahead = words.as_ptr().wrapping_add(i + 6).cast::<i8>();
-            for line in 0..4 {
-                _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
-            }
-            let ctr = unsafe { avx512::word(row, span.wx0 + w as i64) };
-            let d = &words[i];
-            let fire = |e: usize, care: u64| {
-                let hit = if care & d.live[e] != 0 {
-                    unsafe { avx512::below(&keys, ctr, e, &d.t[e], d.shift[e]) }
-                } else {
-                    0
+        let mut w = w_lo;
+        while w < w_hi {
+            let wv = _mm512_add_epi64(_mm512_set1_epi64(w as i64), iota);
+            // Words i + d … i + d + 7 from `p`, the lanes outside `m` as 0.
+            // SAFETY: only the lanes in `m` are read, and `inside` keeps them in their row.
+            macro_rules! at {
+                ($p:expr, $m:expr, $i:expr) => {
+                    unsafe { _mm512_maskz_loadu_epi64($m, $p.wrapping_offset($i as isize).cast()) }
                 };
-                (d.always[e] | hit) & care
-            };
-            let (keep_h, act_det, cld_det) = (o_hum[w], o_act[w], o_cld[w]);
-            o_hum[w] = keep_h | fire(0, !keep_h);
-            o_act[w] = act_det | fire(1, !act_det);
-            o_cld[w] = cld_det & !fire(2, cld_det);
-        }
-    }
-}
-
-/// The first pass of [`step_avx512`] over row `r`: f_act (x and y neighbours in
-/// this level, z neighbours through `span`'s shifts) and the deterministic part
-/// of the rules, `[hum & ¬act, ¬act & hum & f_act, cld | act]`, stored as the new
-/// `[hum, act, cld]` of the span's words, 8 words per vector. What [`dobashi`]
-/// computes with no event firing, which the property test holds it to.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512bw")]
-unsafe fn avx512_rules_row(lv: &Level, span: &Span, r: usize, out: &mut Level) {
-    use std::arch::x86_64::*;
-    // OR of three operands, and ¬a ∧ b ∧ c, as `vpternlogq` truth tables.
-    const OR3: i32 = 0xfe;
-    const NA_B_C: i32 = 0x08;
-    let wpr = lv.wpr;
-    let base = r * wpr;
-    let y = lv.y0 + r as i64;
-    let act = lv.act.as_ptr();
-    // The y neighbours' rows (cells outside the level read as empty).
-    let mut ys: [Option<*const u64>; 4] = [None; 4];
-    for (slot, d) in ys.iter_mut().zip([-2i64, -1, 1, 2]) {
-        let rr = r as i64 + d;
-        if rr >= 0 && (rr as usize) < lv.rows {
-            *slot = Some(act.wrapping_add(rr as usize * wpr));
-        }
-    }
-    // The z neighbours' rows and their shifts.
-    let mut zs: [Option<(*const u64, &Shift)>; 3] = [None; 3];
-    for (slot, z) in zs.iter_mut().zip(&span.z) {
-        if let Some((nl, ry, shift)) = z {
-            let rr = y + ry - nl.y0;
-            if rr >= 0 && rr < nl.rows as i64 {
-                *slot = Some((nl.act.as_ptr().wrapping_add(rr as usize * nl.wpr), shift));
             }
-        }
-    }
-    let a_row = act.wrapping_add(base);
-    let h_row = lv.hum.as_ptr().wrapping_add(base);
-    let c_row = lv.cld.as_ptr().wrapping_add(base);
-    let (o_hum, o_act, o_cld) = (
-        out.hum.as_mut_ptr().wrapping_add(base),
-        out.act.as_mut_ptr().wrapping_add(base),
-        out.cld.as_mut_ptr().wrapping_add(base),
-    );
-    let (w_lo, w_hi) = (span.words.start as i64, span.words.end as i64);
-    let mut w = w_lo;
-    while w < w_hi {
-        let here = lanes(w, w_hi);
-        // Words w + d … w + d + 7 from `p`, the lanes outside `m` as 0.
-        // SAFETY: only the lanes in `m` are read, and `lanes` keeps them in their row.
-        macro_rules! at {
-            ($p:expr, $m:expr, $d:expr) => {
-                unsafe { _mm512_maskz_loadu_epi64($m, $p.wrapping_offset((w + $d) as isize).cast()) }
-            };
-        }
-        let in_row = lanes(w, wpr as i64);
-        let a = at!(a_row, in_row, 0);
-        let prev = at!(a_row, lanes(w - 1, wpr as i64), -1);
-        let next = at!(a_row, lanes(w + 1, wpr as i64), 1);
-        // Lane b is cell x0 + 64w + b; its x+d neighbour is lane b+d.
-        let mut f = _mm512_ternarylogic_epi64::<OR3>(
-            _mm512_srli_epi64::<1>(a),
-            _mm512_srli_epi64::<2>(a),
-            _mm512_slli_epi64::<1>(a),
-        );
-        f = _mm512_ternarylogic_epi64::<OR3>(f, _mm512_slli_epi64::<2>(a), _mm512_slli_epi64::<63>(next));
-        f = _mm512_ternarylogic_epi64::<OR3>(f, _mm512_slli_epi64::<62>(next), _mm512_srli_epi64::<63>(prev));
-        f = _mm512_or_si512(f, _mm512_srli_epi64::<62>(prev));
-        for p in ys.iter().flatten() {
-            f = _mm512_or_si512(f, at!(*p, in_row, 0));
-        }
-        // z neighbours: dst word j (from the span's first word) is the 64 bits of the
-        // source row from bit `pos + 64 j`: words q + j and q + j + 1 joined at `sh`.
-        for (src, shift) in zs.iter().flatten() {
-            let q = shift.q + (w - w_lo);
-            let lo = at!(src.wrapping_offset((q - w) as isize), lanes(q, shift.n), 0);
-            let hi = at!(src.wrapping_offset((q + 1 - w) as isize), lanes(q + 1, shift.n), 0);
-            let sh = _mm_cvtsi64_si128(shift.sh as i64);
-            let back = _mm_cvtsi64_si128(63 - shift.sh as i64);
-            let join = _mm512_or_si512(
-                _mm512_srl_epi64(lo, sh),
-                _mm512_sll_epi64(_mm512_slli_epi64::<1>(hi), back),
+            let in_row = inside(wv, wpr_v);
+            let a = at!(a_row, in_row, w);
+            let prev = at!(a_row, inside(_mm512_sub_epi64(wv, one), wpr_v), w as i64 - 1);
+            let next = at!(a_row, inside(_mm512_add_epi64(wv, one), wpr_v), w + 1);
+            // Lane b is cell x0 + 64w + b; its x+d neighbour is lane b+d.
+            let mut f = _mm512_ternarylogic_epi64::<OR3>(
+                _mm512_srli_epi64::<1>(a),
+                _mm512_srli_epi64::<2>(a),
+                _mm512_slli_epi64::<1>(a),
             );
-            f = _mm512_or_si512(f, join);
-        }
-        let h = at!(h_row, here, 0);
-        let c = at!(c_row, here, 0);
-        // SAFETY: the lanes in `here` are words of this row.
-        unsafe {
-            _mm512_mask_storeu_epi64(
-                o_hum.wrapping_offset(w as isize).cast(),
-                here,
+            f = _mm512_ternarylogic_epi64::<OR3>(f, _mm512_slli_epi64::<2>(a), _mm512_slli_epi64::<63>(next));
+            f = _mm512_ternarylogic_epi64::<OR3>(f, _mm512_slli_epi64::<62>(next), _mm512_srli_epi64::<63>(prev));
+            f = _mm512_or_si512(f, _mm512_srli_epi64::<62>(prev));
+            for p in ys.iter().flatten() {
+                f = _mm512_or_si512(f, at!(*p, in_row, w));
+            }
+            // z neighbours: word w of the span is the 64 bits of the source row from
+            // bit `pos + 64 (w − w_lo)`: source words q + w and q + w + 1 joined at `sh`.
+            for (src, n, q, sh, back, nw) in zs.iter().flatten() {
+                // The source rows were written by whichever thread stepped that level:
+                // fetch the ones two rows on ahead.
+                let ahead = src.wrapping_offset((q + w as i64 + 2 * *nw as i64) as isize).cast::<i8>();
+                _mm_prefetch::<_MM_HINT_T0>(ahead);
+                _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64));
+                let qv = _mm512_add_epi64(wv, _mm512_set1_epi64(*q));
+                let lo = at!(*src, inside(qv, *n), q + w as i64);
+                let hi = at!(*src, inside(_mm512_add_epi64(qv, one), *n), q + w as i64 + 1);
+                let join = _mm512_or_si512(_mm512_srl_epi64(lo, *sh), _mm512_sll_epi64(_mm512_slli_epi64::<1>(hi), *back));
+                f = _mm512_or_si512(f, join);
+            }
+            let h = at!(h_row, in_row, w);
+            let c = at!(c_row, in_row, w);
+            // The rules with no event firing: [hum ∧ ¬act, ¬act ∧ hum ∧ f_act, cld ∨ act].
+            let mut det = [[0u64; 8]; 3];
+            for (d, v) in det.iter_mut().zip([
                 _mm512_andnot_si512(a, h),
-            );
-            _mm512_mask_storeu_epi64(
-                o_act.wrapping_offset(w as isize).cast(),
-                here,
                 _mm512_ternarylogic_epi64::<NA_B_C>(a, h, f),
-            );
-            _mm512_mask_storeu_epi64(o_cld.wrapping_offset(w as isize).cast(), here, _mm512_or_si512(c, a));
+                _mm512_or_si512(c, a),
+            ]) {
+                // SAFETY: `d` is 8 words.
+                unsafe { _mm512_storeu_si512(d.as_mut_ptr().cast(), v) };
+            }
+            let n = (w_hi - w).min(8);
+            for l in 0..n {
+                let (wl, i) = (w + l, base + w + l);
+                // The drives are the one large stream the kernel reads (256 bytes a
+                // word): fetch a few words ahead. A prefetch past the end is harmless.
+                let ahead = words.as_ptr().wrapping_add(i + 6).cast::<i8>();
+                for line in 0..4 {
+                    _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
+                }
+                let ctr = unsafe { avx512::word(row, span.wx0 + wl as i64) };
+                let d = &words[i];
+                let fire = |e: usize, care: u64| {
+                    let hit = if care & d.live[e] != 0 {
+                        unsafe { avx512::below(&keys, ctr, e, &d.t[e], d.shift[e]) }
+                    } else {
+                        0
+                    };
+                    (d.always[e] | hit) & care
+                };
+                let (keep_h, act_det, cld_det) = (det[0][l], det[1][l], det[2][l]);
+                out.hum[i] = keep_h | fire(0, !keep_h);
+                out.act[i] = act_det | fire(1, !act_det);
+                out.cld[i] = cld_det & !fire(2, cld_det);
+            }
+            w += 8;
         }
-        w += 8;
     }
 }
 
-/// The lanes of a vector of 8 words from word `w` on whose index lies in 0..n.
-#[inline(always)]
-fn lanes(w: i64, n: i64) -> u8 {
-    let lo = (-w).clamp(0, 8) as u32;
-    let hi = (n - w).clamp(0, 8) as u32;
-    ((0xffu32 >> (8 - hi)) & !((1u32 << lo) - 1)) as u8
-}
 
 /// The Dobashi rules for one word from its state `[act, hum, cld, f_act]`, with
 /// `below(drive, event)` the lanes whose draw is below their threshold. A lane

@@ -203,6 +203,21 @@ pub fn step_level_on(
     }
 }
 
+/// A z neighbour's row as [`step_avx512`] reads it: span word w is the 64 bits
+/// of `src` from bit 64 (q + w) + sh on, source words outside 0..n reading as 0.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct ZRow {
+    src: *const u64,
+    /// Words from one row of the source level to the next.
+    stride: i64,
+    n: std::arch::x86_64::__m512i,
+    q: i64,
+    sh: std::arch::x86_64::__m128i,
+    /// 63 − sh.
+    back: std::arch::x86_64::__m128i,
+}
+
 /// A Dobashi step with the AVX-512 draws, compiled as one function so that the
 /// keys stay in registers across rows. Each row goes 8 words at a time: f_act and
 /// the rules' deterministic part for the 8 words in vectors, then the draws word
@@ -248,20 +263,20 @@ unsafe fn step_avx512(
                 *slot = Some(act.wrapping_add(rr as usize * wpr));
             }
         }
-        // The z neighbours' rows, each with its source length, word offset and bit shift.
-        let mut zs: [Option<(*const u64, __m512i, i64, __m128i, __m128i, usize)>; 3] = [None; 3];
+        // The z neighbours' rows.
+        let mut zs: [Option<ZRow>; 3] = [None; 3];
         for (slot, z) in zs.iter_mut().zip(&span.z) {
             if let Some((nl, ry, shift)) = z {
                 let rr = y + ry - nl.y0;
                 if rr >= 0 && rr < nl.rows as i64 {
-                    *slot = Some((
-                        nl.act.as_ptr().wrapping_add(rr as usize * nl.wpr),
-                        _mm512_set1_epi64(shift.n),
-                        shift.q - w_lo as i64,
-                        _mm_cvtsi64_si128(shift.sh as i64),
-                        _mm_cvtsi64_si128(63 - shift.sh as i64),
-                        nl.wpr,
-                    ));
+                    *slot = Some(ZRow {
+                        src: nl.act.as_ptr().wrapping_add(rr as usize * nl.wpr),
+                        stride: nl.wpr as i64,
+                        n: _mm512_set1_epi64(shift.n),
+                        q: shift.q - w_lo as i64,
+                        sh: _mm_cvtsi64_si128(shift.sh as i64),
+                        back: _mm_cvtsi64_si128(63 - shift.sh as i64),
+                    });
                 }
             }
         }
@@ -296,16 +311,22 @@ unsafe fn step_avx512(
             }
             // z neighbours: word w of the span is the 64 bits of the source row from
             // bit `pos + 64 (w − w_lo)`: source words q + w and q + w + 1 joined at `sh`.
-            for (src, n, q, sh, back, nw) in zs.iter().flatten() {
+            for z in zs.iter().flatten() {
                 // The source rows were written by whichever thread stepped that level:
                 // fetch the ones two rows on ahead.
-                let ahead = src.wrapping_offset((q + w as i64 + 2 * *nw as i64) as isize).cast::<i8>();
+                let ahead = z
+                    .src
+                    .wrapping_offset((z.q + w as i64 + 2 * z.stride) as isize)
+                    .cast::<i8>();
                 _mm_prefetch::<_MM_HINT_T0>(ahead);
                 _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64));
-                let qv = _mm512_add_epi64(wv, _mm512_set1_epi64(*q));
-                let lo = at!(*src, inside(qv, *n), q + w as i64);
-                let hi = at!(*src, inside(_mm512_add_epi64(qv, one), *n), q + w as i64 + 1);
-                let join = _mm512_or_si512(_mm512_srl_epi64(lo, *sh), _mm512_sll_epi64(_mm512_slli_epi64::<1>(hi), *back));
+                let qv = _mm512_add_epi64(wv, _mm512_set1_epi64(z.q));
+                let lo = at!(z.src, inside(qv, z.n), z.q + w as i64);
+                let hi = at!(z.src, inside(_mm512_add_epi64(qv, one), z.n), z.q + w as i64 + 1);
+                let join = _mm512_or_si512(
+                    _mm512_srl_epi64(lo, z.sh),
+                    _mm512_sll_epi64(_mm512_slli_epi64::<1>(hi), z.back),
+                );
                 f = _mm512_or_si512(f, join);
             }
             let h = at!(h_row, in_row, w);
@@ -321,6 +342,7 @@ unsafe fn step_avx512(
                 unsafe { _mm512_storeu_si512(d.as_mut_ptr().cast(), v) };
             }
             let n = (w_hi - w).min(8);
+            #[allow(clippy::needless_range_loop)] // l indexes the three rows of `det` and the drives
             for l in 0..n {
                 let (wl, i) = (w + l, base + w + l);
                 // The drives are the one large stream the kernel reads (256 bytes a
@@ -348,7 +370,6 @@ unsafe fn step_avx512(
         }
     }
 }
-
 
 /// The Dobashi rules for one word from its state `[act, hum, cld, f_act]`, with
 /// `below(drive, event)` the lanes whose draw is below their threshold. A lane

@@ -203,8 +203,9 @@ pub fn step_level_on(
     }
 }
 
-/// A z neighbour's row as [`step_avx512`] reads it: span word w is the 64 bits
-/// of `src` from bit 64 (q + w) + sh on, source words outside 0..n reading as 0.
+/// A z neighbour's row as [`step_avx512`] reads it: the z neighbour of this
+/// level's word w is the 64 bits of `src` from bit 64 (q + w) + sh on, source
+/// words outside 0..n reading as 0.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy)]
 struct ZRow {
@@ -286,7 +287,7 @@ unsafe fn step_avx512(
         let mut w = w_lo;
         while w < w_hi {
             let wv = _mm512_add_epi64(_mm512_set1_epi64(w as i64), iota);
-            // Words i + d … i + d + 7 from `p`, the lanes outside `m` as 0.
+            // Words i … i + 7 from `p`, the lanes outside `m` as 0.
             // SAFETY: only the lanes in `m` are read, and `inside` keeps them in their row.
             macro_rules! at {
                 ($p:expr, $m:expr, $i:expr) => {
@@ -309,8 +310,8 @@ unsafe fn step_avx512(
             for p in ys.iter().flatten() {
                 f = _mm512_or_si512(f, at!(*p, in_row, w));
             }
-            // z neighbours: word w of the span is the 64 bits of the source row from
-            // bit `pos + 64 (w − w_lo)`: source words q + w and q + w + 1 joined at `sh`.
+            // z neighbours: for this level's word w, source words q + w and q + w + 1
+            // joined at `sh` (see `ZRow`).
             for z in zs.iter().flatten() {
                 // The source rows were written by whichever thread stepped that level:
                 // fetch the ones two rows on ahead.
@@ -352,19 +353,10 @@ unsafe fn step_avx512(
                     _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
                 }
                 let ctr = unsafe { avx512::word(row, span.wx0 + wl as i64) };
-                let d = &words[i];
-                let fire = |e: usize, care: u64| {
-                    let hit = if care & d.live[e] != 0 {
-                        unsafe { avx512::below(&keys, ctr, e, &d.t[e], d.shift[e]) }
-                    } else {
-                        0
-                    };
-                    (d.always[e] | hit) & care
-                };
-                let (keep_h, act_det, cld_det) = (det[0][l], det[1][l], det[2][l]);
-                out.hum[i] = keep_h | fire(0, !keep_h);
-                out.act[i] = act_det | fire(1, !act_det);
-                out.cld[i] = cld_det & !fire(2, cld_det);
+                let [h, a, c] = with_draws([det[0][l], det[1][l], det[2][l]], &words[i], |d, e| unsafe {
+                    avx512::below(&keys, ctr, e, &d.t[e], d.shift[e])
+                });
+                (out.hum[i], out.act[i], out.cld[i]) = (h, a, c);
             }
             w += 8;
         }
@@ -372,12 +364,20 @@ unsafe fn step_avx512(
 }
 
 /// The Dobashi rules for one word from its state `[act, hum, cld, f_act]`, with
-/// `below(drive, event)` the lanes whose draw is below their threshold. A lane
-/// in `always` fires whatever its draw.
+/// `below(drive, event)` the lanes whose draw is below their threshold.
 #[inline(always)]
 fn dobashi(s: [u64; 4], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64) -> [u64; 3] {
     let [a, h, c, f] = s;
-    let (keep_h, act_det, cld_det) = (h & !a, !a & h & f, c | a);
+    with_draws([h & !a, !a & h & f, c | a], d, below)
+}
+
+/// The Dobashi rules' random part: from the new `[hum, act, cld]` with no event
+/// firing (`[hum ∧ ¬act, ¬act ∧ hum ∧ f_act, cld ∨ act]`), the lanes whose event
+/// fires are added to hum and act and removed from cld. A lane in `always` fires
+/// whatever its draw.
+#[inline(always)]
+fn with_draws(det: [u64; 3], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64) -> [u64; 3] {
+    let [keep_h, act_det, cld_det] = det;
     // An event's draws are made only where a live lane could change the result
     // (hum not kept, act not already set, a cloud to remove). Fields are smooth,
     // so this branch goes the same way for long runs of words.
@@ -470,8 +470,9 @@ fn step_rows(
 }
 
 /// The part of level `k` a step computes: its rows, the words of each row, and
-/// the z neighbours (+1, −1, −2 levels) with their frame's row offset and bit
-/// shift relative to this level, which are the same for every row.
+/// the z neighbours (+1, −1, −2 levels) with their frame's row offset and a
+/// [`Shift`] whose word 0 is the span's first word (`words.start`), the same for
+/// every row.
 struct Span<'a> {
     rows: Range<usize>,
     words: Range<usize>,

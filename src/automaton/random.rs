@@ -347,7 +347,7 @@ pub mod avx512 {
     }
 
     /// The (word, row) part of the counters of a row's words: the row in every
-    /// block's high half, ready for [`below`] to put the word in the low halves.
+    /// block's high half, ready for [`word`] to put the word in the low halves.
     /// (The row's bits and the event and block bits of [`counter`] do not
     /// overlap, so OR is XOR.)
     ///

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
-use crate::fields::noise::mix64;
+use crate::fields::noise::{Coord, mix64};
 
 /// The epoch plans of `steps` and the snapshots of every run they name, each run
 /// made once over the given per-level windows (one run serves every step that
@@ -271,13 +271,22 @@ pub(crate) fn split_time(t: f64, dt: f64) -> (i64, f64) {
     (n as i64, (s - n).clamp(0.0, 1.0))
 }
 
-/// The continuous density over `region` (level-0 cells).
-pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
-    let layer = &sim.fields.layer;
-    let depth = sim.depth();
-    let (n, f) = split_time(t, layer.dt);
+/// What the density over `region` at t samples: the step or two steps it blends,
+/// the blend fraction, each level's frame displacement, and each level's window of
+/// frame cells (the region's cells plus the reach of the tent and the bilinear step).
+struct Sampling {
+    steps: Vec<i64>,
+    f: f64,
+    disp: Vec<(Coord, Coord)>,
+    windows: Vec<Rect>,
+}
+
+fn sampling(sim: &LayerSim, region: Region, t: f64) -> Sampling {
+    let (n, f) = split_time(t, sim.fields.layer.dt);
     let steps: Vec<i64> = if f > 0.0 { vec![n, n + 1] } else { vec![n] };
-    let disp: Vec<_> = (0..depth as u32).map(|k| sim.frames.displacement(k, n, f)).collect();
+    let disp: Vec<_> = (0..sim.depth() as u32)
+        .map(|k| sim.frames.displacement(k, n, f))
+        .collect();
     let windows: Vec<Rect> = disp
         .iter()
         .map(|(cx, cy)| Rect {
@@ -287,6 +296,23 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
             y1: region.y0 + region.rows as i64 - cy.int + 2,
         })
         .collect();
+    Sampling {
+        steps,
+        f,
+        disp,
+        windows,
+    }
+}
+
+/// The continuous density over `region` (level-0 cells).
+pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
+    let depth = sim.depth();
+    let Sampling {
+        steps,
+        f,
+        disp,
+        windows,
+    } = sampling(sim, region, t);
     let st = states(sim, &steps, &windows);
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
@@ -456,20 +482,13 @@ mod tests {
     /// The plain form of `density`: per-cell states, the nine-tap tent and four
     /// bounds-checked reads per sample.
     fn density_reference(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
-        let layer = &sim.fields.layer;
         let depth = sim.depth();
-        let (n, f) = split_time(t, layer.dt);
-        let steps: Vec<i64> = if f > 0.0 { vec![n, n + 1] } else { vec![n] };
-        let disp: Vec<_> = (0..depth as u32).map(|k| sim.frames.displacement(k, n, f)).collect();
-        let windows: Vec<Rect> = disp
-            .iter()
-            .map(|(cx, cy)| Rect {
-                x0: region.x0 - cx.int - 2,
-                x1: region.x0 + region.cols as i64 - cx.int + 2,
-                y0: region.y0 - cy.int - 2,
-                y1: region.y0 + region.rows as i64 - cy.int + 2,
-            })
-            .collect();
+        let Sampling {
+            steps,
+            f,
+            disp,
+            windows,
+        } = sampling(sim, region, t);
         let st = states_reference(sim, &steps, &windows);
         let mut grid = Grid::new(depth, region.rows, region.cols);
         let plane = region.rows * region.cols;

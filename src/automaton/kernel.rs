@@ -252,6 +252,22 @@ unsafe fn step_avx512(
     let one = _mm512_set1_epi64(1);
     let wpr_v = _mm512_set1_epi64(wpr as i64);
     let inside = |i: __m512i, n: __m512i| _mm512_cmplt_epu64_mask(i, n);
+    // Per z neighbour: its level, row offset, and the parts of its `ZRow` that are
+    // the same for every row (each row sets `src`).
+    let mut z_levels: [Option<(&Level, i64, ZRow)>; 3] = [None; 3];
+    for (slot, z) in z_levels.iter_mut().zip(&span.z) {
+        if let Some((nl, ry, shift)) = z {
+            let zrow = ZRow {
+                src: std::ptr::null(),
+                stride: nl.wpr as i64,
+                n: _mm512_set1_epi64(shift.n),
+                q: shift.q - w_lo as i64,
+                sh: _mm_cvtsi64_si128(shift.sh as i64),
+                back: _mm_cvtsi64_si128(63 - shift.sh as i64),
+            };
+            *slot = Some((*nl, *ry, zrow));
+        }
+    }
     for r in span.rows.clone() {
         let y = lv.y0 + r as i64;
         let base = r * wpr;
@@ -266,17 +282,13 @@ unsafe fn step_avx512(
         }
         // The z neighbours' rows.
         let mut zs: [Option<ZRow>; 3] = [None; 3];
-        for (slot, z) in zs.iter_mut().zip(&span.z) {
-            if let Some((nl, ry, shift)) = z {
+        for (slot, z) in zs.iter_mut().zip(&z_levels) {
+            if let Some((nl, ry, zrow)) = z {
                 let rr = y + ry - nl.y0;
                 if rr >= 0 && rr < nl.rows as i64 {
                     *slot = Some(ZRow {
                         src: nl.act.as_ptr().wrapping_add(rr as usize * nl.wpr),
-                        stride: nl.wpr as i64,
-                        n: _mm512_set1_epi64(shift.n),
-                        q: shift.q - w_lo as i64,
-                        sh: _mm_cvtsi64_si128(shift.sh as i64),
-                        back: _mm_cvtsi64_si128(63 - shift.sh as i64),
+                        ..*zrow
                     });
                 }
             }

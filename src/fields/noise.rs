@@ -89,7 +89,7 @@ pub fn mix64(mut z: u64) -> u64 {
 }
 
 /// The multipliers of [`mix64`].
-const MIX_MUL: [u64; 2] = [0xbf58_476d_1ce4_e5b9, 0x94d0_49bb_1331_11eb];
+pub(crate) const MIX_MUL: [u64; 2] = [0xbf58_476d_1ce4_e5b9, 0x94d0_49bb_1331_11eb];
 
 /// The odd multipliers that spread lattice indices i, j, k in [`hash3`].
 const HASH_MUL: [u64; 3] = [0x9e37_79b9_7f4a_7c15, 0xc2b2_ae3d_27d4_eb4f, 0x1656_67b1_9e37_79f9];

@@ -14,8 +14,8 @@ use cloudscape::automaton::kernel::Rect;
 use cloudscape::automaton::naive;
 use cloudscape::automaton::{LayerSim, RunSpec, plan_step};
 use cloudscape::bench::core::{packed_steps, scene, to_naive};
-use cloudscape::density::{self, Region};
-use cloudscape::fields::noise::Fbm;
+use cloudscape::density::{self, Region, exact};
+use cloudscape::fields::noise::{Backend, Fbm};
 use cloudscape::fields::probability::Which;
 use cloudscape::world::{Config, World};
 use criterion::{BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
@@ -130,6 +130,20 @@ fn tiles(c: &mut Criterion) {
     for tt in [1e3, 1e12] {
         g.bench_function(BenchmarkId::new("density 256x256 at t", tt), |b| {
             b.iter(|| black_box(density::density(&w, 0, 0, region, tt).unwrap()))
+        });
+    }
+    // The per-cell hashes that pick a run in an epoch cross-fade, over one level's
+    // tile window, on each backend (same bits; a cold tile makes one per level).
+    let window = Rect {
+        x0: 768,
+        x1: 768 + 256,
+        y0: -512,
+        y1: -512 + 256,
+    };
+    for &backend in Backend::available() {
+        g.throughput(Throughput::Elements(256 * 256));
+        g.bench_function(BenchmarkId::new("switch hashes 256x256", format!("{backend:?}")), |b| {
+            b.iter(|| black_box(exact::switch_hashes_on(backend, 1, 0, window)))
         });
     }
     g.finish();

@@ -179,8 +179,8 @@ fn switch_hashes(stream: u64, k: usize, w: Rect) -> Vec<u16> {
 }
 
 /// [`switch_hashes`] on one backend (one of [`Backend::available`]); every
-/// backend gives the same bits.
-fn switch_hashes_on(backend: Backend, stream: u64, k: usize, w: Rect) -> Vec<u16> {
+/// backend gives the same bits. Public for the benchmark that compares them.
+pub fn switch_hashes_on(backend: Backend, stream: u64, k: usize, w: Rect) -> Vec<u16> {
     let base = stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40);
     let cols = (w.x1 - w.x0).max(0) as usize;
     let rows = (w.y1 - w.y0).max(0) as usize;

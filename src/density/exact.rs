@@ -215,9 +215,11 @@ fn switch_row(base: u64, my: u64, x0: i64, row: &mut [u16]) {
 }
 
 /// [`switch_row`] eight cells at a time. The hashes are four 64-bit multiplies a
-/// cell, a tenth of a cold tile's time one at a time; AVX-512 DQ multiplies eight
-/// lanes per instruction (x86-64-v3 has no 64-bit vector multiply, so the
-/// compiler cannot do this on its own). Integer arithmetic: the same bits.
+/// cell; AVX-512 DQ multiplies eight lanes per instruction (x86-64-v3 has no
+/// 64-bit vector multiply, so the compiler cannot do this on its own). Integer
+/// arithmetic: the same bits. Measured 1.55× the scalar form (`cargo bench
+/// --bench core -- 'switch hashes'`); a cold tile hashes 10 levels of 260×260
+/// cells, about 1.6 ms of CPU one cell at a time.
 ///
 /// # Safety
 /// The CPU must have AVX-512 F and DQ.

@@ -6,6 +6,9 @@
 //!     valgrind --tool=callgrind target/release/examples/profile_kernel tile
 //!     target/release/examples/profile_kernel scene   # best of 30 rounds of the criterion scene
 //!
+//! `RUST_LOG=cloudscape=debug … tile` logs each tile's phases: per run the field
+//! window, the conversion to drives and the steps, then the smoothing.
+//!
 //! `STEPS=N` (default 8) sets the kernel run's length, e.g. `STEPS=100` for a
 //! wall-clock or `perf record` run long enough to sample; `SIZE=N` (default 192)
 //! the side of the window in cells.
@@ -37,6 +40,14 @@ fn cpu_ns() -> u64 {
 }
 
 fn main() {
+    // RUST_LOG=cloudscape=debug prints where each tile's time goes (fields,
+    // conversion to drives, steps, smoothing).
+    if std::env::var_os("RUST_LOG").is_some() {
+        tracing_subscriber::fmt()
+            .with_env_filter(tracing_subscriber::EnvFilter::from_default_env())
+            .with_writer(std::io::stderr)
+            .init();
+    }
     let world = Config::embedded().world("default").unwrap();
     let what = std::env::args().nth(1).unwrap_or_else(|| "kernel".into());
     if what == "scene" {

@@ -125,6 +125,7 @@ impl LayerSim {
             hull = hull.hull(&r.shift(s.0, s.1));
         }
         let tau = f.tau(reference_step as f64 * layer.dt);
+        let start = std::time::Instant::now();
         let window = f.window(
             hull.x0,
             hull.y0,
@@ -134,10 +135,11 @@ impl LayerSim {
             tau,
             r_off,
         );
+        let fields_done = start.elapsed();
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;
         let has_ellipsoids = !layer.ellipsoids.is_empty();
-        levels
+        let drives = levels
             .par_iter()
             .enumerate()
             .map(|(k, lv)| {
@@ -204,7 +206,16 @@ impl LayerSim {
                     },
                 }
             })
-            .collect()
+            .collect();
+        // Where a cold tile's time goes (`RUST_LOG=cloudscape=debug`; BENCHMARKS.md "Cold tile").
+        tracing::debug!(
+            window = format!("{}x{}", window.w, window.h),
+            words = levels.iter().map(|l| l.wpr * l.rows).sum::<usize>(),
+            fields_ms = millis(fields_done),
+            conversion_ms = millis(start.elapsed() - fields_done),
+            "drives"
+        );
+        drives
     }
 
     /// Executes a run and returns its snapshots.
@@ -216,6 +227,7 @@ impl LayerSim {
         let drives = self.drives(&levels, spec.reference_step);
         let mut next = levels.clone();
         let rules = self.rules();
+        let start = std::time::Instant::now();
         let mut out = Vec::new();
         if spec.snapshots.contains(&spec.start) {
             out.push(Snapshot {
@@ -237,6 +249,7 @@ impl LayerSim {
                 .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
             std::mem::swap(&mut levels, &mut next);
             if n + 1 == end {
+                tracing::debug!(steps = end - spec.start, steps_ms = millis(start.elapsed()), "run");
                 // The last step: the grids are not needed after it, so no copy.
                 out.push(Snapshot { step: end, levels });
                 return out;
@@ -250,4 +263,9 @@ impl LayerSim {
         }
         out
     }
+}
+
+/// A duration in milliseconds to 0.01 ms, for the phase logs.
+pub(crate) fn millis(d: std::time::Duration) -> f64 {
+    (d.as_secs_f64() * 1e5).round() / 100.0
 }

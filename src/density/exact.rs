@@ -13,6 +13,7 @@ use rayon::prelude::*;
 
 use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
+use crate::automaton::run::millis;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
 use crate::fields::noise::{Backend, Coord, MIX_MUL, mix64};
 
@@ -367,7 +368,9 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
         disp,
         windows,
     } = sampling(sim, region, t);
+    let start = std::time::Instant::now();
     let st = states(sim, &steps, &windows);
+    let states_done = start.elapsed();
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
     let cols = region.cols;
@@ -412,6 +415,12 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
             std::mem::swap(&mut top, &mut bot);
         }
     });
+    // Where a cold tile's time goes (`RUST_LOG=cloudscape=debug`; BENCHMARKS.md "Cold tile").
+    tracing::debug!(
+        states_ms = millis(states_done),
+        smoothing_ms = millis(start.elapsed() - states_done),
+        "density"
+    );
     grid
 }
 

@@ -15,7 +15,8 @@ use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::WordDrive;
 use crate::fields::noise::mix64;
-use crate::fields::{LayerFields, quantize};
+use crate::fields::probability::LevelMapping;
+use crate::fields::{FieldWindow, LayerFields, quantize};
 use crate::world::{Mode, World};
 
 /// A layer ready to simulate: its fields, frames and random stream.
@@ -138,72 +139,33 @@ impl LayerSim {
         let fields_done = start.elapsed();
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;
-        let has_ellipsoids = !layer.ellipsoids.is_empty();
-        let drives = levels
+        let drives: Vec<Drives> = levels
             .par_iter()
             .enumerate()
             .map(|(k, lv)| {
-                let (sx, sy) = shifts[k];
-                let words = lv.wpr * lv.rows;
-                let mut stoch: Vec<WordDrive> = Vec::new();
-                let mut thr = (Vec::new(), Vec::new(), Vec::new());
-                if mode == Mode::Dobashi {
-                    stoch.reserve_exact(words);
-                } else {
-                    thr = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
-                }
-                let level = f.level_mapping(k as u32);
-                let mut ew = [1.0f32; 64];
-                let mut p = [[0f32; 64]; 3];
-                let mut q = [[0u32; 64]; 3];
-                for r in 0..lv.rows {
-                    let y = lv.y0 + r as i64 + sy;
-                    let row = (y - hull.y0) as usize * window.w;
-                    for w in 0..lv.wpr {
-                        // Lane b is frame cell x0 + b; its brightness is at column x0 + b − hull.x0.
-                        let x0 = lv.x0 + 64 * w as i64 + sx;
-                        let at = row + (x0 - hull.x0) as usize;
-                        let bright: [&[f32; 64]; 3] =
-                            std::array::from_fn(|i| window.b[i][at..at + 64].try_into().expect("64 lanes"));
-                        if has_ellipsoids {
-                            for (b, e) in ew.iter_mut().enumerate() {
-                                let x = x0 + b as i64;
-                                *e = f.ellipsoid_weight(
-                                    (x as f64 + 0.5) * layer.cell_size,
-                                    (y as f64 + 0.5) * layer.cell_size,
-                                    k as u32,
-                                );
-                            }
-                        }
-                        level.values(bright, &ew, &mut p);
-                        match mode {
-                            Mode::Dobashi => {
-                                // Plain loops into a buffer kept across words, so `quantize` runs on 8 lanes at a time.
-                                for (q, p) in q.iter_mut().zip(&p) {
-                                    for (q, &p) in q.iter_mut().zip(p) {
-                                        *q = quantize(p);
-                                    }
-                                }
-                                stoch.push(WordDrive::new(q.each_ref()));
-                            }
-                            Mode::Rosa => {
-                                let i = r * lv.wpr + w;
-                                for b in 0..64 {
-                                    thr.0[i] |= ((p[0][b] > thresholds[0]) as u64) << b;
-                                    thr.1[i] |= ((p[1][b] > thresholds[1]) as u64) << b;
-                                    thr.2[i] |= ((p[2][b] > thresholds[2]) as u64) << b;
-                                }
-                            }
-                        }
-                    }
-                }
+                let conv = Conversion {
+                    f,
+                    level: f.level_mapping(k as u32),
+                    k: k as u32,
+                    lv,
+                    window: &window,
+                    hull,
+                    shift: shifts[k],
+                };
                 match mode {
-                    Mode::Dobashi => Drives::Stochastic(stoch),
-                    Mode::Rosa => Drives::Threshold {
-                        hum: thr.0,
-                        act: thr.1,
-                        keep: thr.2,
-                    },
+                    Mode::Dobashi => Drives::Stochastic(stochastic(&conv)),
+                    Mode::Rosa => {
+                        let words = lv.wpr * lv.rows;
+                        let (mut hum, mut act, mut keep) = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
+                        conv.each_word(|i, p| {
+                            for b in 0..64 {
+                                hum[i] |= ((p[0][b] > thresholds[0]) as u64) << b;
+                                act[i] |= ((p[1][b] > thresholds[1]) as u64) << b;
+                                keep[i] |= ((p[2][b] > thresholds[2]) as u64) << b;
+                            }
+                        });
+                        Drives::Threshold { hum, act, keep }
+                    }
                 }
             })
             .collect();
@@ -268,4 +230,96 @@ impl LayerSim {
 /// A duration in milliseconds to 0.01 ms, for the phase logs.
 pub(crate) fn millis(d: std::time::Duration) -> f64 {
     (d.as_secs_f64() * 1e5).round() / 100.0
+}
+
+/// What turns one level's field window into drives: the level's grid, its frame
+/// shift from the reference frame, and the window.
+struct Conversion<'a> {
+    f: &'a LayerFields,
+    level: LevelMapping,
+    k: u32,
+    lv: &'a Level,
+    window: &'a FieldWindow,
+    hull: Rect,
+    shift: (i64, i64),
+}
+
+impl Conversion<'_> {
+    /// Calls `word(index, values)` for every word of the level in order, with its
+    /// 64 lanes' (hum, act, ext) probabilities (Dobashi) or textures (Rosa).
+    #[inline(always)]
+    fn each_word(&self, mut word: impl FnMut(usize, &[[f32; 64]; 3])) {
+        let (f, lv, window, hull) = (self.f, self.lv, self.window, self.hull);
+        let (sx, sy) = self.shift;
+        let layer = &f.layer;
+        let has_ellipsoids = !layer.ellipsoids.is_empty();
+        let mut ew = [1.0f32; 64];
+        let mut p = [[0f32; 64]; 3];
+        for r in 0..lv.rows {
+            let y = lv.y0 + r as i64 + sy;
+            let row = (y - hull.y0) as usize * window.w;
+            for w in 0..lv.wpr {
+                // Lane b is frame cell x0 + b; its brightness is at column x0 + b − hull.x0.
+                let x0 = lv.x0 + 64 * w as i64 + sx;
+                let at = row + (x0 - hull.x0) as usize;
+                let bright: [&[f32; 64]; 3] =
+                    std::array::from_fn(|i| window.b[i][at..at + 64].try_into().expect("64 lanes"));
+                if has_ellipsoids {
+                    for (b, e) in ew.iter_mut().enumerate() {
+                        let x = x0 + b as i64;
+                        *e = f.ellipsoid_weight(
+                            (x as f64 + 0.5) * layer.cell_size,
+                            (y as f64 + 0.5) * layer.cell_size,
+                            self.k,
+                        );
+                    }
+                }
+                self.level.values(bright, &ew, &mut p);
+                word(r * lv.wpr + w, &p);
+            }
+        }
+    }
+}
+
+/// A Dobashi level's drives: per word, the probabilities quantized to thresholds
+/// and set in place ([`WordDrive::set`]).
+fn stochastic(conv: &Conversion) -> Vec<WordDrive> {
+    #[cfg(target_arch = "x86_64")]
+    if std::is_x86_feature_detected!("avx512f") {
+        // SAFETY: the CPU has AVX-512 F (just checked).
+        return unsafe { stochastic_avx512(conv) };
+    }
+    stochastic_on(conv)
+}
+
+#[inline(always)]
+fn stochastic_on(conv: &Conversion) -> Vec<WordDrive> {
+    let mut out = Vec::with_capacity(conv.lv.wpr * conv.lv.rows);
+    let mut q = [[0u32; 64]; 3];
+    conv.each_word(|_, p| {
+        // Plain loops into a buffer kept across words, so `quantize` runs on many lanes at a time.
+        for (q, p) in q.iter_mut().zip(p) {
+            for (q, &p) in q.iter_mut().zip(p) {
+                *q = quantize(p);
+            }
+        }
+        out.push(WordDrive::NEVER);
+        out.last_mut().expect("just pushed").set(q.each_ref());
+    });
+    out
+}
+
+/// [`stochastic`] compiled with AVX-512: the lane loops of `values` and
+/// `quantize` take 16 lanes per instruction (8 in the baseline build) and
+/// [`WordDrive::set_avx512`] is inlined. The same IEEE operations in the same
+/// order (Rust never contracts or reorders float arithmetic), so the same bits.
+/// Measured in BENCHMARKS.md "Cold tile" (the conversion phase of
+/// `RUST_LOG=cloudscape=debug target/release/examples/profile_kernel tile`).
+///
+/// # Safety
+/// The CPU must have AVX-512 F.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn stochastic_avx512(conv: &Conversion) -> Vec<WordDrive> {
+    stochastic_on(conv)
 }

@@ -105,6 +105,16 @@ impl LayerSim {
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
     pub fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
+        #[cfg(target_arch = "x86_64")]
+        let avx512 = std::is_x86_feature_detected!("avx512f");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx512 = false;
+        self.drives_on(levels, reference_step, avx512)
+    }
+
+    /// [`LayerSim::drives`], converting with AVX-512 or not (`avx512` only where
+    /// the CPU has AVX-512 F); both give the same drives.
+    fn drives_on(&self, levels: &[Level], reference_step: i64, avx512: bool) -> Vec<Drives> {
         let f = &self.fields;
         let layer = &f.layer;
         let r_off = self.frames.reference_offset(reference_step);
@@ -153,7 +163,7 @@ impl LayerSim {
                     shift: shifts[k],
                 };
                 match mode {
-                    Mode::Dobashi => Drives::Stochastic(stochastic(&conv)),
+                    Mode::Dobashi => Drives::Stochastic(stochastic(&conv, avx512)),
                     Mode::Rosa => {
                         let words = lv.wpr * lv.rows;
                         let (mut hum, mut act, mut keep) = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
@@ -211,6 +221,7 @@ impl LayerSim {
                 .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
             std::mem::swap(&mut levels, &mut next);
             if n + 1 == end {
+                // The steps' time, copies of earlier snapshots included.
                 tracing::debug!(steps = end - spec.start, steps_ms = millis(start.elapsed()), "run");
                 // The last step: the grids are not needed after it, so no copy.
                 out.push(Snapshot { step: end, levels });
@@ -282,18 +293,24 @@ impl Conversion<'_> {
 }
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds
-/// and set in place ([`WordDrive::set`]).
-fn stochastic(conv: &Conversion) -> Vec<WordDrive> {
+/// and set in place ([`WordDrive::set`]), with AVX-512 where `avx512` says the
+/// CPU has it.
+fn stochastic(conv: &Conversion, avx512: bool) -> Vec<WordDrive> {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx512f") {
-        // SAFETY: the CPU has AVX-512 F (just checked).
+    if avx512 {
+        assert!(
+            std::is_x86_feature_detected!("avx512f"),
+            "AVX-512 conversion on a CPU without it"
+        );
+        // SAFETY: the CPU has AVX-512 F (asserted above).
         return unsafe { stochastic_avx512(conv) };
     }
-    stochastic_on(conv)
+    let _ = avx512;
+    stochastic_with(conv, |d, q| d.set_baseline(q))
 }
 
 #[inline(always)]
-fn stochastic_on(conv: &Conversion) -> Vec<WordDrive> {
+fn stochastic_with(conv: &Conversion, set: impl Fn(&mut WordDrive, [&[u32; 64]; 3])) -> Vec<WordDrive> {
     let mut out = Vec::with_capacity(conv.lv.wpr * conv.lv.rows);
     let mut q = [[0u32; 64]; 3];
     conv.each_word(|_, p| {
@@ -304,7 +321,7 @@ fn stochastic_on(conv: &Conversion) -> Vec<WordDrive> {
             }
         }
         out.push(WordDrive::NEVER);
-        out.last_mut().expect("just pushed").set(q.each_ref());
+        set(out.last_mut().expect("just pushed"), q.each_ref());
     });
     out
 }
@@ -321,5 +338,56 @@ fn stochastic_on(conv: &Conversion) -> Vec<WordDrive> {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 unsafe fn stochastic_avx512(conv: &Conversion) -> Vec<WordDrive> {
-    stochastic_on(conv)
+    // SAFETY: this function's caller checked the CPU.
+    stochastic_with(conv, |d, q| unsafe { d.set_avx512(q) })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::world::{Config, Ellipsoid};
+
+    /// The AVX-512 conversion and the baseline one give the same drives, on a layer
+    /// with Dobashi ellipsoids (so the weights are not all 1) and levels whose
+    /// windows and frame shifts differ.
+    #[test]
+    fn conversion_forms_agree() {
+        #[cfg(target_arch = "x86_64")]
+        if !std::is_x86_feature_detected!("avx512f") {
+            return;
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        return;
+        let mut world = Config::embedded().world("default").expect("the default world");
+        let layer = &mut world.layers[0];
+        let alt = layer.level_altitude(3);
+        layer.ellipsoids.push(Ellipsoid {
+            centre: [3000.0, -2000.0, alt],
+            radii: [4000.0, 2500.0, 600.0],
+        });
+        let sim = LayerSim::new(&world, 0);
+        let levels: Vec<Level> = (0..sim.depth() as i64)
+            .map(|k| {
+                Level::covering(Rect {
+                    x0: -70 + 13 * k,
+                    x1: 250 + 7 * k,
+                    y0: -40 - 5 * k,
+                    y1: 90,
+                })
+            })
+            .collect();
+        for step in [0, 7, 64] {
+            let base = sim.drives_on(&levels, step, false);
+            let fast = sim.drives_on(&levels, step, true);
+            for (k, (b, f)) in base.iter().zip(&fast).enumerate() {
+                match (b, f) {
+                    (Drives::Stochastic(b), Drives::Stochastic(f)) => {
+                        assert!(b.iter().any(|d| d.live != [0; 3]), "level {k}: some drive is live");
+                        assert!(b == f, "level {k} at step {step}");
+                    }
+                    _ => panic!("a Dobashi layer has stochastic drives"),
+                }
+            }
+        }
+    }
 }

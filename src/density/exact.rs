@@ -219,8 +219,8 @@ fn switch_row(base: u64, my: u64, x0: i64, row: &mut [u16]) {
 /// cell; AVX-512 DQ multiplies eight lanes per instruction (x86-64-v3 has no
 /// 64-bit vector multiply, so the compiler cannot do this on its own). Integer
 /// arithmetic: the same bits. Measured 1.55× the scalar form (`cargo bench
-/// --bench core -- 'switch hashes'`); a cold tile hashes 10 levels of 260×260
-/// cells, about 1.6 ms of CPU one cell at a time.
+/// --bench core -- 'switch hashes'`); a cold tile inside an epoch cross-fade
+/// hashes 10 levels of 260×260 cells, about 1.6 ms of CPU one cell at a time.
 ///
 /// # Safety
 /// The CPU must have AVX-512 F and DQ.

@@ -160,12 +160,12 @@ impl WordDrive {
     /// (perf: that load took over half of `new`'s samples).
     #[inline]
     pub fn set(&mut self, q: [&[u32; 64]; 3]) {
-        #[cfg(target_arch = "x86_64")]
-        if std::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU has AVX-512 F (just checked).
-            return unsafe { self.set_avx512(q) };
+        match crate::fields::noise::Backend::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `detect` found AVX-512 F (and DQ) on this CPU.
+            crate::fields::noise::Backend::Avx512 => unsafe { self.set_avx512(q) },
+            _ => self.set_baseline(q),
         }
-        self.set_baseline(q);
     }
 
     /// [`WordDrive::set`] in the baseline build's form (AVX2 on x86-64-v3).
@@ -621,7 +621,7 @@ mod tests {
             // The baseline form: AVX2 on an x86-64-v3 build.
             check("baseline", &|m| event_thresholds(&q, m));
             #[cfg(target_arch = "x86_64")]
-            if std::is_x86_feature_detected!("avx512f") {
+            if crate::fields::noise::Backend::available().contains(&crate::fields::noise::Backend::Avx512) {
                 // SAFETY: the CPU has AVX-512 F (just checked).
                 check("AVX-512", &|m| unsafe { event_thresholds_avx512(&q, m) });
             }

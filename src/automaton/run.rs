@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::WordDrive;
+use crate::fields::noise::Backend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::LevelMapping;
 use crate::fields::{FieldWindow, LayerFields, quantize};
@@ -105,16 +106,12 @@ impl LayerSim {
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
     pub fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
-        #[cfg(target_arch = "x86_64")]
-        let avx512 = std::is_x86_feature_detected!("avx512f");
-        #[cfg(not(target_arch = "x86_64"))]
-        let avx512 = false;
-        self.drives_on(levels, reference_step, avx512)
+        self.drives_on(levels, reference_step, Backend::detect())
     }
 
-    /// [`LayerSim::drives`], converting with AVX-512 or not (`avx512` only where
-    /// the CPU has AVX-512 F); both give the same drives.
-    fn drives_on(&self, levels: &[Level], reference_step: i64, avx512: bool) -> Vec<Drives> {
+    /// [`LayerSim::drives`] converting on one backend (one of
+    /// [`Backend::available`]); every backend gives the same drives.
+    fn drives_on(&self, levels: &[Level], reference_step: i64, backend: Backend) -> Vec<Drives> {
         let f = &self.fields;
         let layer = &f.layer;
         let r_off = self.frames.reference_offset(reference_step);
@@ -163,7 +160,7 @@ impl LayerSim {
                     shift: shifts[k],
                 };
                 match mode {
-                    Mode::Dobashi => Drives::Stochastic(stochastic(&conv, avx512)),
+                    Mode::Dobashi => Drives::Stochastic(stochastic(&conv, backend)),
                     Mode::Rosa => {
                         let words = lv.wpr * lv.rows;
                         let (mut hum, mut act, mut keep) = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
@@ -293,20 +290,19 @@ impl Conversion<'_> {
 }
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds
-/// and set in place ([`WordDrive::set`]), with AVX-512 where `avx512` says the
-/// CPU has it.
-fn stochastic(conv: &Conversion, avx512: bool) -> Vec<WordDrive> {
-    #[cfg(target_arch = "x86_64")]
-    if avx512 {
-        assert!(
-            std::is_x86_feature_detected!("avx512f"),
-            "AVX-512 conversion on a CPU without it"
-        );
+/// and set in place ([`WordDrive::set`]), on `backend` (one of
+/// [`Backend::available`]).
+fn stochastic(conv: &Conversion, backend: Backend) -> Vec<WordDrive> {
+    assert!(
+        Backend::available().contains(&backend),
+        "{backend:?} conversion on a CPU without it"
+    );
+    match backend {
+        #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX-512 F (asserted above).
-        return unsafe { stochastic_avx512(conv) };
+        Backend::Avx512 => unsafe { stochastic_avx512(conv) },
+        _ => stochastic_with(conv, |d, q| d.set_baseline(q)),
     }
-    let _ = avx512;
-    stochastic_with(conv, |d, q| d.set_baseline(q))
 }
 
 #[inline(always)]
@@ -352,12 +348,6 @@ mod tests {
     /// windows and frame shifts differ.
     #[test]
     fn conversion_forms_agree() {
-        #[cfg(target_arch = "x86_64")]
-        if !std::is_x86_feature_detected!("avx512f") {
-            return;
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        return;
         let mut world = Config::embedded().world("default").expect("the default world");
         let layer = &mut world.layers[0];
         let alt = layer.level_altitude(3);
@@ -377,15 +367,17 @@ mod tests {
             })
             .collect();
         for step in [0, 7, 64] {
-            let base = sim.drives_on(&levels, step, false);
-            let fast = sim.drives_on(&levels, step, true);
-            for (k, (b, f)) in base.iter().zip(&fast).enumerate() {
-                match (b, f) {
-                    (Drives::Stochastic(b), Drives::Stochastic(f)) => {
-                        assert!(b.iter().any(|d| d.live != [0; 3]), "level {k}: some drive is live");
-                        assert!(b == f, "level {k} at step {step}");
+            let base = sim.drives_on(&levels, step, Backend::Scalar);
+            for &backend in Backend::available() {
+                let got = sim.drives_on(&levels, step, backend);
+                for (k, (b, g)) in base.iter().zip(&got).enumerate() {
+                    match (b, g) {
+                        (Drives::Stochastic(b), Drives::Stochastic(g)) => {
+                            assert!(b.iter().any(|d| d.live != [0; 3]), "level {k}: some drive is live");
+                            assert!(b == g, "{backend:?}: level {k} at step {step}");
+                        }
+                        _ => panic!("a Dobashi layer has stochastic drives"),
                     }
-                    _ => panic!("a Dobashi layer has stochastic drives"),
                 }
             }
         }

@@ -189,15 +189,15 @@ pub fn switch_hashes_on(backend: Backend, stream: u64, k: usize, w: Rect) -> Vec
     if cols == 0 {
         return out;
     }
+    assert!(
+        Backend::available().contains(&backend),
+        "{backend:?} hashes on a CPU without them"
+    );
     for (r, row) in out.chunks_exact_mut(cols).enumerate() {
         let my = mix64((w.y0 + r as i64) as u64);
         match backend {
             #[cfg(target_arch = "x86_64")]
             Backend::Avx512 => {
-                assert!(
-                    Backend::available().contains(&backend),
-                    "AVX-512 hashes on a CPU without them"
-                );
                 // SAFETY: the CPU has AVX-512 F and DQ (asserted above).
                 unsafe { switch_row_avx512(base, my, w.x0, row) }
             }

@@ -97,16 +97,32 @@ pub struct Timing {
 
 /// Runs `f` at least once and then again while within `effort`'s budget.
 pub fn time(effort: Effort, mut f: impl FnMut()) -> Timing {
-    time_with(effort.budget(), effort.max_iters(), &mut f)
+    time_with(effort.budget(), effort.max_iters(), &mut || {
+        let t = Instant::now();
+        f();
+        t.elapsed()
+    })
 }
 
-fn time_with(budget: Duration, max_iters: usize, f: &mut dyn FnMut()) -> Timing {
+/// [`time`] for `f` on a fresh input from `setup` each time; only `f` is timed
+/// (as criterion's `iter_batched`).
+pub fn time_batched<I>(effort: Effort, mut setup: impl FnMut() -> I, mut f: impl FnMut(&mut I)) -> Timing {
+    time_with(effort.budget(), effort.max_iters(), &mut || {
+        let mut input = setup();
+        let t = Instant::now();
+        f(&mut input);
+        let spent = t.elapsed();
+        drop(input);
+        spent
+    })
+}
+
+/// `run` returns the time of the part it measures.
+fn time_with(budget: Duration, max_iters: usize, run: &mut dyn FnMut() -> Duration) -> Timing {
     let start = Instant::now();
     let mut samples = Vec::new();
     while samples.is_empty() || (start.elapsed() < budget && samples.len() < max_iters) {
-        let t = Instant::now();
-        f();
-        samples.push(t.elapsed().as_secs_f64());
+        samples.push(run().as_secs_f64());
     }
     samples.sort_by(f64::total_cmp);
     Timing {

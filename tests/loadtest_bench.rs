@@ -89,6 +89,53 @@ fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
 }
 
 #[test]
+fn bench_keeps_prose_edited_while_it_measures_and_prose_may_quote_markers() {
+    use std::io::{BufRead, Write};
+    let dir = tempfile::tempdir().unwrap();
+    let md = dir.path().join("BENCHMARKS.md");
+    // Prose that quotes a marker (as BENCHMARKS.md's heading does) is not a marker.
+    std::fs::write(
+        &md,
+        "# B\n\nSections go between `<!-- bench:ID:begin/end -->` markers.\n",
+    )
+    .unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["bench", "--smoke", "--out", md.to_str().unwrap()])
+        .args(["--plots", dir.path().join("plots").to_str().unwrap()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The first progress line comes after the file was first read.
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    while !line.contains("bench: machine") {
+        line.clear();
+        assert!(stderr.read_line(&mut line).unwrap() > 0, "no progress line");
+    }
+    let edit = "\nA paragraph written while the bench measured.\n";
+    std::fs::OpenOptions::new()
+        .append(true)
+        .open(&md)
+        .unwrap()
+        .write_all(edit.as_bytes())
+        .unwrap();
+    let running_at_edit = child.try_wait().unwrap().is_none();
+    let rest = std::io::read_to_string(stderr).unwrap();
+    let status = child.wait().unwrap();
+    assert!(status.success(), "exit {status:?}: {line}{rest}");
+    let text = std::fs::read_to_string(&md).unwrap();
+    assert!(text.starts_with("# B\n\nSections go between `<!-- bench:ID:begin/end -->` markers.\n"));
+    assert!(text.contains("<!-- bench:automaton:begin -->\n"), "sections written");
+    // The edit must survive the write at the end (it was lost when the file was
+    // read only at the start). A run over before the edit would prove nothing.
+    assert!(
+        running_at_edit,
+        "the smoke run ended before the edit; nothing was tested"
+    );
+    assert!(text.contains(edit), "the edit made during the run was kept");
+}
+
+#[test]
 fn loadtest_reports_sane_figures_against_a_live_server() {
     let server = ServeProcess::start(&[], &[("RUST_LOG", "warn")]);
     let dir = tempfile::tempdir().unwrap();

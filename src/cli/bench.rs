@@ -45,13 +45,8 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         _ => PathBuf::from("."),
     };
     let plots = a.plots.map(PathBuf::from).unwrap_or_else(|| out_dir.join("bench"));
-    let existing = match std::fs::read_to_string(&out) {
-        Ok(s) => s,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => "# Benchmarks\n".to_string(),
-        Err(e) => return Err(format!("cannot read {}: {e}", out.display())),
-    };
     // Fail on broken markers before spending minutes measuring.
-    bench::check_markers(&existing)?;
+    bench::check_markers(&read_document(&out)?)?;
     std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
 
     let start = Instant::now();
@@ -67,7 +62,8 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
             s
         })
         .collect();
-    let merged = bench::merge_sections(&existing, &sections)?;
+    // Read again: prose edited while the run measured (tens of minutes) is kept.
+    let merged = bench::merge_sections(&read_document(&out)?, &sections)?;
     for p in &run.plots {
         let path = plots.join(&p.file);
         super::write_atomically(&path.to_string_lossy(), &p.png)?;
@@ -82,6 +78,15 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         plots.display()
     );
     Ok(())
+}
+
+/// The Markdown file the sections go into (a new one if there is none).
+fn read_document(out: &Path) -> Result<String, String> {
+    match std::fs::read_to_string(out) {
+        Ok(s) => Ok(s),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok("# Benchmarks\n".to_string()),
+        Err(e) => Err(format!("cannot read {}: {e}", out.display())),
+    }
 }
 
 #[cfg(test)]

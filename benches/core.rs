@@ -40,7 +40,7 @@ fn automaton(c: &mut Criterion) {
         b.iter_batched_ref(
             || grids(&levels),
             |g| step_grids(&sim, &drives, g, 8),
-            BatchSize::LargeInput,
+            BatchSize::PerIteration,
         )
     });
     g.bench_function("packed 512x512x10, 8 steps, copies included", |b| {

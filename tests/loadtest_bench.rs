@@ -41,26 +41,61 @@ fn f(v: &serde_json::Value, path: &[&str]) -> f64 {
     v.as_f64().unwrap_or_else(|| panic!("{path:?} is not a number: {v}"))
 }
 
+/// Runs `cloudscape bench --smoke` into `md` (plots beside it) and calls `edit`
+/// once the run has read `md` and started measuring (its first progress line).
+/// Returns the exit status, the run's stderr and whether it was still running
+/// right after the edit (if not, the edit tested nothing).
+fn bench_smoke_editing_midway(md: &std::path::Path, edit: impl FnOnce()) -> (std::process::ExitStatus, String, bool) {
+    use std::io::BufRead;
+    let plots = md.parent().unwrap().join("plots");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["bench", "--smoke", "--out", md.to_str().unwrap()])
+        .args(["--plots", plots.to_str().unwrap()])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("run cloudscape");
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    while !seen.contains("bench: machine") {
+        if stderr.read_line(&mut seen).unwrap() == 0 {
+            panic!("no progress line; exit {:?}, stderr: {seen}", child.wait());
+        }
+    }
+    edit();
+    let running_at_edit = child.try_wait().unwrap().is_none();
+    seen.push_str(&std::io::read_to_string(stderr).unwrap());
+    (child.wait().unwrap(), seen, running_at_edit)
+}
+
 #[test]
 fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
     let dir = tempfile::tempdir().unwrap();
     let md = dir.path().join("BENCHMARKS.md");
-    let prose = "# Benchmarks\n\nHand-written prose.\n\n<!-- bench:http:begin -->\nstale\n<!-- bench:http:end -->\n\nAfter the markers.\n";
+    // Prose may quote a marker (BENCHMARKS.md's heading does): it is not one.
+    let prose = "# Benchmarks\n\nHand-written prose about `<!-- bench:ID:begin/end -->` markers.\n\n\
+                 <!-- bench:http:begin -->\nstale\n<!-- bench:http:end -->\n\nAfter the markers.\n";
     std::fs::write(&md, prose).unwrap();
-    let plots = dir.path().join("plots");
-    let out = cloudscape(&[
-        "bench",
-        "--smoke",
-        "--out",
-        md.to_str().unwrap(),
-        "--plots",
-        plots.to_str().unwrap(),
-    ]);
-    ok(&out);
+    // A paragraph written while the bench measures must survive its write at the
+    // end (it was lost when the file was read only at the start).
+    let edit = "\nA paragraph written while the bench measured.\n";
+    let (status, stderr, running_at_edit) = bench_smoke_editing_midway(&md, || {
+        use std::io::Write;
+        let mut f = std::fs::OpenOptions::new().append(true).open(&md).unwrap();
+        f.write_all(edit.as_bytes()).unwrap();
+    });
+    assert!(status.success(), "exit {status:?}: {stderr}");
     let text = std::fs::read_to_string(&md).unwrap();
-    assert!(text.starts_with("# Benchmarks\n\nHand-written prose.\n\n<!-- bench:http:begin -->\n"));
+    assert!(text.starts_with(
+        "# Benchmarks\n\nHand-written prose about `<!-- bench:ID:begin/end -->` markers.\n\n<!-- bench:http:begin -->\n"
+    ));
     assert!(text.contains("<!-- bench:http:end -->\n\nAfter the markers.\n"));
     assert!(!text.contains("stale"));
+    assert!(
+        running_at_edit,
+        "the smoke run ended before the edit; nothing was tested"
+    );
+    assert!(text.contains(edit), "the edit made during the run was kept");
+    let plots = dir.path().join("plots");
     for id in [
         "machine",
         "automaton",
@@ -89,50 +124,31 @@ fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
 }
 
 #[test]
-fn bench_keeps_prose_edited_while_it_measures_and_prose_may_quote_markers() {
-    use std::io::{BufRead, Write};
+fn bench_keeps_its_figures_when_an_edit_midway_breaks_the_markers() {
     let dir = tempfile::tempdir().unwrap();
     let md = dir.path().join("BENCHMARKS.md");
-    // Prose that quotes a marker (as BENCHMARKS.md's heading does) is not a marker.
-    std::fs::write(
-        &md,
-        "# B\n\nSections go between `<!-- bench:ID:begin/end -->` markers.\n",
-    )
-    .unwrap();
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args(["bench", "--smoke", "--out", md.to_str().unwrap()])
-        .args(["--plots", dir.path().join("plots").to_str().unwrap()])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    // The first progress line comes after the file was first read.
-    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
-    let mut line = String::new();
-    while !line.contains("bench: machine") {
-        line.clear();
-        assert!(stderr.read_line(&mut line).unwrap() > 0, "no progress line");
-    }
-    let edit = "\nA paragraph written while the bench measured.\n";
-    std::fs::OpenOptions::new()
-        .append(true)
-        .open(&md)
-        .unwrap()
-        .write_all(edit.as_bytes())
-        .unwrap();
-    let running_at_edit = child.try_wait().unwrap().is_none();
-    let rest = std::io::read_to_string(stderr).unwrap();
-    let status = child.wait().unwrap();
-    assert!(status.success(), "exit {status:?}: {line}{rest}");
-    let text = std::fs::read_to_string(&md).unwrap();
-    assert!(text.starts_with("# B\n\nSections go between `<!-- bench:ID:begin/end -->` markers.\n"));
-    assert!(text.contains("<!-- bench:automaton:begin -->\n"), "sections written");
-    // The edit must survive the write at the end (it was lost when the file was
-    // read only at the start). A run over before the edit would prove nothing.
+    std::fs::write(&md, "# Benchmarks\n").unwrap();
+    let broken = "# Benchmarks\n<!-- bench:automaton:begin -->\n";
+    let (status, stderr, running_at_edit) = bench_smoke_editing_midway(&md, || std::fs::write(&md, broken).unwrap());
     assert!(
         running_at_edit,
         "the smoke run ended before the edit; nothing was tested"
     );
-    assert!(text.contains(edit), "the edit made during the run was kept");
+    assert!(!status.success(), "broken markers must fail the run: {stderr}");
+    let side = dir.path().join("BENCHMARKS.md.sections.md");
+    assert!(
+        stderr.contains("are broken") && stderr.contains("BENCHMARKS.md.sections.md"),
+        "{stderr}"
+    );
+    // The edited file is left as the editor left it; the figures are not lost.
+    assert_eq!(std::fs::read_to_string(&md).unwrap(), broken);
+    let sections = std::fs::read_to_string(&side).unwrap();
+    for id in ["machine", "automaton", "scaling"] {
+        assert!(
+            sections.contains(&format!("<!-- bench:{id}:begin -->\n")),
+            "section {id} in {side:?}"
+        );
+    }
 }
 
 #[test]

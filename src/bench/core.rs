@@ -62,21 +62,35 @@ fn crop(l: &Level, r: Rect) -> Level {
 /// `steps` steps of the packed kernel over every word of every level, levels in
 /// parallel, from a copy of `levels` (the copies included).
 pub fn packed_steps(sim: &LayerSim, levels: &[Level], drives: &[Drives], steps: i64) {
-    let mut grids = grids(levels);
+    let mut grids = Grids::of(levels);
     step_grids(sim, drives, &mut grids, steps);
     black_box(&grids);
 }
 
-/// The two grids [`step_grids`] steps between: the scene's state and a buffer of its shape.
-pub fn grids(levels: &[Level]) -> (Vec<Level>, Vec<Level>) {
-    (levels.to_vec(), levels.to_vec())
+/// The two grids [`step_grids`] steps between.
+#[derive(Clone, Debug)]
+pub struct Grids {
+    /// The state (at the start, and again after the steps).
+    pub cur: Vec<Level>,
+    /// A buffer of the same shape.
+    pub next: Vec<Level>,
+}
+
+impl Grids {
+    /// The scene's state and a buffer of its shape.
+    pub fn of(levels: &[Level]) -> Grids {
+        Grids {
+            cur: levels.to_vec(),
+            next: levels.to_vec(),
+        }
+    }
 }
 
 /// `steps` steps of the packed kernel over every word of every level, levels in
-/// parallel, from the state in `grids.0` (left in `grids.0`). What the throughput
-/// figures time: a run allocates its grids once, not once per step.
-pub fn step_grids(sim: &LayerSim, drives: &[Drives], grids: &mut (Vec<Level>, Vec<Level>), steps: i64) {
-    let (cur, next) = grids;
+/// parallel, from the state in `grids.cur` (left there). What the throughput
+/// figures time: a run allocates its grids once, not once per call of this.
+pub fn step_grids(sim: &LayerSim, drives: &[Drives], grids: &mut Grids, steps: i64) {
+    let Grids { cur, next } = grids;
     for n in 0..steps {
         let offsets = sim.offsets(64 + n);
         let ctx = StepContext {
@@ -138,7 +152,7 @@ pub fn automaton(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let (sim, levels, drives) = scene(size);
     let depth = sim.depth();
     // The grids are copied outside the timed part (as a run allocates them once).
-    let packed = time_batched(effort, || grids(&levels), |g| step_grids(&sim, &drives, g, steps));
+    let packed = time_batched(effort, || Grids::of(&levels), |g| step_grids(&sim, &drives, g, steps));
     let packed_rate = (size * size) as f64 * depth as f64 * steps as f64 / packed.median_s;
     let (small_sim, small_levels, small_drives) = scene(naive_size);
     let (nl, nd) = to_naive(&small_levels, &small_drives);
@@ -151,7 +165,7 @@ pub fn automaton(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let markdown = format!(
         "Default stratocumulus layer (spatially varying probabilities), state after a warm-up run.\n\n\
          | kernel | grid | time (median of {} / {}) | cell-steps/s |\n|---|---|---|---|\n\
-         | packed (64 cells/u64, {threads} threads) | {size}×{size}×{depth}, {steps} step(s) | {} | {} |\n\
+         | packed (64 cells/u64, {threads} threads; grids copied outside the timing) | {size}×{size}×{depth}, {steps} step(s) | {} | {} |\n\
          | naive (1 byte/cell, 1 thread) | {naive_size}×{naive_size}×{depth}, 1 step | {} | {} |\n\n\
          Packed / naive: **{:.0}×** (same run).\n",
         packed.iters,

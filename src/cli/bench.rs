@@ -62,12 +62,22 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
             s
         })
         .collect();
-    // Read again: prose edited while the run measured (tens of minutes) is kept.
-    let merged = bench::merge_sections(&read_document(&out)?, &sections)?;
     for p in &run.plots {
         let path = plots.join(&p.file);
         super::write_atomically(&path.to_string_lossy(), &p.png)?;
     }
+    // Read again just before writing: prose edited while the run measured (minutes)
+    // is kept. If an edit broke the markers, the measured sections go to a file of
+    // their own rather than being lost.
+    let merged = match bench::merge_sections(&read_document(&out)?, &sections) {
+        Ok(m) => m,
+        Err(e) => {
+            let side = format!("{}.sections.md", a.out);
+            let fresh = bench::merge_sections("", &sections)?;
+            super::write_atomically(&side, fresh.as_bytes())?;
+            return Err(format!("{e}; {} left unchanged, the sections are in {side}", a.out));
+        }
+    };
     super::write_atomically(&a.out, merged.as_bytes())?;
     eprintln!(
         "[{:>6.1} s] bench: wrote {} sections to {} and {} plots to {}",

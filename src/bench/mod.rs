@@ -31,7 +31,7 @@ pub enum Effort {
     Smoke,
     /// About a minute on the 2-core project machine.
     Quick,
-    /// The published figures (tens of minutes).
+    /// The published figures (about 3 minutes on the 2-core project machine).
     Full,
 }
 
@@ -219,6 +219,7 @@ fn marker_lines(document: &str, marker: &str) -> Vec<std::ops::Range<usize>> {
         .collect()
 }
 
+/// The error for a section whose markers do not pair up.
 fn broken(id: &str) -> String {
     format!(
         "the markers of section `{id}` are broken (need one `{}` line before one `{}` line)",

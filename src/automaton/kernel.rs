@@ -22,7 +22,7 @@
 
 use std::ops::Range;
 
-use super::random::{Backend, StepKeys, WordDrive, below_portable};
+use super::random::{Backend, StepKeys, StochasticDrives, below_portable};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -127,7 +127,7 @@ impl Level {
 #[derive(Clone, Debug)]
 pub enum Drives {
     /// Dobashi: per word, the three probabilities as thresholds (see `random`).
-    Stochastic(Vec<WordDrive>),
+    Stochastic(StochasticDrives),
     /// Rosa: per word, `tex_hum > p_hum`, `tex_act > p_act`, and `tex_cld > p_ext` (keep).
     Threshold {
         hum: Vec<u64>,
@@ -190,11 +190,18 @@ pub fn step_level_on(
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
                     unsafe { step_avx512(old, k, words, &keys, ctx, window, out) }
                 }
-                _ => step_rows(old, k, ctx, window, out, |y, wx, i, s| {
-                    dobashi(s, &words[i], |d, e| {
-                        below_portable(&keys, y, wx, e, &d.t[e], d.shift[e])
+                _ => {
+                    let (mantissas, heads) = (words.mantissas(), words.heads());
+                    step_rows(old, k, ctx, window, out, |y, wx, i, s| {
+                        let (t, head) = (&mantissas[i], heads[i]);
+                        dobashi(
+                            s,
+                            words.always(head),
+                            |e| t[e].live(),
+                            |e| below_portable(&keys, y, wx, e, &t[e], head.shift[e]),
+                        )
                     })
-                }),
+                }
             }
         }
         Drives::Threshold { hum, act, keep } => step_rows(old, k, ctx, window, out, |_, _, i, [a, h, c, f]| {
@@ -228,7 +235,7 @@ struct ZRow {
 unsafe fn step_avx512(
     old: &[Level],
     k: usize,
-    words: &[WordDrive],
+    words: &StochasticDrives,
     keys: &StepKeys,
     ctx: &StepContext,
     window: Rect,
@@ -246,6 +253,7 @@ unsafe fn step_avx512(
     let lv = &old[k];
     let wpr = lv.wpr;
     let (w_lo, w_hi) = (span.words.start, span.words.end);
+    let (mantissas, heads) = (words.mantissas(), words.heads());
     // Index vectors: lane l of a chunk starting at word w is word w + l. A lane is
     // read only where its index is in its row (0 ≤ i < n, one unsigned compare).
     let iota = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
@@ -358,16 +366,26 @@ unsafe fn step_avx512(
             #[allow(clippy::needless_range_loop)] // l indexes the three rows of `det` and the drives
             for l in 0..n {
                 let (wl, i) = (w + l, base + w + l);
-                // The drives are the one large stream the kernel reads (256 bytes a
-                // word): fetch a few words ahead. A prefetch past the end is harmless.
-                let ahead = words.as_ptr().wrapping_add(i + 6).cast::<i8>();
-                for line in 0..4 {
+                // The mantissas are the one large stream the kernel reads (192 bytes
+                // a word): fetch a few words ahead. A prefetch past the end is harmless.
+                let ahead = mantissas.as_ptr().wrapping_add(i + 6).cast::<i8>();
+                for line in 0..3 {
                     _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));
                 }
                 let ctr = unsafe { avx512::word(row, span.wx0 + wl as i64) };
-                let [h, a, c] = with_draws([det[0][l], det[1][l], det[2][l]], &words[i], |d, e| unsafe {
-                    avx512::below(&keys, ctr, e, &d.t[e], d.shift[e])
-                });
+                let (t, head) = (&mantissas[i], heads[i]);
+                // A lane is live where its mantissa is not 0.
+                // SAFETY: `Thresholds` is 64 bytes, aligned to 64.
+                let live = |e: usize| unsafe {
+                    let m = _mm512_load_si512(t[e].m.as_ptr().cast());
+                    _mm512_test_epi8_mask(m, m)
+                };
+                let [h, a, c] = with_draws(
+                    [det[0][l], det[1][l], det[2][l]],
+                    words.always(head),
+                    live,
+                    |e| unsafe { avx512::below(&keys, ctr, e, &t[e], head.shift[e]) },
+                );
                 (out.hum[i], out.act[i], out.cld[i]) = (h, a, c);
             }
             w += 8;
@@ -376,26 +394,28 @@ unsafe fn step_avx512(
 }
 
 /// The Dobashi rules for one word from its state `[act, hum, cld, f_act]`, with
-/// `below(drive, event)` the lanes whose draw is below their threshold.
+/// the events' `always` masks, `live(event)` their live lanes and
+/// `below(event)` the lanes whose draw is below their threshold.
 #[inline(always)]
-fn dobashi(s: [u64; 4], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64) -> [u64; 3] {
+fn dobashi(s: [u64; 4], always: [u64; 3], live: impl Fn(usize) -> u64, below: impl Fn(usize) -> u64) -> [u64; 3] {
     let [a, h, c, f] = s;
-    with_draws([h & !a, !a & h & f, c | a], d, below)
+    with_draws([h & !a, !a & h & f, c | a], always, live, below)
 }
 
 /// The Dobashi rules' random part: from the new `[hum, act, cld]` with no event
 /// firing (`[hum ∧ ¬act, ¬act ∧ hum ∧ f_act, cld ∨ act]`), the lanes whose event
 /// fires are added to hum and act and removed from cld. A lane in `always` fires
-/// whatever its draw.
+/// whatever its draw; `live(event)` gives the lanes whose draw can fire and
+/// `below(event)` those whose draw is below their threshold.
 #[inline(always)]
-fn with_draws(det: [u64; 3], d: &WordDrive, below: impl Fn(&WordDrive, usize) -> u64) -> [u64; 3] {
+fn with_draws(det: [u64; 3], always: [u64; 3], live: impl Fn(usize) -> u64, below: impl Fn(usize) -> u64) -> [u64; 3] {
     let [keep_h, act_det, cld_det] = det;
     // An event's draws are made only where a live lane could change the result
     // (hum not kept, act not already set, a cloud to remove). Fields are smooth,
     // so this branch goes the same way for long runs of words.
     let fire = |e: usize, care: u64| {
-        let hit = if care & d.live[e] != 0 { below(d, e) } else { 0 };
-        (d.always[e] | hit) & care
+        let hit = if care & live(e) != 0 { below(e) } else { 0 };
+        (always[e] | hit) & care
     };
     [
         keep_h | fire(0, !keep_h),

@@ -125,12 +125,22 @@ pub struct Thresholds {
     pub m: [u8; 64],
 }
 
+impl Thresholds {
+    /// The lanes whose mantissa is not 0.
+    pub fn live(&self) -> u64 {
+        self.m
+            .iter()
+            .enumerate()
+            .fold(0, |live, (b, &m)| live | (u64::from(m != 0) << b))
+    }
+}
+
 /// The drives of one word: the three events' thresholds and masks. A lane with
 /// q = 65536 is in `always` (its mantissa is 0); a lane whose mantissa is not 0
 /// is in `live`. A word's draws for an event are made only if a lane that could
-/// change the result is live.
+/// change the result is live. Levels hold their words as [`StochasticDrives`];
+/// this is one word of them on its own.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(C, align(64))]
 pub struct WordDrive {
     pub t: [Thresholds; 3],
     pub always: [u64; 3],
@@ -139,65 +149,11 @@ pub struct WordDrive {
 }
 
 impl WordDrive {
-    /// No lane ever fires.
-    pub const NEVER: WordDrive = WordDrive {
-        t: [Thresholds { m: [0; 64] }; 3],
-        always: [0; 3],
-        live: [0; 3],
-        shift: [0; 3],
-    };
-
     /// From the 16-bit thresholds q (0..=65536) of the three events (hum, act, ext).
     pub fn new(q: [&[u32; 64]; 3]) -> WordDrive {
-        let mut d = WordDrive::NEVER;
-        d.set(q);
-        d
-    }
-
-    /// [`WordDrive::new`] in place. A run's drives are written where the kernel
-    /// will read them: built on the stack, the mantissas' narrow stores are read
-    /// back at once by the wide loads of the copy, which the CPU cannot forward
-    /// (perf: that load took over half of `new`'s samples).
-    #[inline]
-    pub fn set(&mut self, q: [&[u32; 64]; 3]) {
-        match crate::fields::noise::Backend::detect() {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `detect` found AVX-512 F (and DQ) on this CPU.
-            crate::fields::noise::Backend::Avx512 => unsafe { self.set_avx512(q) },
-            _ => self.set_baseline(q),
-        }
-    }
-
-    /// [`WordDrive::set`] in the baseline build's form (AVX2 on x86-64-v3).
-    #[inline]
-    pub fn set_baseline(&mut self, q: [&[u32; 64]; 3]) {
-        self.set_with(q, event_thresholds);
-    }
-
-    /// [`WordDrive::set`] with AVX-512: inlined into callers compiled with
-    /// AVX-512 (`run`'s drive conversion), where the three events' dependency
-    /// chains (load, maximum, shift, narrowing) overlap.
-    ///
-    /// # Safety
-    /// The CPU must have AVX-512 F.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx512f")]
-    #[inline]
-    pub unsafe fn set_avx512(&mut self, q: [&[u32; 64]; 3]) {
-        // SAFETY: the caller's CPU has AVX-512 F.
-        self.set_with(q, |q, m| unsafe { event_thresholds_avx512(q, m) });
-    }
-
-    /// Sets each event from its thresholds through `form` (one of the forms of
-    /// [`event_thresholds`]).
-    #[inline(always)]
-    fn set_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64, u64)) {
-        for (e, q) in q.iter().enumerate() {
-            let (shift, always, live) = form(q, &mut self.t[e].m);
-            self.shift[e] = shift;
-            self.always[e] = always;
-            self.live[e] = live;
-        }
+        let mut d = StochasticDrives::with_capacity(1);
+        d.push(q);
+        d.word(0)
     }
 
     /// The 16-bit threshold lane `bit` of event `e` is drawn against (0..=65536).
@@ -210,8 +166,145 @@ impl WordDrive {
     }
 }
 
+/// A word's shifts, and where its `always` masks are if it has any.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[repr(C, align(8))]
+pub struct Head {
+    pub shift: [u8; 3],
+    /// 1 if some lane of the word always fires (its masks are at `slot`), else 0.
+    pub has_always: u8,
+    pub slot: u32,
+}
+
+/// One level's Dobashi drives, word by word, stored as the kernel streams them:
+/// the mantissas in one array (192 bytes a word, whole cache lines) and each
+/// word's [`Head`] in another (8 bytes a word). A lane's `live` bit is its
+/// mantissa being non-zero, so it is not stored, and the `always` masks, which
+/// only probabilities of 1 make, are kept on the side for the words that have
+/// them. Drives are read on every step of a run, and the kernel's time depends
+/// on their size: against the earlier 256 bytes a word (mantissas, masks and
+/// shifts in one record), the packed kernel took 0.85 of the time, both layouts
+/// alternating in one process (BENCHMARKS.md "Automaton").
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct StochasticDrives {
+    mantissas: Vec<[Thresholds; 3]>,
+    heads: Vec<Head>,
+    always: Vec<[u64; 3]>,
+}
+
+impl StochasticDrives {
+    pub fn with_capacity(words: usize) -> StochasticDrives {
+        StochasticDrives {
+            mantissas: Vec::with_capacity(words),
+            heads: Vec::with_capacity(words),
+            always: Vec::new(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.heads.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.heads.is_empty()
+    }
+
+    /// Keeps the first `words` words.
+    pub fn truncate(&mut self, words: usize) {
+        self.mantissas.truncate(words);
+        self.heads.truncate(words);
+    }
+
+    /// Every word's three events' mantissas.
+    #[inline]
+    pub fn mantissas(&self) -> &[[Thresholds; 3]] {
+        &self.mantissas
+    }
+
+    /// Every word's head.
+    #[inline]
+    pub fn heads(&self) -> &[Head] {
+        &self.heads
+    }
+
+    /// The `always` masks of the word with `head`.
+    #[inline]
+    pub fn always(&self, head: Head) -> [u64; 3] {
+        if head.has_always != 0 {
+            self.always[head.slot as usize]
+        } else {
+            [0; 3]
+        }
+    }
+
+    /// Word `i` on its own.
+    pub fn word(&self, i: usize) -> WordDrive {
+        let (t, head) = (self.mantissas[i], self.heads[i]);
+        WordDrive {
+            t,
+            always: self.always(head),
+            live: t.each_ref().map(Thresholds::live),
+            shift: head.shift,
+        }
+    }
+
+    /// Appends a word from the 16-bit thresholds q (0..=65536) of the three events
+    /// (hum, act, ext).
+    #[inline]
+    pub fn push(&mut self, q: [&[u32; 64]; 3]) {
+        match crate::fields::noise::Backend::detect() {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `detect` found AVX-512 F (and DQ) on this CPU.
+            crate::fields::noise::Backend::Avx512 => unsafe { self.push_avx512(q) },
+            _ => self.push_baseline(q),
+        }
+    }
+
+    /// [`StochasticDrives::push`] in the baseline build's form (AVX2 on x86-64-v3).
+    #[inline]
+    pub fn push_baseline(&mut self, q: [&[u32; 64]; 3]) {
+        self.push_with(q, event_thresholds);
+    }
+
+    /// [`StochasticDrives::push`] with AVX-512: inlined into callers compiled
+    /// with AVX-512 (`run`'s drive conversion), where the three events'
+    /// dependency chains (load, maximum, shift, narrowing) overlap.
+    ///
+    /// # Safety
+    /// The CPU must have AVX-512 F.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    pub unsafe fn push_avx512(&mut self, q: [&[u32; 64]; 3]) {
+        // SAFETY: the caller's CPU has AVX-512 F.
+        self.push_with(q, |q, m| unsafe { event_thresholds_avx512(q, m) });
+    }
+
+    /// Appends a word, each event set from its thresholds through `form` (one of
+    /// the forms of [`event_thresholds`]). The mantissas are written where the
+    /// kernel will read them: built on the stack, their narrow stores would be
+    /// read back at once by the wide loads of the copy, which the CPU cannot
+    /// forward (perf: that load took over half of the conversion's samples).
+    #[inline(always)]
+    fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64, u64)) {
+        self.mantissas.push([Thresholds { m: [0; 64] }; 3]);
+        let t = self.mantissas.last_mut().expect("just pushed");
+        let mut head = Head::default();
+        let mut always = [0u64; 3];
+        for (e, q) in q.iter().enumerate() {
+            (head.shift[e], always[e], _) = form(q, &mut t[e].m);
+        }
+        if always != [0; 3] {
+            head.has_always = 1;
+            head.slot = u32::try_from(self.always.len()).expect("fewer than 2^32 words");
+            self.always.push(always);
+        }
+        self.heads.push(head);
+    }
+}
+
 /// One event's mantissas (into `m`) and (shift, always, live) from 16-bit
-/// thresholds, in the baseline build's form ([`WordDrive::set`] takes the AVX-512
+/// thresholds, in the baseline build's form ([`StochasticDrives::push`] takes the AVX-512
 /// form where the CPU has it).
 #[inline]
 fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
@@ -647,6 +740,38 @@ mod tests {
                         got.abs_diff(want) <= unit / 2 || (got == 255 * unit && want > got),
                         "q {want} -> {got}"
                     );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_levels_words_keep_their_own_thresholds() {
+        // Many words, some with lanes that always fire (kept on the side) and some
+        // without: every word reads back as it does on its own, and its always
+        // lanes as 65536, whichever words before it had some.
+        let mut s = 9u64;
+        let mut drives = StochasticDrives::default();
+        let mut words = Vec::new();
+        for i in 0..500 {
+            let mut q = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
+            if i % 3 != 0 {
+                for v in q.iter_mut().flatten() {
+                    *v = (*v).min(65535);
+                }
+            }
+            drives.push(q.each_ref());
+            words.push(q);
+        }
+        assert_eq!(drives.len(), words.len());
+        for (i, q) in words.iter().enumerate() {
+            let d = drives.word(i);
+            assert_eq!(d, WordDrive::new(q.each_ref()), "word {i}");
+            for (e, q) in q.iter().enumerate() {
+                for b in 0..64u32 {
+                    if q[b as usize] >= 65536 {
+                        assert_eq!(d.q(e, b), 65536, "word {i} event {e} lane {b}");
+                    }
                 }
             }
         }

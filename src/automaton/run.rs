@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
-use super::random::WordDrive;
+use super::random::StochasticDrives;
 use crate::fields::noise::Backend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::LevelMapping;
@@ -290,9 +290,9 @@ impl Conversion<'_> {
 }
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds
-/// and set in place ([`WordDrive::set`]), on `backend` (one of
+/// and appended ([`StochasticDrives::push`]), on `backend` (one of
 /// [`Backend::available`]).
-fn stochastic(conv: &Conversion, backend: Backend) -> Vec<WordDrive> {
+fn stochastic(conv: &Conversion, backend: Backend) -> StochasticDrives {
     assert!(
         Backend::available().contains(&backend),
         "{backend:?} conversion on a CPU without it"
@@ -301,13 +301,13 @@ fn stochastic(conv: &Conversion, backend: Backend) -> Vec<WordDrive> {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX-512 F (asserted above).
         Backend::Avx512 => unsafe { stochastic_avx512(conv) },
-        _ => stochastic_with(conv, |d, q| d.set_baseline(q)),
+        _ => stochastic_with(conv, |d, q| d.push_baseline(q)),
     }
 }
 
 #[inline(always)]
-fn stochastic_with(conv: &Conversion, set: impl Fn(&mut WordDrive, [&[u32; 64]; 3])) -> Vec<WordDrive> {
-    let mut out = Vec::with_capacity(conv.lv.wpr * conv.lv.rows);
+fn stochastic_with(conv: &Conversion, push: impl Fn(&mut StochasticDrives, [&[u32; 64]; 3])) -> StochasticDrives {
+    let mut out = StochasticDrives::with_capacity(conv.lv.wpr * conv.lv.rows);
     let mut q = [[0u32; 64]; 3];
     conv.each_word(|_, p| {
         // Plain loops into a buffer kept across words, so `quantize` runs on many lanes at a time.
@@ -316,15 +316,14 @@ fn stochastic_with(conv: &Conversion, set: impl Fn(&mut WordDrive, [&[u32; 64]; 
                 *q = quantize(p);
             }
         }
-        out.push(WordDrive::NEVER);
-        set(out.last_mut().expect("just pushed"), q.each_ref());
+        push(&mut out, q.each_ref());
     });
     out
 }
 
 /// [`stochastic`] compiled with AVX-512: the lane loops of `values` and
 /// `quantize` take 16 lanes per instruction (8 in the baseline build) and
-/// [`WordDrive::set_avx512`] is inlined. The same IEEE operations in the same
+/// [`StochasticDrives::push_avx512`] is inlined. The same IEEE operations in the same
 /// order (Rust never contracts or reorders float arithmetic), so the same bits.
 /// Measured in BENCHMARKS.md "Cold tile" (the conversion phase of
 /// `RUST_LOG=cloudscape=debug target/release/examples/profile_kernel tile`).
@@ -333,9 +332,9 @@ fn stochastic_with(conv: &Conversion, set: impl Fn(&mut WordDrive, [&[u32; 64]; 
 /// The CPU must have AVX-512 F.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-unsafe fn stochastic_avx512(conv: &Conversion) -> Vec<WordDrive> {
+unsafe fn stochastic_avx512(conv: &Conversion) -> StochasticDrives {
     // SAFETY: this function's caller checked the CPU.
-    stochastic_with(conv, |d, q| unsafe { d.set_avx512(q) })
+    stochastic_with(conv, |d, q| unsafe { d.push_avx512(q) })
 }
 
 #[cfg(test)]
@@ -373,7 +372,10 @@ mod tests {
                 for (k, (b, g)) in base.iter().zip(&got).enumerate() {
                     match (b, g) {
                         (Drives::Stochastic(b), Drives::Stochastic(g)) => {
-                            assert!(b.iter().any(|d| d.live != [0; 3]), "level {k}: some drive is live");
+                            assert!(
+                                (0..b.len()).any(|i| b.word(i).live != [0; 3]),
+                                "level {k}: some drive is live"
+                            );
                             assert!(b == g, "{backend:?}: level {k} at step {step}");
                         }
                         _ => panic!("a Dobashi layer has stochastic drives"),

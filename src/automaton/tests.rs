@@ -6,17 +6,17 @@ use proptest::prelude::*;
 
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level, step_level_on};
 use super::naive::{NaiveDrives, NaiveLevel, step};
-use super::random::{Backend, WordDrive};
+use super::random::{Backend, StochasticDrives};
 use crate::fields::noise::mix64;
 
 /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext), 64 cells per word.
 fn stochastic(q: [&[u32]; 3]) -> Drives {
     let lanes = |e: usize, i: usize| -> &[u32; 64] { q[e][64 * i..64 * (i + 1)].try_into().expect("64 lanes") };
-    Drives::Stochastic(
-        (0..q[0].len() / 64)
-            .map(|i| WordDrive::new([lanes(0, i), lanes(1, i), lanes(2, i)]))
-            .collect(),
-    )
+    let mut d = StochasticDrives::with_capacity(q[0].len() / 64);
+    for i in 0..q[0].len() / 64 {
+        d.push([lanes(0, i), lanes(1, i), lanes(2, i)]);
+    }
+    Drives::Stochastic(d)
 }
 
 /// A random scene: per level a grid (origin, words per row, rows), cells and
@@ -108,7 +108,7 @@ proptest! {
                     let d = stochastic([&q[0], &q[1], &q[2]]);
                     // The naive kernel draws against the thresholds the packed drives hold.
                     let Drives::Stochastic(words) = &d else { unreachable!() };
-                    let held = |e: usize| -> Vec<u32> { (0..w * rows).map(|c| words[c / 64].q(e, (c % 64) as u32)).collect() };
+                    let held = |e: usize| -> Vec<u32> { (0..w * rows).map(|c| words.word(c / 64).q(e, (c % 64) as u32)).collect() };
                     ndrives.push(NaiveDrives::Stochastic { hum: held(0), act: held(1), ext: held(2) });
                     pdrives.push(d);
                 }

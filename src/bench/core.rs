@@ -130,7 +130,8 @@ pub fn to_naive(levels: &[Level], drives: &[Drives]) -> (Vec<NaiveLevel>, Vec<Na
             act: (0..n).map(|c| bit(&l.act, c)).collect(),
             cld: (0..n).map(|c| bit(&l.cld, c)).collect(),
         });
-        if let Drives::Stochastic(words) = d {
+        if let Drives::Stochastic(drives) = d {
+            let words: Vec<_> = (0..drives.len()).map(|i| drives.word(i)).collect();
             let q = |e: usize, c: usize| -> u32 { words[(c / w) * l.wpr + (c % w) / 64].q(e, (c % 64) as u32) };
             nd.push(NaiveDrives::Stochastic {
                 hum: (0..n).map(|c| q(0, c)).collect(),

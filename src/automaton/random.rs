@@ -126,12 +126,21 @@ pub struct Thresholds {
 }
 
 impl Thresholds {
-    /// The lanes whose mantissa is not 0.
+    /// The lanes whose mantissa is not 0 (the portable kernel's form; the AVX-512
+    /// kernel tests the 64 bytes in one instruction).
     pub fn live(&self) -> u64 {
-        self.m
-            .iter()
-            .enumerate()
-            .fold(0, |live, (b, &m)| live | (u64::from(m != 0) << b))
+        const LOW7: u64 = 0x7f7f_7f7f_7f7f_7f7f;
+        let mut live = 0u64;
+        for (g, bytes) in self.m.chunks_exact(8).enumerate() {
+            let x = u64::from_le_bytes(bytes.try_into().expect("8 bytes"));
+            // Bit 7 of each byte: set where the byte is not 0 (its low 7 bits,
+            // plus 0x7f, carry into bit 7 without reaching the next byte).
+            let nonzero = (((x & LOW7) + LOW7) | x) & !LOW7;
+            // Gather the 8 bits 7, 15, …, 63 into one byte, lane order kept.
+            let byte = ((nonzero >> 7).wrapping_mul(0x0102_0408_1020_4080) >> 56) & 0xff;
+            live |= byte << (8 * g);
+        }
+        live
     }
 }
 
@@ -707,6 +716,8 @@ mod tests {
             // bytes) and must give the scalar form's mantissas and masks.
             let mut want_m = [0x55; 64];
             let want = event_thresholds_scalar(&q, &mut want_m);
+            // The live lanes a level's drives derive from the mantissas.
+            assert_eq!(Thresholds { m: want_m }.live(), want.2, "{q:?}");
             let check = |name: &str, f: Form| {
                 let mut m = [0xaa; 64];
                 assert_eq!((f(&mut m), m), (want, want_m), "{name} {q:?}");

@@ -192,8 +192,9 @@ pub struct Head {
 /// only probabilities of 1 make, are kept on the side for the words that have
 /// them. Drives are read on every step of a run, and the kernel's time depends
 /// on their size: against the earlier 256 bytes a word (mantissas, masks and
-/// shifts in one record), the packed kernel took 0.85 of the time, both layouts
-/// alternating in one process (BENCHMARKS.md "Automaton").
+/// shifts in one record), the packed kernel took 0.84–0.87 of the time (medians
+/// of two runs with both layouts alternating in one process; BENCHMARKS.md
+/// "Automaton").
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct StochasticDrives {
     mantissas: Vec<[Thresholds; 3]>,
@@ -752,6 +753,24 @@ mod tests {
                         "q {want} -> {got}"
                     );
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn live_lanes_are_the_non_zero_mantissas_for_every_byte_value() {
+        // Each byte value in each lane, the other lanes random or zero.
+        let mut s = 21u64;
+        for v in 0..=255u8 {
+            for b in 0..64 {
+                let mut t = Thresholds { m: [0; 64] };
+                for (i, m) in t.m.iter_mut().enumerate() {
+                    s = mix64(s);
+                    *m = if v % 2 == 0 { 0 } else { (s >> (i % 56)) as u8 };
+                }
+                t.m[b] = v;
+                let want = (0..64).fold(0u64, |l, i| l | (u64::from(t.m[i] != 0) << i));
+                assert_eq!(t.live(), want, "byte {v} in lane {b}");
             }
         }
     }

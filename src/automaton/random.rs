@@ -219,10 +219,18 @@ impl StochasticDrives {
         self.heads.is_empty()
     }
 
-    /// Keeps the first `words` words.
+    /// Keeps the first `words` words (and only their `always` masks).
     pub fn truncate(&mut self, words: usize) {
         self.mantissas.truncate(words);
         self.heads.truncate(words);
+        // Slots are handed out in word order, so the kept words' masks come first.
+        let kept = self
+            .heads
+            .iter()
+            .rev()
+            .find(|h| h.has_always != 0)
+            .map_or(0, |h| h.slot as usize + 1);
+        self.always.truncate(kept);
     }
 
     /// Every word's three events' mantissas.
@@ -296,13 +304,13 @@ impl StochasticDrives {
     /// read back at once by the wide loads of the copy, which the CPU cannot
     /// forward (perf: that load took over half of the conversion's samples).
     #[inline(always)]
-    fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64, u64)) {
+    fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64)) {
         self.mantissas.push([Thresholds { m: [0; 64] }; 3]);
         let t = self.mantissas.last_mut().expect("just pushed");
         let mut head = Head::default();
         let mut always = [0u64; 3];
         for (e, q) in q.iter().enumerate() {
-            (head.shift[e], always[e], _) = form(q, &mut t[e].m);
+            (head.shift[e], always[e]) = form(q, &mut t[e].m);
         }
         if always != [0; 3] {
             head.has_always = 1;
@@ -313,11 +321,12 @@ impl StochasticDrives {
     }
 }
 
-/// One event's mantissas (into `m`) and (shift, always, live) from 16-bit
-/// thresholds, in the baseline build's form ([`StochasticDrives::push`] takes the AVX-512
-/// form where the CPU has it).
+/// One event's mantissas (into `m`) and (shift, always) from 16-bit thresholds,
+/// in the baseline build's form ([`StochasticDrives::push`] takes the AVX-512
+/// form where the CPU has it). Its live lanes are the non-zero mantissas
+/// ([`Thresholds::live`]).
 #[inline]
-fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
+fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
@@ -329,7 +338,8 @@ fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     }
 }
 
-/// The plain form of [`event_thresholds`]: one lane at a time.
+/// The plain form of [`event_thresholds`]: one lane at a time. It also gives the
+/// live lanes, found lane by lane, which the tests hold [`Thresholds::live`] to.
 pub fn event_thresholds_scalar(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
     // The largest shift (most low bits kept) whose mantissas still fit in a byte.
@@ -352,7 +362,7 @@ pub fn event_thresholds_scalar(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64
 /// word of every run, so this conversion is on the path of every cold tile.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[target_feature(enable = "avx2")]
-unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
+unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
     use std::arch::x86_64::*;
     let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
     let limit = _mm256_set1_epi32(65535);
@@ -392,10 +402,7 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u6
     for (i, o) in over.iter().enumerate() {
         always |= (_mm256_movemask_ps(_mm256_castsi256_ps(*o)) as u32 as u64) << (8 * i);
     }
-    let zero = _mm256_setzero_si256();
-    let z0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b0, zero)) as u32 as u64;
-    let z1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b1, zero)) as u32 as u64;
-    (shift as u8, always, !(z0 | (z1 << 32)))
+    (shift as u8, always)
 }
 
 /// [`event_thresholds`] with AVX-512, 16 lanes per vector: the lanes' maximum in
@@ -407,7 +414,7 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u6
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
+unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
     use std::arch::x86_64::*;
     // SAFETY: `q` is 64 lanes, four vectors of 16.
     let v: [__m512i; 4] = std::array::from_fn(|i| unsafe { _mm512_loadu_si512(q.as_ptr().add(16 * i).cast()) });
@@ -423,15 +430,14 @@ unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, 
     let count = _mm_cvtsi32_si128(step as i32);
     let half = _mm512_set1_epi32(((1u32 << step) >> 1) as i32);
     let cap = _mm512_set1_epi32(255);
-    let (mut always, mut live) = (0u64, 0u64);
+    let mut always = 0u64;
     for (i, k) in kept.iter().enumerate() {
         let mant = _mm512_min_epu32(_mm512_srl_epi32(_mm512_add_epi32(*k, half), count), cap);
         // SAFETY: 16 bytes at 16 i, within `m`.
         unsafe { _mm_storeu_si128(m.as_mut_ptr().add(16 * i).cast(), _mm512_cvtepi32_epi8(mant)) };
         always |= (over[i] as u64) << (16 * i);
-        live |= (_mm512_test_epi32_mask(mant, mant) as u64) << (16 * i);
     }
-    (shift as u8, always, live)
+    (shift as u8, always)
 }
 
 /// An implementation of the per-word draws.
@@ -693,7 +699,7 @@ mod tests {
     }
 
     /// One form of `event_thresholds` over a fixed q.
-    type Form<'a> = &'a dyn Fn(&mut [u8; 64]) -> (u8, u64, u64);
+    type Form<'a> = &'a dyn Fn(&mut [u8; 64]) -> (u8, u64);
 
     #[test]
     fn event_thresholds_equal_their_scalar_form() {
@@ -716,9 +722,10 @@ mod tests {
             // Every form writes into a buffer of garbage (so each must write all 64
             // bytes) and must give the scalar form's mantissas and masks.
             let mut want_m = [0x55; 64];
-            let want = event_thresholds_scalar(&q, &mut want_m);
+            let (shift, always, live) = event_thresholds_scalar(&q, &mut want_m);
             // The live lanes a level's drives derive from the mantissas.
-            assert_eq!(Thresholds { m: want_m }.live(), want.2, "{q:?}");
+            assert_eq!(Thresholds { m: want_m }.live(), live, "{q:?}");
+            let want = (shift, always);
             let check = |name: &str, f: Form| {
                 let mut m = [0xaa; 64];
                 assert_eq!((f(&mut m), m), (want, want_m), "{name} {q:?}");
@@ -804,6 +811,22 @@ mod tests {
                     }
                 }
             }
+        }
+        // Cut at word 250 (its predecessor, 249, has always lanes): the side table
+        // keeps the masks of the kept words only, and words pushed after the cut
+        // still find theirs.
+        drives.truncate(250);
+        words.truncate(250);
+        let with_always = words.iter().filter(|q| q.iter().flatten().any(|&v| v >= 65536)).count();
+        assert_eq!(drives.always.len(), with_always);
+        for _ in 0..10 {
+            let q = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
+            drives.push(q.each_ref());
+            words.push(q);
+        }
+        assert_eq!(drives.len(), 260);
+        for (i, q) in words.iter().enumerate() {
+            assert_eq!(drives.word(i), WordDrive::new(q.each_ref()), "word {i} after the cut");
         }
     }
 

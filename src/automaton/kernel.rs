@@ -188,7 +188,13 @@ pub fn step_level_on(
                         "AVX-512 draws on a CPU without them"
                     );
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
-                    unsafe { step_avx512(old, k, words, &keys, ctx, window, out) }
+                    unsafe {
+                        if words.has_always() {
+                            step_avx512::<true>(old, k, words, &keys, ctx, window, out)
+                        } else {
+                            step_avx512::<false>(old, k, words, &keys, ctx, window, out)
+                        }
+                    }
                 }
                 _ => {
                     let (mantissas, heads) = (words.mantissas(), words.heads());
@@ -197,7 +203,7 @@ pub fn step_level_on(
                         dobashi(
                             s,
                             words.always(head),
-                            |e| t[e].live(),
+                            |e| head.live[e],
                             |e| below_portable(&keys, y, wx, e, &t[e], head.shift[e]),
                         )
                     })
@@ -230,9 +236,13 @@ struct ZRow {
 /// keys stay in registers across rows. Each row goes 8 words at a time: f_act and
 /// the rules' deterministic part for the 8 words in vectors, then the draws word
 /// by word, which add (hum, act) or remove (cld) the lanes their events fire in.
+/// `ALWAYS`: whether some word of the level has lanes that always fire. Most
+/// levels have none (only probabilities of exactly 1 make them), and reading no
+/// `always` masks at all took about 5 % off the step on the AMD EPYC machine
+/// (paired in one process; BENCHMARKS.md "Automaton").
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,vaes")]
-unsafe fn step_avx512(
+unsafe fn step_avx512<const ALWAYS: bool>(
     old: &[Level],
     k: usize,
     words: &StochasticDrives,
@@ -374,16 +384,10 @@ unsafe fn step_avx512(
                 }
                 let ctr = unsafe { avx512::word(row, span.wx0 + wl as i64) };
                 let (t, head) = (&mantissas[i], heads[i]);
-                // A lane is live where its mantissa is not 0.
-                // SAFETY: `Thresholds` is 64 bytes, aligned to 64.
-                let live = |e: usize| unsafe {
-                    let m = _mm512_load_si512(t[e].m.as_ptr().cast());
-                    _mm512_test_epi8_mask(m, m)
-                };
                 let [h, a, c] = with_draws(
                     [det[0][l], det[1][l], det[2][l]],
-                    words.always(head),
-                    live,
+                    if ALWAYS { words.always(head) } else { [0; 3] },
+                    |e| head.live[e],
                     |e| unsafe { avx512::below(&keys, ctr, e, &t[e], head.shift[e]) },
                 );
                 (out.hum[i], out.act[i], out.cld[i]) = (h, a, c);

@@ -125,25 +125,6 @@ pub struct Thresholds {
     pub m: [u8; 64],
 }
 
-impl Thresholds {
-    /// The lanes whose mantissa is not 0 (the portable kernel's form; the AVX-512
-    /// kernel tests the 64 bytes in one instruction).
-    pub fn live(&self) -> u64 {
-        const LOW7: u64 = 0x7f7f_7f7f_7f7f_7f7f;
-        let mut live = 0u64;
-        for (g, bytes) in self.m.chunks_exact(8).enumerate() {
-            let x = u64::from_le_bytes(bytes.try_into().expect("8 bytes"));
-            // Bit 7 of each byte: set where the byte is not 0 (its low 7 bits,
-            // plus 0x7f, carry into bit 7 without reaching the next byte).
-            let nonzero = (((x & LOW7) + LOW7) | x) & !LOW7;
-            // Gather the 8 bits 7, 15, …, 63 into one byte, lane order kept.
-            let byte = ((nonzero >> 7).wrapping_mul(0x0102_0408_1020_4080) >> 56) & 0xff;
-            live |= byte << (8 * g);
-        }
-        live
-    }
-}
-
 /// The drives of one word: the three events' thresholds and masks. A lane with
 /// q = 65536 is in `always` (its mantissa is 0); a lane whose mantissa is not 0
 /// is in `live`. A word's draws for an event are made only if a lane that could
@@ -175,31 +156,45 @@ impl WordDrive {
     }
 }
 
-/// A word's shifts, and where its `always` masks are if it has any.
+/// A word's shifts and live lanes, and where its `always` masks are: 32 bytes,
+/// two words a cache line.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[repr(C, align(8))]
+#[repr(C, align(32))]
 pub struct Head {
     pub shift: [u8; 3],
-    /// 1 if some lane of the word always fires (its masks are at `slot`), else 0.
-    pub has_always: u8,
+    /// The word's entry in the `always` side table: 0, the shared entry of no
+    /// masks, unless some lane of the word always fires.
     pub slot: u32,
+    /// Each event's lanes whose mantissa is not 0.
+    pub live: [u64; 3],
 }
 
 /// One level's Dobashi drives, word by word, stored as the kernel streams them:
 /// the mantissas in one array (192 bytes a word, whole cache lines) and each
-/// word's [`Head`] in another (8 bytes a word). A lane's `live` bit is its
-/// mantissa being non-zero, so it is not stored, and the `always` masks, which
-/// only probabilities of 1 make, are kept on the side for the words that have
-/// them. Drives are read on every step of a run, and the kernel's time depends
-/// on their size: against the earlier 256 bytes a word (mantissas, masks and
-/// shifts in one record), the packed kernel took 0.84–0.87 of the time (medians
-/// of two runs with both layouts alternating in one process; BENCHMARKS.md
-/// "Automaton").
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+/// word's [`Head`] in another (32 bytes a word). The `always` masks, which only
+/// probabilities of 1 make, are kept on the side for the words that have them.
+/// Drives are read on every step of a run, and the kernel's time depends on
+/// their size and on how many instructions stand between a word's loads and its
+/// branches (BENCHMARKS.md "Automaton", ninth and tenth sessions):
+/// - against the earlier 256 bytes a word in one record, 200 bytes (live lanes
+///   found from the mantissas, `vptestmb`; a flag before the `always` load) took
+///   0.84–0.87 of the time on the Intel Xeon machine, where the stream came from
+///   memory, but 1.12 on the AMD EPYC machine, where it fits in L3;
+/// - on the AMD machine, 224 bytes (the live lanes stored in the head, and no
+///   `always` masks read in a level that has none) bring it back to 1.01 of the
+///   256-byte records (both forms alternating in one process, one and two
+///   threads).
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct StochasticDrives {
     mantissas: Vec<[Thresholds; 3]>,
     heads: Vec<Head>,
     always: Vec<[u64; 3]>,
+}
+
+impl Default for StochasticDrives {
+    fn default() -> StochasticDrives {
+        StochasticDrives::with_capacity(0)
+    }
 }
 
 impl StochasticDrives {
@@ -207,7 +202,9 @@ impl StochasticDrives {
         StochasticDrives {
             mantissas: Vec::with_capacity(words),
             heads: Vec::with_capacity(words),
-            always: Vec::new(),
+            // Slot 0: the masks of every word with no lane that always fires, so a
+            // word's masks are one load with no flag to test first.
+            always: vec![[0; 3]],
         }
     }
 
@@ -224,13 +221,8 @@ impl StochasticDrives {
         self.mantissas.truncate(words);
         self.heads.truncate(words);
         // Slots are handed out in word order, so the kept words' masks come first.
-        let kept = self
-            .heads
-            .iter()
-            .rev()
-            .find(|h| h.has_always != 0)
-            .map_or(0, |h| h.slot as usize + 1);
-        self.always.truncate(kept);
+        let kept = self.heads.iter().map(|h| h.slot as usize).max().unwrap_or(0);
+        self.always.truncate(kept + 1);
     }
 
     /// Every word's three events' mantissas.
@@ -245,14 +237,15 @@ impl StochasticDrives {
         &self.heads
     }
 
+    /// Whether some word has lanes that always fire.
+    pub fn has_always(&self) -> bool {
+        self.always.len() > 1
+    }
+
     /// The `always` masks of the word with `head`.
     #[inline]
     pub fn always(&self, head: Head) -> [u64; 3] {
-        if head.has_always != 0 {
-            self.always[head.slot as usize]
-        } else {
-            [0; 3]
-        }
+        self.always[head.slot as usize]
     }
 
     /// Word `i` on its own.
@@ -261,7 +254,7 @@ impl StochasticDrives {
         WordDrive {
             t,
             always: self.always(head),
-            live: t.each_ref().map(Thresholds::live),
+            live: head.live,
             shift: head.shift,
         }
     }
@@ -304,16 +297,15 @@ impl StochasticDrives {
     /// read back at once by the wide loads of the copy, which the CPU cannot
     /// forward (perf: that load took over half of the conversion's samples).
     #[inline(always)]
-    fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64)) {
+    fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64, u64)) {
         self.mantissas.push([Thresholds { m: [0; 64] }; 3]);
         let t = self.mantissas.last_mut().expect("just pushed");
         let mut head = Head::default();
         let mut always = [0u64; 3];
         for (e, q) in q.iter().enumerate() {
-            (head.shift[e], always[e]) = form(q, &mut t[e].m);
+            (head.shift[e], always[e], head.live[e]) = form(q, &mut t[e].m);
         }
         if always != [0; 3] {
-            head.has_always = 1;
             head.slot = u32::try_from(self.always.len()).expect("fewer than 2^32 words");
             self.always.push(always);
         }
@@ -321,12 +313,11 @@ impl StochasticDrives {
     }
 }
 
-/// One event's mantissas (into `m`) and (shift, always) from 16-bit thresholds,
-/// in the baseline build's form ([`StochasticDrives::push`] takes the AVX-512
-/// form where the CPU has it). Its live lanes are the non-zero mantissas
-/// ([`Thresholds::live`]).
+/// One event's mantissas (into `m`) and (shift, always, live) from 16-bit
+/// thresholds, in the baseline build's form ([`StochasticDrives::push`] takes the
+/// AVX-512 form where the CPU has it). The live lanes are the non-zero mantissas.
 #[inline]
-fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
+fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
     {
         // SAFETY: the crate is built for x86-64-v3 (.cargo/config.toml), so AVX2 is present.
@@ -338,8 +329,7 @@ fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
     }
 }
 
-/// The plain form of [`event_thresholds`]: one lane at a time. It also gives the
-/// live lanes, found lane by lane, which the tests hold [`Thresholds::live`] to.
+/// The plain form of [`event_thresholds`]: one lane at a time.
 pub fn event_thresholds_scalar(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
     // The largest shift (most low bits kept) whose mantissas still fit in a byte.
@@ -362,7 +352,7 @@ pub fn event_thresholds_scalar(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64
 /// word of every run, so this conversion is on the path of every cold tile.
 #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
 #[target_feature(enable = "avx2")]
-unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
+unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     use std::arch::x86_64::*;
     let v: [__m256i; 8] = std::array::from_fn(|i| unsafe { _mm256_loadu_si256(q.as_ptr().add(8 * i).cast()) });
     let limit = _mm256_set1_epi32(65535);
@@ -402,7 +392,10 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
     for (i, o) in over.iter().enumerate() {
         always |= (_mm256_movemask_ps(_mm256_castsi256_ps(*o)) as u32 as u64) << (8 * i);
     }
-    (shift as u8, always)
+    let zero = _mm256_setzero_si256();
+    let z0 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b0, zero)) as u32 as u64;
+    let z1 = _mm256_movemask_epi8(_mm256_cmpeq_epi8(b1, zero)) as u32 as u64;
+    (shift as u8, always, !(z0 | (z1 << 32)))
 }
 
 /// [`event_thresholds`] with AVX-512, 16 lanes per vector: the lanes' maximum in
@@ -414,7 +407,7 @@ unsafe fn event_thresholds_avx2(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 #[inline]
-unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) {
+unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     use std::arch::x86_64::*;
     // SAFETY: `q` is 64 lanes, four vectors of 16.
     let v: [__m512i; 4] = std::array::from_fn(|i| unsafe { _mm512_loadu_si512(q.as_ptr().add(16 * i).cast()) });
@@ -430,14 +423,15 @@ unsafe fn event_thresholds_avx512(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64) 
     let count = _mm_cvtsi32_si128(step as i32);
     let half = _mm512_set1_epi32(((1u32 << step) >> 1) as i32);
     let cap = _mm512_set1_epi32(255);
-    let mut always = 0u64;
+    let (mut always, mut live) = (0u64, 0u64);
     for (i, k) in kept.iter().enumerate() {
         let mant = _mm512_min_epu32(_mm512_srl_epi32(_mm512_add_epi32(*k, half), count), cap);
         // SAFETY: 16 bytes at 16 i, within `m`.
         unsafe { _mm_storeu_si128(m.as_mut_ptr().add(16 * i).cast(), _mm512_cvtepi32_epi8(mant)) };
         always |= (over[i] as u64) << (16 * i);
+        live |= (_mm512_test_epi32_mask(mant, mant) as u64) << (16 * i);
     }
-    (shift as u8, always)
+    (shift as u8, always, live)
 }
 
 /// An implementation of the per-word draws.
@@ -699,7 +693,7 @@ mod tests {
     }
 
     /// One form of `event_thresholds` over a fixed q.
-    type Form<'a> = &'a dyn Fn(&mut [u8; 64]) -> (u8, u64);
+    type Form<'a> = &'a dyn Fn(&mut [u8; 64]) -> (u8, u64, u64);
 
     #[test]
     fn event_thresholds_equal_their_scalar_form() {
@@ -722,10 +716,10 @@ mod tests {
             // Every form writes into a buffer of garbage (so each must write all 64
             // bytes) and must give the scalar form's mantissas and masks.
             let mut want_m = [0x55; 64];
-            let (shift, always, live) = event_thresholds_scalar(&q, &mut want_m);
-            // The live lanes a level's drives derive from the mantissas.
-            assert_eq!(Thresholds { m: want_m }.live(), live, "{q:?}");
-            let want = (shift, always);
+            let want = event_thresholds_scalar(&q, &mut want_m);
+            // The live lanes are the non-zero mantissas.
+            let non_zero = (0..64).fold(0u64, |l, b| l | (u64::from(want_m[b] != 0) << b));
+            assert_eq!(want.2, non_zero, "{q:?}");
             let check = |name: &str, f: Form| {
                 let mut m = [0xaa; 64];
                 assert_eq!((f(&mut m), m), (want, want_m), "{name} {q:?}");
@@ -760,24 +754,6 @@ mod tests {
                         "q {want} -> {got}"
                     );
                 }
-            }
-        }
-    }
-
-    #[test]
-    fn live_lanes_are_the_non_zero_mantissas_for_every_byte_value() {
-        // Each byte value in each lane, the other lanes random or zero.
-        let mut s = 21u64;
-        for v in 0..=255u8 {
-            for b in 0..64 {
-                let mut t = Thresholds { m: [0; 64] };
-                for (i, m) in t.m.iter_mut().enumerate() {
-                    s = mix64(s);
-                    *m = if v % 2 == 0 { 0 } else { (s >> (i % 56)) as u8 };
-                }
-                t.m[b] = v;
-                let want = (0..64).fold(0u64, |l, i| l | (u64::from(t.m[i] != 0) << i));
-                assert_eq!(t.live(), want, "byte {v} in lane {b}");
             }
         }
     }
@@ -818,7 +794,11 @@ mod tests {
         drives.truncate(250);
         words.truncate(250);
         let with_always = words.iter().filter(|q| q.iter().flatten().any(|&v| v >= 65536)).count();
-        assert_eq!(drives.always.len(), with_always);
+        assert_eq!(
+            drives.always.len(),
+            1 + with_always,
+            "the shared entry and the kept words' masks"
+        );
         for _ in 0..10 {
             let q = [random_q(&mut s), random_q(&mut s), random_q(&mut s)];
             drives.push(q.each_ref());

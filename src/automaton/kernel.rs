@@ -237,9 +237,9 @@ struct ZRow {
 /// the rules' deterministic part for the 8 words in vectors, then the draws word
 /// by word, which add (hum, act) or remove (cld) the lanes their events fire in.
 /// `ALWAYS`: whether some word of the level has lanes that always fire. Most
-/// levels have none (only probabilities of exactly 1 make them), and reading no
-/// `always` masks at all took about 5 % off the step on the AMD EPYC machine
-/// (paired in one process; BENCHMARKS.md "Automaton").
+/// levels have none (only probabilities that quantize to 1 make them), and
+/// reading no `always` masks at all took about 5 % off the step on the AMD EPYC
+/// machine (paired in one process; BENCHMARKS.md "Automaton").
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,vaes")]
 unsafe fn step_avx512<const ALWAYS: bool>(

@@ -169,6 +169,8 @@ pub struct Head {
     pub live: [u64; 3],
 }
 
+const _: () = assert!(std::mem::size_of::<Head>() == 32);
+
 /// One level's Dobashi drives, word by word, stored as the kernel streams them:
 /// the mantissas in one array (192 bytes a word, whole cache lines) and each
 /// word's [`Head`] in another (32 bytes a word). The `always` masks, which only

@@ -105,10 +105,14 @@ proptest! {
             match sc.rules {
                 Rules::Dobashi => {
                     // Half the levels have no lane that always fires (the AVX-512
-                    // kernel then reads no `always` masks).
+                    // kernel then reads no `always` masks); in the others a third of
+                    // the words have none (they share the side table's empty entry).
                     s = mix64(s);
-                    let cap = if s % 2 == 0 { 65535 } else { 65536 };
-                    let q: Vec<Vec<u32>> = (0..3).map(|_| (0..w * rows).map(|_| threshold(&mut s).min(cap)).collect()).collect();
+                    let level_cap = s % 2 == 0;
+                    let word_cap: Vec<bool> = (0..wpr * rows).map(|_| { s = mix64(s); level_cap || s % 3 == 0 }).collect();
+                    let q: Vec<Vec<u32>> = (0..3)
+                        .map(|_| (0..w * rows).map(|c| threshold(&mut s).min(if word_cap[c / 64] { 65535 } else { 65536 })).collect())
+                        .collect();
                     let d = stochastic([&q[0], &q[1], &q[2]]);
                     // The naive kernel draws against the thresholds the packed drives hold.
                     let Drives::Stochastic(words) = &d else { unreachable!() };

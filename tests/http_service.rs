@@ -144,10 +144,10 @@ impl TestServer {
     /// Polls `/readyz` (bounded: start-up computes one column per layer).
     async fn wait_ready(&self) {
         for _ in 0..1200 {
-            if let Ok(r) = self.client.get(format!("{}/readyz", self.base)).send().await {
-                if r.status() == StatusCode::OK {
-                    return;
-                }
+            if let Ok(r) = self.client.get(format!("{}/readyz", self.base)).send().await
+                && r.status() == StatusCode::OK
+            {
+                return;
             }
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
@@ -389,12 +389,12 @@ async fn every_bad_input_gets_a_json_error_and_the_right_status() {
         (format!("{tile}/0/0/0/density.npy?t=1e13"), 422, "time_out_of_range"),
         // unknown world / layer / product / route
         (
-            format!("/v1/worlds/mars/tiles/0/0/0/density.npy?t=0"),
+            "/v1/worlds/mars/tiles/0/0/0/density.npy?t=0".to_string(),
             404,
             "unknown_world",
         ),
         (
-            format!("/v1/worlds/99999999999999999999/tiles/0/0/0/density.npy?t=0"),
+            "/v1/worlds/99999999999999999999/tiles/0/0/0/density.npy?t=0".to_string(),
             404,
             "unknown_world",
         ),

@@ -88,7 +88,7 @@ fn billboards_json_matches_its_documented_shape() {
         assert_eq!(p.len(), 3);
         let (x, y, z) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap(), p[2].as_f64().unwrap());
         assert!(x >= x0 && x < x0 + size && y >= y0 && y < y0 + size, "{b}");
-        assert!(z >= 1500.0 && z <= 2500.0);
+        assert!((1500.0..=2500.0).contains(&z));
         assert!(b["splat"].as_u64().unwrap() < splat_count);
         assert_eq!(b["colour"].as_array().unwrap().len(), 3);
         let a = b["opacity"].as_f64().unwrap();

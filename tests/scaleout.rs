@@ -91,10 +91,10 @@ impl Nginx {
             if let Ok(Some(status)) = nginx.child.try_wait() {
                 panic!("nginx exited ({status}): {}", nginx.error_log());
             }
-            if let Ok(r) = client().get(format!("{}/healthz", nginx.base)).send() {
-                if r.status() == 200 {
-                    break;
-                }
+            if let Ok(r) = client().get(format!("{}/healthz", nginx.base)).send()
+                && r.status() == 200
+            {
+                break;
             }
             assert!(
                 start.elapsed() < Duration::from_secs(20),

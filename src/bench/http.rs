@@ -43,10 +43,10 @@ impl LocalServer {
         let client = client()?;
         let start = Instant::now();
         while start.elapsed() < Duration::from_secs(60) {
-            if let Ok(r) = client.get(format!("{}/readyz", local.base)).send() {
-                if r.status().as_u16() == 200 {
-                    return Ok(local);
-                }
+            if let Ok(r) = client.get(format!("{}/readyz", local.base)).send()
+                && r.status().as_u16() == 200
+            {
+                return Ok(local);
             }
             std::thread::sleep(Duration::from_millis(50));
         }

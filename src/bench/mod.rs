@@ -154,10 +154,13 @@ pub fn fmt_rate(r: f64) -> String {
     format!("{:.1}×10^{}", r / 10f64.powf(e), e as i32)
 }
 
+/// One section of a run: it measures and adds its tables to the run.
+type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
+
 /// Runs every section and reports each one's name to `progress` as it starts.
 pub fn run(effort: Effort, mut progress: impl FnMut(&str)) -> Result<BenchRun, String> {
     let mut out = BenchRun::default();
-    let steps: [(&str, fn(Effort, &mut BenchRun) -> Result<(), String>); 9] = [
+    let steps: [(&str, SectionFn); 9] = [
         ("machine", |e, o| {
             o.sections.push(machine(e));
             Ok(())

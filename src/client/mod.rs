@@ -190,11 +190,11 @@ impl TileClient {
             self.stats.requests += 1;
             let response = request.send().map_err(transport)?;
             let status = response.status().as_u16();
-            if status == 304 {
-                if let Some((_, body)) = self.store.get(path) {
-                    self.stats.revalidated += 1;
-                    return Ok(body.clone());
-                }
+            if status == 304
+                && let Some((_, body)) = self.store.get(path)
+            {
+                self.stats.revalidated += 1;
+                return Ok(body.clone());
             }
             if status == 503 && attempt < MAX_RETRIES {
                 let after = response

@@ -360,7 +360,7 @@ pub fn soak(opts: &SoakOptions) -> Result<SoakReport, String> {
                         Err(Failure::Closed(_)) => {}
                     }
                     let n = done.fetch_add(1, Ordering::Relaxed) + 1;
-                    if opts.progress && n % (opts.requests / 10).max(1) == 0 {
+                    if opts.progress && n.is_multiple_of((opts.requests / 10).max(1)) {
                         eprintln!(
                             "fuzz: {n}/{} requests, {:.0} s",
                             opts.requests,

@@ -188,12 +188,12 @@ impl LoadSpec {
                 "--duration must be more than 0 s and at most a week".into(),
             ));
         }
-        if let Some(r) = self.rate {
-            if !(r.is_finite() && r > 0.0 && r <= 1e6) {
-                return Err(LoadError::Spec(format!(
-                    "--rate must be a number of requests per second in (0, 1e6], got {r}"
-                )));
-            }
+        if let Some(r) = self.rate
+            && !(r.is_finite() && r > 0.0 && r <= 1e6)
+        {
+            return Err(LoadError::Spec(format!(
+                "--rate must be a number of requests per second in (0, 1e6], got {r}"
+            )));
         }
         if !(self.t0.is_finite() && (0.0..=1e12).contains(&self.t0)) {
             return Err(LoadError::Spec(format!("--t must be in [0, 1e12], got {}", self.t0)));

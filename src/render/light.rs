@@ -227,7 +227,7 @@ mod tests {
                     mix: 0.5,
                 }
                 .eval(mu);
-                assert!(v.is_finite() && v >= 0.0 && v <= 2.0e4, "g={g} mu={mu}: {v}");
+                assert!(v.is_finite() && (0.0..=2.0e4).contains(&v), "g={g} mu={mu}: {v}");
             }
         }
     }

@@ -143,10 +143,10 @@ impl ResponseCache {
             let cache = this.cache.clone();
             let shared = this.shared.clone();
             let init = async {
-                if let Some(shared) = &shared {
-                    if let Lookup::Hit(bytes) = shared.get(&m, kind, &key).await {
-                        return Ok(bytes);
-                    }
+                if let Some(shared) = &shared
+                    && let Lookup::Hit(bytes) = shared.get(&m, kind, &key).await
+                {
+                    return Ok(bytes);
                 }
                 let (bytes, siblings) = this.queue.run(&m, kind, job).await?;
                 for (k, b) in &siblings {

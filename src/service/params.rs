@@ -118,6 +118,29 @@ pub fn parse_tile_coordinate(name: &str, value: &str) -> Result<i64, ApiError> {
         .map_err(|_| ApiError::CoordinatesOutOfRange(format!("{name} = {value} does not fit in 64 bits")))
 }
 
+impl Params {
+    /// The query of `uri`, percent-decoded, as the handlers see it (also the entry point
+    /// of the `query` fuzz target).
+    pub fn from_uri(uri: &axum::http::Uri) -> Result<Params, ApiError> {
+        let axum::extract::Query(pairs) =
+            axum::extract::Query::<Vec<(String, String)>>::try_from_uri(uri).map_err(|e| {
+                ApiError::InvalidParameter {
+                    name: "query".to_string(),
+                    message: e.body_text(),
+                }
+            })?;
+        Ok(Params(pairs))
+    }
+}
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Params {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, _state: &S) -> Result<Self, ApiError> {
+        Params::from_uri(&parts.uri)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -161,28 +184,5 @@ mod tests {
         assert_eq!(p.bbox(), Err(ApiError::InvalidBbox));
         let p = Params(vec![("bbox".into(), "0,0,10".into())]);
         assert!(matches!(p.bbox(), Err(ApiError::InvalidParameter { .. })));
-    }
-}
-
-impl Params {
-    /// The query of `uri`, percent-decoded, as the handlers see it (also the entry point
-    /// of the `query` fuzz target).
-    pub fn from_uri(uri: &axum::http::Uri) -> Result<Params, ApiError> {
-        let axum::extract::Query(pairs) =
-            axum::extract::Query::<Vec<(String, String)>>::try_from_uri(uri).map_err(|e| {
-                ApiError::InvalidParameter {
-                    name: "query".to_string(),
-                    message: e.body_text(),
-                }
-            })?;
-        Ok(Params(pairs))
-    }
-}
-
-impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Params {
-    type Rejection = ApiError;
-
-    async fn from_request_parts(parts: &mut axum::http::request::Parts, _state: &S) -> Result<Self, ApiError> {
-        Params::from_uri(&parts.uri)
     }
 }

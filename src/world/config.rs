@@ -458,13 +458,13 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
             "needs 1 <= length <= 4096, warmup <= 4096 and fade <= length",
         ));
     }
-    if let Some(x) = l.extent {
-        if !(x.iter().all(|v| v.is_finite()) && x[0] < x[2] && x[1] < x[3]) {
-            return Err(invalid(
-                format!("{key}.extent"),
-                "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
-            ));
-        }
+    if let Some(x) = l.extent
+        && !(x.iter().all(|v| v.is_finite()) && x[0] < x[2] && x[1] < x[3])
+    {
+        return Err(invalid(
+            format!("{key}.extent"),
+            "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+        ));
     }
     for (i, el) in l.ellipsoids.iter().enumerate() {
         if !(el.centre.iter().all(|v| v.is_finite()) && el.radii.iter().all(|r| r.is_finite() && *r > 0.0)) {

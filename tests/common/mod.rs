@@ -69,10 +69,10 @@ impl ServeProcess {
                 }
                 panic!("cloudscape serve exited before it was ready ({status}): {err}");
             }
-            if let Ok(r) = client.get(format!("{}/readyz", self.base)).send() {
-                if r.status().as_u16() == 200 {
-                    return;
-                }
+            if let Ok(r) = client.get(format!("{}/readyz", self.base)).send()
+                && r.status().as_u16() == 200
+            {
+                return;
             }
             std::thread::sleep(Duration::from_millis(50));
         }

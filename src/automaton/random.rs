@@ -174,7 +174,8 @@ const _: () = assert!(std::mem::size_of::<Head>() == 32);
 /// One level's Dobashi drives, word by word, stored as the kernel streams them:
 /// the mantissas in one array (192 bytes a word, whole cache lines) and each
 /// word's [`Head`] in another (32 bytes a word). The `always` masks, which only
-/// probabilities of 1 make, are kept on the side for the words that have them.
+/// probabilities that quantize to 1 make, are kept on the side for the words
+/// that have them.
 /// Drives are read on every step of a run, and the kernel's time depends on
 /// their size and on how many instructions stand between a word's loads and its
 /// branches (BENCHMARKS.md "Automaton", ninth and tenth sessions):

@@ -158,14 +158,21 @@ impl Lighting {
         [0, 1, 2].map(|i| a * (self.sun_rgb[i] * t * phase + self.ambient_rgb[i]))
     }
 
+    /// Radiance of the clear sky seen along `dir` (a unit vector, z up). Directions
+    /// below the horizon see the horizon's radiance. Every renderer takes its sky
+    /// from here: the background, the light that reaches clouds from the sky.
+    pub fn sky_radiance(&self, dir: [f64; 3]) -> [f64; 3] {
+        let k = dir[2].clamp(0.0, 1.0).sqrt();
+        let horizon = [0.62, 0.70, 0.80];
+        let zenith = [0.22, 0.38, 0.70];
+        [0, 1, 2].map(|i| self.daylight * (horizon[i] * (1.0 - k) + zenith[i] * k))
+    }
+
     /// Radiance of the background along `dir`: sky above the horizon; below it the
     /// ground (albedo 0.25) lit by the sun through cloud transmittance `ground_t`.
     pub fn background(&self, dir: [f64; 3], ground_t: f64) -> [f64; 3] {
         if dir[2] >= 0.0 {
-            let k = dir[2].clamp(0.0, 1.0).sqrt();
-            let horizon = [0.62, 0.70, 0.80];
-            let zenith = [0.22, 0.38, 0.70];
-            [0, 1, 2].map(|i| self.daylight * (horizon[i] * (1.0 - k) + zenith[i] * k))
+            self.sky_radiance(dir)
         } else {
             let g = [0.26, 0.25, 0.21];
             let t = if ground_t.is_finite() {

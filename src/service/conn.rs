@@ -394,7 +394,7 @@ impl AcceptBackoff {
 
 /// Answers a socket over the connection cap with a 503 and closes it. At most
 /// [`REFUSALS`] are answered at once, for at most a second each; past that the socket
-/// is closed at once.
+/// is closed at once (the client sees the connection closed, never a hang).
 fn refuse(mut stream: TcpStream, refusals: &Arc<Semaphore>) {
     let Ok(permit) = Arc::clone(refusals).try_acquire_owned() else {
         return;
@@ -406,11 +406,17 @@ fn refuse(mut stream: TcpStream, refusals: &Arc<Semaphore>) {
             "HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nretry-after: 1\r\nconnection: close\r\ncontent-length: {}\r\n\r\n{body}",
             body.len()
         );
-        let _ = tokio::time::timeout(Duration::from_secs(1), async {
+        let answered = tokio::time::timeout(Duration::from_millis(500), async {
             stream.write_all(answer.as_bytes()).await?;
-            stream.shutdown().await?;
-            // Read what the client sent: closing with unread bytes would reset the
-            // connection and could destroy the answer before the client reads it.
+            stream.shutdown().await
+        });
+        if !matches!(answered.await, Ok(Ok(()))) {
+            return;
+        }
+        // Read what the client sent (until it closes, 64 KiB or half a second):
+        // closing with unread bytes would reset the connection and could destroy the
+        // answer before the client reads it.
+        let _ = tokio::time::timeout(Duration::from_millis(500), async {
             let mut sink = [0u8; 4096];
             let mut total = 0;
             while total < 64 * 1024 {

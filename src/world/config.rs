@@ -57,7 +57,9 @@ pub struct ServerConfig {
     /// from when the server waits for it: bounds slowloris clients.
     pub header_read_timeout_ms: u64,
     /// A kept-alive connection with no request and no byte moving for this long is
-    /// closed, ms.
+    /// closed, ms. (The header-read timeout also runs while a connection waits for
+    /// its next request: the shorter one applies.) Proxies in front should drop idle
+    /// upstream connections sooner (nginx `keepalive_timeout` in the upstream block).
     pub idle_timeout_ms: u64,
     /// A connection whose client takes no byte of its response for this long is
     /// closed and the response freed, ms.
@@ -105,7 +107,7 @@ impl Default for ServerConfig {
             shutdown_timeout_ms: 30_000,
             shutdown_grace_ms: 1000,
             header_read_timeout_ms: 10_000,
-            idle_timeout_ms: 30_000,
+            idle_timeout_ms: 5_000,
             write_timeout_ms: 15_000,
             max_connections: 0,
             max_header_bytes: 64 << 10,

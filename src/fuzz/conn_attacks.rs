@@ -142,6 +142,8 @@ pub struct Recovery {
     /// that stops accepting leaves the rest unable to connect); they stay open.
     pub flood: usize,
     pub flood_connected: usize,
+    /// How long opening the flood took (the server may close early ones meanwhile).
+    pub flood_ms: u64,
     /// Time until a new client got any answer, and its status (`None`: none within
     /// the limit).
     pub first_answer_ms: Option<u64>,
@@ -160,6 +162,7 @@ pub fn recovery_after_flood(addr: &str, flood: usize, limit: Duration) -> io::Re
         .map_err(|_| io::Error::new(ErrorKind::InvalidInput, "an IP:PORT address"))?;
     let mut attackers = Vec::with_capacity(flood);
     let mut failed_in_a_row = 0;
+    let flooding = Instant::now();
     for _ in 0..flood {
         match TcpStream::connect_timeout(&target, Duration::from_secs(2)) {
             Ok(s) => {
@@ -175,6 +178,7 @@ pub fn recovery_after_flood(addr: &str, flood: usize, limit: Duration) -> io::Re
     let mut r = Recovery {
         flood,
         flood_connected: attackers.len(),
+        flood_ms: flooding.elapsed().as_millis() as u64,
         first_answer_ms: None,
         first_status: None,
         first_ok_ms: None,

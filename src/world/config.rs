@@ -69,7 +69,9 @@ pub struct ServerConfig {
     /// reserve (at most 4096).
     pub max_connections: u32,
     /// Largest request head (start line and headers) in bytes, the connection's read
-    /// buffer: a larger one gets 431. Within [8192, 1048576].
+    /// buffer: a larger one gets 431. Within [8192, 1048576]. The default, 96 KiB, has
+    /// room for the longest target the URI parser accepts (64 KiB, else 414) and
+    /// 32 KiB of headers.
     pub max_header_bytes: u32,
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
@@ -110,7 +112,7 @@ impl Default for ServerConfig {
             idle_timeout_ms: 5_000,
             write_timeout_ms: 15_000,
             max_connections: 0,
-            max_header_bytes: 64 << 10,
+            max_header_bytes: 96 << 10,
             max_series: 256,
             redis_url: String::new(),
             redis_timeout_ms: 100,

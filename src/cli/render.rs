@@ -37,7 +37,8 @@ pub struct RenderArgs {
     /// shadow maps and splats over HTTP and composite them here, instead of simulating.
     #[arg(long)]
     server: Option<String>,
-    /// Output PNG; written whole or not at all.
+    /// Output PNG, `-` for stdout. A regular file is replaced whole or not at all;
+    /// a symlink is followed; a FIFO or device is written in place.
     #[arg(long)]
     out: String,
 }
@@ -94,5 +95,5 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
             render(&world, &config, &req).map_err(|e| e.to_string())?
         }
     };
-    super::write_atomically(&a.out, &rendered.image.to_png())
+    super::write_out(&a.out, &rendered.image.to_png())
 }

@@ -13,8 +13,7 @@
 //! measured CPU time (user + system of the process, from `/proc/self/stat`) and peak
 //! RSS growth, and the estimate. The constants were fitted from that run on the
 //! 2-core development machine (AMD EPYC, loaded by other work, so on the slow side)
-//! and rounded up; the test `estimates_are_within_a_factor_of_the_measured_work`
-//! keeps them honest on small cases.
+//! and rounded up (the fitted values are beside each constant).
 
 use crate::density::{self, Region, SimError};
 use crate::render::scene::{RenderRequest, plan};
@@ -48,27 +47,36 @@ impl std::iter::Sum for Work {
 }
 
 /// CPU-seconds per automaton cell-step (a cell of a run's cone at one step: the
-/// packed kernel, its draws, and the share of field evaluation and smoothing).
-const CPU_S_PER_CELL_STEP: f64 = 1.0e-9;
+/// packed kernel and its draws). Measured 4e-10.
+const CPU_S_PER_CELL_STEP: f64 = 5.0e-10;
 /// CPU-seconds per output cell: fields, smoothing and encoding of the grid (level 0),
-/// or the mean-field model (levels above 0).
-const CPU_S_PER_CELL: f64 = 2.0e-7;
-/// Bytes per cell of the density grid and the automaton state behind it.
-const BYTES_PER_CELL: u64 = 48;
+/// or the mean-field model (levels above 0). Measured 1e-8.
+const CPU_S_PER_CELL: f64 = 1.5e-8;
+/// Bytes per cell of the density grid and the automaton state behind it while it
+/// is computed, and of the grid alone (`f32`) once it is.
+const BYTES_PER_CELL: u64 = 24;
+const KEPT_BYTES_PER_CELL: u64 = 4;
 
-/// Per metaball lattice point of a shaded tile, by preset (fast, balanced,
-/// accurate): CPU-seconds of collecting, shading and encoding it.
-const CPU_S_PER_BALL: [f64; 3] = [2.0e-6, 2.0e-6, 2.0e-6];
-/// Bytes per lattice point of a shaded tile (metaballs, billboards, the light
-/// buffer, the encodings of the tile products).
-const BYTES_PER_BALL: u64 = 400;
+/// CPU-seconds per metaball lattice point of a shaded tile (collecting, shading,
+/// encoding the products). Fitted to whole views (1.2e-6 for balanced and accurate,
+/// whose tiles are partly clear sky); a tile full of dense cloud costs up to 3e-6 a
+/// point (2.1 s for an `accurate` level-0 tile of the default world at noon), so a
+/// view of nothing but dense cloud can take ~2.5× its estimate: the time budget and
+/// cancellation catch those.
+const CPU_S_PER_BALL: f64 = 1.2e-6;
+/// Bytes per lattice point that a shaded tile keeps (its billboards), and that
+/// shading it needs for a while (metaballs, the light buffer).
+const KEPT_BYTES_PER_BALL: u64 = 72;
+const SHADING_BYTES_PER_BALL: u64 = 300;
+/// Bytes per lattice point of the encoded tile products (JSON, binary, atlas).
+const ENCODED_BYTES_PER_BALL: u64 = 300;
 
-/// Compositing, by preset: CPU-seconds per pixel per tile in view (the overdraw of
-/// billboards grows with both).
-const CPU_S_PER_PIXEL_TILE: [f64; 3] = [3.0e-8, 5.0e-8, 1.5e-7];
+/// Compositing, by preset (fast, balanced, accurate): CPU-seconds per pixel per tile
+/// in view (the overdraw of billboards grows with both). Measured 2.8e-8, 1e-7, 3e-7.
+const CPU_S_PER_PIXEL_TILE: [f64; 3] = [3.0e-8, 1.0e-7, 3.0e-7];
 /// The reference ray marcher: CPU-seconds per pixel per march step across the
-/// layers' thickness.
-const CPU_S_PER_PIXEL_STEP: f64 = 3.0e-7;
+/// layers' thickness. Measured 1.3e-6 (96 steps in the default world).
+const CPU_S_PER_PIXEL_STEP: f64 = 1.5e-6;
 /// Bytes per pixel of a rendered image: linear RGB + alpha in f32, and its PNG.
 const BYTES_PER_PIXEL: u64 = 24;
 
@@ -101,9 +109,10 @@ pub fn tile_balls(l: &Layer, z: u32, q: Quality) -> u64 {
     per_side * per_side * levels
 }
 
-/// The work of `render::shade_tile(world, layer, tile, t, q, sun, ..)`: the density
-/// of the tile and its halo, then its metaballs and their shading.
-pub fn shade_tile(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Sun) -> Result<Work, RenderError> {
+/// The work of one shaded tile: the density of the tile and its halo, then its
+/// metaballs and their shading. `bytes` is what shading it needs at its peak; the
+/// second value is what the [`crate::render::ShadedTile`] keeps afterwards.
+fn shaded(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Sun) -> Result<(Work, u64), RenderError> {
     let l = world
         .layers
         .get(layer)
@@ -119,37 +128,68 @@ pub fn shade_tile(world: &World, layer: usize, tile: TileId, t: f64, q: Quality,
     };
     let d = density(world, layer, tile.z, halo_region, t)?;
     let balls = tile_balls(l, tile.z, q);
-    Ok(d + Work {
-        cpu_s: balls as f64 * CPU_S_PER_BALL[preset_index(q)],
-        bytes: balls.saturating_mul(BYTES_PER_BALL),
+    let cells = (halo_region.cols * halo_region.rows) as u64 * l.depth as u64;
+    let kept = balls
+        .saturating_mul(KEPT_BYTES_PER_BALL)
+        .saturating_add(cells * KEPT_BYTES_PER_CELL);
+    let work = Work {
+        cpu_s: d.cpu_s + balls as f64 * CPU_S_PER_BALL,
+        bytes: kept
+            .saturating_add(balls.saturating_mul(SHADING_BYTES_PER_BALL))
+            .max(d.bytes),
+    };
+    Ok((work, kept))
+}
+
+/// The work of a tile product: `render::shade_tile(world, layer, tile, t, q, sun, ..)`
+/// and the encoding of the tile's products.
+pub fn shade_tile(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Sun) -> Result<Work, RenderError> {
+    let (work, _) = shaded(world, layer, tile, t, q, sun)?;
+    let l = &world.layers[layer];
+    let encoded = tile_balls(l, tile.z, q).saturating_mul(ENCODED_BYTES_PER_BALL);
+    Ok(Work {
+        cpu_s: work.cpu_s,
+        bytes: work.bytes.saturating_add(encoded),
     })
 }
 
 /// The work of `render::scene::render(world, config, req)`: every tile the view
-/// plans, then compositing (or ray marching) its pixels.
+/// plans (shaded a compute thread at a time, all kept until drawn), then
+/// compositing (or ray marching) its pixels.
 pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Work, RenderError> {
     let tiles = plan(world, config, req)?;
     let sun = crate::render::scene::request_sun(config, req);
-    let shading: Work = tiles
-        .iter()
-        .map(|&(layer, tile)| shade_tile(world, layer, tile, req.t, req.quality, sun))
-        .sum::<Result<Work, RenderError>>()?;
+    let mut cpu_s = 0.0;
+    let mut kept = 0u64;
+    let mut peak_shading = 0u64;
+    for &(layer, tile) in &tiles {
+        let (w, k) = shaded(world, layer, tile, req.t, req.quality, sun)?;
+        cpu_s += w.cpu_s;
+        kept = kept.saturating_add(k);
+        peak_shading = peak_shading.max(w.bytes - k);
+    }
+    let threads = rayon::current_num_threads().clamp(1, tiles.len().max(1)) as u64;
     let pixels = (req.width * req.height) as u64;
-    let drawing = if req.quality == Quality::Reference {
-        let steps: f64 = world
-            .layers
-            .iter()
-            .map(|l| (l.top() - l.base) / (l.cell_height * req.quality.settings().march_step_cells))
-            .sum();
-        pixels as f64 * steps * CPU_S_PER_PIXEL_STEP
+    cpu_s += if req.quality == Quality::Reference {
+        pixels as f64 * march_steps(world, req.quality) * CPU_S_PER_PIXEL_STEP
     } else {
         pixels as f64 * tiles.len() as f64 * CPU_S_PER_PIXEL_TILE[preset_index(req.quality)]
     };
-    Ok(shading
-        + Work {
-            cpu_s: drawing,
-            bytes: pixels.saturating_mul(BYTES_PER_PIXEL),
-        })
+    Ok(Work {
+        cpu_s,
+        bytes: kept
+            .saturating_add(peak_shading.saturating_mul(threads))
+            .saturating_add(pixels.saturating_mul(BYTES_PER_PIXEL)),
+    })
+}
+
+/// Ray-marcher steps across every layer's thickness (the view step of `q`).
+fn march_steps(world: &World, q: Quality) -> f64 {
+    world
+        .layers
+        .iter()
+        .map(|l| (l.top() - l.base) / (l.cell_height * q.settings().march_step_cells))
+        .sum()
 }
 
 #[cfg(test)]
@@ -185,6 +225,66 @@ mod tests {
             sun: None,
             params: ShadingParams::default(),
         }
+    }
+
+    #[test]
+    fn run_cells_is_the_closed_form_of_the_cone_without_wind() {
+        use crate::automaton::{LayerSim, Rect, RunSpec};
+        let config = Config::embedded();
+        let mut world = config.world("default").unwrap();
+        world.layers[0].wind = [0.0, 0.0];
+        world.layers[0].shear = [0.0, 0.0];
+        let sim = LayerSim::new(&world, 0);
+        let depth = world.layers[0].depth as u64;
+        let (w, h, steps) = (40u64, 25u64, 7i64);
+        let window = Rect {
+            x0: -3,
+            x1: -3 + w as i64,
+            y0: 11,
+            y1: 11 + h as i64,
+        };
+        let spec = RunSpec {
+            reference_step: 0,
+            start: 100,
+            snapshots: vec![100 + steps],
+            windows: vec![window; depth as usize],
+        };
+        // Step s (1..=S) computes the window grown by 2 cells a side per step left.
+        let expected: u64 = (0..steps as u64).map(|j| (w + 4 * j) * (h + 4 * j) * depth).sum();
+        assert_eq!(sim.run_cells(&spec), expected);
+    }
+
+    #[test]
+    fn the_issue_render_is_over_a_two_thread_budget_and_estimates_grow_with_the_work() {
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let est = |q, size| render(&world, &config, &view(q, size)).unwrap();
+        // render.png?size=4096x4096&quality=accurate: ~55 CPU-s measured; the default
+        // budget is 10 s on 2 threads.
+        let huge = est(Quality::Accurate, 4096);
+        assert!(huge.cpu_s > 20.0, "{huge:?}");
+        assert!(huge.bytes > 1 << 30, "{huge:?}");
+        for q in [Quality::Fast, Quality::Balanced, Quality::Accurate] {
+            let (small, big) = (est(q, 256), est(q, 1024));
+            assert!(small.cpu_s < big.cpu_s && small.bytes < big.bytes, "{q:?}");
+        }
+        assert!(est(Quality::Fast, 512).cpu_s < est(Quality::Balanced, 512).cpu_s);
+        assert!(est(Quality::Balanced, 512).cpu_s < est(Quality::Accurate, 512).cpu_s);
+        // A density tile costs what its cone costs: more steps since the epoch's start
+        // run, more work.
+        let region = Region {
+            x0: 0,
+            y0: 0,
+            cols: 64,
+            rows: 64,
+        };
+        let wide = Region {
+            cols: 128,
+            rows: 128,
+            ..region
+        };
+        let d = density(&world, 0, 0, region, 1000.0).unwrap();
+        assert!(d.cpu_s > 0.0 && d.cpu_s < density(&world, 0, 0, wide, 1000.0).unwrap().cpu_s);
     }
 
     /// Prints units, measured CPU and memory, and the estimate, for each kind of work
@@ -223,6 +323,7 @@ mod tests {
             let tile = TileId { z: 0, x: 0, y: 0 };
             let sun = Sun::new(180.0, 40.0).unwrap();
             let est = shade_tile(&world, 0, tile, 43200.0, q, sun).unwrap();
+            println!("  (march steps of the world: {})", march_steps(&world, Quality::Reference));
             let balls = tile_balls(&world.layers[0], 0, q);
             measure(&format!("shade_tile {} ({balls} balls)", q.as_str()), est, &mut || {
                 let s = crate::render::shade_tile(

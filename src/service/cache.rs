@@ -33,8 +33,10 @@ use crate::cost::Work;
 
 /// Mean job time the queue assumes before it has measured any, seconds.
 const INITIAL_MEAN_JOB_S: f64 = 0.05;
+/// `mean_job_s` before the first job ends (no `f64` has these bits: a NaN payload).
+const NO_JOB_YET: u64 = u64::MAX;
 /// Weight of the newest job in the running mean of job times.
-const MEAN_JOB_WEIGHT: f64 = 0.2;
+const MEAN_JOB_WEIGHT: f64 = 0.25;
 /// `Retry-After` bounds, seconds.
 const RETRY_AFTER_S: (u32, u32) = (1, 60);
 
@@ -58,7 +60,7 @@ impl ComputeQueue {
             capacity,
             memory: Arc::new(Semaphore::new(memory_mib as usize)),
             memory_mib,
-            mean_job_s: Arc::new(AtomicU64::new(INITIAL_MEAN_JOB_S.to_bits())),
+            mean_job_s: Arc::new(AtomicU64::new(NO_JOB_YET)),
         }
     }
 
@@ -71,7 +73,10 @@ impl ComputeQueue {
     /// (jobs × their recent mean time) spread over the compute threads, in whole
     /// seconds within [1, 60].
     pub fn retry_after(&self) -> u32 {
-        let mean = f64::from_bits(self.mean_job_s.load(Ordering::Relaxed));
+        let mean = match self.mean_job_s.load(Ordering::Relaxed) {
+            NO_JOB_YET => INITIAL_MEAN_JOB_S,
+            m => f64::from_bits(m),
+        };
         let threads = rayon::current_num_threads().max(1) as f64;
         let s = (self.depth().max(1) as f64 * mean / threads).ceil();
         s.clamp(RETRY_AFTER_S.0 as f64, RETRY_AFTER_S.1 as f64) as u32
@@ -115,7 +120,8 @@ impl ComputeQueue {
             let took = started.elapsed().as_secs_f64();
             timer.observe(took);
             let _ = mean.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |m| {
-                let m = f64::from_bits(m);
+                // The first measured job replaces the assumed mean outright.
+                let m = if m == NO_JOB_YET { took } else { f64::from_bits(m) };
                 Some((m + MEAN_JOB_WEIGHT * (took - m)).to_bits())
             });
             drop(memory);

@@ -57,6 +57,12 @@ pub struct FuzzArgs {
     /// attack: requests per burst.
     #[arg(long, default_value_t = 8)]
     burst: usize,
+    /// attack: image size of the admitted burst's renders (heavy, within the limits).
+    #[arg(long, default_value = "1024x1024")]
+    heavy_size: String,
+    /// attack: quality of the admitted burst's renders.
+    #[arg(long, default_value = "accurate")]
+    heavy_quality: String,
 }
 
 pub fn run(a: FuzzArgs) -> Result<(), String> {
@@ -109,6 +115,8 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
         budget_s: a.budget,
         rss_limit_mib: a.rss_limit_mib,
         burst: a.burst,
+        heavy_size: a.heavy_size,
+        heavy_quality: a.heavy_quality,
         world: "default".to_string(),
         progress: true,
     })?;

@@ -5,7 +5,8 @@
 //!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
 //!   each on the development machine) at once. They must be refused up front.
 //! - **Render burst (admitted)**: eight heavy renders that are within the limits
-//!   one at a time (1024² `accurate`, about 12 CPU-seconds each), all at once. The
+//!   one at a time (by default 1024² `accurate`, about 12 CPU-seconds each; choose
+//!   one that fits a smaller budget), all at once. The
 //!   server may shed or time them out, but must stop the work nobody waits for.
 //!   Recovery: the time from the burst until an uncached cheap request (a density
 //!   tile never asked before) answers 200 again. Target: at most 2 × the budget.
@@ -38,6 +39,10 @@ pub struct AttackOptions {
     pub rss_limit_mib: u64,
     /// Requests per burst.
     pub burst: usize,
+    /// Size and quality of the admitted burst's renders (`1024x1024`, `accurate`):
+    /// heavy, but within the limits of the server's budget.
+    pub heavy_size: String,
+    pub heavy_quality: String,
     /// The `world` to attack.
     pub world: String,
     /// Progress lines on stderr.
@@ -258,9 +263,9 @@ fn tally(answers: &[Answer], notes: &mut Vec<String>) -> BTreeMap<String, u64> {
 }
 
 /// A render URL of the burst; `i` moves the camera so every request is a new key.
-fn render_url(o: &AttackOptions, i: usize, size: &str, run: u64) -> String {
+fn render_url(o: &AttackOptions, i: usize, size: &str, quality: &str, run: u64) -> String {
     format!(
-        "{}/v1/worlds/{}/render.png?camera={},{},1200,0,8,70&t=43200&size={size}&quality=accurate",
+        "{}/v1/worlds/{}/render.png?camera={},{},1200,0,8,70&t=43200&size={size}&quality={quality}",
         o.target,
         o.world,
         12_800 + 37 * i as u64 + 1000 * run,
@@ -316,7 +321,7 @@ fn outcome(name: &str, statuses: BTreeMap<String, u64>, figures: BTreeMap<String
 /// Eight requests that cannot finish in any budget: refused up front, and the
 /// server serves at once afterwards.
 fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
-    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, "4096x4096", 0)).collect();
+    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, "4096x4096", "accurate", 0)).collect();
     let started = Instant::now();
     let answers = burst(client, &urls);
     let answered_s = started.elapsed().as_secs_f64();
@@ -351,7 +356,7 @@ fn check_recovery(o: &AttackOptions, rec: Option<f64>, notes: &mut Vec<String>) 
 /// the queue is free again within 2 × the budget.
 fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
     let run = salt() % 100_000;
-    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, "1024x1024", 1 + run)).collect();
+    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run)).collect();
     let started = Instant::now();
     let answers = burst(client, &urls);
     let answered_s = started.elapsed().as_secs_f64();

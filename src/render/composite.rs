@@ -19,6 +19,8 @@
 
 use rayon::prelude::*;
 
+use crate::cancel::Cancel;
+
 use super::camera::View;
 use super::image::Image;
 use super::light::Lighting;
@@ -51,6 +53,19 @@ const AROUND_EYE_RADII: f64 = 2.0;
 
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
 pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
+    composite_cancellable(image, billboards, sheet, lighting, view, &Cancel::never());
+}
+
+/// [`composite`] that leaves the remaining bands undrawn once `cancel` fires (the
+/// caller then discards the image).
+pub fn composite_cancellable(
+    image: &mut Image,
+    billboards: &[Billboard],
+    sheet: &SplatSheet,
+    lighting: &Lighting,
+    view: &View,
+    cancel: &Cancel,
+) {
     /// How a billboard covers the screen.
     enum Footprint {
         /// A splat on a quad of `r_px` pixels around its projected centre.
@@ -130,6 +145,9 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
         .zip(rgb_chunks.drain(..).zip(a_chunks.drain(..)))
         .collect();
     work.into_par_iter().for_each(|((y0, y1), (rgb, alpha))| {
+        if cancel.is_fired() {
+            return;
+        }
         let n = (y1 - y0) * width;
         let mut acc = vec![[0.0f64; 3]; n];
         let mut acc_a = vec![0.0f64; n];

@@ -12,6 +12,7 @@
 
 use rayon::prelude::*;
 
+use crate::cancel::Cancel;
 use crate::density::Grid;
 use crate::density::metaballs::GridPlacement;
 
@@ -276,6 +277,19 @@ pub fn march_ray(
 /// shadowed by a shadow ray) behind them. Rows are independent, so the image does
 /// not depend on the thread count.
 pub fn render(volumes: &[Volume], lighting: &Lighting, params: &MarchParams, view: &View, background: bool) -> Image {
+    render_cancellable(volumes, lighting, params, view, background, &Cancel::never())
+}
+
+/// [`render`] that leaves the remaining rows black once `cancel` fires (the caller
+/// then discards the image).
+pub fn render_cancellable(
+    volumes: &[Volume],
+    lighting: &Lighting,
+    params: &MarchParams,
+    view: &View,
+    background: bool,
+    cancel: &Cancel,
+) -> Image {
     let mut img = Image::new(view.width, view.height);
     let width = view.width;
     let rows: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..view.height)
@@ -283,6 +297,9 @@ pub fn render(volumes: &[Volume], lighting: &Lighting, params: &MarchParams, vie
         .map(|y| {
             let mut rgb = Vec::with_capacity(width);
             let mut alpha = Vec::with_capacity(width);
+            if cancel.is_fired() {
+                return (vec![[0.0; 3]; width], vec![0.0; width]);
+            }
             for x in 0..width {
                 let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
                 let (c, a) = trace(volumes, lighting, params, o, d, background);

@@ -11,15 +11,17 @@
 
 use rayon::prelude::*;
 
+use crate::cancel::Cancel;
+use crate::density::SimError;
 use crate::world::{Config, World};
 
 use super::camera::{Camera, View};
-use super::composite::composite;
+use super::composite::composite_cancellable;
 use super::image::Image;
 use super::light::{Lighting, ShadingParams};
 use super::march::{self, MarchParams, Volume};
 use super::sun::Sun;
-use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile};
+use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile_cancellable};
 use super::{Quality, RenderError};
 
 /// Clouds farther than this (horizontally, metres) from the camera are not drawn.
@@ -211,16 +213,32 @@ pub fn request_sun(config: &Config, req: &RenderRequest) -> Sun {
 
 /// Plans the view and shades its tiles (in parallel).
 pub fn prepare(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<ShadedTile>, RenderError> {
+    prepare_cancellable(world, config, req, &Cancel::never())
+}
+
+/// [`prepare`] that stops shading tiles once `cancel` fires (then an error).
+pub fn prepare_cancellable(
+    world: &World,
+    config: &Config,
+    req: &RenderRequest,
+    cancel: &Cancel,
+) -> Result<Vec<ShadedTile>, RenderError> {
     let tiles = plan(world, config, req)?;
     let sun = request_sun(config, req);
     tiles
         .par_iter()
-        .map(|&(layer, tile)| shade_tile(world, layer, tile, req.t, req.quality, sun, &req.params, &config.limits))
+        .map(|&(layer, tile)| {
+            shade_tile_cancellable(world, layer, tile, req.t, req.quality, sun, &req.params, &config.limits, cancel)
+        })
         .collect()
 }
 
 /// Draws shaded tiles with the billboard compositor over sky and shadowed ground.
 pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> Image {
+    draw_billboards_cancellable(tiles, req, sun, &Cancel::never())
+}
+
+fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun.bucket().centre(), req.params);
     let sheet = req.quality.splat_sheet();
@@ -228,7 +246,7 @@ pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> I
         tiles.iter().map(|t| t.shadow_at(x, y)).product()
     });
     let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards.iter().copied()).collect();
-    composite(&mut image, &all, &sheet, &lighting, &view);
+    composite_cancellable(&mut image, &all, &sheet, &lighting, &view, cancel);
     image
 }
 
@@ -265,9 +283,19 @@ pub fn reference_step(tiles: &[ShadedTile], quality: Quality) -> f64 {
 
 /// Draws `volumes` with the ray marcher for the exact `sun`.
 pub fn draw_reference(volumes: &[Volume], req: &RenderRequest, sun: Sun, params: &MarchParams) -> Image {
+    draw_reference_cancellable(volumes, req, sun, params, &Cancel::never())
+}
+
+fn draw_reference_cancellable(
+    volumes: &[Volume],
+    req: &RenderRequest,
+    sun: Sun,
+    params: &MarchParams,
+    cancel: &Cancel,
+) -> Image {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun, req.params);
-    march::render(volumes, &lighting, params, &view, true)
+    march::render_cancellable(volumes, &lighting, params, &view, true, cancel)
 }
 
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
@@ -294,13 +322,25 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
 /// Renders a request: the billboard compositor for `fast | balanced | accurate`, the
 /// ray marcher for `reference`.
 pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Rendered, RenderError> {
+    render_cancellable(world, config, req, &Cancel::never())
+}
+
+/// [`render`] that stops early once `cancel` fires (then an error): between tiles,
+/// between the compositor's bands and between the ray marcher's rows.
+pub fn render_cancellable(
+    world: &World,
+    config: &Config,
+    req: &RenderRequest,
+    cancel: &Cancel,
+) -> Result<Rendered, RenderError> {
     let sun = request_sun(config, req);
-    let tiles = prepare(world, config, req)?;
+    let tiles = prepare_cancellable(world, config, req, cancel)?;
     let ids = tiles.iter().map(|t| (t.layer, t.tile)).collect();
     if req.quality == Quality::Reference {
         let vols = volumes(&tiles);
         let params = MarchParams::with_step(reference_step(&tiles, req.quality));
-        let image = draw_reference(&vols, req, sun, &params);
+        let image = draw_reference_cancellable(&vols, req, sun, &params, cancel);
+        cancel.check().map_err(SimError::from)?;
         Ok(Rendered {
             image,
             tiles: ids,
@@ -308,8 +348,9 @@ pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Ren
             sun,
         })
     } else {
-        let image = draw_billboards(&tiles, req, sun);
+        let image = draw_billboards_cancellable(&tiles, req, sun, cancel);
         let billboards = tiles.iter().map(|t| t.billboards.len()).sum();
+        cancel.check().map_err(SimError::from)?;
         Ok(Rendered {
             image,
             tiles: ids,

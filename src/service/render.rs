@@ -10,7 +10,8 @@ use axum::http::HeaderMap;
 use axum::response::Response;
 
 use crate::products::splats;
-use crate::render::scene::{RenderRequest, parse_size, plan, render};
+use crate::cost::{self, Work};
+use crate::render::scene::{RenderRequest, parse_size, render_cancellable};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
 
 use super::error::ApiError;
@@ -77,8 +78,9 @@ pub async fn render_png(
         sun: Some(sun),
         params: ShadingParams::default(),
     };
-    // The render limits (pixels, tiles in view) are checked here, before any work.
-    plan(&resolved.world, config, &request)?;
+    // The render limits (pixels, tiles in view) and the estimated work (CPU within
+    // the time budget, memory) are checked here, before any work.
+    let work = s.admit("render", cost::render(&resolved.world, config, &request)?)?;
     let p = camera.position;
     let key = CacheKey::new("render", &resolved, 0)
         .with(
@@ -105,11 +107,11 @@ pub async fn render_png(
     let config = config.clone();
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "render", key, move || {
-            Ok(Bytes::from(render(&world, &config, &request)?.image.to_png()))
+        .get_or_compute(&s.metrics, "render", key, work, move |cancel| {
+            Ok(Bytes::from(render_cancellable(&world, &config, &request, cancel)?.image.to_png()))
         })
         .await?;
-    Ok(repr.ok("image/png", bytes))
+    repr.ok(&s, "image/png", bytes)
 }
 
 /// The cache key of a splat sheet.
@@ -141,9 +143,11 @@ async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool
     }
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "splats", key, move || Ok(splats_bytes(quality, json)))
+        .get_or_compute(&s.metrics, "splats", key, Work::default(), move |_| {
+            Ok(splats_bytes(quality, json))
+        })
         .await?;
-    Ok(repr.ok(if json { "application/json" } else { "image/png" }, bytes))
+    repr.ok(&s, if json { "application/json" } else { "image/png" }, bytes)
 }
 
 #[utoipa::path(

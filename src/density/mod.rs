@@ -26,6 +26,7 @@ const HARD_LIMITS: Limits = Limits {
     max_columns: 1 << 15,
     max_cells: 1 << 28,
     max_level: 40,
+    max_path_samples: 1 << 24,
 };
 
 /// The density of layer `layer` of `world` over `region` (columns at `level`) at time `t`.

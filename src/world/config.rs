@@ -132,6 +132,14 @@ pub struct Limits {
     pub max_cells: u64,
     /// Highest level.
     pub max_level: u32,
+    /// Largest samples per pixel × pixels of one `reference` (path-traced) render.
+    #[serde(default = "default_max_path_samples")]
+    pub max_path_samples: u64,
+}
+
+/// 640×360 pixels at 64 samples, and a little more: about a minute on two cores.
+fn default_max_path_samples() -> u64 {
+    1 << 24
 }
 
 impl Default for Limits {
@@ -140,6 +148,7 @@ impl Default for Limits {
             max_columns: 2048,
             max_cells: 8 << 20,
             max_level: 16,
+            max_path_samples: default_max_path_samples(),
         }
     }
 }
@@ -240,8 +249,11 @@ impl Config {
         }
         raw.server.validate()?;
         let limits = raw.limits;
-        if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid("limits", "max_columns and max_cells must be positive"));
+        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
+            return Err(invalid(
+                "limits",
+                "max_columns, max_cells and max_path_samples must be positive",
+            ));
         }
         if limits.max_level > 40 {
             return Err(invalid("limits.max_level", "must be at most 40"));

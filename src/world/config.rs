@@ -195,6 +195,9 @@ pub struct Limits {
     /// (billboards.json points to billboards.bin).
     #[serde(default = "default_max_response_bytes")]
     pub max_response_bytes: u64,
+    /// Largest samples per pixel × pixels of one `reference` (path-traced) render.
+    #[serde(default = "default_max_path_samples")]
+    pub max_path_samples: u64,
 }
 
 fn default_max_request_bytes() -> u64 {
@@ -205,6 +208,11 @@ fn default_max_response_bytes() -> u64 {
     64 << 20
 }
 
+/// 640×360 pixels at 64 samples, and a little more: about a minute on two cores.
+fn default_max_path_samples() -> u64 {
+    1 << 24
+}
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {
@@ -213,6 +221,7 @@ impl Default for Limits {
             max_level: 16,
             max_request_bytes: default_max_request_bytes(),
             max_response_bytes: default_max_response_bytes(),
+            max_path_samples: default_max_path_samples(),
         }
     }
 }
@@ -313,8 +322,11 @@ impl Config {
         }
         raw.server.validate()?;
         let limits = raw.limits;
-        if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid("limits", "max_columns and max_cells must be positive"));
+        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
+            return Err(invalid(
+                "limits",
+                "max_columns, max_cells and max_path_samples must be positive",
+            ));
         }
         if limits.max_request_bytes < 1 << 20 || limits.max_response_bytes < 1 << 10 {
             return Err(invalid(

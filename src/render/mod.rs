@@ -42,6 +42,7 @@ pub mod light;
 pub mod march;
 pub mod scene;
 pub mod shade;
+pub mod sky;
 pub mod splats;
 pub mod sun;
 pub mod tile;

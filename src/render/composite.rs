@@ -12,7 +12,10 @@
 //!
 //! Each billboard's colour is `albedo · (sun · T · p(cos θ) + ambient)` with the
 //! pre-computed sun transmittance `T` and the phase function evaluated for the
-//! direction from the eye to the billboard's centre. The opacity is the splat's.
+//! direction from the eye to the billboard's centre, then seen through the air
+//! between the eye and that centre (aerial perspective, `c · T_air + L_in`,
+//! [`Lighting::hazed`]; not in orthographic views, the impostors, which a client
+//! hazes by their own distance). The opacity is the splat's.
 //! Because every splat's opacity is `1 − exp(−τ S(p)/S(0))`, the product of
 //! `(1 − α)` along a pixel is exactly the Beer–Lambert transmittance of the metaball
 //! field: the compositor and the ray marcher agree on coverage by construction.
@@ -114,6 +117,11 @@ pub fn composite_cancellable(
             }
             let dir = view.direction_to(b.centre);
             let colour = lighting.cloud_source(b.sun_transmittance as f64, dir);
+            // Orthographic views (impostors) have no eye: the client hazes them.
+            let colour = match view.kind {
+                super::camera::ViewKind::Perspective { .. } => lighting.hazed(colour, view.origin, b.centre),
+                super::camera::ViewKind::Orthographic { .. } => colour,
+            };
             Some(Item {
                 dist,
                 colour,
@@ -261,6 +269,7 @@ mod tests {
             let Some(p) = view.project(b.centre) else { continue };
             let r_px = b.radius as f64 * p.scale;
             let colour = lighting.cloud_source(b.sun_transmittance as f64, view.direction_to(b.centre));
+            let colour = lighting.hazed(colour, view.origin, b.centre);
             for py in 0..view.height {
                 for px in 0..view.width {
                     let a = sheet.sample(

@@ -4,6 +4,9 @@
 //! length Δ at density ρ has extinction σ = `extinction · ρ` and contributes
 //! `T · (1 − e^{−σΔ}) · J`, where `J = albedo · (sun · T_sun · p(cos θ) + ambient)` and
 //! `T_sun` comes from a shadow ray marched toward the sun through every volume.
+//! Each step's source is seen through the air between it and the eye (aerial
+//! perspective, [`Lighting::hazed`]: `J · T_air + L_in`); the sky behind the clouds
+//! already holds the air's light, and the ground gets its own haze.
 //! Density is trilinear between cell centres (cells beyond a grid are empty).
 //! Empty-space skipping: an occupancy grid of 4×4×4-cell bricks holding the largest
 //! density any trilinear sample inside the brick can see; rays jump over empty bricks.
@@ -357,7 +360,9 @@ pub fn march_ray(
                 } else {
                     0.0
                 };
-                let j = lighting.source_with_phase(t_sun, phase);
+                // Seen through the air between the eye and the sample (aerial
+                // perspective, as the compositor hazes each billboard by its distance).
+                let j = lighting.hazed(lighting.source_with_phase(t_sun, phase), o, p);
                 for c in 0..3 {
                     radiance[c] += trans * a * j[c];
                 }
@@ -439,9 +444,9 @@ fn trace(
         } else {
             1.0
         };
-        lighting.background(d, t_sun)
+        lighting.background(o, d, t_sun)
     } else {
-        lighting.background(d, 1.0)
+        lighting.background(o, d, 1.0)
     };
     ([0, 1, 2].map(|i| (c[i] + trans * bg[i]) as f32), 1.0)
 }

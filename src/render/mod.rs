@@ -45,6 +45,7 @@ pub mod march;
 pub mod pathtrace;
 pub mod scene;
 pub mod shade;
+pub mod sky;
 pub mod splats;
 pub mod sun;
 pub mod tile;

@@ -371,7 +371,7 @@ fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel:
 }
 
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
-/// point) behind the clouds.
+/// point, and hazed by the air between the eye and it) behind the clouds.
 pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
@@ -384,7 +384,7 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
             } else {
                 1.0
             };
-            *px = lighting.background(d, t).map(|v| v as f32);
+            *px = lighting.background(o, d, t).map(|v| v as f32);
         }
     });
     img.alpha.iter_mut().for_each(|a| *a = 1.0);

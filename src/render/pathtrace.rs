@@ -480,7 +480,7 @@ impl<'a> Tracer<'a> {
                     } else {
                         1.0
                     };
-                    lighting.background(d, t_sun)
+                    lighting.background(o, d, t_sun)
                 } else {
                     self.env.sky(d)
                 };

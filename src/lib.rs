@@ -6,9 +6,11 @@
 
 pub mod automaton;
 pub mod bench;
+pub mod cancel;
 pub mod chart;
 pub mod cli;
 pub mod client;
+pub mod cost;
 pub mod density;
 pub mod fields;
 pub mod fuzz;

@@ -226,6 +226,7 @@ fn shaded_tile_products_are_finite_and_in_range_for_every_sun_phase_and_optical_
         max_columns: 4096,
         max_cells: 1 << 24,
         max_level: 40,
+        ..Limits::default()
     };
     let phases = [
         Phase::default(),
@@ -373,6 +374,7 @@ fn coverage_maps_and_renders_are_finite_at_the_extremes() {
                 },
                 ..ShadingParams::default()
             },
+            samples: 4,
         };
         let r = render(&w, &c, &req).unwrap_or_else(|e| panic!("{pos:?} {pitch} {el}: {e}"));
         let img = &r.image;

@@ -75,8 +75,8 @@ fn expected_status(code: &str) -> Option<&'static [u16]> {
         "invalid_number" | "not_finite" | "missing_parameter" | "invalid_parameter" | "invalid_bbox" => &[400],
         "unknown_world" | "unknown_layer" | "unknown_product" | "not_found" => &[404],
         "time_out_of_range" | "level_out_of_range" | "coordinates_out_of_range" | "empty_region" => &[422],
-        "region_too_large" | "series_too_long" | "too_much_work" => &[413],
-        "overloaded" | "timeout" => &[503],
+        "region_too_large" | "series_too_long" | "too_much_work" | "response_too_large" => &[413],
+        "overloaded" | "timeout" | "reply_memory_full" => &[503],
         "method_not_allowed" => &[405],
         _ => return None,
     })

@@ -14,6 +14,7 @@ use rayon::prelude::*;
 use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::StochasticDrives;
+use crate::cancel::Cancel;
 use crate::fields::noise::Backend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::LevelMapping;
@@ -26,6 +27,9 @@ pub struct LayerSim {
     pub fields: LayerFields,
     pub frames: Frames,
     pub stream: u64,
+    /// Fired when nobody waits for this simulation any more: [`LayerSim::run`]
+    /// then skips its remaining steps (the caller discards the result).
+    pub cancel: Cancel,
 }
 
 /// One run: from an empty grid at `start` to the last snapshot.
@@ -53,7 +57,12 @@ impl LayerSim {
         let fields = LayerFields::new(world, layer_index);
         let frames = Frames::new(&fields.layer);
         let stream = mix64(world.seed ^ mix64(0x7374_7265_616d ^ ((layer_index as u64) << 32)));
-        LayerSim { fields, frames, stream }
+        LayerSim {
+            fields,
+            frames,
+            stream,
+            cancel: Cancel::never(),
+        }
     }
 
     pub fn depth(&self) -> usize {
@@ -187,6 +196,18 @@ impl LayerSim {
         drives
     }
 
+    /// The cell-steps `spec` costs: the cells of every level's cone summed over its
+    /// steps (the work [`LayerSim::run`] does, from the same cone). Used to refuse
+    /// requests that cannot finish in their time budget before they start.
+    pub fn run_cells(&self, spec: &RunSpec) -> u64 {
+        self.cone(spec)
+            .iter()
+            .skip(1)
+            .flatten()
+            .map(|r| ((r.x1 - r.x0).max(0) as u64).saturating_mul((r.y1 - r.y0).max(0) as u64))
+            .fold(0u64, u64::saturating_add)
+    }
+
     /// Executes a run and returns its snapshots.
     pub fn run(&self, spec: &RunSpec) -> Vec<Snapshot> {
         debug_assert!(spec.snapshots.is_sorted(), "snapshots ascending");
@@ -213,9 +234,13 @@ impl LayerSim {
                 n,
                 offsets: &offsets,
             };
-            next.par_iter_mut()
-                .enumerate()
-                .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
+            // Once cancelled, the remaining steps are skipped: the snapshots keep
+            // their shape, their bits are meaningless and the caller discards them.
+            if !self.cancel.is_fired() {
+                next.par_iter_mut()
+                    .enumerate()
+                    .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
+            }
             std::mem::swap(&mut levels, &mut next);
             if n + 1 == end {
                 // The steps' time, copies of earlier snapshots included.

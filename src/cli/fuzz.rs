@@ -1,11 +1,23 @@
-//! `cloudscape fuzz`: a hostile-input soak against a running server (see `crate::fuzz`).
-//! Exits non-zero when an answer breaks the contract or the server is unhealthy after.
+//! `cloudscape fuzz`: a hostile-input soak against a running server (see `crate::fuzz`),
+//! or with `--scenario attack` the compute and memory attacks of `crate::fuzz::attack`.
+//! Exits non-zero when an answer breaks the contract, the server is unhealthy after,
+//! or (attack) the server did not hold.
 
 use std::time::Duration;
 
 use clap::Args;
 
+use crate::fuzz::attack::{self, AttackOptions};
 use crate::fuzz::{SoakOptions, soak};
+
+/// What `cloudscape fuzz` runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Scenario {
+    /// Generated hostile requests, every answer judged against the contract.
+    Soak,
+    /// The compute and memory attacks: render bursts, amplification, peak RSS.
+    Attack,
+}
 
 #[derive(Args)]
 pub struct FuzzArgs {
@@ -33,9 +45,30 @@ pub struct FuzzArgs {
     /// Also write the report as JSON to FILE.
     #[arg(long)]
     json: Option<String>,
+    /// `soak` (generated requests) or `attack` (compute and memory attacks).
+    #[arg(long, value_enum, default_value_t = Scenario::Soak)]
+    scenario: Scenario,
+    /// attack: the server's request budget (server.request_timeout_ms), seconds.
+    #[arg(long, default_value_t = 10.0)]
+    budget: f64,
+    /// attack: the peak RSS the server may reach, MiB (the cache budget + 512 MiB).
+    #[arg(long, default_value_t = 768)]
+    rss_limit_mib: u64,
+    /// attack: requests per burst.
+    #[arg(long, default_value_t = 8)]
+    burst: usize,
+    /// attack: image size of the admitted burst's renders (heavy, within the limits).
+    #[arg(long, default_value = "1024x1024")]
+    heavy_size: String,
+    /// attack: quality of the admitted burst's renders.
+    #[arg(long, default_value = "accurate")]
+    heavy_quality: String,
 }
 
 pub fn run(a: FuzzArgs) -> Result<(), String> {
+    if a.scenario == Scenario::Attack {
+        return run_attack(a);
+    }
     if a.concurrency == 0 || a.concurrency > 1024 {
         return Err(format!("--concurrency must be within [1, 1024], got {}", a.concurrency));
     }
@@ -69,5 +102,32 @@ pub fn run(a: FuzzArgs) -> Result<(), String> {
                 "NOT healthy after"
             }
         ))
+    }
+}
+
+fn run_attack(a: FuzzArgs) -> Result<(), String> {
+    if a.burst == 0 || a.burst > 64 {
+        return Err(format!("--burst must be within [1, 64], got {}", a.burst));
+    }
+    let report = attack::run(&AttackOptions {
+        target: a.target.trim_end_matches('/').to_string(),
+        pid: a.pid,
+        budget_s: a.budget,
+        rss_limit_mib: a.rss_limit_mib,
+        burst: a.burst,
+        heavy_size: a.heavy_size,
+        heavy_quality: a.heavy_quality,
+        world: "default".to_string(),
+        progress: true,
+    })?;
+    print!("{}", report.summary());
+    if let Some(path) = &a.json {
+        let text = serde_json::to_string_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
+        super::write_out(path, text.as_bytes())?;
+    }
+    if report.held {
+        Ok(())
+    } else {
+        Err("the server did not hold under the attack scenario".to_string())
     }
 }

@@ -21,6 +21,13 @@ use crate::fields::noise::{Backend, Coord, MIX_MUL, mix64};
 /// made once over the given per-level windows (one run serves every step that
 /// needs it).
 fn run_plans(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> (Vec<StepPlan>, BTreeMap<RunId, Vec<Snapshot>>) {
+    let (plans, specs) = run_specs(sim, steps, windows);
+    let results = specs.into_iter().map(|(id, spec)| (id, sim.run(&spec))).collect();
+    (plans, results)
+}
+
+/// The epoch plans of `steps` and the one run each names, with every step it serves.
+fn run_specs(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> (Vec<StepPlan>, BTreeMap<RunId, RunSpec>) {
     let layer = &sim.fields.layer;
     let plans: Vec<_> = steps.iter().map(|&m| plan_step(layer, m)).collect();
     let mut runs: BTreeMap<RunId, Vec<i64>> = BTreeMap::new();
@@ -32,18 +39,28 @@ fn run_plans(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> (Vec<StepPlan>,
             }
         }
     }
-    let mut results: BTreeMap<RunId, Vec<Snapshot>> = BTreeMap::new();
-    for (id, mut snaps) in runs {
-        snaps.sort_unstable();
-        let spec = RunSpec {
-            reference_step: id.reference,
-            start: id.start,
-            snapshots: snaps,
-            windows: windows.to_vec(),
-        };
-        results.insert(id, sim.run(&spec));
-    }
-    (plans, results)
+    let specs = runs
+        .into_iter()
+        .map(|(id, mut snaps)| {
+            snaps.sort_unstable();
+            let spec = RunSpec {
+                reference_step: id.reference,
+                start: id.start,
+                snapshots: snaps,
+                windows: windows.to_vec(),
+            };
+            (id, spec)
+        })
+        .collect();
+    (plans, specs)
+}
+
+/// The automaton cell-steps [`density`] over `region` at `t` will run (the same
+/// plans and cones), for admission control.
+pub fn cell_steps(sim: &LayerSim, region: Region, t: f64) -> u64 {
+    let Sampling { steps, windows, .. } = sampling(sim, region, t);
+    let (_, specs) = run_specs(sim, &steps, &windows);
+    specs.values().map(|spec| sim.run_cells(spec)).fold(0, u64::saturating_add)
 }
 
 /// Runs every run the plans of `steps` need, over the given per-level windows,

@@ -9,6 +9,7 @@ mod region;
 pub use region::{Grid, MAX_CELL_INDEX, Region, SimError, check_time};
 
 use crate::automaton::LayerSim;
+use crate::cancel::Cancel;
 use crate::world::{Limits, World};
 
 /// Which quantity a grid holds.
@@ -26,23 +27,49 @@ const HARD_LIMITS: Limits = Limits {
     max_columns: 1 << 15,
     max_cells: 1 << 28,
     max_level: 40,
+    max_request_bytes: u64::MAX,
+    max_response_bytes: u64::MAX,
+    max_path_samples: 1 << 24,
 };
 
 /// The density of layer `layer` of `world` over `region` (columns at `level`) at time `t`.
 /// Shape `(depth, rows, cols)`, values in [0, 1].
 pub fn density(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<Grid<f32>, SimError> {
-    let sim = prepare(world, layer, level, region, t)?;
-    Ok(if level == 0 {
+    density_cancellable(world, layer, level, region, t, &Cancel::never())
+}
+
+/// [`density`] that stops early once `cancel` fires (then `Err(SimError::Cancelled)`).
+pub fn density_cancellable(
+    world: &World,
+    layer: usize,
+    level: u32,
+    region: Region,
+    t: f64,
+    cancel: &Cancel,
+) -> Result<Grid<f32>, SimError> {
+    let mut sim = prepare(world, layer, level, region, t)?;
+    cancel.check()?;
+    sim.cancel = cancel.clone();
+    let grid = if level == 0 {
         exact::density(&sim, region, t)
     } else {
         lod::density(&sim, level, region, t)
-    })
+    };
+    cancel.check()?;
+    Ok(grid)
 }
 
 /// The automaton's `cld` bits over `region` (level-0 cells) at time `t`.
 pub fn cloud_cells(world: &World, layer: usize, region: Region, t: f64) -> Result<Grid<u8>, SimError> {
     let sim = prepare(world, layer, 0, region, t)?;
     Ok(exact::cloud_cells(&sim, region, t))
+}
+
+/// Automaton cell-steps that [`density`] of `region` will run (0 at levels above 0,
+/// which use the mean-field model and run no automaton). Checked like `density`.
+pub fn cell_steps(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<u64, SimError> {
+    let sim = prepare(world, layer, level, region, t)?;
+    Ok(if level == 0 { exact::cell_steps(&sim, region, t) } else { 0 })
 }
 
 fn prepare(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<LayerSim, SimError> {

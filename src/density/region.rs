@@ -19,6 +19,9 @@ pub enum SimError {
     BadLevel { level: u32, max: u32 },
     #[error("coordinates out of range: {0}")]
     OutOfRange(String),
+    /// The computation was stopped (its [`crate::cancel::Cancel`] fired).
+    #[error(transparent)]
+    Cancelled(#[from] crate::cancel::Cancelled),
 }
 
 /// A rectangle of columns at some level: `cols × rows` columns whose first column

@@ -4,6 +4,7 @@
 //! 503, never a 503 without `Retry-After`, never silence — then checks that the server
 //! is still healthy and reports its peak memory. `cloudscape fuzz` is the command line.
 
+pub mod attack;
 pub mod conn_attacks;
 pub mod generate;
 pub mod http;

@@ -105,27 +105,46 @@ pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
 /// `"billboards": [{"position": [x, y, z], "radius", "splat", "colour": [r, g, b],
 /// "opacity", "sun_transmittance", "density"}]` and `"count"`.
 pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
+    /// One billboard as `serde_json` writes a `json!` map: keys in sorted order.
+    #[derive(serde::Serialize)]
+    struct Entry {
+        colour: [f64; 3],
+        density: f64,
+        opacity: f64,
+        position: [f64; 3],
+        radius: f64,
+        splat: u16,
+        sun_transmittance: f64,
+    }
     let mut v = header_json(tile);
-    let list: Vec<serde_json::Value> = tile
-        .billboards
-        .iter()
-        .map(|b| {
-            json!({
-                "position": b.centre.map(f),
-                "radius": f(b.radius as f64),
-                "splat": b.splat,
-                "colour": b.colour.map(|c| f(c as f64)),
-                "opacity": f(b.opacity as f64),
-                "sun_transmittance": f(b.sun_transmittance as f64),
-                "density": f(b.density as f64),
-            })
-        })
-        .collect();
     v["format"] = json!("cloudscape-billboards");
     v["colour_space"] = json!("linear RGB, pre-shaded for an isotropic phase");
-    v["count"] = json!(list.len());
-    v["billboards"] = serde_json::Value::Array(list);
-    serde_json::to_vec(&v).expect("a JSON value serialises")
+    v["count"] = json!(tile.billboards.len());
+    v["billboards"] = json!([]);
+    let head = serde_json::to_string(&v).expect("a JSON value serialises");
+    // The list is written straight into the output (a `serde_json::Value` per
+    // billboard would take ~900 bytes each while encoding), spliced where the empty
+    // placeholder sorted: the same bytes as serialising the whole value.
+    let at = head.find(r#""billboards":[]"#).expect("the placeholder is in the header") + r#""billboards":["#.len();
+    let mut out = Vec::with_capacity(head.len() + 190 * tile.billboards.len());
+    out.extend_from_slice(&head.as_bytes()[..at]);
+    for (i, b) in tile.billboards.iter().enumerate() {
+        if i > 0 {
+            out.push(b',');
+        }
+        let e = Entry {
+            colour: b.colour.map(|c| f(c as f64)),
+            density: f(b.density as f64),
+            opacity: f(b.opacity as f64),
+            position: b.centre.map(f),
+            radius: f(b.radius as f64),
+            splat: b.splat,
+            sun_transmittance: f(b.sun_transmittance as f64),
+        };
+        serde_json::to_writer(&mut out, &e).expect("a billboard serialises");
+    }
+    out.extend_from_slice(&head.as_bytes()[at..]);
+    out
 }
 
 /// `billboards.bin` (layout in the module docs).
@@ -239,4 +258,57 @@ pub fn decode_bin(bytes: &[u8]) -> Result<BinBillboards, String> {
         size: f32_at(60),
         records,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::{Quality, ShadingParams, Sun, TileId, shade_tile};
+    use crate::world::Config;
+
+    /// The naive encoding: the whole document as one `serde_json::Value`.
+    fn encode_json_naive(tile: &ShadedTile) -> Vec<u8> {
+        let mut v = header_json(tile);
+        let list: Vec<serde_json::Value> = tile
+            .billboards
+            .iter()
+            .map(|b| {
+                json!({
+                    "position": b.centre.map(f),
+                    "radius": f(b.radius as f64),
+                    "splat": b.splat,
+                    "colour": b.colour.map(|c| f(c as f64)),
+                    "opacity": f(b.opacity as f64),
+                    "sun_transmittance": f(b.sun_transmittance as f64),
+                    "density": f(b.density as f64),
+                })
+            })
+            .collect();
+        v["format"] = json!("cloudscape-billboards");
+        v["colour_space"] = json!("linear RGB, pre-shaded for an isotropic phase");
+        v["count"] = json!(list.len());
+        v["billboards"] = serde_json::Value::Array(list);
+        serde_json::to_vec(&v).unwrap()
+    }
+
+    #[test]
+    fn streamed_json_is_the_bytes_of_the_whole_value() {
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        for (tile, t) in [(TileId { z: 0, x: 0, y: 0 }, 43200.0), (TileId { z: 3, x: -1, y: 2 }, 1000.0)] {
+            let s = shade_tile(
+                &world,
+                0,
+                tile,
+                t,
+                Quality::Fast,
+                Sun::new(120.0, 30.0).unwrap(),
+                &ShadingParams::default(),
+                &config.limits,
+            )
+            .unwrap();
+            assert!(!s.billboards.is_empty(), "{tile:?} has billboards to encode");
+            assert_eq!(encode_json(&s), encode_json_naive(&s), "{tile:?}");
+        }
+    }
 }

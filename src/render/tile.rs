@@ -2,7 +2,8 @@
 //! and the ground shadow map. Every tile product is encoded from a [`ShadedTile`].
 
 use crate::density::metaballs::{GridPlacement, Lattice};
-use crate::density::{self, Grid, Region, check_time};
+use crate::cancel::Cancel;
+use crate::density::{self, Grid, Region, SimError, check_time};
 use crate::world::{Layer, Limits, World};
 
 use super::light::{Lighting, ShadingParams};
@@ -110,6 +111,22 @@ pub fn shade_tile(
     params: &ShadingParams,
     limits: &Limits,
 ) -> Result<ShadedTile, RenderError> {
+    shade_tile_cancellable(world, layer, tile, t, quality, sun, params, limits, &Cancel::never())
+}
+
+/// [`shade_tile`] that stops early once `cancel` fires (then an error).
+#[allow(clippy::too_many_arguments)]
+pub fn shade_tile_cancellable(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    quality: Quality,
+    sun: Sun,
+    params: &ShadingParams,
+    limits: &Limits,
+    cancel: &Cancel,
+) -> Result<ShadedTile, RenderError> {
     check_time(t)?;
     let l = world
         .layers
@@ -125,8 +142,10 @@ pub fn shade_tile(
         cols: TILE_COLUMNS + 2 * halo,
         rows: TILE_COLUMNS + 2 * halo,
     };
-    let grid = density::density(world, layer, tile.z, halo_region, t)?;
-    Ok(shade_density(layer, l, tile, t, quality, sun, params, grid, halo))
+    let grid = density::density_cancellable(world, layer, tile.z, halo_region, t, cancel)?;
+    let shaded = shade_density(layer, l, tile, t, quality, sun, params, grid, halo);
+    cancel.check().map_err(SimError::from)?;
+    Ok(shaded)
 }
 
 /// [`shade_tile`] on a density grid already computed: `grid` covers the tile plus

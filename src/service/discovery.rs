@@ -92,7 +92,7 @@ fn json_response(headers: &HeaderMap, cache_control: &str, value: &impl Serializ
     };
     Ok(repr
         .not_modified(headers)
-        .unwrap_or_else(|| repr.ok("application/json", body.into())))
+        .unwrap_or_else(|| repr.ok_small("application/json", body.into())))
 }
 
 #[utoipa::path(

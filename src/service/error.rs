@@ -52,12 +52,24 @@ pub enum ApiError {
     NotFound(String),
     #[error("method not allowed")]
     MethodNotAllowed,
-    /// The compute queue is full: shed rather than grow a backlog.
-    #[error("the server is busy; retry shortly")]
-    Overloaded,
-    /// The request's time budget ran out (the computation goes on and fills the cache).
-    #[error("the request did not finish within its time budget of {0} ms; retry shortly")]
-    Timeout(u64),
+    /// The compute queue (or its memory) is full: shed rather than grow a backlog.
+    /// Carries the `Retry-After`, seconds.
+    #[error("the server is busy; retry in {0} s")]
+    Overloaded(u32),
+    /// The request's time budget ran out; its computation was stopped unless another
+    /// request still waits for it.
+    #[error("the request did not finish within its time budget of {budget_ms} ms; retry in {retry_after} s")]
+    Timeout { budget_ms: u64, retry_after: u32 },
+    /// A computation stopped because nobody waited for it any more (internal: the
+    /// cache turns it into `Overloaded` for a request that joined it late).
+    #[error("the computation was stopped: nobody was waiting for it any more")]
+    Cancelled,
+    /// The answer would be larger than the per-response limit.
+    #[error("{0}")]
+    ResponseTooLarge(String),
+    /// The bytes held by replies still being sent are at their budget.
+    #[error("the server holds {held_mib} MiB of replies still being sent (server.reply_bytes is {budget_mib} MiB); retry in {retry_after} s")]
+    ReplyMemoryFull { held_mib: u64, budget_mib: u64, retry_after: u32 },
     /// The server is shutting down.
     #[error("the server is shutting down")]
     Draining,
@@ -91,15 +103,29 @@ impl ApiError {
             RegionTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "region_too_large"),
             SeriesTooLong { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "series_too_long"),
             TooMuchWork(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_much_work"),
+            ResponseTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "response_too_large"),
             UnknownWorld(_) => (StatusCode::NOT_FOUND, "unknown_world"),
             UnknownLayer { .. } => (StatusCode::NOT_FOUND, "unknown_layer"),
             UnknownProduct(_) => (StatusCode::NOT_FOUND, "unknown_product"),
             NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             MethodNotAllowed => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
-            Overloaded => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
-            Timeout(_) => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            Overloaded(_) | Cancelled => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
+            Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            ReplyMemoryFull { .. } => (StatusCode::SERVICE_UNAVAILABLE, "reply_memory_full"),
             Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
             Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+        }
+    }
+}
+
+impl ApiError {
+    /// Seconds a client should wait before retrying a 503 (1 when nothing better is
+    /// known: draining, a cancelled join).
+    pub fn retry_after(&self) -> u32 {
+        match self {
+            ApiError::Overloaded(s) | ApiError::Timeout { retry_after: s, .. } => *s,
+            ApiError::ReplyMemoryFull { retry_after, .. } => *retry_after,
+            _ => 1,
         }
     }
 }
@@ -116,6 +142,7 @@ impl From<SimError> for ApiError {
                 max,
             },
             SimError::OutOfRange(m) => ApiError::CoordinatesOutOfRange(m),
+            SimError::Cancelled(_) => ApiError::Cancelled,
         }
     }
 }
@@ -147,7 +174,7 @@ impl IntoResponse for ApiError {
         let headers = response.headers_mut();
         headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
         if status == StatusCode::SERVICE_UNAVAILABLE {
-            headers.insert(header::RETRY_AFTER, HeaderValue::from_static("1"));
+            headers.insert(header::RETRY_AFTER, HeaderValue::from(self.retry_after()));
         }
         response
     }

@@ -31,6 +31,13 @@ pub struct Metrics {
     pub shed: IntCounterVec,
     /// Requests whose time budget ran out.
     pub timeouts: IntCounterVec,
+    /// Computations stopped early because nobody waited for them any more.
+    pub cancelled: IntCounterVec,
+    /// Requests refused up front because their estimated cost or memory is over the
+    /// limits (413), by product kind.
+    pub refused: IntCounterVec,
+    /// Bytes of replies being sent right now (the `server.reply_bytes` budget).
+    pub reply_bytes: IntGauge,
     /// Bytes held by the response cache (updated when scraped).
     pub cache_bytes: IntGauge,
     /// 1 while ready, 0 while starting or draining.
@@ -146,6 +153,8 @@ impl Metrics {
                 &m.computations,
                 &m.shed,
                 &m.timeouts,
+                &m.cancelled,
+                &m.refused,
                 &m.redis_hits,
                 &m.redis_misses,
             ] {
@@ -215,6 +224,20 @@ impl Metrics {
                 "cloudscape_timeouts_total",
                 "requests over their time budget",
                 &["kind"],
+            ),
+            cancelled: counter(
+                "cloudscape_cancelled_total",
+                "computations stopped early: no request waited for them any more",
+                &["kind"],
+            ),
+            refused: counter(
+                "cloudscape_refused_total",
+                "requests refused up front: estimated cost or memory over the limits",
+                &["kind"],
+            ),
+            reply_bytes: gauge(
+                "cloudscape_reply_bytes",
+                "bytes of replies being sent (server.reply_bytes budget)",
             ),
             cache_bytes: gauge("cloudscape_cache_bytes", "bytes held by the response cache"),
             ready: gauge("cloudscape_ready", "1 when ready to serve"),

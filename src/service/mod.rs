@@ -29,6 +29,7 @@ mod ops;
 pub mod params;
 mod queries;
 mod render;
+mod reply;
 mod shared;
 mod stats;
 mod tiles;
@@ -57,7 +58,9 @@ use crate::world::{Config, ServerConfig};
 pub use error::ApiError;
 pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
 
-use self::cache::ResponseCache;
+use self::cache::{ComputeQueue, ResponseCache};
+use self::reply::ReplyBudget;
+use crate::cost::Work;
 use self::key::{Frame, Worlds};
 use self::metrics::Metrics;
 use self::shared::SharedCache;
@@ -104,6 +107,8 @@ pub struct AppState {
     settings: ServerConfig,
     /// Encoded responses and the bounded compute queue that fills them.
     cache: Arc<ResponseCache>,
+    /// The bytes that replies being sent may hold (`server.reply_bytes`).
+    replies: ReplyBudget,
     metrics: Arc<Metrics>,
     readiness: Readiness,
     /// Source of request ids: a per-process prefix and a counter.
@@ -119,10 +124,12 @@ impl AppState {
         };
         let cache = ResponseCache::new(
             settings.cache_bytes,
-            queue,
+            ComputeQueue::new(queue, settings.compute_memory_bytes),
             Duration::from_millis(settings.request_timeout_ms),
             SharedCache::new(&settings)?,
         );
+        let metrics = Arc::new(Metrics::new());
+        let replies = ReplyBudget::new(settings.reply_bytes, metrics.reply_bytes.clone());
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
@@ -130,7 +137,8 @@ impl AppState {
             worlds: Worlds::new(config),
             settings,
             cache: Arc::new(cache),
-            metrics: Arc::new(Metrics::new()),
+            replies,
+            metrics,
             readiness: Readiness(AtomicU8::new(Phase::Starting as u8)),
             request_ids: (prefix, AtomicU64::new(0)),
         })
@@ -142,6 +150,41 @@ impl AppState {
             self.request_ids.0,
             self.request_ids.1.fetch_add(1, Ordering::Relaxed)
         )
+    }
+
+    /// Admission control: refuses (413, naming the limit) a request whose estimated
+    /// work cannot finish inside the time budget on this server's compute threads, or
+    /// whose working memory is over `limits.max_request_bytes`. Checked before the
+    /// cache, so a request over the limits is refused whether or not it was cached.
+    fn admit(&self, kind: &str, work: Work) -> Result<Work, ApiError> {
+        let threads = rayon::current_num_threads().max(1);
+        let budget_s = self.settings.request_timeout_ms as f64 / 1000.0;
+        let max_cpu = budget_s * threads as f64;
+        let max_bytes = self.worlds.config().limits.max_request_bytes;
+        let refused = if work.cpu_s > max_cpu {
+            Some(format!(
+                "this request needs about {:.1} CPU-seconds; the limit is {max_cpu:.1} (the {budget_s} s time \
+                 budget, server.request_timeout_ms, on {threads} compute threads): ask for fewer pixels, a \
+                 lower quality or a smaller region",
+                work.cpu_s
+            ))
+        } else if work.bytes > max_bytes {
+            Some(format!(
+                "this request needs about {} MiB of working memory; the limit is {} MiB \
+                 (limits.max_request_bytes): ask for fewer pixels, a lower quality or a smaller region",
+                work.bytes >> 20,
+                max_bytes >> 20
+            ))
+        } else {
+            None
+        };
+        match refused {
+            Some(message) => {
+                self.metrics.refused.with_label_values(&[kind]).inc();
+                Err(ApiError::TooMuchWork(message))
+            }
+            None => Ok(work),
+        }
     }
 
     /// The `Cache-Control` for a response computed for `frame` when `t` was asked.
@@ -347,7 +390,29 @@ impl Representation<'_> {
         key::if_none_match(inm, &self.etag).then(|| (StatusCode::NOT_MODIFIED, self.headers()).into_response())
     }
 
-    fn ok(&self, content_type: &'static str, body: Bytes) -> Response {
+    /// The 200 answer with `body`, which holds its share of the reply budget
+    /// ([`reply`]) until it is sent; 503 when the budget is spent. A body over
+    /// `limits.max_response_bytes` is refused with 413.
+    fn ok(&self, state: &AppState, content_type: &'static str, body: Bytes) -> Result<Response, ApiError> {
+        let max = state.worlds.config().limits.max_response_bytes;
+        if body.len() as u64 > max {
+            return Err(ApiError::ResponseTooLarge(format!(
+                "the answer is {} MiB; the limit is {} MiB (limits.max_response_bytes)",
+                body.len() >> 20,
+                max >> 20
+            )));
+        }
+        let body = state.replies.body(body, state.cache.retry_after())?;
+        Ok(self.respond(content_type, body))
+    }
+
+    /// The 200 answer for a body known to be small (discovery, a clear-sky sample):
+    /// no limit or budget to check.
+    fn ok_small(&self, content_type: &'static str, body: Bytes) -> Response {
+        self.respond(content_type, body.into())
+    }
+
+    fn respond(&self, content_type: &'static str, body: axum::body::Body) -> Response {
         let mut h = self.headers();
         h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
         (StatusCode::OK, h, body).into_response()

@@ -13,6 +13,7 @@ use axum::response::Response;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use crate::cost::{self, Work};
 use crate::density::{self, MAX_CELL_INDEX, Region};
 use crate::world::{Layer, World};
 
@@ -180,7 +181,7 @@ pub async fn sample(
         };
         return Ok(repr
             .not_modified(&headers)
-            .unwrap_or_else(|| repr.ok("application/json", json_bytes(&answer).unwrap_or_default())));
+            .unwrap_or_else(|| repr.ok_small("application/json", json_bytes(&answer).unwrap_or_default())));
     };
     let cell_index = |v: f64, name: &str| {
         let c = (v / layer.cell_size).floor();
@@ -218,10 +219,11 @@ pub async fn sample(
         return Ok(not_modified);
     }
     let world = resolved.world;
+    let work = s.admit("sample", cost::density(&world, layer_index, 0, region, frame.t)?)?;
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "sample", key, move || {
-            let d = density::density(&world, layer_index, 0, region, frame.t)?;
+        .get_or_compute(&s.metrics, "sample", key, work, move |cancel| {
+            let d = density::density_cancellable(&world, layer_index, 0, region, frame.t, cancel)?;
             let c = density::cloud_cells(&world, layer_index, region, frame.t)?;
             json_bytes(&SampleAnswer {
                 layer: Some(world.layers[layer_index].name.clone()),
@@ -234,7 +236,7 @@ pub async fn sample(
             })
         })
         .await?;
-    Ok(repr.ok("application/json", bytes))
+    repr.ok(&s, "application/json", bytes)
 }
 
 #[utoipa::path(
@@ -289,10 +291,11 @@ pub async fn region(
         return Ok(not_modified);
     }
     let world = resolved.world;
+    let work = s.admit("region", cost::density(&world, layer_index, level, region, frame.t)?)?;
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "region", key, move || {
-            let grid = density::density(&world, layer_index, level, region, frame.t)?;
+        .get_or_compute(&s.metrics, "region", key, work, move |cancel| {
+            let grid = density::density_cancellable(&world, layer_index, level, region, frame.t, cancel)?;
             let layer = &world.layers[layer_index];
             json_bytes(&RegionAnswer {
                 world: world.name.clone(),
@@ -305,7 +308,7 @@ pub async fn region(
             })
         })
         .await?;
-    Ok(repr.ok("application/json", bytes))
+    repr.ok(&s, "application/json", bytes)
 }
 
 #[utoipa::path(
@@ -392,20 +395,30 @@ pub async fn series(
         return Ok(not_modified);
     }
     let world = resolved.world;
+    // Each distinct frame once; consecutive points often share one.
+    let mut distinct: Vec<Frame> = frames.clone();
+    distinct.dedup_by_key(|f| f.index);
+    let mut work = Work::default();
+    for f in &distinct {
+        let w = cost::density(&world, layer_index, level, region, f.t)?;
+        // CPU adds up; memory does not: a frame's grid is dropped once its statistics
+        // are taken, so at most one grid per compute thread is alive at once.
+        work.cpu_s += w.cpu_s;
+        work.bytes = work.bytes.max(w.bytes);
+    }
+    work.bytes = work
+        .bytes
+        .saturating_mul(distinct.len().min(rayon::current_num_threads().max(1)) as u64);
+    let work = s.admit("series", work)?;
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "series", key, move || {
+        .get_or_compute(&s.metrics, "series", key, work, move |cancel| {
             let layer = &world.layers[layer_index];
-            // Each distinct frame once; consecutive points often share one.
-            let mut distinct: Vec<Frame> = frames.clone();
-            distinct.dedup_by_key(|f| f.index);
             let stats: Vec<(u64, RegionStats)> = distinct
                 .par_iter()
                 .map(|f| {
-                    Ok((
-                        f.index,
-                        region_stats(&density::density(&world, layer_index, level, region, f.t)?, layer),
-                    ))
+                    let grid = density::density_cancellable(&world, layer_index, level, region, f.t, cancel)?;
+                    Ok((f.index, region_stats(&grid, layer)))
                 })
                 .collect::<Result<_, ApiError>>()?;
             let points = times
@@ -431,5 +444,5 @@ pub async fn series(
             })
         })
         .await?;
-    Ok(repr.ok("application/json", bytes))
+    repr.ok(&s, "application/json", bytes)
 }

@@ -14,7 +14,9 @@ use axum::response::Response;
 use crate::density::{self, Region};
 use crate::products::grid::{GridFormat, encode_density};
 use crate::products::{atlas, billboards, coverage, shadow};
-use crate::render::{Quality, ShadingParams, Sun, SunBucket, TileId, shade_tile};
+use crate::cost;
+use crate::render::tile::shade_tile_cancellable;
+use crate::render::{Quality, ShadedTile, ShadingParams, Sun, SunBucket, TileId};
 
 use super::error::ApiError;
 use super::key::{CacheKey, Frame};
@@ -141,7 +143,7 @@ pub fn parse_quality(params: &Params) -> Result<Option<Quality>, ApiError> {
         .map(|q| {
             Quality::parse(q).ok_or_else(|| ApiError::InvalidParameter {
                 name: "quality".to_string(),
-                message: format!("must be one of fast, balanced, accurate, reference; got `{q}`"),
+                message: format!("must be one of fast, balanced, accurate, reference, reference-single; got `{q}`"),
             })
         })
         .transpose()
@@ -180,7 +182,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("product" = super::openapi::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12; snapped to the layer's frame grid (dt / frames_per_step)", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference: metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
     ),
     responses(
@@ -239,13 +241,18 @@ pub async fn tile(
         return Ok(not_modified);
     }
     let world = resolved.world;
-    let limits = limits.clone();
     let tile = TileId { z, x, y };
+    let work = match shading {
+        Some((q, sun)) => cost::shade_tile(&world, layer_index, tile, frame.t, q, sun)?,
+        None => cost::density(&world, layer_index, z, region, frame.t)?,
+    };
+    let work = s.admit(product.kind(), work)?;
+    let limits = limits.clone();
     let bytes = s
         .cache
-        .get_or_compute_with_siblings(&s.metrics, product.kind(), key, move || match (product, shading) {
+        .get_or_compute_with_siblings(&s.metrics, product.kind(), key, work, move |cancel| match (product, shading) {
             (Product::Density(format), _) => {
-                let grid = density::density(&world, layer_index, z, region, frame.t)?;
+                let grid = density::density_cancellable(&world, layer_index, z, region, frame.t, cancel)?;
                 Ok((Bytes::from(encode_density(&grid, format)), Vec::new()))
             }
             (Product::Coverage, _) => {
@@ -253,7 +260,7 @@ pub async fn tile(
                 Ok((Bytes::from(png), Vec::new()))
             }
             (Product::Shaded(wanted), Some((q, sun))) => {
-                let shaded = shade_tile(
+                let shaded = shade_tile_cancellable(
                     &world,
                     layer_index,
                     tile,
@@ -262,13 +269,14 @@ pub async fn tile(
                     sun,
                     &ShadingParams::default(),
                     &limits,
+                    cancel,
                 )?;
                 let mut atlas = Some(atlas::build(&shaded));
                 let mut all: Vec<(Shaded, Bytes)> = Shaded::ALL
                     .into_iter()
                     .map(|p| {
                         let bytes = match p {
-                            Shaded::BillboardsJson => billboards::encode_json(&shaded),
+                            Shaded::BillboardsJson => json_within(&shaded, limits.max_response_bytes),
                             Shaded::BillboardsBin => billboards::encode_bin(&shaded),
                             Shaded::ShadowPng => shadow::encode_png_map(&shaded),
                             Shaded::AtlasPng => atlas.as_mut().map_or_else(Vec::new, |a| std::mem::take(&mut a.png)),
@@ -295,7 +303,32 @@ pub async fn tile(
             (Product::Shaded(_), None) => Err(ApiError::Internal("shaded product without shading".into())),
         })
         .await?;
-    Ok(repr.ok(product.content_type(), bytes))
+    if product == Product::Shaded(Shaded::BillboardsJson) && bytes.is_empty() {
+        return Err(ApiError::ResponseTooLarge(format!(
+            "billboards.json of this tile is over the {} MiB response limit (limits.max_response_bytes): \
+             fetch billboards.bin, the same billboards in {}-byte records, or ask for a lower quality",
+            s.worlds.config().limits.max_response_bytes >> 20,
+            billboards::BIN_RECORD_BYTES
+        )));
+    }
+    repr.ok(&s, product.content_type(), bytes)
+}
+
+/// Fewest bytes one billboard takes in `billboards.json`: its keys and punctuation
+/// (`{"position":[,,],"radius":,"splat":,"colour":[,,],"opacity":,
+/// "sun_transmittance":,"density":},` is 94 bytes) and a digit per number.
+const MIN_JSON_BYTES_PER_BILLBOARD: u64 = 100;
+
+/// `billboards.json` of `shaded`, or no bytes when it would be over `max` bytes. The
+/// empty body is what the cache keeps for such a tile (a JSON document is never
+/// empty), so a repeat is refused without shading the tile again; a tile whose
+/// count alone puts it over the limit is not even encoded.
+fn json_within(shaded: &ShadedTile, max: u64) -> Vec<u8> {
+    if shaded.billboards.len() as u64 * MIN_JSON_BYTES_PER_BILLBOARD > max {
+        return Vec::new();
+    }
+    let json = billboards::encode_json(shaded);
+    if json.len() as u64 > max { Vec::new() } else { json }
 }
 
 #[cfg(test)]

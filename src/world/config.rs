@@ -86,6 +86,12 @@ pub struct ServerConfig {
     /// Expiry of the entries written to Redis, seconds; 0 means none (rely on Redis's
     /// `maxmemory-policy`).
     pub redis_ttl_s: u64,
+    /// Estimated working memory that the running compute jobs may hold together,
+    /// bytes; a job that does not fit is shed with 503.
+    pub compute_memory_bytes: u64,
+    /// Bytes that replies still being sent may hold together; past it a request is
+    /// answered 503 with `Retry-After` instead of another large body.
+    pub reply_bytes: u64,
 }
 
 /// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
@@ -118,6 +124,8 @@ impl Default for ServerConfig {
             redis_timeout_ms: 100,
             redis_retry_ms: 1000,
             redis_ttl_s: 86_400,
+            compute_memory_bytes: 2 << 30,
+            reply_bytes: 256 << 20,
         }
     }
 }
@@ -160,6 +168,12 @@ impl ServerConfig {
                 "must start with redis:// or redis+unix:// (or be empty for no Redis)",
             ));
         }
+        if self.compute_memory_bytes < 1 << 20 {
+            return Err(invalid("server.compute_memory_bytes", "must be at least 1 MiB"));
+        }
+        if self.reply_bytes < 1 << 20 {
+            return Err(invalid("server.reply_bytes", "must be at least 1 MiB"));
+        }
         if !self.redis_url.is_empty() && self.redis_timeout_ms == 0 {
             return Err(invalid("server.redis_timeout_ms", "must be positive"));
         }
@@ -177,6 +191,30 @@ pub struct Limits {
     pub max_cells: u64,
     /// Highest level.
     pub max_level: u32,
+    /// Largest estimated working memory of one request, bytes (grids, metaballs,
+    /// images it will allocate); a request over it is refused with 413.
+    #[serde(default = "default_max_request_bytes")]
+    pub max_request_bytes: u64,
+    /// Largest response body, bytes; a request whose answer is larger gets 413
+    /// (billboards.json points to billboards.bin).
+    #[serde(default = "default_max_response_bytes")]
+    pub max_response_bytes: u64,
+    /// Largest samples per pixel × pixels of one `reference` (path-traced) render.
+    #[serde(default = "default_max_path_samples")]
+    pub max_path_samples: u64,
+}
+
+fn default_max_request_bytes() -> u64 {
+    2 << 30
+}
+
+fn default_max_response_bytes() -> u64 {
+    64 << 20
+}
+
+/// 640×360 pixels at 64 samples, and a little more: about a minute on two cores.
+fn default_max_path_samples() -> u64 {
+    1 << 24
 }
 
 impl Default for Limits {
@@ -185,6 +223,9 @@ impl Default for Limits {
             max_columns: 2048,
             max_cells: 8 << 20,
             max_level: 16,
+            max_request_bytes: default_max_request_bytes(),
+            max_response_bytes: default_max_response_bytes(),
+            max_path_samples: default_max_path_samples(),
         }
     }
 }
@@ -285,8 +326,17 @@ impl Config {
         }
         raw.server.validate()?;
         let limits = raw.limits;
-        if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid("limits", "max_columns and max_cells must be positive"));
+        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
+            return Err(invalid(
+                "limits",
+                "max_columns, max_cells and max_path_samples must be positive",
+            ));
+        }
+        if limits.max_request_bytes < 1 << 20 || limits.max_response_bytes < 1 << 10 {
+            return Err(invalid(
+                "limits",
+                "max_request_bytes must be at least 1 MiB and max_response_bytes at least 1 KiB",
+            ));
         }
         if limits.max_level > 40 {
             return Err(invalid("limits.max_level", "must be at most 40"));

@@ -1,0 +1,420 @@
+//! The `attack` scenario: the compute and memory attacks of issue 25 against a
+//! running server, each bounded in requests and time, loopback only.
+//!
+//! - **Render burst (refused)**: eight 89-byte requests for
+//!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
+//!   each on the development machine) at once. They must be refused up front.
+//! - **Render burst (admitted)**: eight heavy renders that are within the limits
+//!   one at a time (by default 1024² `accurate`, about 12 CPU-seconds each; choose
+//!   one that fits a smaller budget), all at once. The
+//!   server may shed or time them out, but must stop the work nobody waits for.
+//!   Recovery: the time from the burst until an uncached cheap request (a density
+//!   tile never asked before) answers 200 again. Target: at most 2 × the budget.
+//! - **Amplification**: `billboards.json?quality=accurate` of cloudy tiles, 126 MB
+//!   for a 68-byte request before; now refused (413) over the response limit.
+//! - **Memory**: the server's peak RSS over the whole scenario (`VmHWM` of `--pid`),
+//!   against the bound given (the cache budget + 512 MiB by default).
+//!
+//! Every answer is judged as the soak does: never a 5xx other than 503, never a 503
+//! without `Retry-After`. Connection attacks (idle, slowloris, unread replies) live in
+//! their own module and join the list in [`attacks`].
+
+use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+use super::process_memory_kb;
+
+/// How to run the scenario.
+#[derive(Clone, Debug)]
+pub struct AttackOptions {
+    /// `http://HOST:PORT`, a loopback address.
+    pub target: String,
+    /// The server's process id, to read its RSS from `/proc`.
+    pub pid: Option<u32>,
+    /// The server's request budget (`server.request_timeout_ms`), seconds.
+    pub budget_s: f64,
+    /// Peak RSS the server may reach, MiB (default: a 256 MiB cache + 512 MiB).
+    pub rss_limit_mib: u64,
+    /// Requests per burst.
+    pub burst: usize,
+    /// Size and quality of the admitted burst's renders (`1024x1024`, `accurate`):
+    /// heavy, but within the limits of the server's budget.
+    pub heavy_size: String,
+    pub heavy_quality: String,
+    /// The `world` to attack.
+    pub world: String,
+    /// Progress lines on stderr.
+    pub progress: bool,
+}
+
+/// What one attack found.
+#[derive(Clone, Debug, Serialize)]
+pub struct AttackOutcome {
+    pub name: String,
+    /// True when the server held: every answer within the contract and the
+    /// attack's own target met.
+    pub held: bool,
+    /// Answers by status (`error` for no answer).
+    pub statuses: BTreeMap<String, u64>,
+    /// The attack's figures (seconds, bytes, ratios), by name.
+    pub figures: BTreeMap<String, f64>,
+    /// What went wrong, if anything, one sentence each.
+    pub notes: Vec<String>,
+}
+
+/// The whole scenario's report.
+#[derive(Clone, Debug, Serialize)]
+pub struct AttackReport {
+    pub target: String,
+    pub budget_s: f64,
+    pub seconds: f64,
+    pub attacks: Vec<AttackOutcome>,
+    pub rss_before_kb: Option<u64>,
+    pub peak_rss_kb: Option<u64>,
+    pub rss_limit_kb: u64,
+    pub held: bool,
+}
+
+impl AttackReport {
+    pub fn summary(&self) -> String {
+        let mut s = format!(
+            "attack scenario against {} (budget {} s) in {:.1} s\n",
+            self.target, self.budget_s, self.seconds
+        );
+        for a in &self.attacks {
+            let statuses: Vec<String> = a.statuses.iter().map(|(k, v)| format!("{k}: {v}")).collect();
+            let figures: Vec<String> = a.figures.iter().map(|(k, v)| format!("{k} = {v:.3}")).collect();
+            s += &format!(
+                "{:<24} {}  [{}]  {}\n",
+                a.name,
+                if a.held { "held" } else { "BROKE" },
+                statuses.join(", "),
+                figures.join(", ")
+            );
+            for n in &a.notes {
+                s += &format!("    {n}\n");
+            }
+        }
+        let mib = |kb: Option<u64>| kb.map_or("unknown (no --pid)".to_string(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
+        s += &format!(
+            "server RSS: before {}, peak {} (limit {:.0} MiB)\n",
+            mib(self.rss_before_kb),
+            mib(self.peak_rss_kb),
+            self.rss_limit_kb as f64 / 1024.0
+        );
+        s += if self.held { "the server held\n" } else { "the server did NOT hold\n" };
+        s
+    }
+}
+
+/// One attack of the scenario.
+pub struct Attack {
+    pub name: &'static str,
+    pub run: fn(&AttackOptions, &reqwest::blocking::Client) -> AttackOutcome,
+}
+
+/// The attacks of the scenario, in order. (Connection attacks add theirs here.)
+pub fn attacks() -> Vec<Attack> {
+    vec![
+        Attack {
+            name: "render_burst_refused",
+            run: render_burst_refused,
+        },
+        Attack {
+            name: "render_burst_admitted",
+            run: render_burst_admitted,
+        },
+        Attack {
+            name: "amplification",
+            run: amplification,
+        },
+    ]
+}
+
+/// True for `http://` targets on the loopback range (127.0.0.0/8, localhost, [::1]).
+pub fn is_loopback_target(target: &str) -> bool {
+    let Some(rest) = target.strip_prefix("http://") else {
+        return false;
+    };
+    let host = rest.split('/').next().unwrap_or("");
+    let host = match host.strip_prefix('[') {
+        Some(v6) => v6.split(']').next().unwrap_or(""),
+        None => host.rsplit_once(':').map_or(host, |(h, _)| h),
+    };
+    host == "localhost"
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
+}
+
+/// Runs every attack in turn and reports.
+pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
+    if !is_loopback_target(&opts.target) {
+        return Err(format!(
+            "--target must be an http:// address on loopback (127.0.0.0/8, localhost, [::1]), got `{}`",
+            opts.target
+        ));
+    }
+    if !(opts.budget_s.is_finite() && opts.budget_s > 0.0 && opts.budget_s <= 600.0) {
+        return Err(format!("the budget must be within (0, 600] seconds, got {}", opts.budget_s));
+    }
+    let client = reqwest::blocking::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs_f64((8.0 * opts.budget_s).max(30.0)))
+        .build()
+        .map_err(|e| format!("cannot build an HTTP client: {e}"))?;
+    let started = Instant::now();
+    let rss_before_kb = opts.pid.and_then(process_memory_kb).map(|m| m.0);
+    let mut outcomes = Vec::new();
+    for attack in attacks() {
+        if opts.progress {
+            eprintln!("attack: {}", attack.name);
+        }
+        outcomes.push((attack.run)(opts, &client));
+    }
+    let peak_rss_kb = opts.pid.and_then(process_memory_kb).map(|m| m.1);
+    let rss_limit_kb = opts.rss_limit_mib * 1024;
+    let rss_ok = peak_rss_kb.is_none_or(|p| p <= rss_limit_kb);
+    Ok(AttackReport {
+        target: opts.target.clone(),
+        budget_s: opts.budget_s,
+        seconds: started.elapsed().as_secs_f64(),
+        held: rss_ok && outcomes.iter().all(|o| o.held),
+        attacks: outcomes,
+        rss_before_kb,
+        peak_rss_kb,
+        rss_limit_kb,
+    })
+}
+
+/// One answer: status (`None` for no answer), whether it keeps the contract, and
+/// the body's length.
+struct Answer {
+    status: Option<u16>,
+    proper: bool,
+    body_bytes: u64,
+    error_code: Option<String>,
+}
+
+fn get(client: &reqwest::blocking::Client, url: &str) -> Answer {
+    match client.get(url).send() {
+        Ok(r) => {
+            let status = r.status().as_u16();
+            let retry_after = r.headers().contains_key("retry-after");
+            let body = r.bytes().unwrap_or_default();
+            let error_code = serde_json::from_slice::<serde_json::Value>(&body)
+                .ok()
+                .and_then(|v| v["error"].as_str().map(str::to_string));
+            let proper = match status {
+                503 => retry_after && error_code.is_some(),
+                500..=599 => false,
+                400..=499 => error_code.is_some(),
+                _ => true,
+            };
+            Answer {
+                status: Some(status),
+                proper,
+                body_bytes: body.len() as u64,
+                error_code,
+            }
+        }
+        Err(_) => Answer {
+            status: None,
+            proper: false,
+            body_bytes: 0,
+            error_code: None,
+        },
+    }
+}
+
+/// Sends `urls` at once, one thread each; the answers in order.
+fn burst(client: &reqwest::blocking::Client, urls: &[String]) -> Vec<Answer> {
+    std::thread::scope(|s| {
+        let handles: Vec<_> = urls.iter().map(|u| s.spawn(move || get(client, u))).collect();
+        handles
+            .into_iter()
+            .map(|h| {
+                h.join().unwrap_or(Answer {
+                    status: None,
+                    proper: false,
+                    body_bytes: 0,
+                    error_code: None,
+                })
+            })
+            .collect()
+    })
+}
+
+fn tally(answers: &[Answer], notes: &mut Vec<String>) -> BTreeMap<String, u64> {
+    let mut by = BTreeMap::new();
+    for a in answers {
+        let k = a.status.map_or("error".to_string(), |s| s.to_string());
+        *by.entry(k).or_insert(0) += 1;
+        if !a.proper {
+            notes.push(format!(
+                "an answer broke the contract: status {:?}, error {:?}",
+                a.status, a.error_code
+            ));
+        }
+    }
+    by
+}
+
+/// A render URL of the burst; `i` moves the camera so every request is a new key.
+fn render_url(o: &AttackOptions, i: usize, size: &str, quality: &str, run: u64) -> String {
+    format!(
+        "{}/v1/worlds/{}/render.png?camera={},{},1200,0,8,70&t=43200&size={size}&quality={quality}",
+        o.target,
+        o.world,
+        12_800 + 37 * i as u64 + 1000 * run,
+        -20_000 - 53 * i as i64,
+    )
+}
+
+/// A cheap product never asked before (`n` distinct per probe): a level-0 density tile.
+fn probe_url(o: &AttackOptions, n: u64) -> String {
+    let salt = salt() + n;
+    format!(
+        "{}/v1/worlds/{}/tiles/0/{}/{}/density.u8?t=40",
+        o.target,
+        o.world,
+        100_000 + salt % 100_000,
+        -(100_000 + (salt / 100_000) as i64 % 100_000)
+    )
+}
+
+/// A number that differs between runs, so a new run asks for keys no earlier run
+/// put in the server's cache.
+fn salt() -> u64 {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    nanos / 1_000_000 ^ (std::process::id() as u64) << 20
+}
+
+/// Seconds from `since` until a cheap uncached request answers 200 (probing every
+/// 250 ms, at most `limit`); `None` when it never did.
+fn recovery(o: &AttackOptions, client: &reqwest::blocking::Client, since: Instant, limit: Duration) -> Option<f64> {
+    let mut n = 0;
+    while since.elapsed() < limit {
+        n += 1;
+        if get(client, &probe_url(o, n)).status == Some(200) {
+            return Some(since.elapsed().as_secs_f64());
+        }
+        std::thread::sleep(Duration::from_millis(250));
+    }
+    None
+}
+
+fn outcome(name: &str, statuses: BTreeMap<String, u64>, figures: BTreeMap<String, f64>, notes: Vec<String>) -> AttackOutcome {
+    AttackOutcome {
+        name: name.to_string(),
+        held: notes.is_empty(),
+        statuses,
+        figures,
+        notes,
+    }
+}
+
+/// Eight requests that cannot finish in any budget: refused up front, and the
+/// server serves at once afterwards.
+fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
+    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, "4096x4096", "accurate", 0)).collect();
+    let started = Instant::now();
+    let answers = burst(client, &urls);
+    let answered_s = started.elapsed().as_secs_f64();
+    let mut notes = Vec::new();
+    let statuses = tally(&answers, &mut notes);
+    if answers.iter().any(|a| a.status == Some(200)) {
+        notes.push("a render that cannot finish inside the budget was computed".to_string());
+    }
+    let limit = Duration::from_secs_f64(6.0 * o.budget_s);
+    let rec = recovery(o, client, started, limit);
+    check_recovery(o, rec, &mut notes);
+    let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
+    figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
+    outcome("render_burst_refused", statuses, figures, notes)
+}
+
+fn check_recovery(o: &AttackOptions, rec: Option<f64>, notes: &mut Vec<String>) {
+    match rec {
+        Some(s) if s <= 2.0 * o.budget_s => {}
+        Some(s) => notes.push(format!(
+            "recovery took {s:.1} s, more than 2 × the {} s budget",
+            o.budget_s
+        )),
+        None => notes.push(format!(
+            "no uncached request succeeded within {:.0} s",
+            6.0 * o.budget_s
+        )),
+    }
+}
+
+/// Heavy renders within the limits, all at once: whatever is shed or times out,
+/// the queue is free again within 2 × the budget.
+fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
+    let run = salt() % 100_000;
+    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run)).collect();
+    let started = Instant::now();
+    let answers = burst(client, &urls);
+    let answered_s = started.elapsed().as_secs_f64();
+    let mut notes = Vec::new();
+    let statuses = tally(&answers, &mut notes);
+    let rec = recovery(o, client, started, Duration::from_secs_f64(6.0 * o.budget_s));
+    check_recovery(o, rec, &mut notes);
+    let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
+    figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
+    outcome("render_burst_admitted", statuses, figures, notes)
+}
+
+/// `billboards.json?quality=accurate` of cloudy tiles: the answer stays within the
+/// response limit (413 pointing to billboards.bin when the list is larger).
+fn amplification(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
+    let urls: Vec<String> = (0..2)
+        .map(|i| {
+            format!(
+                "{}/v1/worlds/{}/tiles/0/{i}/0/billboards.json?t=43200&quality=accurate",
+                o.target, o.world
+            )
+        })
+        .collect();
+    let mut notes = Vec::new();
+    let answers: Vec<Answer> = urls.iter().map(|u| get(client, u)).collect();
+    let statuses = tally(&answers, &mut notes);
+    let request_bytes = urls.iter().map(|u| u.len() - o.target.len()).max().unwrap_or(1) as f64;
+    let largest = answers.iter().map(|a| a.body_bytes).max().unwrap_or(0) as f64;
+    let figures = BTreeMap::from([
+        ("largest_answer_bytes".to_string(), largest),
+        ("bytes_out_per_byte_in".to_string(), largest / request_bytes),
+    ]);
+    outcome("amplification", statuses, figures, notes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_loopback_targets_are_attacked() {
+        for ok in [
+            "http://127.0.0.1:8080",
+            "http://127.3.4.5:1/",
+            "http://localhost:9",
+            "http://[::1]:8080",
+        ] {
+            assert!(is_loopback_target(ok), "{ok}");
+        }
+        for bad in [
+            "http://10.0.0.1:8080",
+            "http://192.168.1.2",
+            "http://example.com:80",
+            "https://127.0.0.1:8080",
+            "127.0.0.1:8080",
+            "http://[::2]:80",
+        ] {
+            assert!(!is_loopback_target(bad), "{bad}");
+        }
+    }
+}

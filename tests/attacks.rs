@@ -1,0 +1,301 @@
+//! The compute and memory attacks of issue 25, against the real binary: work that
+//! cannot finish in its budget is refused up front or stopped when its budget ends
+//! (its queue slot comes back), `Retry-After` follows the queue, answers stay within
+//! the response limit, the cache keeps no entry over a quarter of its budget, and
+//! replies held by clients that do not read stay within the reply budget. Bounds are
+//! generous: these run on a loaded 2-core machine.
+
+mod common;
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use common::{ServeProcess, metric};
+
+fn client() -> reqwest::Client {
+    reqwest::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs(120))
+        .build()
+        .unwrap()
+}
+
+struct Answer {
+    status: u16,
+    retry_after: Option<u32>,
+    json: serde_json::Value,
+    bytes: usize,
+}
+
+async fn get(c: &reqwest::Client, url: String) -> Answer {
+    let r = c.get(url).send().await.expect("every request gets an answer");
+    let status = r.status().as_u16();
+    let retry_after = r
+        .headers()
+        .get("retry-after")
+        .and_then(|v| v.to_str().ok()?.parse().ok());
+    let body = r.bytes().await.unwrap_or_default();
+    Answer {
+        status,
+        retry_after,
+        json: serde_json::from_slice(&body).unwrap_or(serde_json::Value::Null),
+        bytes: body.len(),
+    }
+}
+
+/// A render of the default world; `i` moves the camera, so every `i` is a new key.
+fn render(base: &str, i: u64, size: &str, quality: &str) -> String {
+    format!(
+        "{base}/v1/worlds/default/render.png?camera={},-20000,1200,0,8,70&t=43200&size={size}&quality={quality}",
+        12_800 + 41 * i
+    )
+}
+
+fn start(env: &[(&str, &str)]) -> ServeProcess {
+    let mut all = vec![("RUST_LOG", "error")];
+    all.extend_from_slice(env);
+    ServeProcess::start(&[], &all)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn work_that_cannot_fit_the_budget_or_the_memory_limit_is_refused_up_front() {
+    let server = start(&[("CLOUDSCAPE_LIMITS_MAX_REQUEST_BYTES", "134217728")]);
+    let c = client();
+    // The issue's request: ~55 CPU-seconds against 10 s × 2 threads.
+    let started = Instant::now();
+    let a = get(&c, render(&server.base, 0, "4096x4096", "accurate")).await;
+    assert_eq!(a.status, 413, "{}", a.json);
+    assert_eq!(a.json["error"], "too_much_work");
+    let message = a.json["message"].as_str().unwrap();
+    assert!(
+        message.contains("CPU-seconds") && message.contains("server.request_timeout_ms"),
+        "{message}"
+    );
+    assert!(started.elapsed() < Duration::from_secs(5), "refused before any work");
+    // Within the CPU budget but over limits.max_request_bytes (128 MiB here).
+    let a = get(&c, render(&server.base, 1, "1024x1024", "balanced")).await;
+    assert_eq!(a.status, 413, "{}", a.json);
+    assert!(a.json["message"].as_str().unwrap().contains("limits.max_request_bytes"), "{}", a.json);
+    assert_eq!(metric(&server, "cloudscape_refused_total", &[("kind", "render")]), 2.0);
+    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "render")]), 0.0);
+    // A small view is admitted and drawn.
+    let a = get(&c, render(&server.base, 2, "64x36", "fast")).await;
+    assert_eq!(a.status, 200);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
+    let budget_ms = 2000;
+    let server = start(&[
+        ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", &budget_ms.to_string()),
+        ("CLOUDSCAPE_SERVER_COMPUTE_QUEUE", "16"),
+        ("CLOUDSCAPE_SERVER_COMPUTE_MEMORY_BYTES", "17179869184"),
+    ]);
+    let c = client();
+    // 12 distinct renders, each within the limits (~1.5 CPU-s), ~18 CPU-s together:
+    // far more than 2 s on 2 threads. Without cancellation the queue stays busy
+    // until all of them are done.
+    let started = Instant::now();
+    let handles: Vec<_> = (0..12)
+        .map(|i| tokio::spawn(get_owned(c.clone(), render(&server.base, 100 + i, "1024x1024", "fast"))))
+        .collect();
+    let mut by_status = std::collections::BTreeMap::new();
+    for h in handles {
+        let a = h.await.unwrap();
+        *by_status.entry(a.status).or_insert(0) += 1;
+        assert!(a.status == 200 || a.status == 503, "status {} {}", a.status, a.json);
+        if a.status == 503 {
+            assert!(a.retry_after.is_some_and(|s| (1..=60).contains(&s)));
+            assert!(matches!(a.json["error"].as_str(), Some("timeout" | "overloaded")), "{}", a.json);
+        }
+    }
+    let answered = started.elapsed();
+    assert!(by_status.get(&503).copied().unwrap_or(0) > 0, "{by_status:?}");
+    // Every request is answered by its budget; the stopped jobs give their slots back
+    // within a few seconds of that (one tile or band to finish each).
+    let limit = Duration::from_millis(budget_ms) + Duration::from_secs(6);
+    let mut free_after = None;
+    while started.elapsed() < limit + Duration::from_secs(30) {
+        if metric(&server, "cloudscape_compute_queue_depth", &[]) == 0.0 {
+            free_after = Some(started.elapsed());
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let free_after = free_after.expect("the queue empties");
+    assert!(
+        free_after <= limit,
+        "queue free after {free_after:?} (answered after {answered:?}); budget {budget_ms} ms"
+    );
+    assert!(metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) > 0.0);
+    // An uncached cheap request is served at once.
+    let a = get(&c, format!("{}/v1/worlds/default/tiles/0/77/-5/density.u8?t=40", server.base)).await;
+    assert_eq!(a.status, 200);
+}
+
+async fn get_owned(c: reqwest::Client, url: String) -> Answer {
+    get(&c, url).await
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn retry_after_follows_the_queue_not_a_constant() {
+    let server = start(&[
+        ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "60000"),
+        ("CLOUDSCAPE_SERVER_COMPUTE_QUEUE", "4"),
+    ]);
+    let c = client();
+    // Two renders one after the other teach the queue its job time (~1.5 s or more).
+    for i in 0..2 {
+        assert_eq!(get(&c, render(&server.base, 200 + i, "1024x1024", "balanced")).await.status, 200);
+    }
+    // Fill the queue with four more, then ask for a fifth.
+    let handles: Vec<_> = (0..4)
+        .map(|i| tokio::spawn(get_owned(c.clone(), render(&server.base, 300 + i, "1024x1024", "balanced"))))
+        .collect();
+    let mut shed = None;
+    for _ in 0..50 {
+        if metric(&server, "cloudscape_compute_queue_depth", &[]) >= 4.0 {
+            shed = Some(get(&c, render(&server.base, 400, "1024x1024", "balanced")).await);
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let shed = shed.expect("the queue filled");
+    assert_eq!(shed.status, 503, "{}", shed.json);
+    assert_eq!(shed.json["error"], "overloaded");
+    // 4 jobs × ≥ 1.5 s / 2 threads: at least 3 s, so more than 2.
+    let ra = shed.retry_after.expect("Retry-After");
+    assert!((2..=60).contains(&ra), "Retry-After {ra}");
+    for h in handles {
+        h.await.unwrap();
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billboards_bin() {
+    let server = start(&[("CLOUDSCAPE_LIMITS_MAX_RESPONSE_BYTES", "1048576")]);
+    let c = client();
+    let tile = |p: &str| format!("{}/v1/worlds/default/tiles/0/0/0/{p}?t=43200&quality=fast", server.base);
+    let a = get(&c, tile("billboards.json")).await;
+    assert_eq!(a.status, 413, "{}", a.json);
+    assert_eq!(a.json["error"], "response_too_large");
+    let m = a.json["message"].as_str().unwrap();
+    assert!(m.contains("billboards.bin") && m.contains("limits.max_response_bytes"), "{m}");
+    // The binary form of the same billboards is within the limit, and came from the
+    // same shading (no second computation); so does the repeated refusal.
+    let bin = get(&c, tile("billboards.bin")).await;
+    assert_eq!(bin.status, 200);
+    assert!(bin.bytes < 1 << 20);
+    assert_eq!(get(&c, tile("billboards.json")).await.status, 413);
+    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "tile_shaded")]), 1.0);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
+    // 4 MiB of cache: at most 1 MiB an entry. density.f32 of a tile is 2.6 MB,
+    // density.u8 0.66 MB.
+    let server = start(&[("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304")]);
+    let c = client();
+    let tile = |p: &str| format!("{}/v1/worlds/overcast/tiles/0/3/4/{p}?t=40", server.base);
+    let before = metric(&server, "cloudscape_cache_bytes", &[]);
+    for _ in 0..2 {
+        assert_eq!(get(&c, tile("density.f32")).await.status, 200);
+        assert_eq!(get(&c, tile("density.u8")).await.status, 200);
+    }
+    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "tile_density")]), 3.0);
+    // The cache grew by the u8 grid and the small entries beside it, never by the
+    // 2.6 MB f32 grid (which alone would be more than it grew).
+    let grown = metric(&server, "cloudscape_cache_bytes", &[]) - before;
+    assert!(grown < 2_621_440.0, "{grown}");
+}
+
+/// Sends a GET on a raw socket and reads nothing back.
+fn stalled_request(port: u16, path: &str) -> std::net::TcpStream {
+    let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+    write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn replies_held_by_clients_that_do_not_read_stay_within_the_reply_budget() {
+    // A 48 MiB reply budget; balanced billboards.json of a cloudy tile is ~15 MB, so
+    // three unread replies (beyond what the sockets' buffers absorb) fill it.
+    let server = start(&[("CLOUDSCAPE_SERVER_REPLY_BYTES", "50331648")]);
+    let c = client();
+    let path = "/v1/worlds/overcast/tiles/0/0/0/billboards.json?t=43200&quality=balanced";
+    let full = get(&c, format!("{}{path}", server.base)).await;
+    assert_eq!(full.status, 200);
+    assert!(full.bytes > 12 << 20, "a large reply: {} bytes", full.bytes);
+    let mut stalled = Vec::new();
+    let mut refused = None;
+    for _ in 0..8 {
+        stalled.push(stalled_request(server.port, path));
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let a = get(&c, format!("{}{path}", server.base)).await;
+        if a.status == 503 {
+            refused = Some(a);
+            break;
+        }
+        assert_eq!(a.status, 200);
+    }
+    let refused = refused.expect("unread replies fill the reply budget");
+    assert_eq!(refused.json["error"], "reply_memory_full", "{}", refused.json);
+    assert!(refused.retry_after.is_some());
+    let held = metric(&server, "cloudscape_reply_bytes", &[]);
+    assert!(held <= 50331648.0 && held > 0.0, "{held}");
+    // The stalled clients go away: their shares come back and large replies flow.
+    drop(stalled);
+    let mut served = false;
+    for _ in 0..100 {
+        if get(&c, format!("{}{path}", server.base)).await.status == 200 {
+            served = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(served, "the budget came back once the clients left");
+}
+
+#[test]
+fn the_attack_scenario_holds_against_the_real_binary() {
+    // The CI smoke run of `cloudscape fuzz --scenario attack`: a 3 s budget, so the
+    // admitted burst is 1024² `fast` renders (~1.5 CPU-s each, 8 at once).
+    let server = ServeProcess::start(
+        &[],
+        &[("RUST_LOG", "error"), ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "3000")],
+    );
+    let dir = tempfile::tempdir().unwrap();
+    let report = dir.path().join("attack.json");
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["fuzz", "--scenario", "attack", "--target", &server.base, "--budget", "3"])
+        .args(["--heavy-size", "1024x1024", "--heavy-quality", "fast", "--rss-limit-mib", "768"])
+        .args(["--pid", &server.child.id().to_string(), "--json", report.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(r["held"], true, "{stdout}");
+    let attack = |name: &str| {
+        r["attacks"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|a| a["name"] == name)
+            .unwrap_or_else(|| panic!("{name} in {stdout}"))
+            .clone()
+    };
+    // The refused burst: 413 only, answered at once.
+    let refused = attack("render_burst_refused");
+    assert_eq!(refused["statuses"]["413"], 8, "{stdout}");
+    // The admitted burst: only 200 and 503, and the queue back within 2 × the budget.
+    let admitted = attack("render_burst_admitted");
+    for (status, _) in admitted["statuses"].as_object().unwrap() {
+        assert!(status == "200" || status == "503", "{stdout}");
+    }
+    assert!(admitted["figures"]["recovery_s"].as_f64().unwrap() <= 6.0, "{stdout}");
+    // No answer over the 64 MiB response limit (126 MB before).
+    let amp = attack("amplification");
+    assert!(amp["figures"]["largest_answer_bytes"].as_f64().unwrap() <= 67108864.0, "{stdout}");
+    assert!(r["peak_rss_kb"].as_u64().unwrap() <= 768 * 1024, "{stdout}");
+}

@@ -5,7 +5,7 @@
 //!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
 //!   each on the development machine) at once. They must be refused up front.
 //! - **Render burst (admitted)**: eight heavy renders that are within the limits
-//!   one at a time (by default 1024² `accurate`, about 12 CPU-seconds each; choose
+//!   one at a time (by default 2048² `balanced`, about 5 CPU-seconds each; choose
 //!   one that fits a smaller budget), all at once. The
 //!   server may shed or time them out, but must stop the work nobody waits for.
 //!   Recovery: the time from the burst until an uncached cheap request (a density
@@ -45,6 +45,8 @@ pub struct AttackOptions {
     pub heavy_quality: String,
     /// The `world` to attack.
     pub world: String,
+    /// Run only the attacks named here (all when empty).
+    pub only: Vec<String>,
     /// Progress lines on stderr.
     pub progress: bool,
 }
@@ -168,7 +170,14 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
     let started = Instant::now();
     let rss_before_kb = opts.pid.and_then(process_memory_kb).map(|m| m.0);
     let mut outcomes = Vec::new();
+    let known: Vec<&'static str> = attacks().iter().map(|a| a.name).collect();
+    if let Some(bad) = opts.only.iter().find(|n| !known.contains(&n.as_str())) {
+        return Err(format!("unknown attack `{bad}`; the attacks are {}", known.join(", ")));
+    }
     for attack in attacks() {
+        if !opts.only.is_empty() && !opts.only.iter().any(|n| n == attack.name) {
+            continue;
+        }
         if opts.progress {
             eprintln!("attack: {}", attack.name);
         }

@@ -271,6 +271,8 @@ pub async fn tile(
                     &limits,
                     cancel,
                 )?;
+                // Shading was the long part: stop here rather than encode for nobody.
+                cancel.check().map_err(|_| ApiError::Cancelled)?;
                 let mut atlas = Some(atlas::build(&shaded));
                 let mut all: Vec<(Shaded, Bytes)> = Shaded::ALL
                     .into_iter()

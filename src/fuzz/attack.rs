@@ -202,6 +202,7 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
 /// the body's length.
 struct Answer {
     status: Option<u16>,
+    retry_after: Option<u32>,
     proper: bool,
     body_bytes: u64,
     error_code: Option<String>,
@@ -211,19 +212,23 @@ fn get(client: &reqwest::blocking::Client, url: &str) -> Answer {
     match client.get(url).send() {
         Ok(r) => {
             let status = r.status().as_u16();
-            let retry_after = r.headers().contains_key("retry-after");
+            let retry_after: Option<u32> = r
+                .headers()
+                .get("retry-after")
+                .and_then(|v| v.to_str().ok()?.parse().ok());
             let body = r.bytes().unwrap_or_default();
             let error_code = serde_json::from_slice::<serde_json::Value>(&body)
                 .ok()
                 .and_then(|v| v["error"].as_str().map(str::to_string));
             let proper = match status {
-                503 => retry_after && error_code.is_some(),
+                503 => retry_after.is_some() && error_code.is_some(),
                 500..=599 => false,
                 400..=499 => error_code.is_some(),
                 _ => true,
             };
             Answer {
                 status: Some(status),
+                retry_after,
                 proper,
                 body_bytes: body.len() as u64,
                 error_code,
@@ -231,6 +236,7 @@ fn get(client: &reqwest::blocking::Client, url: &str) -> Answer {
         }
         Err(_) => Answer {
             status: None,
+            retry_after: None,
             proper: false,
             body_bytes: 0,
             error_code: None,
@@ -247,6 +253,7 @@ fn burst(client: &reqwest::blocking::Client, urls: &[String]) -> Vec<Answer> {
             .map(|h| {
                 h.join().unwrap_or(Answer {
                     status: None,
+                    retry_after: None,
                     proper: false,
                     body_bytes: 0,
                     error_code: None,
@@ -378,6 +385,9 @@ fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) 
     outcome("render_burst_admitted", statuses, figures, notes)
 }
 
+/// The default `limits.max_response_bytes`: no answer of the scenario may be larger.
+const MAX_ANSWER_BYTES: u64 = 64 << 20;
+
 /// `billboards.json?quality=accurate` of cloudy tiles: the answer stays within the
 /// response limit (413 pointing to billboards.bin when the list is larger).
 fn amplification(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
@@ -390,10 +400,30 @@ fn amplification(o: &AttackOptions, client: &reqwest::blocking::Client) -> Attac
         })
         .collect();
     let mut notes = Vec::new();
-    let answers: Vec<Answer> = urls.iter().map(|u| get(client, u)).collect();
+    // As an attacker would: retry a 503 after its Retry-After until the answer comes.
+    let limit = Duration::from_secs_f64(6.0 * o.budget_s);
+    let answers: Vec<Answer> = urls
+        .iter()
+        .map(|u| {
+            let started = Instant::now();
+            loop {
+                let a = get(client, u);
+                if a.status != Some(503) || started.elapsed() > limit {
+                    return a;
+                }
+                std::thread::sleep(Duration::from_secs(a.retry_after.unwrap_or(1).clamp(1, 10) as u64));
+            }
+        })
+        .collect();
     let statuses = tally(&answers, &mut notes);
     let request_bytes = urls.iter().map(|u| u.len() - o.target.len()).max().unwrap_or(1) as f64;
     let largest = answers.iter().map(|a| a.body_bytes).max().unwrap_or(0) as f64;
+    if largest > MAX_ANSWER_BYTES as f64 {
+        notes.push(format!(
+            "a {request_bytes}-byte request got a {:.0} MB answer, over the default 64 MiB response limit",
+            largest / 1e6
+        ));
+    }
     let figures = BTreeMap::from([
         ("largest_answer_bytes".to_string(), largest),
         ("bytes_out_per_byte_in".to_string(), largest / request_bytes),

@@ -382,6 +382,9 @@ fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) 
     check_recovery(o, rec, &mut notes);
     let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
     figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
+    if let Some(ra) = answers.iter().filter_map(|a| a.retry_after).max() {
+        figures.insert("max_retry_after_s".to_string(), ra as f64);
+    }
     outcome("render_burst_admitted", statuses, figures, notes)
 }
 

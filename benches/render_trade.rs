@@ -2,11 +2,11 @@
 //! "Rendering").
 //!
 //! `cargo bench --bench render_trade` renders a fixed scene set with every preset and
-//! with the reference ray marcher, and prints a Markdown table: per preset and scene,
+//! with the reference path tracer, and prints a Markdown table: per preset and scene,
 //! the time (density, billboards, drawing) and the error against the reference (RMSE
-//! of display RGB in [0, 1], SSIM of luma); then the reference's own convergence
-//! (error of coarser steps against a step of 1/16 cell); then per-tile time to
-//! billboards + atlas. It writes the plot to `benches/render_trade.png` and the images
+//! of display RGB in [0, 1], SSIM of luma); then per-tile time to billboards + atlas;
+//! then the reference's own convergence (error and stated noise of 4, 16, 64 samples
+//! per pixel against 256). It writes the plot to `benches/render_trade.png` and the images
 //! to `target/render_trade/`. Under `cargo test` (no `--bench` argument) it does nothing.
 
 use std::time::Instant;
@@ -14,7 +14,6 @@ use std::time::Instant;
 use cloudscape::density::{self, Region};
 use cloudscape::products::atlas;
 use cloudscape::render::image::{Image, encode_png, rmse, ssim};
-use cloudscape::render::march::MarchParams;
 use cloudscape::render::scene::{self, RenderRequest};
 use cloudscape::render::tile::{ShadedTile, shade_density, tile_halo};
 use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
@@ -22,16 +21,20 @@ use cloudscape::world::{Config, World};
 
 const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
 
-use cloudscape::bench::quality::{SCENE_WORLDS, SCENES, Scene};
+use cloudscape::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
 
 const SIZE: usize = 512;
 const CONVERGENCE_SIZE: usize = 192;
+/// Sample counts of the convergence table (each against 256).
+const CONVERGENCE_SAMPLES: [u32; 4] = [4, 16, 64, 128];
 
 struct Measured {
     density_s: f64,
     billboards_s: f64,
     draw_s: f64,
     image: Image,
+    /// The path tracer's stated noise (0 for billboards).
+    noise: f64,
     tiles: Vec<ShadedTile>,
 }
 
@@ -44,12 +47,13 @@ fn request(s: &Scene, q: Quality, size: usize) -> RenderRequest {
         quality: q,
         sun: Some(Sun::new(s.sun.0, s.sun.1).unwrap()),
         params: ShadingParams::default(),
+        samples: REFERENCE_SAMPLES,
     }
 }
 
-/// Plans, computes density, shades, and draws with the billboard compositor (or, for
-/// `Reference`, with the ray marcher at `march_step` cells), timing each stage.
-fn measure(world: &World, config: &Config, req: &RenderRequest, march_step: Option<f64>) -> Measured {
+/// Plans, computes density, shades, and draws with the renderer of the preset (the
+/// billboard compositor, or the path tracer for `Reference`), timing each stage.
+fn measure(world: &World, config: &Config, req: &RenderRequest) -> Measured {
     let sun = req.sun.unwrap();
     let plan = scene::plan(world, config, req).unwrap();
     let t0 = Instant::now();
@@ -90,22 +94,14 @@ fn measure(world: &World, config: &Config, req: &RenderRequest, march_step: Opti
         .collect();
     let billboards_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let image = match march_step {
-        None => scene::draw_billboards(&tiles, req, sun),
-        Some(cells) => {
-            let vols = scene::volumes(&tiles);
-            let step = scene::reference_step(&tiles, Quality::Reference)
-                / Quality::Reference.settings().march_step_cells
-                * cells;
-            scene::draw_reference(&vols, req, sun, &MarchParams::with_step(step))
-        }
-    };
+    let (image, noise) = scene::draw(&tiles, req, sun);
     let draw_s = t2.elapsed().as_secs_f64();
     Measured {
         density_s,
         billboards_s,
         draw_s,
         image,
+        noise: noise.map_or(0.0, |n| n.std_error),
         tiles,
     }
 }
@@ -121,7 +117,7 @@ fn main() {
     println!("## Rendering: speed against accuracy\n");
     println!("Command: `cargo bench --bench render_trade` ({threads} threads, {SIZE}×{SIZE} pixels, t = 1800 s).");
     println!(
-        "Error is against `reference` (ray marcher, step ¼ cell) on the same tiles; RMSE of display RGB in [0, 1], SSIM of luma."
+        "Error is against `reference` (path tracer, {REFERENCE_SAMPLES} samples per pixel) on the same tiles; RMSE of display RGB in [0, 1], SSIM of luma."
     );
     println!(
         "Times in seconds: density (the simulation, shared by all presets), billboards (metaballs + shading), draw.\n"
@@ -139,8 +135,8 @@ fn main() {
             .collect();
     for s in &SCENES {
         let world = config.world(s.world).unwrap();
-        let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE), Some(0.25));
-        // The reference needs no billboards: its time is density + ray marching.
+        let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE));
+        // The reference needs no billboards: its time is density + path tracing.
         let ref_total = rref.density_s + rref.draw_s;
         let ref_display = rref.image.display();
         write_png(&out_dir, s.name, "reference", &rref.image);
@@ -148,7 +144,7 @@ fn main() {
             .into_iter()
             .enumerate()
         {
-            let m = measure(&world, &config, &request(s, q, SIZE), None);
+            let m = measure(&world, &config, &request(s, q, SIZE));
             let total = m.density_s + m.billboards_s + m.draw_s;
             let d = m.image.display();
             let (e, ss) = (rmse(&d, &ref_display), ssim(&d, &ref_display, SIZE, SIZE));
@@ -222,21 +218,27 @@ fn main() {
     }
 
     println!(
-        "\nReference convergence ({CONVERGENCE_SIZE}×{CONVERGENCE_SIZE}): error of each step against a step of 1/16 cell.\n"
+        "\nReference convergence ({CONVERGENCE_SIZE}×{CONVERGENCE_SIZE}): error of each sample count against 256 samples per pixel, \
+         and the noise the renderer states (mean standard error of pixel luminance, linear).\n"
     );
-    println!("| scene | step (cells) | draw s | RMSE | SSIM |");
-    println!("|---|---|---|---|---|");
+    println!("| scene | samples | draw s | stated noise | RMSE | SSIM |");
+    println!("|---|---|---|---|---|---|");
     let mut convergence: Vec<(f64, f64)> = Vec::new();
     for s in [&SCENES[0], &SCENES[1]] {
         let world = config.world(s.world).unwrap();
-        let req = request(s, Quality::Reference, CONVERGENCE_SIZE);
-        let truth = measure(&world, &config, &req, Some(1.0 / 16.0)).image.display();
-        for cells in [2.0, 1.0, 0.5, 0.25, 0.125] {
-            let m = measure(&world, &config, &req, Some(cells));
+        let mut req = request(s, Quality::Reference, CONVERGENCE_SIZE);
+        req.samples = 256;
+        let truth = measure(&world, &config, &req).image.display();
+        for samples in CONVERGENCE_SAMPLES {
+            req.samples = samples;
+            let m = measure(&world, &config, &req);
             let d = m.image.display();
             let (e, ss) = (rmse(&d, &truth), ssim(&d, &truth, CONVERGENCE_SIZE, CONVERGENCE_SIZE));
-            println!("| {} | {} | {:.2} | {:.4} | {:.4} |", s.name, cells, m.draw_s, e, ss);
-            convergence.push((cells, e));
+            println!(
+                "| {} | {samples} | {:.2} | {:.5} | {:.4} | {:.4} |",
+                s.name, m.draw_s, m.noise, e, ss
+            );
+            convergence.push((samples as f64, e));
         }
     }
     let plot = plot(&points, &convergence);
@@ -255,10 +257,11 @@ fn write_png(dir: &std::path::Path, scene: &str, q: &str, img: &Image) {
 
 /// A 640×320 plot without text (legend in BENCHMARKS.md). Left panel: SSIM (y, 0.9 to
 /// 1, a tick per 0.02) against rendering time without density (billboards + draw, or
-/// ray marching; x, log10 from 0.1 s to 1000 s, a tick per decade); one dot per
+/// path tracing; x, log10 from 0.1 s to 1000 s, a tick per decade); one dot per
 /// scene, red = fast, green = balanced, blue = accurate, black = reference (SSIM 1).
-/// Right panel: reference RMSE (y, 0 to 0.02, a tick per 0.004) against step (x, log2 from 1/8 to 2
-/// cells, a tick per octave), one polyline per scene.
+/// Right panel: reference RMSE against 256 samples (y, 0 to 0.05, a tick per 0.01)
+/// against samples per pixel (x, log2, a tick at 4, 16, 64, 256, 1024), one polyline
+/// per scene.
 fn plot(points: &[(Quality, f64, f64)], convergence: &[(f64, f64)]) -> Vec<u8> {
     let (w, h) = (640usize, 320usize);
     let mut px = vec![255u8; w * h * 3];
@@ -303,7 +306,7 @@ fn plot(points: &[(Quality, f64, f64)], convergence: &[(f64, f64)]) -> Vec<u8> {
         Quality::Fast => [220, 30, 30],
         Quality::Balanced => [30, 160, 30],
         Quality::Accurate => [30, 60, 220],
-        Quality::Reference => [0, 0, 0],
+        Quality::Reference | Quality::ReferenceSingle => [0, 0, 0],
     };
     for &(q, t, s) in points {
         let x = 40.0 + (t.max(0.1).log10() + 1.0) * 65.0;
@@ -314,12 +317,12 @@ fn plot(points: &[(Quality, f64, f64)], convergence: &[(f64, f64)]) -> Vec<u8> {
             }
         }
     }
-    for chunk in convergence.chunks(5) {
+    for chunk in convergence.chunks(CONVERGENCE_SAMPLES.len()) {
         let pts: Vec<(f64, f64)> = chunk
             .iter()
-            .map(|&(cells, e)| {
+            .map(|&(samples, e)| {
                 (
-                    360.0 + (cells.log2() + 3.0) * 65.0,
+                    360.0 + (samples.log2() - 2.0) / 2.0 * 65.0,
                     290.0 - (e / 0.05).clamp(0.0, 1.0) * 270.0,
                 )
             })

@@ -77,6 +77,9 @@ const CPU_S_PER_PIXEL_TILE: [f64; 3] = [3.0e-8, 1.0e-7, 3.0e-7];
 /// The reference ray marcher: CPU-seconds per pixel per march step across the
 /// layers' thickness. Measured 1.3e-6 (96 steps in the default world).
 const CPU_S_PER_PIXEL_STEP: f64 = 1.5e-6;
+/// The reference path tracer: CPU-seconds per path (sample) of a pixel, measured on
+/// the README's ground view of the default world (see BENCHMARKS.md "Rendering").
+const CPU_S_PER_PATH: f64 = 4.0e-6;
 /// Bytes per pixel of a rendered image: linear RGB + alpha in f32, and its PNG.
 const BYTES_PER_PIXEL: u64 = 24;
 
@@ -84,7 +87,7 @@ fn preset_index(q: Quality) -> usize {
     match q {
         Quality::Fast => 0,
         Quality::Balanced => 1,
-        Quality::Accurate | Quality::Reference => 2,
+        Quality::Accurate | Quality::Reference | Quality::ReferenceSingle => 2,
     }
 }
 
@@ -171,6 +174,8 @@ pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Wor
     let threads = rayon::current_num_threads().clamp(1, tiles.len().max(1)) as u64;
     let pixels = (req.width * req.height) as u64;
     cpu_s += if req.quality == Quality::Reference {
+        pixels as f64 * req.samples.max(2) as f64 * CPU_S_PER_PATH
+    } else if req.quality == Quality::ReferenceSingle {
         pixels as f64 * march_steps(world, req.quality) * CPU_S_PER_PIXEL_STEP
     } else {
         pixels as f64 * tiles.len() as f64 * CPU_S_PER_PIXEL_TILE[preset_index(req.quality)]
@@ -224,6 +229,7 @@ mod tests {
             quality,
             sun: None,
             params: ShadingParams::default(),
+            samples: crate::render::pathtrace::DEFAULT_SAMPLES,
         }
     }
 

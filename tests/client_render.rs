@@ -97,6 +97,7 @@ fn a_remote_render_matches_a_local_one_and_revalidates() {
         quality: Quality::Fast,
         sun: None,
         params: ShadingParams::default(),
+        samples: 32,
     };
     let local = render(&world, &config, &req).expect("local render");
     let mut client = TileClient::new(&server.base).unwrap();

@@ -103,6 +103,7 @@ fn products() -> BTreeMap<String, String> {
             quality,
             sun: None,
             params: ShadingParams::default(),
+            samples: 8,
         };
         put(
             format!("render.png tiny/48x27/{}/t={t}", quality.as_str()),

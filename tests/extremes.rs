@@ -374,6 +374,7 @@ fn coverage_maps_and_renders_are_finite_at_the_extremes() {
                 },
                 ..ShadingParams::default()
             },
+            samples: 4,
         };
         let r = render(&w, &c, &req).unwrap_or_else(|e| panic!("{pos:?} {pitch} {el}: {e}"));
         let img = &r.image;

@@ -16,7 +16,15 @@ use cloudscape::render::sun::Sun;
 const R: f64 = 500.0;
 const CENTRE: [f64; 3] = [10_000.0, 20_000.0, 3_000.0];
 
-fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
+/// The one ball: its billboard, the splat sheet, the lighting, the sampled field.
+struct Ball {
+    billboards: Vec<cloudscape::render::shade::Billboard>,
+    sheet: SplatSheet,
+    lighting: Lighting,
+    volume: Volume,
+}
+
+fn single_ball(extinction: f64, sun: Sun) -> Ball {
     // Spacing = radius, so K = ∫f (the ball is alone; K only scales density).
     let lattice = Lattice {
         spacing: R,
@@ -38,14 +46,6 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
     let sheet = SplatSheet::new(256, 65);
     let (billboards, _) = shade(&[ball], &lattice, &lighting, &sheet, 0.1, [0.0, 0.0, 1e6, 1e6]);
     assert_eq!(billboards.len(), 1);
-    let tau = billboards[0].tau as f64;
-
-    // Orthographic view looking north at the ball, 48×48 pixels over 1.2 diameters.
-    let n = 48;
-    let mpp = 2.4 * R / n as f64;
-    let view = View::orthographic(CENTRE, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], mpp, n, n);
-    let mut drawn = Image::new(n, n);
-    composite(&mut drawn, &billboards, &sheet, &lighting, &view);
 
     // The field on a 10 m grid around the ball.
     let cell = 10.0;
@@ -80,14 +80,71 @@ fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
         origin[2] + m as f64 * cell,
     ];
     let volume = Volume::new(grid, place, [origin[0], origin[1], origin[2], top[0], top[1], top[2]]);
+    Ball {
+        billboards,
+        sheet,
+        lighting,
+        volume,
+    }
+}
+
+/// The ball seen in `view` by the compositor and by the ray marcher.
+fn draw_both(ball: &Ball, view: &View) -> (Image, Image) {
+    let mut drawn = Image::new(view.width, view.height);
+    composite(&mut drawn, &ball.billboards, &ball.sheet, &ball.lighting, view);
     let params = MarchParams {
         step: 4.0,
         shadow_step: 8.0,
         min_transmittance: 1e-4,
         max_shadow_tau: 50.0,
     };
-    let marched = march::render(&[volume], &lighting, &params, &view, false);
+    let marched = march::render(std::slice::from_ref(&ball.volume), &ball.lighting, &params, view, false);
+    (drawn, marched)
+}
+
+fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
+    let ball = single_ball(extinction, sun);
+    let tau = ball.billboards[0].tau as f64;
+    // Orthographic view looking north at the ball, 48×48 pixels over 1.2 diameters.
+    let n = 48;
+    let mpp = 2.4 * R / n as f64;
+    let view = View::orthographic(CENTRE, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], mpp, n, n);
+    let (drawn, marched) = draw_both(&ball, &view);
     (drawn, marched, tau)
+}
+
+#[test]
+fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
+    // A dense ball (centre optical depth 4) and eyes inside it, at its rim and just
+    // outside, looking in several directions. Each pixel's opacity must be
+    // Beer–Lambert of the field along that pixel's ray in front of the eye, as the
+    // ray marcher integrates it; before, a ball around the eye was skipped or drawn as
+    // its whole chord over the screen: a uniform frame.
+    let sun = Sun::new(90.0, 30.0).unwrap();
+    let extinction = 4.0 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
+    let ball = single_ball(extinction, sun);
+    let (w, h) = (32, 20);
+    for (offset, yaw, pitch) in [
+        ([0.0, -0.4, 0.0], 0.0, 0.0),    // inside, looking through the centre
+        ([0.0, -0.4, 0.0], 180.0, 0.0),  // inside, looking out of the ball
+        ([0.3, 0.2, -0.3], 60.0, 20.0),  // inside, off-axis
+        ([0.0, -0.97, 0.0], 0.0, 10.0),  // at the rim
+        ([-1.3, -0.6, 0.1], 60.0, 0.0),  // beside the ball, which fills part of the view
+    ] {
+        let eye = [0, 1, 2].map(|i| CENTRE[i] + offset[i] * R);
+        let cam = cloudscape::render::Camera::new(eye, yaw, pitch, 90.0).unwrap();
+        let view = View::perspective(&cam, w, h);
+        let (drawn, marched) = draw_both(&ball, &view);
+        let mut max_err = 0.0f64;
+        for (a, b) in drawn.alpha.iter().zip(&marched.alpha) {
+            max_err = max_err.max((*a as f64 - *b as f64).abs());
+        }
+        // Splat quantisation (256 τ steps) and the marcher's 4 m steps on a 10 m grid.
+        assert!(max_err < 0.03, "eye {offset:?} yaw {yaw}: opacity error {max_err}");
+        // Not a uniform frame: the opacity varies across the view by a visible amount.
+        let (lo, hi) = drawn.alpha.iter().fold((1.0f32, 0.0f32), |(l, h), &a| (l.min(a), h.max(a)));
+        assert!(hi - lo > 0.05, "eye {offset:?} yaw {yaw}: opacity {lo}..{hi}");
+    }
 }
 
 #[test]

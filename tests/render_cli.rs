@@ -121,3 +121,55 @@ fn bad_requests_fail_with_one_sentence_and_no_file() {
     assert!(!o.status.success());
     assert!(String::from_utf8_lossy(&o.stderr).contains("t must be"));
 }
+
+/// Mean and standard deviation of the luminance (mean of R, G, B; 0–255) of a PNG.
+fn luminance_stats(path: &std::path::Path) -> (f64, f64) {
+    let mut reader = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()))
+        .read_info()
+        .unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    let ch = info.color_type.samples();
+    let lum: Vec<f64> = buf[..info.buffer_size()]
+        .chunks(ch)
+        .map(|p| (p[0] as f64 + p[1] as f64 + p[2] as f64) / 3.0)
+        .collect();
+    let mean = lum.iter().sum::<f64>() / lum.len() as f64;
+    let var = lum.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / lum.len() as f64;
+    (mean, var.sqrt())
+}
+
+#[test]
+fn inside_a_cloud_layer_the_view_is_fog_like_the_reference() {
+    // An eye inside the default world's cumulus layer (1850 m), in a thin cloud at
+    // noon: the billboard view must be fog with structure (not one flat grey) and as
+    // bright on average as the ray-marched reference.
+    let dir = tempfile::tempdir().unwrap();
+    let mut stats = Vec::new();
+    for quality in ["balanced", "reference"] {
+        let out = dir.path().join(format!("{quality}.png"));
+        let o = cloudscape(
+            &[
+                "render",
+                "--world",
+                "default",
+                "--camera",
+                "5550,1050,1850,0,5,70",
+                "--t",
+                "43200",
+                "--size",
+                "96x54",
+                "--quality",
+                quality,
+                "--out",
+                out.to_str().unwrap(),
+            ],
+            2,
+        );
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        stats.push(luminance_stats(&out));
+    }
+    let ((mean_b, sd_b), (mean_r, _)) = (stats[0], stats[1]);
+    assert!(sd_b > 2.0, "balanced from inside the layer is nearly uniform (sd {sd_b})");
+    assert!((mean_b / mean_r - 1.0).abs() < 0.08, "mean luminance {mean_b} against the reference's {mean_r}");
+}

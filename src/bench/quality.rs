@@ -1,19 +1,22 @@
-//! What each quality preset buys: time and error against the reference ray marcher on
-//! the scene set of `benches/render_trade.rs` (which also measures the reference's
-//! own convergence; this section is its speed–accuracy table).
+//! What each quality preset buys: time and error against the reference path tracer
+//! (at [`REFERENCE_SAMPLES`] samples per pixel) on the scene set of
+//! `benches/render_trade.rs` (which also measures the reference's own convergence;
+//! this section is its speed–accuracy table).
 
 use std::time::Instant;
 
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use crate::density::{self, Region};
 use crate::render::image::{Image, rmse, ssim};
-use crate::render::march::MarchParams;
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
 use crate::world::{Config, World};
 
 use super::{BenchRun, Effort, Plot, Section};
+
+/// Samples per pixel of the reference the presets are measured against.
+pub const REFERENCE_SAMPLES: u32 = 64;
 
 /// One-layer worlds of the scene set (shared with `benches/render_trade.rs`).
 pub const SCENE_WORLDS: &str = r#"
@@ -107,11 +110,12 @@ fn request(s: &Scene, q: Quality, size: usize) -> Result<RenderRequest, String> 
         quality: q,
         sun: Sun::new(s.sun.0, s.sun.1),
         params: ShadingParams::default(),
+        samples: REFERENCE_SAMPLES,
     })
 }
 
-/// Plans, computes density, shades, and draws (billboards, or the ray marcher for
-/// `Reference`), timing each stage.
+/// Plans, computes density, shades, and draws (billboards, or the volume for
+/// `Reference` and `ReferenceSingle`), timing each stage.
 fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measured, String> {
     let sun = req.sun.ok_or("the scene has no sun")?;
     let plan = scene::plan(world, config, req).map_err(|e| e.to_string())?;
@@ -154,13 +158,7 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
         .collect();
     let billboards_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let image = if req.quality == Quality::Reference {
-        let vols = scene::volumes(&tiles);
-        let step = scene::reference_step(&tiles, Quality::Reference);
-        scene::draw_reference(&vols, req, sun, &MarchParams::with_step(step))
-    } else {
-        scene::draw_billboards(&tiles, req, sun)
-    };
+    let (image, _) = scene::draw(&tiles, req, sun);
     let draw_s = t2.elapsed().as_secs_f64();
     Ok(Measured {
         density_s,
@@ -189,7 +187,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
     .map_err(|e| e.to_string())?;
     let mut md = format!(
         "Scene set of `benches/render_trade.rs` (one-layer worlds, t = 1800 s), {size}×{size} pixels. Error against \
-         `reference` (ray marcher, step ¼ cell) on the same tiles: RMSE of display RGB in [0, 1], SSIM of luma. \
+         `reference` (path tracer, {REFERENCE_SAMPLES} samples per pixel) on the same tiles: RMSE of display RGB in [0, 1], SSIM of luma. \
          Times: density (shared by every preset), billboards (metaballs + shading), draw. Speed-up against the \
          reference: total / excluding density. The reference's convergence is in `cargo bench --bench render_trade`.\n\n\
          | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM |\n\
@@ -238,7 +236,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         .map(|(i, &q)| Series {
             name: q.as_str().into(),
             points: points.iter().filter(|p| p.0 == q).map(|p| (p.1, p.2)).collect(),
-            colour: PALETTE[[1, 2, 0, 5][i]],
+            colour: PALETTE[[1, 2, 0, 5, 3][i]],
             mark: Mark::Points,
         })
         .collect();

@@ -64,7 +64,7 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         .collect();
     for p in &run.plots {
         let path = plots.join(&p.file);
-        super::write_atomically(&path.to_string_lossy(), &p.png)?;
+        super::write_out(&path.to_string_lossy(), &p.png)?;
     }
     // Read again just before writing: prose edited while the run measured (minutes)
     // is kept. If an edit broke the markers, the measured sections go to a file of
@@ -74,11 +74,11 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         Err(e) => {
             let side = format!("{}.sections.md", a.out);
             let fresh = bench::merge_sections("", &sections)?;
-            super::write_atomically(&side, fresh.as_bytes())?;
+            super::write_out(&side, fresh.as_bytes())?;
             return Err(format!("{e}; {} left unchanged, the sections are in {side}", a.out));
         }
     };
-    super::write_atomically(&a.out, merged.as_bytes())?;
+    super::write_out(&a.out, merged.as_bytes())?;
     eprintln!(
         "[{:>6.1} s] bench: wrote {} sections to {} and {} plots to {}",
         start.elapsed().as_secs_f64(),

@@ -31,7 +31,8 @@ pub struct DensityArgs {
     /// Config file (default: the embedded config).
     #[arg(long)]
     config: Option<String>,
-    /// Output file; written whole or not at all.
+    /// Output file, `-` for stdout. A regular file is replaced whole or not at all;
+    /// a symlink is followed; a FIFO or device is written in place.
     #[arg(long)]
     out: String,
 }
@@ -76,5 +77,5 @@ pub fn run(a: DensityArgs) -> Result<(), String> {
             encode_cells(&g, format)
         }
     };
-    super::write_atomically(&a.out, &bytes)
+    super::write_out(&a.out, &bytes)
 }

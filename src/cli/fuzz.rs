@@ -91,7 +91,7 @@ pub fn run(a: FuzzArgs) -> Result<(), String> {
     print!("{}", report.summary());
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
-        super::write_atomically(path, text.as_bytes())?;
+        super::write_out(path, text.as_bytes())?;
     }
     if report.passed() {
         Ok(())
@@ -127,7 +127,7 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
     print!("{}", report.summary());
     if let Some(path) = &a.json {
         let text = serde_json::to_string_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
-        super::write_atomically(path, text.as_bytes())?;
+        super::write_out(path, text.as_bytes())?;
     }
     if report.held {
         Ok(())

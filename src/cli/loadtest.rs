@@ -102,10 +102,10 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
     print!("{}", report.summary());
     if let Some(path) = &a.json {
         let json = serde_json::to_vec_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
-        super::write_atomically(path, &json)?;
+        super::write_out(path, &json)?;
     }
     if let Some(path) = &a.plot {
-        super::write_atomically(path, &report.plot()?)?;
+        super::write_out(path, &report.plot()?)?;
     }
     if report.totals.requests == 0 {
         return Err(match &report.first_error {

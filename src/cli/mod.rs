@@ -5,6 +5,7 @@ mod bench;
 mod density;
 mod fuzz;
 mod loadtest;
+mod out;
 mod probe;
 mod render;
 mod serve;
@@ -14,6 +15,8 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 use crate::world::Config;
+
+pub(crate) use out::write_out;
 
 /// Noise-driven Dobashi cloud simulation for large game worlds.
 #[derive(Parser)]
@@ -101,25 +104,4 @@ pub(crate) fn parse_numbers(what: &str, s: &str, n: usize) -> Result<Vec<f64>, S
             )),
         })
         .collect()
-}
-
-/// Writes `bytes` to `path` whole or not at all: a temporary file beside it, then a rename.
-pub(crate) fn write_atomically(path: &str, bytes: &[u8]) -> Result<(), String> {
-    use std::io::Write;
-    let target = std::path::Path::new(path);
-    let dir = match target.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => std::path::Path::new("."),
-    };
-    let mut tmp = tempfile::NamedTempFile::new_in(dir).map_err(|e| format!("cannot write {path}: {e}"))?;
-    tmp.write_all(bytes).map_err(|e| format!("cannot write {path}: {e}"))?;
-    // A temporary file is private (0600); the product is an ordinary file.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        let _ = tmp.as_file().set_permissions(std::fs::Permissions::from_mode(0o644));
-    }
-    tmp.persist(target)
-        .map_err(|e| format!("cannot write {path}: {}", e.error))?;
-    Ok(())
 }

@@ -1,9 +1,12 @@
-//! `cloudscape render`: what a client would see from a camera, as a PNG.
+//! `cloudscape render`: what a client would see from a camera, as a PNG. With
+//! `--quality reference` the path tracer's stated noise goes to stderr (and into the
+//! PNG's text chunks).
 
 use clap::Args;
 
 use crate::client::TileClient;
 use crate::render::scene::{RenderRequest, parse_size, render};
+use crate::render::pathtrace::DEFAULT_SAMPLES;
 use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
 
 #[derive(Args)]
@@ -21,9 +24,14 @@ pub struct RenderArgs {
     /// Image size WxH in pixels.
     #[arg(long)]
     size: String,
-    /// fast | balanced | accurate (billboards) | reference (volumetric ray marcher).
+    /// fast | balanced | accurate (billboards) | reference (volumetric path tracer,
+    /// every order of scattering) | reference-single (single-scattering ray marcher).
     #[arg(long, default_value = "balanced")]
     quality: String,
+    /// Samples per pixel of `--quality reference`, at least 2 (default 32). Its noise
+    /// falls as 1/√samples; the render prints it on stderr.
+    #[arg(long)]
+    samples: Option<u32>,
     /// Sun AZ,EL in degrees (default: from the world clock and the config's latitude and day).
     #[arg(long, allow_hyphen_values = true)]
     sun: Option<String>,
@@ -37,7 +45,8 @@ pub struct RenderArgs {
     /// shadow maps and splats over HTTP and composite them here, instead of simulating.
     #[arg(long)]
     server: Option<String>,
-    /// Output PNG; written whole or not at all.
+    /// Output PNG, `-` for stdout. A regular file is replaced whole or not at all;
+    /// a symlink is followed; a FIFO or device is written in place.
     #[arg(long)]
     out: String,
 }
@@ -51,10 +60,16 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
     let (width, height) = parse_size(&a.size).map_err(|e| format!("--size: {e}"))?;
     let quality = Quality::parse(&a.quality).ok_or_else(|| {
         format!(
-            "--quality must be fast, balanced, accurate or reference, got `{}`",
+            "--quality must be fast, balanced, accurate, reference or reference-single, got `{}`",
             a.quality
         )
     })?;
+    if a.samples.is_some() && quality != Quality::Reference {
+        return Err(format!(
+            "--samples applies to --quality reference (the path tracer) only, not `{}`",
+            quality.as_str()
+        ));
+    }
     let sun = match &a.sun {
         Some(s) => Some(Sun::parse(s).map_err(|e| format!("--sun: {e}"))?),
         None => None,
@@ -81,6 +96,7 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
         quality,
         sun,
         params,
+        samples: a.samples.unwrap_or(DEFAULT_SAMPLES),
     };
     let rendered = match &a.server {
         Some(url) => TileClient::new(url)
@@ -94,5 +110,18 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
             render(&world, &config, &req).map_err(|e| e.to_string())?
         }
     };
-    super::write_atomically(&a.out, &rendered.image.to_png())
+    match rendered.noise {
+        Some(noise) => {
+            super::write_out(&a.out, &rendered.image.to_png_with_noise(&noise))?;
+            eprintln!(
+                "reference: {} samples per pixel, noise {:.5} (mean standard error of pixel luminance; {:.2} % of the mean luminance {:.4})",
+                noise.samples,
+                noise.std_error,
+                100.0 * noise.relative(),
+                noise.mean_luminance
+            );
+            Ok(())
+        }
+        None => super::write_out(&a.out, &rendered.image.to_png()),
+    }
 }

@@ -141,8 +141,10 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         let shutdown = server.shutdown_handle();
         tokio::spawn(async move {
             termination_signal().await;
-            tracing::info!("signal received: shutting down gracefully");
+            // Trigger before logging: a log write may block (a full or closed stderr
+            // pipe) and must not hold the shutdown back.
             shutdown.trigger();
+            tracing::info!("signal received: shutting down gracefully");
         });
         server.run().await.map_err(|e| format!("server failed: {e}"))
     })

@@ -322,9 +322,12 @@ impl TileClient {
     /// `cloudscape render`. Billboard presets only (`reference` marches the density
     /// volume, which the server does not serve as billboards).
     pub fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
-        if req.quality == Quality::Reference {
+        if req.quality.is_volumetric() {
             return Err(RenderError::BadRequest(
-                "quality `reference` ray-marches the density locally; a remote render draws billboards (fast, balanced, accurate)".into(),
+                format!(
+                    "quality `{}` renders the density locally; a remote render draws billboards (fast, balanced, accurate)",
+                    req.quality.as_str()
+                ),
             )
             .into());
         }
@@ -397,6 +400,7 @@ impl TileClient {
             tiles,
             billboards: billboards.len(),
             sun,
+            noise: None,
         })
     }
 }

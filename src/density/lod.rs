@@ -43,6 +43,16 @@ const N: usize = 33;
 /// the default stratocumulus layer; see BENCHMARKS.md).
 const SPREAD_ACT: f32 = 0.003;
 
+/// The activation the mean field is given: the column's own p_act, floored at
+/// [`SPREAD_ACT`] only where there is humid air for activation to spread through.
+/// Dobashi's `act' = ¬act ∧ hum ∧ f_act` needs `hum`, and with p_hum = 0 a cell
+/// never becomes humid, so there the automaton's only activation is its own
+/// `rnd < p_act` and the floor would make haze in clear air (and outside an
+/// extent, where the feather zeroes every field).
+fn spread_activation(p_hum: f32, p_act: f32) -> f32 {
+    if p_hum > 0.0 { p_act.max(SPREAD_ACT) } else { p_act }
+}
+
 fn steady_state(ph: f64, pa: f64, pe: f64) -> f64 {
     let (mut h, mut a, mut c) = (0.0f64, 0.0f64, 0.0f64);
     let mut tail = 0.0;
@@ -180,7 +190,7 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
             for (b, w) in brightness.iter().zip(&weights) {
                 let p = f.level_values(k as u32, [b[0][i], b[1][i], b[2][i]], ew);
                 let e = match layer.preset.mode {
-                    Mode::Dobashi => calibrate(expected_cloud(p.hum, p.act.max(SPREAD_ACT), p.ext)),
+                    Mode::Dobashi => calibrate(expected_cloud(p.hum, spread_activation(p.hum, p.act), p.ext)),
                     // Rosa: cloud where the textures pass their thresholds (eq. 3.6–3.8).
                     Mode::Rosa => {
                         ((p.act > thresholds[1] || p.hum > thresholds[0]) && p.ext > thresholds[2]) as u8 as f32

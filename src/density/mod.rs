@@ -29,6 +29,7 @@ const HARD_LIMITS: Limits = Limits {
     max_level: 40,
     max_request_bytes: u64::MAX,
     max_response_bytes: u64::MAX,
+    max_path_samples: 1 << 24,
 };
 
 /// The density of layer `layer` of `world` over `region` (columns at `level`) at time `t`.

@@ -5,6 +5,7 @@
 //! is still healthy and reports its peak memory. `cloudscape fuzz` is the command line.
 
 pub mod attack;
+pub mod conn_attacks;
 pub mod generate;
 pub mod http;
 

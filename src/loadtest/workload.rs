@@ -202,6 +202,7 @@ impl Player {
                 quality: CLIENT_QUALITY,
                 sun: None,
                 params: ShadingParams::default(),
+                samples: crate::render::pathtrace::DEFAULT_SAMPLES,
             };
             match plan_bands(&world.bands, world.maxzoom, &req) {
                 Ok(tiles) => return tiles,

@@ -12,7 +12,10 @@
 //!
 //! Each billboard's colour is `albedo · (sun · T · p(cos θ) + ambient)` with the
 //! pre-computed sun transmittance `T` and the phase function evaluated for the
-//! direction from the eye to the billboard's centre. The opacity is the splat's.
+//! direction from the eye to the billboard's centre, then seen through the air
+//! between the eye and that centre (aerial perspective, `c · T_air + L_in`,
+//! [`Lighting::hazed`]; not in orthographic views, the impostors, which a client
+//! hazes by their own distance). The opacity is the splat's.
 //! Because every splat's opacity is `1 − exp(−τ S(p)/S(0))`, the product of
 //! `(1 − α)` along a pixel is exactly the Beer–Lambert transmittance of the metaball
 //! field: the compositor and the ray marcher agree on coverage by construction.
@@ -25,7 +28,7 @@ use super::camera::View;
 use super::image::Image;
 use super::light::Lighting;
 use super::shade::Billboard;
-use super::splats::SplatSheet;
+use super::splats::{SplatSheet, centre_line_integral, line_integral_beyond};
 
 /// Rows per band drawn in parallel; each band is drawn independently, so the result
 /// does not depend on the thread count.
@@ -37,9 +40,19 @@ pub const OPAQUE_TRANSMITTANCE: f64 = 1e-3;
 /// Columns per block of the per-band opacity map used to skip hidden billboards.
 const BLOCK_COLUMNS: usize = 8;
 
-/// Billboards nearer than this fraction of their radius to the eye are skipped
-/// (the near clip: the eye is inside them).
+/// Billboards nearer than this fraction of their radius to the eye along the view
+/// axis, but not [`AROUND_EYE_RADII`] near, are skipped: they lie beside the eye, out
+/// of view, where a projected quad would be meaningless.
 const NEAR_CLIP_RADII: f64 = 0.5;
+
+/// A ball whose centre is within this many radii of the eye (perspective views) is
+/// not drawn as a projected splat but integrated along every pixel's ray: only the
+/// chord in front of the eye counts ([`line_integral_beyond`]), so a ball around the
+/// eye is fog in every direction, thicker toward its centre, and a ball just beside
+/// the eye covers the solid angle it really covers. A projected splat would be the
+/// whole chord on a quad around the centre's projection, or nothing once the centre
+/// is behind the eye: a blank frame or a hole inside a cloud layer.
+const AROUND_EYE_RADII: f64 = 2.0;
 
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
 pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
@@ -56,20 +69,42 @@ pub fn composite_cancellable(
     view: &View,
     cancel: &Cancel,
 ) {
+    /// How a billboard covers the screen.
+    enum Footprint {
+        /// A splat on a quad of `r_px` pixels around its projected centre.
+        Splat { x: f64, y: f64, r_px: f64, splat: usize },
+        /// A ball near the eye, integrated along each pixel's ray: centre, radius
+        /// (metres), the splat's centre optical depth and the sun transmittance.
+        AroundEye { centre: [f64; 3], radius: f64, tau: f64, sun_transmittance: f64 },
+    }
     struct Item {
         dist: f64,
-        x: f64,
-        y: f64,
-        r_px: f64,
         colour: [f64; 3],
-        splat: usize,
+        footprint: Footprint,
     }
+    let perspective = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
     let items: Vec<Item> = billboards
         .iter()
         .filter_map(|b| {
-            let p = view.project(b.centre)?;
             let r = b.radius as f64;
-            if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, super::camera::ViewKind::Perspective { .. }) {
+            let dist = view.sort_distance(b.centre);
+            if perspective && dist < AROUND_EYE_RADII * r {
+                if !(r > 0.0 && dist.is_finite()) {
+                    return None;
+                }
+                return Some(Item {
+                    dist,
+                    colour: [0.0; 3],
+                    footprint: Footprint::AroundEye {
+                        centre: b.centre,
+                        radius: r,
+                        tau: sheet.tau(b.splat as usize),
+                        sun_transmittance: b.sun_transmittance as f64,
+                    },
+                });
+            }
+            let p = view.project(b.centre)?;
+            if p.depth < NEAR_CLIP_RADII * r && perspective {
                 return None;
             }
             let r_px = r * p.scale;
@@ -82,16 +117,24 @@ pub fn composite_cancellable(
             }
             let dir = view.direction_to(b.centre);
             let colour = lighting.cloud_source(b.sun_transmittance as f64, dir);
+            // Orthographic views (impostors) have no eye: the client hazes them.
+            let colour = match view.kind {
+                super::camera::ViewKind::Perspective { .. } => lighting.hazed(colour, view.origin, b.centre),
+                super::camera::ViewKind::Orthographic { .. } => colour,
+            };
             Some(Item {
-                dist: view.sort_distance(b.centre),
-                x: p.x,
-                y: p.y,
-                r_px,
+                dist,
                 colour,
-                splat: b.splat as usize,
+                footprint: Footprint::Splat {
+                    x: p.x,
+                    y: p.y,
+                    r_px,
+                    splat: b.splat as usize,
+                },
             })
         })
         .collect();
+    let s0 = centre_line_integral();
     // Front to back, the exact reverse of a stable back-to-front sort (which keeps the
     // input order for equal distances).
     let mut order: Vec<usize> = (0..items.len()).collect();
@@ -122,37 +165,65 @@ pub fn composite_cancellable(
             .map(|b| ((b + 1) * BLOCK_COLUMNS).min(width) - b * BLOCK_COLUMNS)
             .map(|w| w * (y1 - y0))
             .collect();
+        // Ray directions of the band's pixels, for balls around the eye.
+        let rays: Vec<[f64; 3]> = if items.iter().any(|it| matches!(it.footprint, Footprint::AroundEye { .. })) {
+            (y0..y1)
+                .flat_map(|py| (0..width).map(move |px| view.ray(px as f64 + 0.5, py as f64 + 0.5).1))
+                .collect()
+        } else {
+            Vec::new()
+        };
         for it in &items {
-            let top = ((it.y - it.r_px - 0.5).floor().max(y0 as f64)) as usize;
-            let bottom = ((it.y + it.r_px + 0.5).ceil().min(y1 as f64)) as usize;
-            if top >= bottom {
-                continue;
-            }
-            let left = ((it.x - it.r_px - 0.5).floor().max(0.0)) as usize;
-            let right = ((it.x + it.r_px + 0.5).ceil().min(width as f64)) as usize;
-            if left >= right || (left / BLOCK_COLUMNS..=(right - 1) / BLOCK_COLUMNS).all(|b| open[b] == 0) {
-                continue;
-            }
-            for py in top..bottom {
-                let dy = (py as f64 + 0.5 - it.y) / it.r_px;
-                for px in left..right {
-                    let i = (py - y0) * width + px;
-                    let remaining = 1.0 - acc_a[i];
-                    if remaining < OPAQUE_TRANSMITTANCE {
+            match it.footprint {
+                Footprint::Splat { x, y, r_px, splat } => {
+                    let top = ((y - r_px - 0.5).floor().max(y0 as f64)) as usize;
+                    let bottom = ((y + r_px + 0.5).ceil().min(y1 as f64)) as usize;
+                    if top >= bottom {
                         continue;
                     }
-                    let dx = (px as f64 + 0.5 - it.x) / it.r_px;
-                    let a = sheet.sample(it.splat, dx, dy);
-                    if a <= 0.0 {
+                    let left = ((x - r_px - 0.5).floor().max(0.0)) as usize;
+                    let right = ((x + r_px + 0.5).ceil().min(width as f64)) as usize;
+                    if left >= right || (left / BLOCK_COLUMNS..=(right - 1) / BLOCK_COLUMNS).all(|b| open[b] == 0) {
                         continue;
                     }
-                    let w = remaining * a;
-                    for ch in 0..3 {
-                        acc[i][ch] += w * it.colour[ch];
+                    for py in top..bottom {
+                        let dy = (py as f64 + 0.5 - y) / r_px;
+                        for px in left..right {
+                            let i = (py - y0) * width + px;
+                            if 1.0 - acc_a[i] < OPAQUE_TRANSMITTANCE {
+                                continue;
+                            }
+                            let dx = (px as f64 + 0.5 - x) / r_px;
+                            let a = sheet.sample(splat, dx, dy);
+                            if a > 0.0 {
+                                take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, it.colour);
+                            }
+                        }
                     }
-                    acc_a[i] += w;
-                    if 1.0 - acc_a[i] < OPAQUE_TRANSMITTANCE {
-                        open[px / BLOCK_COLUMNS] -= 1;
+                }
+                Footprint::AroundEye { centre, radius, tau, sun_transmittance } => {
+                    if open.iter().all(|&o| o == 0) {
+                        continue;
+                    }
+                    // The centre relative to the eye, in radii.
+                    let w = [0, 1, 2].map(|c| (centre[c] - view.origin[c]) / radius);
+                    let ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2];
+                    for (i, u) in rays.iter().enumerate() {
+                        if 1.0 - acc_a[i] < OPAQUE_TRANSMITTANCE {
+                            continue;
+                        }
+                        // Along the ray the closest approach is at s_c radii; the eye
+                        // is at v = −s_c from it, so the chord in front is v >= −s_c.
+                        let s_c = w[0] * u[0] + w[1] * u[1] + w[2] * u[2];
+                        let p2 = (ww - s_c * s_c).max(0.0);
+                        if !(p2 < 1.0) {
+                            continue;
+                        }
+                        let a = 1.0 - (-tau * line_integral_beyond(p2.sqrt(), -s_c) / s0).exp();
+                        if a > 0.0 {
+                            let colour = lighting.cloud_source(sun_transmittance, *u);
+                            take(&mut acc[i], &mut acc_a[i], &mut open[(i % width) / BLOCK_COLUMNS], a, colour);
+                        }
                     }
                 }
             }
@@ -166,6 +237,21 @@ pub fn composite_cancellable(
             alpha[i] = (acc_a[i] + t * alpha[i] as f64) as f32;
         }
     });
+}
+
+/// The `under` operator for one pixel: a layer of opacity `a` and colour `colour`
+/// behind what the pixel holds (`C += (1 − A)·a·c`, `A += (1 − A)·a`); closes the
+/// pixel in its block's count when it turns opaque.
+#[inline]
+fn take(acc: &mut [f64; 3], acc_a: &mut f64, open: &mut usize, a: f64, colour: [f64; 3]) {
+    let w = (1.0 - *acc_a) * a;
+    for ch in 0..3 {
+        acc[ch] += w * colour[ch];
+    }
+    *acc_a += w;
+    if 1.0 - *acc_a < OPAQUE_TRANSMITTANCE {
+        *open -= 1;
+    }
 }
 
 #[cfg(test)]
@@ -183,6 +269,7 @@ mod tests {
             let Some(p) = view.project(b.centre) else { continue };
             let r_px = b.radius as f64 * p.scale;
             let colour = lighting.cloud_source(b.sun_transmittance as f64, view.direction_to(b.centre));
+            let colour = lighting.hazed(colour, view.origin, b.centre);
             for py in 0..view.height {
                 for px in 0..view.width {
                     let a = sheet.sample(

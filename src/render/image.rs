@@ -2,6 +2,10 @@
 //! (RMSE, SSIM) the quality presets are measured with.
 
 use super::light::tone_map;
+use super::pathtrace::Noise;
+
+/// tEXt keywords of a path-traced PNG's stated noise ([`Image::to_png_with_noise`]).
+const NOISE_KEYS: [&str; 3] = ["cloudscape:samples", "cloudscape:noise", "cloudscape:mean-luminance"];
 
 /// A linear-RGB image with coverage alpha, premultiplied: `rgb` already includes alpha.
 #[derive(Clone, Debug, PartialEq)]
@@ -31,7 +35,21 @@ impl Image {
     /// An opaque 8-bit sRGB-ish PNG of the display values.
     pub fn to_png(&self) -> Vec<u8> {
         let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
-        encode_png(self.width, self.height, png::ColorType::Rgb, &bytes)
+        encode_png_with_text(self.width, self.height, png::ColorType::Rgb, &bytes, &[])
+    }
+
+    /// As [`Image::to_png`], with the path tracer's stated noise in tEXt chunks
+    /// (`cloudscape:samples`, `cloudscape:noise`, `cloudscape:mean-luminance`), so the
+    /// file says how converged it is; [`png_noise`] reads them back.
+    pub fn to_png_with_noise(&self, noise: &Noise) -> Vec<u8> {
+        let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
+        let values = [
+            noise.samples.to_string(),
+            format!("{:e}", noise.std_error),
+            format!("{:e}", noise.mean_luminance),
+        ];
+        let text: Vec<(&str, String)> = NOISE_KEYS.into_iter().zip(values).collect();
+        encode_png_with_text(self.width, self.height, png::ColorType::Rgb, &bytes, &text)
     }
 
     /// An RGBA PNG with straight (not premultiplied) alpha: colour = display(rgb / alpha).
@@ -56,15 +74,43 @@ pub fn to_u8(v: f32) -> u8 {
     }
 }
 
+/// The stated noise of a PNG written by [`Image::to_png_with_noise`]; `None` for any
+/// other PNG or bytes that are not one.
+pub fn png_noise(png_bytes: &[u8]) -> Option<Noise> {
+    let reader = png::Decoder::new(std::io::Cursor::new(png_bytes)).read_info().ok()?;
+    let text = &reader.info().uncompressed_latin1_text;
+    let value = |key: &str| text.iter().find(|c| c.keyword == key).map(|c| c.text.as_str());
+    Some(Noise {
+        samples: value(NOISE_KEYS[0])?.parse().ok()?,
+        std_error: value(NOISE_KEYS[1])?.parse().ok()?,
+        mean_luminance: value(NOISE_KEYS[2])?.parse().ok()?,
+    })
+}
+
 /// Encodes 8-bit samples as a PNG. The encoder writes to memory, so it cannot fail
 /// for consistent dimensions; a mismatch is a programming error.
 pub fn encode_png(width: usize, height: usize, colour: png::ColorType, data: &[u8]) -> Vec<u8> {
+    encode_png_with_text(width, height, colour, data, &[])
+}
+
+/// [`encode_png`] with tEXt chunks (Latin-1 keyword, text) before the image data.
+fn encode_png_with_text(
+    width: usize,
+    height: usize,
+    colour: png::ColorType,
+    data: &[u8],
+    text: &[(&str, String)],
+) -> Vec<u8> {
     let mut out = Vec::new();
     {
         let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
         enc.set_color(colour);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_compression(png::Compression::Fast);
+        for (keyword, value) in text {
+            enc.add_text_chunk(keyword.to_string(), value.clone())
+                .expect("a Latin-1 keyword of 1-79 bytes");
+        }
         let mut w = enc.write_header().expect("in-memory PNG header");
         w.write_image_data(data).expect("PNG data matches its dimensions");
     }

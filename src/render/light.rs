@@ -1,9 +1,13 @@
 //! The light model shared by both renderers: sun colour, sky ambient, the
-//! dual-lobe Henyey–Greenstein phase function, and the sky/ground background.
+//! dual-lobe Henyey–Greenstein phase function, and the sky/ground background, all
+//! from one clear-sky atmosphere ([`super::sky`]).
 //!
 //! Radiance is linear RGB in units where a white surface facing a clear noon sun
 //! reads about 1; [`tone_map`] maps it to [0, 1) for display.
 
+use std::sync::Arc;
+
+use super::sky::{GROUND_ALBEDO, SUN_ANGULAR_RADIUS, SUN_REFERENCE_ALTITUDE, Sky};
 use super::sun::Sun;
 
 /// Largest |g| used by the phase function: g → ±1 is a delta lobe; clamping keeps
@@ -50,6 +54,43 @@ impl Phase {
         };
         mix * henyey_greenstein(self.g1, c) + (1.0 - mix) * henyey_greenstein(self.g2, c)
     }
+
+    /// Draws the cosine of a scattering angle with density `eval(cos) / 4π` from two
+    /// uniform numbers in [0, 1): `u_lobe` picks the first lobe with probability `mix`,
+    /// `u` inverts that lobe's CDF ([`sample_henyey_greenstein`]). The same clamping
+    /// as [`Phase::eval`], so the sampled density is exactly the evaluated one and an
+    /// estimator that samples it needs no phase weight.
+    pub fn sample_cos(&self, u_lobe: f64, u: f64) -> f64 {
+        let mix = if self.mix.is_finite() {
+            self.mix.clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
+        let g = if u_lobe < mix { self.g1 } else { self.g2 };
+        sample_henyey_greenstein(g, u)
+    }
+}
+
+/// Inverse CDF of the Henyey–Greenstein distribution of cos θ for `u` in [0, 1]
+/// (Henyey & Greenstein 1941; the inversion as in Pharr, Jakob & Humphreys, *Physically
+/// Based Rendering* 3rd ed., §15.2.3, with θ measured from the forward direction):
+/// `cos θ = (1 + g² − ((1 − g²) / (1 − g + 2g u))²) / 2g`, and `1 − 2u` (isotropic)
+/// for |g| < 10⁻³ where that form loses precision. g is clamped as in
+/// [`henyey_greenstein`]; the result lies in [−1, 1].
+pub fn sample_henyey_greenstein(g: f64, u: f64) -> f64 {
+    let g = if g.is_finite() {
+        g.clamp(-MAX_ABS_G, MAX_ABS_G)
+    } else {
+        0.0
+    };
+    let u = if u.is_finite() { u.clamp(0.0, 1.0) } else { 0.5 };
+    let c = if g.abs() < 1e-3 {
+        1.0 - 2.0 * u
+    } else {
+        let s = (1.0 - g * g) / (1.0 - g + 2.0 * g * u);
+        (1.0 + g * g - s * s) / (2.0 * g)
+    };
+    c.clamp(-1.0, 1.0)
 }
 
 /// 4π × the Henyey–Greenstein phase function: `(1 − g²) / (1 + g² − 2g cosθ)^{3/2}`.
@@ -71,10 +112,9 @@ pub struct ShadingParams {
     /// Single-scattering albedo in [0, 1].
     pub albedo: f64,
     pub phase: Phase,
-    /// Sun irradiance at the zenith, before cloud (clear-sky units, ~1).
+    /// Sun radiance above the atmosphere, in units where a white surface facing it
+    /// reads this (~1; the air takes ~10 % of it at a zenith sun).
     pub sun_intensity: f64,
-    /// Sky ambient radiance (linear RGB) at full daylight, added unoccluded.
-    pub ambient: [f64; 3],
 }
 
 impl Default for ShadingParams {
@@ -84,57 +124,76 @@ impl Default for ShadingParams {
             albedo: 0.9,
             phase: Phase::default(),
             sun_intensity: 1.2,
-            ambient: [0.30, 0.34, 0.42],
         }
     }
 }
 
-/// Everything a renderer needs about light for one sun: direction, colours, phase.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Everything a renderer needs about light for one sun: direction, colours, phase,
+/// and the clear sky they all come from ([`Sky`], a Rayleigh + Mie atmosphere).
+#[derive(Clone, Debug, PartialEq)]
 pub struct Lighting {
     /// Unit vector toward the sun.
     pub sun_dir: [f64; 3],
-    /// Direct sun radiance reaching the top of the clouds (linear RGB, ≥ 0).
+    /// Direct sun radiance reaching the clouds (linear RGB, ≥ 0): the atmosphere's
+    /// transmittance toward the sun at [`SUN_REFERENCE_ALTITUDE`], so a low sun is
+    /// red and a sun whose disc is below the horizon there (about −1.7°) is 0.
     pub sun_rgb: [f64; 3],
-    /// Sky ambient (linear RGB, ≥ 0).
+    /// Uniform-equivalent radiance of the sky's upper hemisphere, `E_sky↓ / π`
+    /// (E_sky↓ the clear sky's irradiance on an upward-facing surface): what lights
+    /// cloud tops from the sky.
+    pub sky_ambient_above: [f64; 3],
+    /// Uniform-equivalent radiance from below: the ground's reflection,
+    /// `albedo_ground · (E_sun + E_sky↓) / π` at the ground (no cloud shadow): what
+    /// lights cloud bases.
+    pub sky_ambient_below: [f64; 3],
+    /// Mean radiance over the whole sphere around an unoccluded point, the average of
+    /// the two above: the ambient an isotropic scatterer sees, added unoccluded by
+    /// [`Lighting::cloud_source`].
     pub ambient_rgb: [f64; 3],
     pub params: ShadingParams,
-    /// How much daylight there is, 0 (night) to 1.
+    /// Global horizontal illuminance (sun + sky on an upward surface at the ground)
+    /// relative to the sun above the atmosphere, in [0, 1]: 0 at night, ~0.9 at noon.
     pub daylight: f64,
+    /// The clear sky of this sun.
+    pub sky: Arc<Sky>,
 }
 
-fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
-    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
-    t * t * (3.0 - 2.0 * t)
+fn luminance(c: [f64; 3]) -> f64 {
+    0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
 }
 
 impl Lighting {
-    /// Light for `sun`. The sun fades out between 0° and −6° elevation (civil
-    /// twilight) and is reddened by the air mass of Kasten & Young 1989
-    /// (`m = 1 / (sin h + 0.50572 (h + 6.07995°)^−1.6364)`), finite at and below the horizon.
+    /// Light for `sun`: builds the sky tables for it (about a millisecond) and takes
+    /// the sun colour and the ambients from them. Finite at every elevation.
     pub fn new(sun: Sun, params: ShadingParams) -> Lighting {
-        let el = sun.elevation_deg.clamp(-90.0, 90.0);
-        let h = el.max(0.0);
-        let air_mass = 1.0 / (h.to_radians().sin() + 0.50572 * (h + 6.07995).powf(-1.6364));
-        // Relative optical depths of a clear atmosphere per air mass (reddening only).
-        let beta = [0.05, 0.10, 0.22];
-        let visible = smoothstep(-6.0, 0.0, el);
-        let intensity = if params.sun_intensity.is_finite() {
-            params.sun_intensity.max(0.0)
+        let sun_dir = sun.direction();
+        let sky = Sky::new(sun_dir, params.sun_intensity);
+        let sun_rgb = sky.sun_rgb_at(SUN_REFERENCE_ALTITUDE);
+        let above = sky.ambient_above();
+        let sun_ground = sky.sun_rgb_at(0.0);
+        let cos = sun_dir[2].max(0.0);
+        let below = [0, 1, 2].map(|c| GROUND_ALBEDO[c] * (sun_ground[c] * cos + above[c]));
+        let ambient_rgb = [0, 1, 2].map(|c| 0.5 * (above[c] + below[c]));
+        let intensity = if params.sun_intensity.is_finite() && params.sun_intensity > 0.0 {
+            params.sun_intensity
         } else {
             0.0
         };
-        let sun_rgb = beta.map(|b| intensity * visible * (-b * air_mass).exp());
-        let daylight = 0.03 + 0.97 * smoothstep(-12.0, 10.0, el);
-        let ambient_rgb = params
-            .ambient
-            .map(|a| if a.is_finite() { a.max(0.0) * daylight } else { 0.0 });
+        let global = luminance([0, 1, 2].map(|c| sun_ground[c] * cos + above[c]));
+        let daylight = if intensity > 0.0 {
+            (global / intensity).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         Lighting {
-            sun_dir: sun.direction(),
+            sun_dir,
             sun_rgb,
+            sky_ambient_above: above,
+            sky_ambient_below: below,
             ambient_rgb,
             params,
             daylight,
+            sky: Arc::new(sky),
         }
     }
 
@@ -158,32 +217,82 @@ impl Lighting {
         [0, 1, 2].map(|i| a * (self.sun_rgb[i] * t * phase + self.ambient_rgb[i]))
     }
 
-    /// Radiance of the clear sky seen along `dir` (a unit vector, z up). Directions
-    /// below the horizon see the horizon's radiance. Every renderer takes its sky
-    /// from here: the background, the light that reaches clouds from the sky.
+    /// Radiance of the clear sky seen along `dir` (a unit vector, z up), without the
+    /// sun's disc. Directions below the horizon see the horizon's radiance. Every
+    /// renderer takes its sky from here: the background, the light that reaches
+    /// clouds from the sky (escaping rays of a path tracer).
     pub fn sky_radiance(&self, dir: [f64; 3]) -> [f64; 3] {
-        let k = dir[2].clamp(0.0, 1.0).sqrt();
-        let horizon = [0.62, 0.70, 0.80];
-        let zenith = [0.22, 0.38, 0.70];
-        [0, 1, 2].map(|i| self.daylight * (horizon[i] * (1.0 - k) + zenith[i] * k))
+        self.sky.radiance(dir)
     }
 
-    /// Radiance of the background along `dir`: sky above the horizon; below it the
-    /// ground (albedo 0.25) lit by the sun through cloud transmittance `ground_t`.
-    pub fn background(&self, dir: [f64; 3], ground_t: f64) -> [f64; 3] {
-        if dir[2] >= 0.0 {
-            self.sky_radiance(dir)
+    /// Aerial perspective from `eye` to `point` (world metres): the air's
+    /// transmittance `T` and in-scattered radiance `L_in`; a surface of radiance `L`
+    /// at `point` is seen as `L · T + L_in` ([`Sky::aerial`]).
+    pub fn aerial(&self, eye: [f64; 3], point: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+        self.sky.aerial(eye, point)
+    }
+
+    /// `colour` seen through the air from `eye` at `point`: `colour · T + L_in`.
+    pub fn hazed(&self, colour: [f64; 3], eye: [f64; 3], point: [f64; 3]) -> [f64; 3] {
+        let (t, l) = self.aerial(eye, point);
+        [0, 1, 2].map(|c| colour[c] * t[c] + l[c])
+    }
+
+    /// Radiance of the background along `dir` from `eye`: the sky (with the sun's
+    /// disc) above the horizon; below it, when the eye is above the ground (altitude
+    /// 0), the ground (albedo [`GROUND_ALBEDO`]) lit by the sun through cloud
+    /// transmittance `ground_t` and by the sky, seen through the air between (whose
+    /// sunlit in-scatter is shadowed by `ground_t` too).
+    pub fn background(&self, eye: [f64; 3], dir: [f64; 3], ground_t: f64) -> [f64; 3] {
+        if dir[2] >= 0.0 || eye[2] <= 0.0 {
+            let mut c = self.sky_radiance(dir);
+            // The sun's disc, anti-aliased over a quarter of its radius. Its radiance
+            // is a display choice (the true one, ~4.6·10⁴ × sun_rgb, saturates anyway).
+            let cos = dot(dir, self.sun_dir);
+            let angle = cos.clamp(-1.0, 1.0).acos();
+            let disc = 1.0 - smoothstep(0.75 * SUN_ANGULAR_RADIUS, 1.25 * SUN_ANGULAR_RADIUS, angle);
+            if disc > 0.0 {
+                let s = self.sky.sun_rgb_at(eye[2].max(0.0));
+                for i in 0..3 {
+                    c[i] += disc * SUN_DISC_GAIN * s[i];
+                }
+            }
+            c
         } else {
-            let g = [0.26, 0.25, 0.21];
-            let t = if ground_t.is_finite() {
-                ground_t.clamp(0.0, 1.0)
-            } else {
-                0.0
-            };
-            let cos = self.sun_dir[2].max(0.0);
-            [0, 1, 2].map(|i| g[i] * (self.sun_rgb[i] * t * cos + self.ambient_rgb[i]))
+            let s = -eye[2] / dir[2];
+            let point = [eye[0] + dir[0] * s, eye[1] + dir[1] * s, 0.0];
+            // The air near the ground is in the same cloud shadow as the ground:
+            // its sunlit in-scatter is scaled by the ground's transmittance.
+            let (tr, l) = self.sky.aerial_lit(eye, point, ground_t);
+            let g = self.ground_radiance(ground_t);
+            [0, 1, 2].map(|i| g[i] * tr[i] + l[i])
         }
     }
+
+    /// Radiance of the ground (albedo [`GROUND_ALBEDO`]) under sun transmittance
+    /// `t` through the clouds: `albedo · (sun_ground · t · cos θ_sun + sky)`, where the
+    /// sky light is `sky_ambient_above` where the sun is unshadowed and turns grey
+    /// (the same luminance, the colour of a cloud base) as the shadow deepens: the
+    /// cloud that shadows a point also hides most of its blue sky. (A stand-in for
+    /// sky light occluded by the actual cloud, which only the path tracer has.)
+    pub fn ground_radiance(&self, t: f64) -> [f64; 3] {
+        let t = if t.is_finite() { t.clamp(0.0, 1.0) } else { 0.0 };
+        let s = self.sky.sun_rgb_at(0.0);
+        let cos = self.sun_dir[2].max(0.0);
+        let grey = luminance(self.sky_ambient_above);
+        [0, 1, 2].map(|i| {
+            let sky = t * self.sky_ambient_above[i] + (1.0 - t) * grey;
+            GROUND_ALBEDO[i] * (s[i] * t * cos + sky)
+        })
+    }
+}
+
+/// Radiance of the sun's disc drawn in the background, as a multiple of `sun_rgb`.
+pub const SUN_DISC_GAIN: f64 = 40.0;
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
 }
 
 /// Display mapping from linear radiance to [0, 1): `1 − exp(−x)` then gamma 1/2.2.
@@ -222,6 +331,46 @@ mod tests {
         assert!((total - 1.0).abs() < 1e-4, "{total}");
         // Forward peak larger than backward.
         assert!(p.eval(1.0) > p.eval(-1.0));
+    }
+
+    #[test]
+    fn phase_samples_follow_the_evaluated_density() {
+        // Histogram of 400 000 sampled cosines in 20 bins against ∫ eval/4π over each bin
+        // (midpoint rule on 1000 sub-intervals): the sampler and eval are independent
+        // code paths, so agreement tests both.
+        for phase in [
+            Phase::default(),
+            Phase { g1: 0.95, g2: -0.6, mix: 0.8 },
+            Phase { g1: 0.0, g2: 0.0005, mix: 0.3 },
+        ] {
+            let (n, bins) = (400_000usize, 20usize);
+            let mut hist = vec![0usize; bins];
+            for i in 0..n {
+                let h = crate::fields::noise::mix64(i as u64 ^ 0x5eed);
+                let u1 = (h >> 11) as f64 / (1u64 << 53) as f64;
+                let u2 = (crate::fields::noise::mix64(h) >> 11) as f64 / (1u64 << 53) as f64;
+                let c = phase.sample_cos(u1, u2);
+                hist[(((c + 1.0) / 2.0 * bins as f64) as usize).min(bins - 1)] += 1;
+            }
+            for (b, &count) in hist.iter().enumerate() {
+                let (lo, w) = (-1.0 + 2.0 * b as f64 / bins as f64, 2.0 / bins as f64);
+                let sub = 1000;
+                let want: f64 = (0..sub)
+                    .map(|k| phase.eval(lo + (k as f64 + 0.5) * w / sub as f64))
+                    .sum::<f64>()
+                    * (w / sub as f64)
+                    / 2.0;
+                let got = count as f64 / n as f64;
+                let sigma = (want * (1.0 - want) / n as f64).sqrt();
+                assert!((got - want).abs() < 5.0 * sigma + 1e-4, "{phase:?} bin {b}: {got} vs {want}");
+            }
+        }
+        for g in [-1.0, -0.99, 0.0, 0.5, 1.0, f64::NAN] {
+            for u in [0.0, 1e-300, 0.5, 1.0, f64::NAN] {
+                let c = sample_henyey_greenstein(g, u);
+                assert!(c.is_finite() && (-1.0..=1.0).contains(&c), "g={g} u={u}: {c}");
+            }
+        }
     }
 
     #[test]

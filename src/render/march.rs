@@ -4,6 +4,9 @@
 //! length Δ at density ρ has extinction σ = `extinction · ρ` and contributes
 //! `T · (1 − e^{−σΔ}) · J`, where `J = albedo · (sun · T_sun · p(cos θ) + ambient)` and
 //! `T_sun` comes from a shadow ray marched toward the sun through every volume.
+//! Each step's source is seen through the air between it and the eye (aerial
+//! perspective, [`Lighting::hazed`]: `J · T_air + L_in`); the sky behind the clouds
+//! already holds the air's light, and the ground gets its own haze.
 //! Density is trilinear between cell centres (cells beyond a grid are empty).
 //! Empty-space skipping: an occupancy grid of 4×4×4-cell bricks holding the largest
 //! density any trilinear sample inside the brick can see; rays jump over empty bricks.
@@ -57,6 +60,8 @@ pub struct Volume {
     pub bounds: [f64; 6],
     bricks: Vec<f32>,
     brick_dims: [usize; 3],
+    /// The largest brick value: a majorant of the whole volume.
+    max_density: f32,
 }
 
 impl Volume {
@@ -92,13 +97,25 @@ impl Volume {
                 }
             }
         }
+        let max_density = bricks.iter().copied().fold(0.0f32, f32::max);
         Volume {
             grid,
             place,
             bounds,
             bricks,
             brick_dims: dims,
+            max_density,
         }
+    }
+
+    /// The largest density a trilinear sample anywhere in the volume can see.
+    pub fn max_density(&self) -> f64 {
+        self.max_density as f64
+    }
+
+    /// The shortest side of a brick, metres.
+    pub fn brick_size(&self) -> f64 {
+        BRICK as f64 * self.place.column.min(self.place.cell_height)
     }
 
     /// Continuous cell coordinates of a world point (cell centres at integers).
@@ -170,6 +187,91 @@ impl Volume {
         }
     }
 
+    /// Visits, in order, the bricks that the ray (`o`, `d`) crosses within
+    /// [`t0`, `t1`], as `visit(t_enter, t_exit, max_density)` with the largest density
+    /// a trilinear sample inside the brick can see (the majorant of delta and ratio
+    /// tracking), until `visit` returns false. Beyond the bricks the density is 0.
+    /// Grid traversal of Amanatides & Woo 1987 ("A fast voxel traversal algorithm").
+    pub fn visit_bricks(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        t0: f64,
+        t1: f64,
+        mut visit: impl FnMut(f64, f64, f64) -> bool,
+    ) {
+        let size = [
+            BRICK as f64 * self.place.column,
+            BRICK as f64 * self.place.column,
+            BRICK as f64 * self.place.cell_height,
+        ];
+        let origin = [self.place.x0, self.place.y0, self.place.base];
+        let dims = self.brick_dims;
+        // Clip to the bricks' box.
+        let (mut ta, mut tb) = (t0, t1);
+        for i in 0..3 {
+            let (lo, hi) = (origin[i], origin[i] + dims[i] as f64 * size[i]);
+            if d[i] == 0.0 {
+                if o[i] < lo || o[i] >= hi {
+                    return;
+                }
+                continue;
+            }
+            let (a, b) = ((lo - o[i]) / d[i], (hi - o[i]) / d[i]);
+            ta = ta.max(a.min(b));
+            tb = tb.min(a.max(b));
+        }
+        if !(ta < tb) {
+            return;
+        }
+        let mut cell = [0usize; 3];
+        let mut next = [f64::INFINITY; 3];
+        let mut delta = [f64::INFINITY; 3];
+        for i in 0..3 {
+            // The brick holding the entry point. Rounding on a brick face may pick the
+            // neighbour behind it: that brick is then visited for a zero length.
+            let c = ((o[i] + d[i] * ta - origin[i]) / size[i]).floor();
+            cell[i] = if c < 0.0 { 0 } else { (c as usize).min(dims[i] - 1) };
+            if d[i] > 0.0 {
+                next[i] = (origin[i] + (cell[i] + 1) as f64 * size[i] - o[i]) / d[i];
+                delta[i] = size[i] / d[i];
+            } else if d[i] < 0.0 {
+                next[i] = (origin[i] + cell[i] as f64 * size[i] - o[i]) / d[i];
+                delta[i] = -size[i] / d[i];
+            }
+        }
+        let mut t = ta;
+        loop {
+            let axis = if next[0] <= next[1] && next[0] <= next[2] {
+                0
+            } else if next[1] <= next[2] {
+                1
+            } else {
+                2
+            };
+            let exit = next[axis].min(tb).max(t);
+            let idx = (cell[2] * dims[1] + cell[1]) * dims[0] + cell[0];
+            if !visit(t, exit, self.bricks[idx] as f64) || exit >= tb {
+                return;
+            }
+            let step_out = if d[axis] > 0.0 {
+                cell[axis] + 1 >= dims[axis]
+            } else {
+                cell[axis] == 0
+            };
+            if step_out {
+                return;
+            }
+            if d[axis] > 0.0 {
+                cell[axis] += 1;
+            } else {
+                cell[axis] -= 1;
+            }
+            next[axis] += delta[axis];
+            t = exit;
+        }
+    }
+
     /// Entry and exit of the ray in the volume's box, clipped to [t_min, t_max].
     fn interval(&self, o: [f64; 3], d: [f64; 3], t_min: f64, t_max: f64) -> Option<(f64, f64)> {
         let (mut t0, mut t1) = (t_min, t_max);
@@ -190,7 +292,7 @@ impl Volume {
 }
 
 /// The volumes a ray crosses within [t_min, t_max], sorted by entry.
-fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64, t_max: f64) -> Vec<(usize, f64, f64)> {
+pub(super) fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64, t_max: f64) -> Vec<(usize, f64, f64)> {
     let mut v: Vec<(usize, f64, f64)> = volumes
         .iter()
         .enumerate()
@@ -258,7 +360,9 @@ pub fn march_ray(
                 } else {
                     0.0
                 };
-                let j = lighting.source_with_phase(t_sun, phase);
+                // Seen through the air between the eye and the sample (aerial
+                // perspective, as the compositor hazes each billboard by its distance).
+                let j = lighting.hazed(lighting.source_with_phase(t_sun, phase), o, p);
                 for c in 0..3 {
                     radiance[c] += trans * a * j[c];
                 }
@@ -340,9 +444,9 @@ fn trace(
         } else {
             1.0
         };
-        lighting.background(d, t_sun)
+        lighting.background(o, d, t_sun)
     } else {
-        lighting.background(d, 1.0)
+        lighting.background(o, d, 1.0)
     };
     ([0, 1, 2].map(|i| (c[i] + trans * bg[i]) as f32), 1.0)
 }

@@ -1,10 +1,11 @@
-//! From density to light: splats, sun shading, billboards, and the two renderers
-//! (the billboard compositor a client would use, and the reference ray marcher).
+//! From density to light: splats, sun shading, billboards, and the renderers: the
+//! billboard compositor a client would use, the reference path tracer, and the
+//! single-scattering ray marcher.
 //!
 //! # API summary (what the HTTP service calls)
 //!
 //! ```text
-//! Quality::parse("fast" | "balanced" | "accurate" | "reference") -> Option<Quality>;  q.as_str()
+//! Quality::parse("fast" | "balanced" | "accurate" | "reference" | "reference-single") -> Option<Quality>;  q.as_str()
 //! Sun::parse("AZ,EL") -> Result<Sun, String>;  Sun::from_clock(t, &config.sun) -> Sun
 //! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets)
 //! TileId { z, x, y }
@@ -24,7 +25,8 @@
 //! // `cloudscape render` and GET /render.png:
 //! scene::parse_size("WxH") -> Result<(usize, usize), String>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
 //! scene::render(&world, &config, &RenderRequest { camera, width, height, t, quality, sun: Option<Sun>,
-//!     params: ShadingParams::default() }) -> Result<Rendered, RenderError>;  rendered.image.to_png()
+//!     params: ShadingParams::default(), samples: u32 }) -> Result<Rendered, RenderError>;
+//! rendered.image.to_png();  rendered.noise: Option<pathtrace::Noise>   // `reference` only
 //! ```
 //!
 //! Errors: [`RenderError::BadRequest`] and [`RenderError::Sim`] are the caller's input
@@ -40,8 +42,10 @@ pub mod composite;
 pub mod image;
 pub mod light;
 pub mod march;
+pub mod pathtrace;
 pub mod scene;
 pub mod shade;
+pub mod sky;
 pub mod splats;
 pub mod sun;
 pub mod tile;
@@ -69,13 +73,16 @@ pub enum RenderError {
 }
 
 /// Quality presets: how finely clouds are sampled and shaded. `Reference` renders with
-/// the ray marcher; its billboard products are those of `Accurate`.
+/// the path tracer (every order of scattering, [`pathtrace`]), `ReferenceSingle` with
+/// the single-scattering ray marcher ([`march`]); the billboard products of both are
+/// those of `Accurate`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Quality {
     Fast,
     Balanced,
     Accurate,
     Reference,
+    ReferenceSingle,
 }
 
 /// What a preset selects.
@@ -95,12 +102,24 @@ pub struct QualitySettings {
     pub lod_pixels: f64,
     /// Impostor atlas texel, in columns of the tile's level.
     pub atlas_texel_columns: f64,
-    /// Ray-marcher view step, in cell heights (used by `Reference`).
+    /// Ray-marcher view step, in cell heights (used by `ReferenceSingle`).
     pub march_step_cells: f64,
 }
 
 impl Quality {
-    pub const ALL: [Quality; 4] = [Quality::Fast, Quality::Balanced, Quality::Accurate, Quality::Reference];
+    pub const ALL: [Quality; 5] = [
+        Quality::Fast,
+        Quality::Balanced,
+        Quality::Accurate,
+        Quality::Reference,
+        Quality::ReferenceSingle,
+    ];
+
+    /// Whether this preset renders the density volume (path tracer or marcher) rather
+    /// than billboards.
+    pub fn is_volumetric(&self) -> bool {
+        matches!(self, Quality::Reference | Quality::ReferenceSingle)
+    }
 
     pub fn parse(s: &str) -> Option<Quality> {
         match s {
@@ -108,6 +127,7 @@ impl Quality {
             "balanced" => Some(Quality::Balanced),
             "accurate" => Some(Quality::Accurate),
             "reference" => Some(Quality::Reference),
+            "reference-single" => Some(Quality::ReferenceSingle),
             _ => None,
         }
     }
@@ -118,6 +138,7 @@ impl Quality {
             Quality::Balanced => "balanced",
             Quality::Accurate => "accurate",
             Quality::Reference => "reference",
+            Quality::ReferenceSingle => "reference-single",
         }
     }
 
@@ -143,7 +164,7 @@ impl Quality {
                 atlas_texel_columns: 0.5,
                 march_step_cells: 0.5,
             },
-            Quality::Accurate | Quality::Reference => QualitySettings {
+            Quality::Accurate | Quality::Reference | Quality::ReferenceSingle => QualitySettings {
                 spacing_columns: 1.0,
                 radius_factor: 1.5,
                 splat_count: 256,

@@ -1,5 +1,6 @@
 //! A camera's view: which tiles and levels it needs, and the picture from them —
-//! by the billboard compositor (what a client draws) or the reference ray marcher.
+//! by the billboard compositor (what a client draws), the reference path tracer, or
+//! the single-scattering ray marcher.
 //!
 //! Level choice (far = coarser): per layer, a quadtree over tiles. It starts from the
 //! coarsest tiles that cover [`VIEW_DISTANCE`] around the camera and splits a tile into
@@ -7,7 +8,8 @@
 //! the eye, would span more than the preset's `lod_pixels` pixels. Tiles outside the
 //! view frustum or farther than `VIEW_DISTANCE` horizontally are dropped. The work is
 //! bounded: at most [`MAX_RENDER_TILES`] tiles and [`MAX_RENDER_PIXELS`] pixels (the
-//! reference at most [`MAX_REFERENCE_PIXELS`]); a bigger request is refused up front.
+//! volumetric renderers at most [`MAX_REFERENCE_PIXELS`], and the path tracer at most
+//! `[limits] max_path_samples` samples × pixels); a bigger request is refused up front.
 
 use rayon::prelude::*;
 
@@ -20,6 +22,7 @@ use super::composite::composite_cancellable;
 use super::image::Image;
 use super::light::{Lighting, ShadingParams};
 use super::march::{self, MarchParams, Volume};
+use super::pathtrace::{self, Environment, Noise, PathParams};
 use super::sun::Sun;
 use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile_cancellable};
 use super::{Quality, RenderError};
@@ -30,7 +33,7 @@ pub const VIEW_DISTANCE: f64 = 30_000.0;
 pub const MAX_RENDER_TILES: usize = 24;
 /// Largest image, pixels, for billboard presets.
 pub const MAX_RENDER_PIXELS: usize = 4096 * 4096;
-/// Largest image, pixels, for the reference ray marcher.
+/// Largest image, pixels, for the volumetric renderers (path tracer and marcher).
 pub const MAX_REFERENCE_PIXELS: usize = 1024 * 1024;
 
 /// What to draw.
@@ -45,6 +48,8 @@ pub struct RenderRequest {
     /// The sun; `None` follows the world clock.
     pub sun: Option<Sun>,
     pub params: ShadingParams,
+    /// Samples per pixel of the path tracer (`reference`; other presets ignore it).
+    pub samples: u32,
 }
 
 /// A rendered view and what went into it.
@@ -53,10 +58,12 @@ pub struct Rendered {
     pub image: Image,
     /// (layer, tile) of every tile drawn.
     pub tiles: Vec<(usize, TileId)>,
-    /// Billboards drawn (0 for the reference).
+    /// Billboards drawn (0 for the volumetric renderers).
     pub billboards: usize,
     /// The sun used.
     pub sun: Sun,
+    /// The path tracer's stated noise (`reference` only).
+    pub noise: Option<Noise>,
 }
 
 /// Parses `WxH`.
@@ -75,7 +82,7 @@ fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
         return Err(RenderError::BadRequest("the image must be at least 1×1 pixels".into()));
     }
     let pixels = req.width.saturating_mul(req.height);
-    let max = if req.quality == Quality::Reference {
+    let max = if req.quality.is_volumetric() {
         MAX_REFERENCE_PIXELS
     } else {
         MAX_RENDER_PIXELS
@@ -84,6 +91,38 @@ fn check_request(req: &RenderRequest) -> Result<(), RenderError> {
         return Err(RenderError::TooMuchWork(format!(
             "the image has {pixels} pixels; the limit for quality {} is {max}",
             req.quality.as_str()
+        )));
+    }
+    if req.quality == Quality::Reference {
+        if req.samples < 2 {
+            return Err(RenderError::BadRequest(format!(
+                "samples must be at least 2 (the noise estimate needs two), got {}",
+                req.samples
+            )));
+        }
+        if req.samples > pathtrace::MAX_SAMPLES {
+            return Err(RenderError::TooMuchWork(format!(
+                "{} samples per pixel; the limit is {}",
+                req.samples,
+                pathtrace::MAX_SAMPLES
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The path tracer's budget: samples × pixels within `max_path_samples`.
+fn check_samples(req: &RenderRequest, max_path_samples: u64) -> Result<(), RenderError> {
+    if req.quality != Quality::Reference {
+        return Ok(());
+    }
+    let work = (req.width as u64).saturating_mul(req.height as u64).saturating_mul(req.samples as u64);
+    if work > max_path_samples {
+        return Err(RenderError::TooMuchWork(format!(
+            "{} samples per pixel × {} pixels is {work} paths; the limit is {max_path_samples} \
+             (lower the samples or the size)",
+            req.samples,
+            req.width * req.height
         )));
     }
     Ok(())
@@ -111,6 +150,7 @@ pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(
             cell_size: l.cell_size,
         })
         .collect();
+    check_samples(req, config.limits.max_path_samples)?;
     plan_bands(&bands, config.limits.max_level, req)
 }
 
@@ -281,12 +321,12 @@ pub fn reference_step(tiles: &[ShadedTile], quality: Quality) -> f64 {
     h * quality.settings().march_step_cells
 }
 
-/// Draws `volumes` with the ray marcher for the exact `sun`.
-pub fn draw_reference(volumes: &[Volume], req: &RenderRequest, sun: Sun, params: &MarchParams) -> Image {
-    draw_reference_cancellable(volumes, req, sun, params, &Cancel::never())
+/// Draws `volumes` with the single-scattering ray marcher for the exact `sun`.
+pub fn draw_single(volumes: &[Volume], req: &RenderRequest, sun: Sun, params: &MarchParams) -> Image {
+    draw_single_cancellable(volumes, req, sun, params, &Cancel::never())
 }
 
-fn draw_reference_cancellable(
+fn draw_single_cancellable(
     volumes: &[Volume],
     req: &RenderRequest,
     sun: Sun,
@@ -298,8 +338,45 @@ fn draw_reference_cancellable(
     march::render_cancellable(volumes, &lighting, params, &view, true, cancel)
 }
 
+/// Draws `volumes` with the path tracer for the exact `sun`, `req.samples` samples
+/// per pixel, under the clear sky over the ground.
+pub fn draw_path_traced(volumes: &[Volume], req: &RenderRequest, sun: Sun) -> pathtrace::Traced {
+    draw_path_traced_cancellable(volumes, req, sun, &Cancel::never())
+}
+
+fn draw_path_traced_cancellable(volumes: &[Volume], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> pathtrace::Traced {
+    let view = View::perspective(&req.camera, req.width, req.height);
+    let lighting = Lighting::new(sun, req.params);
+    let params = PathParams::new(req.samples);
+    pathtrace::render_cancellable(volumes, Environment::world(&lighting), &params, &view, cancel)
+}
+
+/// Draws shaded tiles with the renderer of `req.quality`: the path tracer
+/// (`reference`, with its noise), the marcher (`reference-single`) or the billboard
+/// compositor.
+pub fn draw(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> (Image, Option<Noise>) {
+    draw_cancellable(tiles, req, sun, &Cancel::never())
+}
+
+/// [`draw`] that stops early once `cancel` fires (the caller then discards the image).
+fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> (Image, Option<Noise>) {
+    match req.quality {
+        Quality::Reference => {
+            let traced = draw_path_traced_cancellable(&volumes(tiles), req, sun, cancel);
+            (traced.image, Some(traced.noise))
+        }
+        Quality::ReferenceSingle => {
+            let params = MarchParams::with_step(reference_step(tiles, req.quality));
+            (draw_single_cancellable(&volumes(tiles), req, sun, &params, cancel), None)
+        }
+        Quality::Fast | Quality::Balanced | Quality::Accurate => {
+            (draw_billboards_cancellable(tiles, req, sun, cancel), None)
+        }
+    }
+}
+
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
-/// point) behind the clouds.
+/// point, and hazed by the air between the eye and it) behind the clouds.
 pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
@@ -312,7 +389,7 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
             } else {
                 1.0
             };
-            *px = lighting.background(d, t).map(|v| v as f32);
+            *px = lighting.background(o, d, t).map(|v| v as f32);
         }
     });
     img.alpha.iter_mut().for_each(|a| *a = 1.0);
@@ -320,7 +397,7 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
 }
 
 /// Renders a request: the billboard compositor for `fast | balanced | accurate`, the
-/// ray marcher for `reference`.
+/// path tracer for `reference`, the ray marcher for `reference-single`.
 pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Rendered, RenderError> {
     render_cancellable(world, config, req, &Cancel::never())
 }
@@ -336,28 +413,20 @@ pub fn render_cancellable(
     let sun = request_sun(config, req);
     let tiles = prepare_cancellable(world, config, req, cancel)?;
     let ids = tiles.iter().map(|t| (t.layer, t.tile)).collect();
-    if req.quality == Quality::Reference {
-        let vols = volumes(&tiles);
-        let params = MarchParams::with_step(reference_step(&tiles, req.quality));
-        let image = draw_reference_cancellable(&vols, req, sun, &params, cancel);
-        cancel.check().map_err(SimError::from)?;
-        Ok(Rendered {
-            image,
-            tiles: ids,
-            billboards: 0,
-            sun,
-        })
+    let (image, noise) = draw_cancellable(&tiles, req, sun, cancel);
+    cancel.check().map_err(SimError::from)?;
+    let billboards = if req.quality.is_volumetric() {
+        0
     } else {
-        let image = draw_billboards_cancellable(&tiles, req, sun, cancel);
-        let billboards = tiles.iter().map(|t| t.billboards.len()).sum();
-        cancel.check().map_err(SimError::from)?;
-        Ok(Rendered {
-            image,
-            tiles: ids,
-            billboards,
-            sun,
-        })
-    }
+        tiles.iter().map(|t| t.billboards.len()).sum()
+    };
+    Ok(Rendered {
+        image,
+        tiles: ids,
+        billboards,
+        sun,
+        noise,
+    })
 }
 
 #[cfg(test)]
@@ -373,6 +442,7 @@ mod tests {
             quality,
             sun: None,
             params: ShadingParams::default(),
+            samples: pathtrace::DEFAULT_SAMPLES,
         }
     }
 

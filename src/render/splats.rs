@@ -38,6 +38,32 @@ pub fn line_integral(p: f64) -> f64 {
     ((-4.0 / 9.0) * a3 + (17.0 / 9.0) * a2 - (22.0 / 9.0) * a1 + 2.0 * l).max(0.0)
 }
 
+/// The part of [`line_integral`] that lies beyond `v0` along the line: the integral
+/// of the field function over `v ∈ [v0, L]`, where `v` is the signed distance along
+/// the line from its closest approach to the centre (in radii) and `L = √(1 − p²)`.
+/// `v0 <= −L` gives the whole chord, `v0 >= L` nothing. This is what an eye inside (or
+/// beside) a ball sees along a ray: only the chord in front of it.
+///
+/// Same expansion as `S(p)`: with `q = p²`, `f(√(q + v²)) = c0 + c2 v² + c4 v⁴ + c6 v⁶`
+/// where `c0 = f(√q)`, `c2 = −22/9 + 34/9 q − 4/3 q²`, `c4 = 17/9 − 4/3 q`,
+/// `c6 = −4/9`; its antiderivative is odd, `P(v) = c0 v + c2 v³/3 + c4 v⁵/5 + c6 v⁷/7`.
+pub fn line_integral_beyond(p: f64, v0: f64) -> f64 {
+    if !(p.abs() < 1.0) || v0.is_nan() {
+        return 0.0;
+    }
+    let q = p * p;
+    let l = (1.0 - q).sqrt();
+    let c0 = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q;
+    let c2 = -22.0 / 9.0 + 34.0 / 9.0 * q - 4.0 / 3.0 * q * q;
+    let c4 = 17.0 / 9.0 - 4.0 / 3.0 * q;
+    let c6 = -4.0 / 9.0;
+    let antiderivative = |v: f64| {
+        let v2 = v * v;
+        v * (c0 + v2 * (c2 / 3.0 + v2 * (c4 / 5.0 + v2 * c6 / 7.0)))
+    };
+    (antiderivative(l) - antiderivative(v0.clamp(-l, l))).max(0.0)
+}
+
 /// `S(0)`, the line integral through the centre: `2 · (1 − 22/27 + 17/45 − 4/63)`.
 pub fn centre_line_integral() -> f64 {
     2.0 * (1.0 - 22.0 / 27.0 + 17.0 / 45.0 - 4.0 / 63.0)
@@ -117,6 +143,33 @@ fn splat_tau(k: usize, count: usize) -> f64 {
 mod tests {
     use super::*;
     use crate::density::metaballs::wyvill;
+
+    #[test]
+    fn line_integral_beyond_is_the_chord_in_front() {
+        for &p in &[0.0, 0.3, 0.7, 0.95] {
+            let l = (1.0f64 - p * p).sqrt();
+            // The whole chord is S(p); nothing beyond the far end.
+            assert!((line_integral_beyond(p, -2.0) - line_integral(p)).abs() < 1e-12, "{p}");
+            assert_eq!(line_integral_beyond(p, l), 0.0);
+            // Against a midpoint sum of the field function over [v0, L].
+            for &v0 in &[-0.9 * l, -0.2, 0.0, 0.4 * l] {
+                let n = 20_000;
+                let h = (l - v0) / n as f64;
+                let sum: f64 = (0..n)
+                    .map(|i| {
+                        let v = v0 + (i as f64 + 0.5) * h;
+                        wyvill((p * p + v * v).sqrt()) * h
+                    })
+                    .sum();
+                assert!((line_integral_beyond(p, v0) - sum).abs() < 1e-7, "p {p} v0 {v0}");
+            }
+        }
+        // The field is symmetric: from the closest approach on is half the chord.
+        assert!((line_integral_beyond(0.5, 0.0) - line_integral(0.5) / 2.0).abs() < 1e-12);
+        assert_eq!(line_integral_beyond(1.0, 0.0), 0.0);
+        assert_eq!(line_integral_beyond(f64::NAN, 0.0), 0.0);
+        assert_eq!(line_integral_beyond(0.2, f64::NAN), 0.0);
+    }
 
     fn numeric_line_integral(p: f64) -> f64 {
         // Midpoint rule over t in [−1, 1] of f(√(p² + t²)).

@@ -1,6 +1,7 @@
 //! Prometheus metrics, one registry per server (so tests can run several servers in
-//! one process), labelled by route template — never by tile, which would explode the
-//! number of series.
+//! one process). Every label value comes from a fixed set, never from what a client
+//! sent: routes are route templates (or `unmatched`), methods are the known ones (or
+//! `other`), never tiles — so no request can add a series.
 
 use prometheus::{
     Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
@@ -51,6 +52,75 @@ pub struct Metrics {
     pub redis_skipped: IntCounter,
     /// Entries written to the shared cache.
     pub redis_writes: IntCounter,
+    /// Sockets accepted (served or refused).
+    pub connections_accepted: IntCounter,
+    /// Connections being served right now.
+    pub connections_open: IntGauge,
+    /// Connections closed, by [`CloseReason`].
+    pub connections_closed: IntCounterVec,
+    /// `accept` calls that failed for want of descriptors or buffers.
+    pub accept_errors: IntCounter,
+}
+
+/// The `method` label values: the methods HTTP defines, then `other`.
+pub const METHODS: [&str; 10] = [
+    "GET", "HEAD", "POST", "PUT", "DELETE", "OPTIONS", "PATCH", "TRACE", "CONNECT", "other",
+];
+
+/// The `method` label of a request: its method if HTTP defines it, else `other`.
+pub fn method_label(method: &axum::http::Method) -> &'static str {
+    METHODS[..METHODS.len() - 1]
+        .iter()
+        .find(|m| **m == method.as_str())
+        .copied()
+        .unwrap_or("other")
+}
+
+/// Why a connection was closed: the `reason` label of `connections_closed`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CloseReason {
+    /// The client closed it, or asked to (`Connection: close`).
+    Done,
+    /// The request head did not arrive within the header-read timeout.
+    HeaderTimeout,
+    /// The request head was larger than the header buffer (answered 431).
+    HeaderTooLarge,
+    /// No request and no byte moved within the idle timeout.
+    IdleTimeout,
+    /// The client took no byte of its response within the write timeout.
+    WriteTimeout,
+    /// Closed by the server's shutdown.
+    Shutdown,
+    /// Over the connection cap: answered 503 and closed.
+    OverCap,
+    /// A protocol or socket error.
+    Error,
+}
+
+impl CloseReason {
+    pub const ALL: [CloseReason; 8] = [
+        CloseReason::Done,
+        CloseReason::HeaderTimeout,
+        CloseReason::HeaderTooLarge,
+        CloseReason::IdleTimeout,
+        CloseReason::WriteTimeout,
+        CloseReason::Shutdown,
+        CloseReason::OverCap,
+        CloseReason::Error,
+    ];
+
+    pub fn label(self) -> &'static str {
+        match self {
+            CloseReason::Done => "done",
+            CloseReason::HeaderTimeout => "header_timeout",
+            CloseReason::HeaderTooLarge => "header_too_large",
+            CloseReason::IdleTimeout => "idle_timeout",
+            CloseReason::WriteTimeout => "write_timeout",
+            CloseReason::Shutdown => "shutdown",
+            CloseReason::OverCap => "over_cap",
+            CloseReason::Error => "error",
+        }
+    }
 }
 
 /// The `op` label values of `redis_errors`.
@@ -94,6 +164,9 @@ impl Metrics {
         }
         for op in REDIS_OPS {
             m.redis_errors.with_label_values(&[op]);
+        }
+        for reason in CloseReason::ALL {
+            m.connections_closed.with_label_values(&[reason.label()]);
         }
         m
     }
@@ -184,6 +257,17 @@ impl Metrics {
                 "lookups that skipped Redis because it failed recently",
             ),
             redis_writes: plain_counter("cloudscape_redis_writes_total", "entries written to the shared cache"),
+            connections_accepted: plain_counter("cloudscape_connections_accepted_total", "sockets accepted"),
+            connections_open: gauge("cloudscape_connections_open", "connections being served"),
+            connections_closed: counter(
+                "cloudscape_connections_closed_total",
+                "connections closed, by reason",
+                &["reason"],
+            ),
+            accept_errors: plain_counter(
+                "cloudscape_accept_errors_total",
+                "accept calls that failed (out of descriptors or buffers)",
+            ),
             registry,
         }
     }
@@ -199,5 +283,21 @@ impl Metrics {
 
     pub fn observe_compute(&self, kind: &str) -> Histogram {
         self.compute_seconds.with_label_values(&[kind])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::http::Method;
+
+    #[test]
+    fn method_labels_come_from_the_fixed_set() {
+        for m in &METHODS[..9] {
+            assert_eq!(method_label(&Method::from_bytes(m.as_bytes()).unwrap()), *m);
+        }
+        for odd in ["get", "PROPFIND", "BREW", &"X".repeat(16 << 10)] {
+            assert_eq!(method_label(&Method::from_bytes(odd.as_bytes()).unwrap()), "other");
+        }
     }
 }

@@ -19,6 +19,7 @@
 //! names two different bodies.
 
 mod cache;
+mod conn;
 mod discovery;
 mod error;
 mod key;
@@ -48,7 +49,7 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use tokio::net::TcpListener;
-use tokio::sync::{Notify, watch};
+use tokio::sync::watch;
 use tower_http::compression::CompressionLayer;
 use tracing::Instrument;
 
@@ -234,41 +235,29 @@ impl Server {
         ShutdownHandle(Arc::clone(&self.stop))
     }
 
-    /// Serves until the shutdown handle fires, then drains and returns once in-flight
-    /// requests are done (or `shutdown_timeout_ms` passed).
+    /// Serves until the shutdown handle fires, then drains: `/readyz` says 503 for
+    /// `drain_ms` while requests are still served, then the listener closes and the
+    /// connections are shut down (see [`conn`]).
     pub async fn run(self) -> io::Result<()> {
         let state = self.state;
         tokio::spawn(ops::start_up(Arc::clone(&state)));
         let app = router(Arc::clone(&state));
-        let stopped_accepting = Arc::new(Notify::new());
         let mut stop = self.stop.subscribe();
         let drain = {
             let state = Arc::clone(&state);
-            let stopped_accepting = Arc::clone(&stopped_accepting);
             async move {
                 let _ = stop.wait_for(|&s| s).await;
                 state.readiness.set(Phase::Draining);
                 state.metrics.ready.set(0);
                 tracing::info!(drain_ms = state.settings.drain_ms, "shutdown: draining");
                 tokio::time::sleep(Duration::from_millis(state.settings.drain_ms)).await;
-                tracing::info!("shutdown: no longer accepting; finishing in-flight requests");
-                stopped_accepting.notify_one();
+                tracing::info!("shutdown: no longer accepting");
             }
         };
-        let serve = axum::serve(self.listener, app)
-            .with_graceful_shutdown(drain)
-            .into_future();
-        let deadline = Duration::from_millis(state.settings.shutdown_timeout_ms);
-        tokio::select! {
-            result = serve => {
-                tracing::info!("shutdown: done");
-                result
-            }
-            _ = async { stopped_accepting.notified().await; tokio::time::sleep(deadline).await } => {
-                tracing::warn!("shutdown: in-flight requests still running after {deadline:?}; stopping anyway");
-                Ok(())
-            }
-        }
+        let limits = conn::ConnLimits::new(&state.settings);
+        conn::serve(self.listener, app, limits, Arc::clone(&state.metrics), drain).await;
+        tracing::info!("shutdown: done");
+        Ok(())
     }
 }
 
@@ -324,8 +313,9 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
         .and_then(|v| v.to_str().ok())
         .filter(|v| !v.is_empty() && v.len() <= 64 && v.bytes().all(|b| b.is_ascii_graphic()))
         .map_or_else(|| state.next_request_id(), str::to_string);
-    let method = req.method().clone();
-    let span = tracing::info_span!("request", id = %id, %method, route = %route);
+    // Labels and log fields from fixed sets: a client-made method name is `other`.
+    let method = metrics::method_label(req.method());
+    let span = tracing::info_span!("request", id = %id, method, route = %route);
     let m = &state.metrics;
     m.in_flight.inc();
     let _in_flight = InFlight(m.in_flight.clone());
@@ -334,7 +324,7 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
     let elapsed = started.elapsed();
     let status = response.status();
     m.requests
-        .with_label_values(&[route.as_str(), method.as_str(), status.as_str()])
+        .with_label_values(&[route.as_str(), method, status.as_str()])
         .inc();
     m.latency
         .with_label_values(&[route.as_str()])

@@ -81,6 +81,8 @@ pub enum QualityName {
     Accurate,
     #[schema(rename = "reference")]
     Reference,
+    #[schema(rename = "reference-single")]
+    ReferenceSingle,
 }
 
 /// The document as JSON text.

@@ -6,11 +6,13 @@ use std::sync::Arc;
 use axum::body::Bytes;
 use axum::extract::rejection::PathRejection;
 use axum::extract::{Path, State};
-use axum::http::HeaderMap;
+use axum::http::{HeaderMap, HeaderName, HeaderValue};
 use axum::response::Response;
 
 use crate::products::splats;
 use crate::cost::{self, Work};
+use crate::render::image::png_noise;
+use crate::render::pathtrace::DEFAULT_SAMPLES;
 use crate::render::scene::{RenderRequest, parse_size, render_cancellable};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
 
@@ -32,15 +34,16 @@ const DEFAULT_SIZE: &str = "640x360";
         ("camera" = String, Query, description = "X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the horizon; horizontal field of view; degrees", example = "0,0,1200,0,10,60"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the first layer's frame grid)", example = 0),
         ("size" = Option<String>, Query, description = "WxH pixels (default 640x360)", example = "64x36"),
-        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference (volumetric ray marcher)"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate (billboards) | reference (volumetric path tracer: every order of scattering, sky light occluded by the cloud; its noise in X-Cloudscape-Noise) | reference-single (single-scattering ray marcher)"),
+        ("samples" = Option<u32>, Query, description = "Samples per pixel of quality=reference, at least 2 (default 32); samples × pixels is limited by [limits] max_path_samples (413 beyond). Refused with other qualities.", example = 32),
         ("sun" = Option<String>, Query, description = "AZ,EL degrees (default: the world clock's sun at t); bucketed to ~8 degrees"),
     ),
     responses(
-        (status = 200, description = "The rendered view", content_type = "image/png", body = Vec<u8>),
+        (status = 200, description = "The rendered view. For quality=reference, X-Cloudscape-Samples (samples per pixel) and X-Cloudscape-Noise (the path tracer's stated noise: mean over pixels of the standard error of linear luminance, radiance units; the same values are in the PNG's tEXt chunks cloudscape:samples, cloudscape:noise, cloudscape:mean-luminance).", content_type = "image/png", body = Vec<u8>),
         (status = 304, description = "If-None-Match matched"),
         (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
         (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
-        (status = 413, body = super::error::ErrorBody, description = "Too many pixels or tiles in view, or more work than the time budget on the compute threads or the memory limit allow"),
+        (status = 413, body = super::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
         (status = 422, body = super::error::ErrorBody, description = "t out of range"),
         (status = 503, body = super::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
     )
@@ -65,6 +68,7 @@ pub async fn render_png(
             message: m,
         })?;
     let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
+    let samples = parse_samples(&params, quality)?;
     let config = s.worlds.config();
     // Every layer of a view is rendered at one time: the first layer's frame.
     let frame = Frame::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
@@ -77,9 +81,10 @@ pub async fn render_png(
         quality,
         sun: Some(sun),
         params: ShadingParams::default(),
+        samples,
     };
-    // The render limits (pixels, tiles in view) and the estimated work (CPU within
-    // the time budget, memory) are checked here, before any work.
+    // The render limits (pixels, tiles in view, samples) and the estimated work (CPU
+    // within the time budget, memory) are checked here, before any work.
     let work = s.admit("render", cost::render(&resolved.world, config, &request)?)?;
     let p = camera.position;
     let key = CacheKey::new("render", &resolved, 0)
@@ -95,6 +100,11 @@ pub async fn render_png(
         .with("q", quality.as_str())
         .with("s", sun.bucket().id())
         .with("maxz", config.limits.max_level);
+    let key = if quality == Quality::Reference {
+        key.with("n", samples)
+    } else {
+        key
+    };
     let repr = Representation {
         etag: key.etag(),
         cache_control: s.cache_control(frame, t),
@@ -108,10 +118,46 @@ pub async fn render_png(
     let bytes = s
         .cache
         .get_or_compute(&s.metrics, "render", key, work, move |cancel| {
-            Ok(Bytes::from(render_cancellable(&world, &config, &request, cancel)?.image.to_png()))
+            let rendered = render_cancellable(&world, &config, &request, cancel)?;
+            Ok(Bytes::from(match rendered.noise {
+                Some(noise) => rendered.image.to_png_with_noise(&noise),
+                None => rendered.image.to_png(),
+            }))
         })
         .await?;
-    repr.ok(&s, "image/png", bytes)
+    // The noise travels in the PNG itself, so a cached image states it too.
+    let noise = png_noise(&bytes);
+    let mut response = repr.ok(&s, "image/png", bytes)?;
+    if let Some(noise) = noise {
+        let h = response.headers_mut();
+        h.insert(HeaderName::from_static("x-cloudscape-samples"), HeaderValue::from(noise.samples));
+        if let Ok(v) = HeaderValue::from_str(&format!("{:e}", noise.std_error)) {
+            h.insert(HeaderName::from_static("x-cloudscape-noise"), v);
+        }
+    }
+    Ok(response)
+}
+
+/// `samples=` of `quality=reference`: an integer (default [`DEFAULT_SAMPLES`]); its
+/// range and the samples × pixels budget are checked with the other render limits.
+fn parse_samples(params: &Params, quality: Quality) -> Result<u32, ApiError> {
+    let Some(v) = params.get("samples") else {
+        return Ok(DEFAULT_SAMPLES);
+    };
+    if quality != Quality::Reference {
+        return Err(ApiError::InvalidParameter {
+            name: "samples".to_string(),
+            message: format!(
+                "applies to quality=reference (the path tracer) only, not `{}`",
+                quality.as_str()
+            ),
+        });
+    }
+    let n: u64 = v.trim().parse().map_err(|_| ApiError::InvalidNumber {
+        name: "samples".to_string(),
+        value: v.to_string(),
+    })?;
+    Ok(u32::try_from(n).unwrap_or(u32::MAX))
 }
 
 /// The cache key of a splat sheet.
@@ -154,7 +200,7 @@ async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool
     get,
     path = "/v1/splats.png",
     tag = "render",
-    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference")),
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
         (status = 304, description = "If-None-Match matched"),
@@ -174,7 +220,7 @@ pub async fn splats_png(
     get,
     path = "/v1/splats.json",
     tag = "render",
-    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference")),
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
         (status = 304, description = "If-None-Match matched"),

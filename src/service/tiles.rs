@@ -143,7 +143,7 @@ pub fn parse_quality(params: &Params) -> Result<Option<Quality>, ApiError> {
         .map(|q| {
             Quality::parse(q).ok_or_else(|| ApiError::InvalidParameter {
                 name: "quality".to_string(),
-                message: format!("must be one of fast, balanced, accurate, reference; got `{q}`"),
+                message: format!("must be one of fast, balanced, accurate, reference, reference-single; got `{q}`"),
             })
         })
         .transpose()
@@ -182,7 +182,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("product" = super::openapi::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12; snapped to the layer's frame grid (dt / frames_per_step)", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference: metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
     ),
     responses(

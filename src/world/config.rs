@@ -50,6 +50,25 @@ pub struct ServerConfig {
     pub drain_ms: u64,
     /// How long in-flight requests may take to finish once listening stops.
     pub shutdown_timeout_ms: u64,
+    /// Once listening stops, how long connections not running a handler (idle,
+    /// half-sent headers, slow readers) may stay before they are closed, ms.
+    pub shutdown_grace_ms: u64,
+    /// Longest time to receive a whole request head (start line and headers), ms,
+    /// from when the server waits for it: bounds slowloris clients.
+    pub header_read_timeout_ms: u64,
+    /// A kept-alive connection with no request and no byte moving for this long is
+    /// closed, ms.
+    pub idle_timeout_ms: u64,
+    /// A connection whose client takes no byte of its response for this long is
+    /// closed and the response freed, ms.
+    pub write_timeout_ms: u64,
+    /// Connections served at once; past it a new connection gets 503 with
+    /// `Retry-After` and is closed. 0 means what the open-file limit leaves after a
+    /// reserve (at most 4096).
+    pub max_connections: u32,
+    /// Largest request head (start line and headers) in bytes, the connection's read
+    /// buffer: a larger one gets 431. Within [8192, 1048576].
+    pub max_header_bytes: u32,
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
     /// URL of an optional Redis shared by replicas as a second-level cache
@@ -90,6 +109,12 @@ impl Default for ServerConfig {
             cache_control_other: "public, max-age=60".to_string(),
             drain_ms: 1000,
             shutdown_timeout_ms: 30_000,
+            shutdown_grace_ms: 1000,
+            header_read_timeout_ms: 10_000,
+            idle_timeout_ms: 30_000,
+            write_timeout_ms: 15_000,
+            max_connections: 0,
+            max_header_bytes: 64 << 10,
             max_series: 256,
             redis_url: String::new(),
             redis_timeout_ms: 100,
@@ -106,8 +131,24 @@ impl ServerConfig {
         if !(1..=64).contains(&self.frames_per_step) {
             return Err(invalid("server.frames_per_step", "must be within [1, 64]"));
         }
-        if self.request_timeout_ms == 0 {
-            return Err(invalid("server.request_timeout_ms", "must be positive"));
+        for (key, v) in [
+            ("server.request_timeout_ms", self.request_timeout_ms),
+            ("server.header_read_timeout_ms", self.header_read_timeout_ms),
+            ("server.idle_timeout_ms", self.idle_timeout_ms),
+            ("server.write_timeout_ms", self.write_timeout_ms),
+        ] {
+            if v == 0 {
+                return Err(invalid(key, "must be positive"));
+            }
+        }
+        if self.shutdown_grace_ms > self.shutdown_timeout_ms {
+            return Err(invalid(
+                "server.shutdown_grace_ms",
+                "must be at most server.shutdown_timeout_ms",
+            ));
+        }
+        if !(8192..=1 << 20).contains(&self.max_header_bytes) {
+            return Err(invalid("server.max_header_bytes", "must be within [8192, 1048576]"));
         }
         for (key, v) in [
             ("server.cache_control", &self.cache_control),
@@ -154,6 +195,9 @@ pub struct Limits {
     /// (billboards.json points to billboards.bin).
     #[serde(default = "default_max_response_bytes")]
     pub max_response_bytes: u64,
+    /// Largest samples per pixel × pixels of one `reference` (path-traced) render.
+    #[serde(default = "default_max_path_samples")]
+    pub max_path_samples: u64,
 }
 
 fn default_max_request_bytes() -> u64 {
@@ -164,6 +208,11 @@ fn default_max_response_bytes() -> u64 {
     64 << 20
 }
 
+/// 640×360 pixels at 64 samples, and a little more: about a minute on two cores.
+fn default_max_path_samples() -> u64 {
+    1 << 24
+}
+
 impl Default for Limits {
     fn default() -> Self {
         Limits {
@@ -172,6 +221,7 @@ impl Default for Limits {
             max_level: 16,
             max_request_bytes: default_max_request_bytes(),
             max_response_bytes: default_max_response_bytes(),
+            max_path_samples: default_max_path_samples(),
         }
     }
 }
@@ -272,8 +322,11 @@ impl Config {
         }
         raw.server.validate()?;
         let limits = raw.limits;
-        if limits.max_columns == 0 || limits.max_cells == 0 {
-            return Err(invalid("limits", "max_columns and max_cells must be positive"));
+        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
+            return Err(invalid(
+                "limits",
+                "max_columns, max_cells and max_path_samples must be positive",
+            ));
         }
         if limits.max_request_bytes < 1 << 20 || limits.max_response_bytes < 1 << 10 {
             return Err(invalid(

@@ -202,6 +202,7 @@ async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
         assert_eq!(get(&c, tile("density.f32")).await.status, 200);
         assert_eq!(get(&c, tile("density.u8")).await.status, 200);
     }
+    // The f32 grid was computed twice (never kept), the u8 grid once (kept).
     assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "tile_density")]), 3.0);
     // The cache grew by the u8 grid and the small entries beside it, never by the
     // 2.6 MB f32 grid (which alone would be more than it grew).
@@ -298,4 +299,25 @@ fn the_attack_scenario_holds_against_the_real_binary() {
     let amp = attack("amplification");
     assert!(amp["figures"]["largest_answer_bytes"].as_f64().unwrap() <= 67108864.0, "{stdout}");
     assert!(r["peak_rss_kb"].as_u64().unwrap() <= 768 * 1024, "{stdout}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_computation_whose_client_went_away_is_stopped_before_its_budget_ends() {
+    let server = start(&[("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "60000")]);
+    // ~5 CPU-seconds of work; the client hangs up after half a second.
+    let path = "/v1/worlds/default/render.png?camera=12000,-20000,1200,0,8,70&t=43200&size=2048x2048&quality=balanced";
+    let s = stalled_request(server.port, path);
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    drop(s);
+    let started = Instant::now();
+    let mut stopped = false;
+    while started.elapsed() < Duration::from_secs(30) {
+        if metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) >= 1.0 {
+            stopped = true;
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    assert!(stopped, "the job was not stopped when its client went away");
+    assert_eq!(metric(&server, "cloudscape_compute_queue_depth", &[]), 0.0);
 }

@@ -58,11 +58,14 @@ pub struct FuzzArgs {
     #[arg(long, default_value_t = 8)]
     burst: usize,
     /// attack: image size of the admitted burst's renders (heavy, within the limits).
-    #[arg(long, default_value = "1024x1024")]
+    #[arg(long, default_value = "2048x2048")]
     heavy_size: String,
     /// attack: quality of the admitted burst's renders.
-    #[arg(long, default_value = "accurate")]
+    #[arg(long, default_value = "balanced")]
     heavy_quality: String,
+    /// attack: run only these attacks (comma-separated names; all by default).
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
 }
 
 pub fn run(a: FuzzArgs) -> Result<(), String> {
@@ -117,6 +120,7 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
         burst: a.burst,
         heavy_size: a.heavy_size,
         heavy_quality: a.heavy_quality,
+        only: a.only,
         world: "default".to_string(),
         progress: true,
     })?;

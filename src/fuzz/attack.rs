@@ -5,7 +5,7 @@
 //!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
 //!   each on the development machine) at once. They must be refused up front.
 //! - **Render burst (admitted)**: eight heavy renders that are within the limits
-//!   one at a time (by default 1024² `accurate`, about 12 CPU-seconds each; choose
+//!   one at a time (by default 2048² `balanced`, about 5 CPU-seconds each; choose
 //!   one that fits a smaller budget), all at once. The
 //!   server may shed or time them out, but must stop the work nobody waits for.
 //!   Recovery: the time from the burst until an uncached cheap request (a density
@@ -45,6 +45,8 @@ pub struct AttackOptions {
     pub heavy_quality: String,
     /// The `world` to attack.
     pub world: String,
+    /// Run only the attacks named here (all when empty).
+    pub only: Vec<String>,
     /// Progress lines on stderr.
     pub progress: bool,
 }
@@ -168,7 +170,14 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
     let started = Instant::now();
     let rss_before_kb = opts.pid.and_then(process_memory_kb).map(|m| m.0);
     let mut outcomes = Vec::new();
+    let known: Vec<&'static str> = attacks().iter().map(|a| a.name).collect();
+    if let Some(bad) = opts.only.iter().find(|n| !known.contains(&n.as_str())) {
+        return Err(format!("unknown attack `{bad}`; the attacks are {}", known.join(", ")));
+    }
     for attack in attacks() {
+        if !opts.only.is_empty() && !opts.only.iter().any(|n| n == attack.name) {
+            continue;
+        }
         if opts.progress {
             eprintln!("attack: {}", attack.name);
         }
@@ -193,6 +202,7 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
 /// the body's length.
 struct Answer {
     status: Option<u16>,
+    retry_after: Option<u32>,
     proper: bool,
     body_bytes: u64,
     error_code: Option<String>,
@@ -202,19 +212,23 @@ fn get(client: &reqwest::blocking::Client, url: &str) -> Answer {
     match client.get(url).send() {
         Ok(r) => {
             let status = r.status().as_u16();
-            let retry_after = r.headers().contains_key("retry-after");
+            let retry_after: Option<u32> = r
+                .headers()
+                .get("retry-after")
+                .and_then(|v| v.to_str().ok()?.parse().ok());
             let body = r.bytes().unwrap_or_default();
             let error_code = serde_json::from_slice::<serde_json::Value>(&body)
                 .ok()
                 .and_then(|v| v["error"].as_str().map(str::to_string));
             let proper = match status {
-                503 => retry_after && error_code.is_some(),
+                503 => retry_after.is_some() && error_code.is_some(),
                 500..=599 => false,
                 400..=499 => error_code.is_some(),
                 _ => true,
             };
             Answer {
                 status: Some(status),
+                retry_after,
                 proper,
                 body_bytes: body.len() as u64,
                 error_code,
@@ -222,6 +236,7 @@ fn get(client: &reqwest::blocking::Client, url: &str) -> Answer {
         }
         Err(_) => Answer {
             status: None,
+            retry_after: None,
             proper: false,
             body_bytes: 0,
             error_code: None,
@@ -238,6 +253,7 @@ fn burst(client: &reqwest::blocking::Client, urls: &[String]) -> Vec<Answer> {
             .map(|h| {
                 h.join().unwrap_or(Answer {
                     status: None,
+                    retry_after: None,
                     proper: false,
                     body_bytes: 0,
                     error_code: None,
@@ -366,8 +382,14 @@ fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) 
     check_recovery(o, rec, &mut notes);
     let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
     figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
+    if let Some(ra) = answers.iter().filter_map(|a| a.retry_after).max() {
+        figures.insert("max_retry_after_s".to_string(), ra as f64);
+    }
     outcome("render_burst_admitted", statuses, figures, notes)
 }
+
+/// The default `limits.max_response_bytes`: no answer of the scenario may be larger.
+const MAX_ANSWER_BYTES: u64 = 64 << 20;
 
 /// `billboards.json?quality=accurate` of cloudy tiles: the answer stays within the
 /// response limit (413 pointing to billboards.bin when the list is larger).
@@ -381,10 +403,30 @@ fn amplification(o: &AttackOptions, client: &reqwest::blocking::Client) -> Attac
         })
         .collect();
     let mut notes = Vec::new();
-    let answers: Vec<Answer> = urls.iter().map(|u| get(client, u)).collect();
+    // As an attacker would: retry a 503 after its Retry-After until the answer comes.
+    let limit = Duration::from_secs_f64(6.0 * o.budget_s);
+    let answers: Vec<Answer> = urls
+        .iter()
+        .map(|u| {
+            let started = Instant::now();
+            loop {
+                let a = get(client, u);
+                if a.status != Some(503) || started.elapsed() > limit {
+                    return a;
+                }
+                std::thread::sleep(Duration::from_secs(a.retry_after.unwrap_or(1).clamp(1, 10) as u64));
+            }
+        })
+        .collect();
     let statuses = tally(&answers, &mut notes);
     let request_bytes = urls.iter().map(|u| u.len() - o.target.len()).max().unwrap_or(1) as f64;
     let largest = answers.iter().map(|a| a.body_bytes).max().unwrap_or(0) as f64;
+    if largest > MAX_ANSWER_BYTES as f64 {
+        notes.push(format!(
+            "a {request_bytes}-byte request got a {:.0} MB answer, over the default 64 MiB response limit",
+            largest / 1e6
+        ));
+    }
     let figures = BTreeMap::from([
         ("largest_answer_bytes".to_string(), largest),
         ("bytes_out_per_byte_in".to_string(), largest / request_bytes),

@@ -68,6 +68,7 @@
 
 use rayon::prelude::*;
 
+use crate::cancel::Cancel;
 use crate::fields::noise::mix64;
 
 use super::camera::View;
@@ -514,6 +515,18 @@ impl<'a> Tracer<'a> {
 /// (at least 2 are taken). Rows are independent, so the image and its noise do not
 /// depend on the thread count.
 pub fn render(volumes: &[Volume], env: Environment, params: &PathParams, view: &View) -> Traced {
+    render_cancellable(volumes, env, params, view, &Cancel::never())
+}
+
+/// [`render`] that leaves the remaining rows black once `cancel` fires (the caller
+/// then discards the image).
+pub fn render_cancellable(
+    volumes: &[Volume],
+    env: Environment,
+    params: &PathParams,
+    view: &View,
+    cancel: &Cancel,
+) -> Traced {
     let samples = params.samples.max(2);
     let tracer = Tracer::new(volumes, env, *params);
     let width = view.width;
@@ -522,6 +535,9 @@ pub fn render(volumes: &[Volume], env: Environment, params: &PathParams, view: &
         .map(|y| {
             let mut rgb = Vec::with_capacity(width);
             let (mut se_sum, mut lum_sum) = (0.0, 0.0);
+            if cancel.is_fired() {
+                return (vec![[0.0; 3]; width], 0.0, 0.0);
+            }
             for x in 0..width {
                 let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
                 let mut sum = [0.0; 3];

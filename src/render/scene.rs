@@ -341,9 +341,14 @@ fn draw_single_cancellable(
 /// Draws `volumes` with the path tracer for the exact `sun`, `req.samples` samples
 /// per pixel, under the clear sky over the ground.
 pub fn draw_path_traced(volumes: &[Volume], req: &RenderRequest, sun: Sun) -> pathtrace::Traced {
+    draw_path_traced_cancellable(volumes, req, sun, &Cancel::never())
+}
+
+fn draw_path_traced_cancellable(volumes: &[Volume], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> pathtrace::Traced {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun, req.params);
-    pathtrace::render(volumes, Environment::world(&lighting), &PathParams::new(req.samples), &view)
+    let params = PathParams::new(req.samples);
+    pathtrace::render_cancellable(volumes, Environment::world(&lighting), &params, &view, cancel)
 }
 
 /// Draws shaded tiles with the renderer of `req.quality`: the path tracer
@@ -357,7 +362,7 @@ pub fn draw(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> (Image, Opti
 fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> (Image, Option<Noise>) {
     match req.quality {
         Quality::Reference => {
-            let traced = draw_path_traced(&volumes(tiles), req, sun);
+            let traced = draw_path_traced_cancellable(&volumes(tiles), req, sun, cancel);
             (traced.image, Some(traced.noise))
         }
         Quality::ReferenceSingle => {

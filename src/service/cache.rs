@@ -37,6 +37,8 @@ const INITIAL_MEAN_JOB_S: f64 = 0.05;
 const NO_JOB_YET: u64 = u64::MAX;
 /// Weight of the newest job in the running mean of job times.
 const MEAN_JOB_WEIGHT: f64 = 0.25;
+/// How often a job waiting for a running place looks at its cancellation token.
+const CANCEL_POLL: Duration = Duration::from_millis(50);
 /// `Retry-After` bounds, seconds.
 const RETRY_AFTER_S: (u32, u32) = (1, 60);
 
@@ -50,6 +52,11 @@ pub struct ComputeQueue {
     memory_mib: u32,
     /// Running mean of job times (seconds, as `f64` bits), for `Retry-After`.
     mean_job_s: Arc<AtomicU64>,
+    /// Places for jobs on the rayon pool, one per thread. Without them every queued
+    /// job starts at once (a rayon thread waiting inside one job's `join` picks up
+    /// the next job) and they all crawl to the end of their budget together; with
+    /// them the oldest jobs run at full speed and finish, FIFO.
+    running: Arc<Semaphore>,
 }
 
 impl ComputeQueue {
@@ -61,6 +68,7 @@ impl ComputeQueue {
             memory: Arc::new(Semaphore::new(memory_mib as usize)),
             memory_mib,
             mean_job_s: Arc::new(AtomicU64::new(NO_JOB_YET)),
+            running: Arc::new(Semaphore::new(rayon::current_num_threads().max(1))),
         }
     }
 
@@ -105,6 +113,20 @@ impl ComputeQueue {
             return Err(ApiError::Overloaded(self.retry_after()));
         };
         metrics.queue_depth.set(self.depth() as i64);
+        // Wait (in order) for one of the `threads` running places, or until nobody
+        // waits for this job any more.
+        let running = loop {
+            tokio::select! {
+                p = self.running.clone().acquire_owned() => break p.ok(),
+                _ = tokio::time::sleep(CANCEL_POLL) => {
+                    if cancel.is_fired() {
+                        metrics.cancelled.with_label_values(&[kind]).inc();
+                        metrics.queue_depth.set(self.depth() as i64 - 1);
+                        return Err(ApiError::Cancelled);
+                    }
+                }
+            }
+        };
         metrics.computations.with_label_values(&[kind]).inc();
         let timer = metrics.observe_compute(kind);
         let (tx, rx) = oneshot::channel();
@@ -124,6 +146,7 @@ impl ComputeQueue {
                 let m = if m == NO_JOB_YET { took } else { f64::from_bits(m) };
                 Some((m + MEAN_JOB_WEIGHT * (took - m)).to_bits())
             });
+            drop(running);
             drop(memory);
             drop(permit);
             let _ = tx.send(result);

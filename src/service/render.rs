@@ -43,9 +43,9 @@ const DEFAULT_SIZE: &str = "640x360";
         (status = 304, description = "If-None-Match matched"),
         (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
         (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
-        (status = 413, body = super::error::ErrorBody, description = "Too many pixels, tiles in view, or samples × pixels"),
+        (status = 413, body = super::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
         (status = 422, body = super::error::ErrorBody, description = "t out of range"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded or over the time budget; see Retry-After"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
     )
 )]
 pub async fn render_png(

@@ -194,9 +194,9 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         (status = 304, description = "If-None-Match matched; nothing computed"),
         (status = 400, description = "Malformed parameter", body = super::error::ErrorBody),
         (status = 404, description = "Unknown world, layer or product", body = super::error::ErrorBody),
-        (status = 413, description = "Over the configured limits", body = super::error::ErrorBody),
+        (status = 413, description = "Over the limits: region size, estimated work (CPU within the time budget, memory), or response size (billboards.json over it: use billboards.bin)", body = super::error::ErrorBody),
         (status = 422, description = "t, level or tile coordinates out of range", body = super::error::ErrorBody),
-        (status = 503, description = "Overloaded or over the time budget; see Retry-After", body = super::error::ErrorBody),
+        (status = 503, description = "Overloaded (queue, compute memory or reply memory full) or over the time budget; Retry-After is the queue's wait", body = super::error::ErrorBody),
     )
 )]
 pub async fn tile(
@@ -271,6 +271,8 @@ pub async fn tile(
                     &limits,
                     cancel,
                 )?;
+                // Shading was the long part: stop here rather than encode for nobody.
+                cancel.check().map_err(|_| ApiError::Cancelled)?;
                 let mut atlas = Some(atlas::build(&shaded));
                 let mut all: Vec<(Shaded, Bytes)> = Shaded::ALL
                     .into_iter()

@@ -205,3 +205,32 @@ pub fn render_gallery(
         contact,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_browser_test_shoots_the_same_views() {
+        // tests/browser/gallery.mjs keeps the viewer's screenshots of these views.
+        let js = include_str!("../../tests/browser/gallery.mjs");
+        for v in &VIEWS {
+            let line = format!(
+                "{{ name: '{}', camera: '{}', sun: '{},{}', t: {} }}",
+                v.name, v.camera, v.sun.0, v.sun.1, v.t
+            );
+            assert!(js.contains(&line), "tests/browser/gallery.mjs lacks `{line}`");
+        }
+    }
+
+    #[test]
+    fn every_view_is_a_valid_camera_and_sun() {
+        for v in &VIEWS {
+            assert!(Camera::parse(v.camera).is_ok(), "{}", v.name);
+            assert!(Sun::new(v.sun.0, v.sun.1).is_some(), "{}", v.name);
+        }
+        let mut names: Vec<&str> = VIEWS.iter().map(|v| v.name).collect();
+        names.dedup();
+        assert_eq!(names.len(), VIEWS.len());
+    }
+}

@@ -13,6 +13,7 @@
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { chromium } from 'playwright-core';
+import { galleryScreenshots } from './gallery.mjs';
 
 const base = process.argv[2];
 const outDir = process.argv[3] || 'target/browser';
@@ -111,12 +112,13 @@ const std = (a) => {
 try {
   const context = await browser.newContext({ viewport: VIEWPORT });
 
-  // --- Scene A: straight down on the stratocumulus layer from 9 km. -----------------
+  // --- Scene A: straight down on the overcast world's stratocumulus deck from 9 km. ----
+  // (The overcast world: its deck covers most columns, so cloud and clear both show.)
   // The server's level rule (a column may span at most 4 px for `balanced`) gives
   // exactly one tile here: level 0, tile (0, 0), whose footprint lies inside it.
   const t0 = 43200;
   const camera = '12800,12800,9000,0,-90,60';
-  const scene = `/?world=default&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
+  const scene = `/?world=overcast&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
   const { page, log } = await openPage(context);
   // The same view with no layer drawn: sky and ground only, the reference that
   // tells cloud from ground below.
@@ -128,7 +130,7 @@ try {
   await settle(page);
 
   const expected = ['billboards.bin', 'shadow.png'].map(
-    (p) => `/v1/worlds/default/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
+    (p) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
   );
   const requested = [...new Set(log.tileRequests)].sort();
   check(
@@ -145,7 +147,7 @@ try {
 
   // Project every column of the server's coverage map to the screen and compare.
   const coverage = await page.evaluate(async (t) => {
-    const url = `/v1/worlds/default/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
+    const url = `/v1/worlds/overcast/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
     const res = await fetch(url);
     const img = await createImageBitmap(await res.blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
     const c = document.createElement('canvas');
@@ -154,7 +156,7 @@ try {
     const ctx = c.getContext('2d');
     ctx.drawImage(img, 0, 0);
     const d = ctx.getImageData(0, 0, img.width, img.height).data;
-    const info = await (await fetch('/v1/worlds/default')).json();
+    const info = await (await fetch('/v1/worlds/overcast')).json();
     const layer = info.layers.find((l) => l.name === 'stratocumulus');
     const column = layer.cell_size; // level 0
     const mid = (layer.base + layer.top) / 2;
@@ -256,6 +258,11 @@ try {
   figure('10 km view: body bytes (decoded)', ts.bodyBytes);
   check('the 10 km view logs no console errors', ten.log.errors.length === 0, ten.log.errors.slice(0, 5).join(' | '));
   await fresh.close();
+
+  // --- The gallery's views (tests/browser/gallery.mjs). ------------------------------
+  await galleryScreenshots(browser, base, outDir, VIEWPORT, {
+    check, figure, settle, canvasLuminance, std, openPage, screenshotTimeout: SCREENSHOT_TIMEOUT_MS,
+  });
   writeFileSync(join(outDir, 'figures.txt'), figures.join('\n') + '\n');
 } catch (e) {
   check('the browser test ran to the end', false, e.stack || String(e));

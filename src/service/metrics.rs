@@ -50,7 +50,7 @@ pub struct Metrics {
 pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 8] = [
+pub const KINDS: [&str; 9] = [
     "tile_density",
     "tile_coverage",
     "tile_shaded",
@@ -59,6 +59,7 @@ pub const KINDS: [&str; 8] = [
     "series",
     "render",
     "splats",
+    "sky",
 ];
 
 const LATENCY_BUCKETS: [f64; 14] = [

@@ -160,6 +160,7 @@ pub fn render_gallery(
                 quality: q,
                 sun: Some(Sun::new(v.sun.0, v.sun.1).ok_or("a gallery sun is out of range")?),
                 params: ShadingParams::default(),
+                samples: crate::render::pathtrace::DEFAULT_SAMPLES,
             };
             let start = Instant::now();
             let rendered = render(&world, config, &req).map_err(|e| format!("view `{}`, {}: {e}", v.name, q.as_str()))?;

@@ -39,9 +39,9 @@ pub fn run(a: GalleryArgs) -> Result<(), String> {
     let dir = std::path::Path::new(&a.out);
     for s in &gallery.shots {
         let path = dir.join(format!("{}-{}.png", s.view, s.quality.as_str()));
-        super::write_atomically(&path.to_string_lossy(), &s.png)?;
+        super::write_out(&path.to_string_lossy(), &s.png)?;
     }
-    super::write_atomically(&dir.join("contact.png").to_string_lossy(), &gallery.contact)?;
+    super::write_out(&dir.join("contact.png").to_string_lossy(), &gallery.contact)?;
     print!("{}", gallery.table());
     Ok(())
 }

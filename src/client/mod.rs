@@ -366,6 +366,7 @@ impl TileClient {
                 tau: 0.0,
                 splat: r.splat,
                 opacity: r.opacity as f32 / 255.0,
+                tau_sun: r.tau_sun,
                 sun_transmittance: r.sun_transmittance as f32 / 255.0,
                 colour: r.colour,
             }));

@@ -10,19 +10,36 @@
 //! billboard whose footprint is all opaque is skipped whole. That keeps the cost of
 //! the overdraw of dense decks bounded.
 //!
-//! Each billboard's colour is `albedo · (sun · T · p(cos θ) + ambient)` with the
-//! pre-computed sun transmittance `T` and the phase function evaluated for the
-//! direction from the eye to the billboard's centre. The opacity is the splat's.
-//! Because every splat's opacity is `1 − exp(−τ S(p)/S(0))`, the product of
-//! `(1 − α)` along a pixel is exactly the Beer–Lambert transmittance of the metaball
-//! field: the compositor and the ray marcher agree on coverage by construction.
+//! Each billboard's colour is its pre-shaded (isotropic) colour plus
+//! [`Lighting::phase_correction`] of its sun optical depth: the scattering octaves
+//! with the phase function evaluated for the direction from the eye to the
+//! billboard's centre (see `render::light::Octaves`).
+//!
+//! The opacity is the splat's profile evaluated at each pixel, `α = 1 − exp(−τ_k ·
+//! S(p)/S(0))` with `τ_k` the centre optical depth of splat `k` of the preset's sheet
+//! and `p` the impact parameter: sampled once per pixel whatever the billboard's size
+//! on screen (no texture to magnify, so near billboards stay as sharp as the field
+//! itself). Because of that form, the product of `(1 − α)` along a pixel is the
+//! Beer–Lambert transmittance of the metaball field: the compositor and the ray
+//! marcher agree on coverage by construction.
+//!
+//! **Detail erosion** (`render::detail`): after the billboards, each pixel's
+//! accumulated opacity `A` (the smooth field's coverage) is eroded by Nubis's remap,
+//! `A' = erode(A, E · n)`, and its colour scaled by `A'/A`, with `n` the detail
+//! noise at the pixel's opacity-weighted world point on the billboards it took
+//! (first octave one opacity-weighted metaball radius, octaves limited by the
+//! opacity-weighted pixel footprint) and `E` = `ShadingParams::detail_erosion`.
+//! Eroding the sum rather than each ball keeps the lattice invisible (eroding each
+//! ball's rim opens gaps between neighbours), eats thin edges into cauliflower
+//! and leaves opaque cores alone. It only removes opacity.
 
 use rayon::prelude::*;
 
-use super::camera::View;
+use super::camera::{View, ViewKind};
+use super::detail;
 use super::image::Image;
 use super::light::Lighting;
-use super::shade::Billboard;
+use super::shade::{Billboard, profile_at, profile_table};
 use super::splats::SplatSheet;
 
 /// Rows per band drawn in parallel; each band is drawn independently, so the result
@@ -39,50 +56,112 @@ const BLOCK_COLUMNS: usize = 8;
 /// (the near clip: the eye is inside them).
 const NEAR_CLIP_RADII: f64 = 0.5;
 
+/// A billboard as the compositor draws it: where it lands, its colour for this view,
+/// and what its per-pixel opacity needs.
+pub struct Footprint {
+    /// Sort distance from the eye.
+    pub dist: f64,
+    /// Centre on screen and radius, pixels.
+    pub x: f64,
+    pub y: f64,
+    pub r_px: f64,
+    /// Radiance for this view (pre-shaded colour plus the phase correction).
+    pub colour: [f64; 3],
+    /// Centre optical depth of the billboard's splat.
+    tau: f64,
+    centre: [f64; 3],
+    radius: f64,
+    /// Metres per pixel at the billboard's depth.
+    metres_per_pixel: f64,
+    /// The view's screen axes in the world (the billboard's plane).
+    right: [f64; 3],
+    up: [f64; 3],
+}
+
+impl Footprint {
+    /// The footprint of `b` in `view`, or `None` when it is off screen or behind the
+    /// near clip.
+    pub fn new(b: &Billboard, sheet: &SplatSheet, lighting: &Lighting, view: &View) -> Option<Footprint> {
+        let p = view.project(b.centre)?;
+        let r = b.radius as f64;
+        if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, ViewKind::Perspective { .. }) {
+            return None;
+        }
+        let r_px = r * p.scale;
+        if !(r_px.is_finite() && r_px > 0.0) {
+            return None;
+        }
+        let (w, h) = (view.width as f64, view.height as f64);
+        if p.x + r_px < 0.0 || p.y + r_px < 0.0 || p.x - r_px > w || p.y - r_px > h {
+            return None;
+        }
+        let dir = view.direction_to(b.centre);
+        let corr = lighting.phase_correction(b.tau_sun as f64, dir);
+        let colour = [0, 1, 2].map(|i| (b.colour[i] as f64 + corr[i]).max(0.0));
+        Some(Footprint {
+            dist: view.sort_distance(b.centre),
+            x: p.x,
+            y: p.y,
+            r_px,
+            colour,
+            tau: sheet.tau(b.splat as usize),
+            centre: b.centre,
+            radius: r,
+            metres_per_pixel: 1.0 / p.scale,
+            right: view.right,
+            up: view.up,
+        })
+    }
+
+    /// Opacity at (`dx`, `dy`) radii from the centre (screen axes, y down); 0 outside.
+    pub fn alpha(&self, dx: f64, dy: f64) -> f64 {
+        let q = dx * dx + dy * dy;
+        if !(q < 1.0) {
+            return 0.0;
+        }
+        1.0 - (-self.tau * profile_at(profile_table(), q)).exp()
+    }
+
+    /// The world point at (`dx`, `dy`) radii from the centre on the billboard's plane.
+    pub fn point(&self, dx: f64, dy: f64) -> [f64; 3] {
+        let (a, b) = (dx * self.radius, -dy * self.radius);
+        [0, 1, 2].map(|i| self.centre[i] + a * self.right[i] + b * self.up[i])
+    }
+}
+
+/// What the detail erosion of a pixel needs, accumulated over the billboards it
+/// takes with their weights `w = (1 − A)·α`: Σ w·(point x, y, z, radius, metres per pixel).
+type Where = [f64; 5];
+
+/// The eroded opacity of a pixel of accumulated opacity `a` and accumulated
+/// [`Where`] `at`, for erosion strength `strength` (see the module docs).
+fn eroded(a: f64, at: &Where, strength: f64) -> f64 {
+    if !(a > 0.0) || strength <= 0.0 {
+        return a;
+    }
+    let p = [at[0] / a, at[1] / a, at[2] / a];
+    let (r, mpp) = (at[3] / a, at[4] / a);
+    let octaves = detail::octaves_for(r, mpp);
+    if octaves == 0 {
+        return a;
+    }
+    detail::erode(a, strength * detail::noise(p, r, octaves))
+}
+
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
 pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
-    struct Item {
-        dist: f64,
-        x: f64,
-        y: f64,
-        r_px: f64,
-        colour: [f64; 3],
-        splat: usize,
-    }
-    let items: Vec<Item> = billboards
+    let items: Vec<Footprint> = billboards
         .iter()
-        .filter_map(|b| {
-            let p = view.project(b.centre)?;
-            let r = b.radius as f64;
-            if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, super::camera::ViewKind::Perspective { .. }) {
-                return None;
-            }
-            let r_px = r * p.scale;
-            if !(r_px.is_finite() && r_px > 0.0) {
-                return None;
-            }
-            let (w, h) = (view.width as f64, view.height as f64);
-            if p.x + r_px < 0.0 || p.y + r_px < 0.0 || p.x - r_px > w || p.y - r_px > h {
-                return None;
-            }
-            let dir = view.direction_to(b.centre);
-            let colour = lighting.cloud_source(b.sun_transmittance as f64, dir);
-            Some(Item {
-                dist: view.sort_distance(b.centre),
-                x: p.x,
-                y: p.y,
-                r_px,
-                colour,
-                splat: b.splat as usize,
-            })
-        })
+        .filter_map(|b| Footprint::new(b, sheet, lighting, view))
         .collect();
     // Front to back, the exact reverse of a stable back-to-front sort (which keeps the
     // input order for equal distances).
     let mut order: Vec<usize> = (0..items.len()).collect();
     order.sort_by(|&a, &b| items[a].dist.total_cmp(&items[b].dist).then(b.cmp(&a)));
-    let items: Vec<&Item> = order.iter().map(|&i| &items[i]).collect();
+    let items: Vec<&Footprint> = order.iter().map(|&i| &items[i]).collect();
 
+    let erosion = lighting.params.detail_erosion;
+    let erosion = if erosion.is_finite() { erosion.clamp(0.0, 1.0) } else { 0.0 };
     let width = image.width;
     let bands: Vec<(usize, usize)> = (0..image.height)
         .step_by(BAND_ROWS)
@@ -98,6 +177,7 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
         let n = (y1 - y0) * width;
         let mut acc = vec![[0.0f64; 3]; n];
         let mut acc_a = vec![0.0f64; n];
+        let mut acc_at: Vec<Where> = vec![[0.0; 5]; if erosion > 0.0 { n } else { 0 }];
         let blocks = width.div_ceil(BLOCK_COLUMNS);
         // Pixels of each block (over the band's rows) not yet opaque.
         let mut open: Vec<usize> = (0..blocks)
@@ -124,7 +204,7 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
                         continue;
                     }
                     let dx = (px as f64 + 0.5 - it.x) / it.r_px;
-                    let a = sheet.sample(it.splat, dx, dy);
+                    let a = it.alpha(dx, dy);
                     if a <= 0.0 {
                         continue;
                     }
@@ -133,14 +213,30 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
                         acc[i][ch] += w * it.colour[ch];
                     }
                     acc_a[i] += w;
+                    if erosion > 0.0 {
+                        let p = it.point(dx, dy);
+                        let at = &mut acc_at[i];
+                        for (k, v) in [p[0], p[1], p[2], it.radius, it.metres_per_pixel].into_iter().enumerate() {
+                            at[k] += w * v;
+                        }
+                    }
                     if 1.0 - acc_a[i] < OPAQUE_TRANSMITTANCE {
                         open[px / BLOCK_COLUMNS] -= 1;
                     }
                 }
             }
         }
-        // The background (already in the image) goes under everything.
+        // Detail erosion of the accumulated opacity, then the background (already in
+        // the image) under everything.
         for i in 0..n {
+            if erosion > 0.0 && acc_a[i] > 0.0 {
+                let a = eroded(acc_a[i], &acc_at[i], erosion);
+                let k = a / acc_a[i];
+                for ch in 0..3 {
+                    acc[i][ch] *= k;
+                }
+                acc_a[i] = a;
+            }
             let t = 1.0 - acc_a[i];
             for ch in 0..3 {
                 rgb[i][ch] = (acc[i][ch] + t * rgb[i][ch] as f64) as f32;
@@ -162,16 +258,11 @@ mod tests {
         let mut sorted: Vec<&Billboard> = bbs.iter().collect();
         sorted.sort_by(|a, b| view.sort_distance(b.centre).total_cmp(&view.sort_distance(a.centre)));
         for b in sorted {
-            let Some(p) = view.project(b.centre) else { continue };
-            let r_px = b.radius as f64 * p.scale;
-            let colour = lighting.cloud_source(b.sun_transmittance as f64, view.direction_to(b.centre));
+            let Some(f) = Footprint::new(b, sheet, lighting, view) else { continue };
+            let colour = f.colour;
             for py in 0..view.height {
                 for px in 0..view.width {
-                    let a = sheet.sample(
-                        b.splat as usize,
-                        (px as f64 + 0.5 - p.x) / r_px,
-                        (py as f64 + 0.5 - p.y) / r_px,
-                    );
+                    let a = f.alpha((px as f64 + 0.5 - f.x) / f.r_px, (py as f64 + 0.5 - f.y) / f.r_px);
                     let i = py * view.width + px;
                     for ch in 0..3 {
                         image.rgb[i][ch] = (a * colour[ch] + (1.0 - a) * image.rgb[i][ch] as f64) as f32;
@@ -185,7 +276,12 @@ mod tests {
     #[test]
     fn front_to_back_equals_back_to_front_over() {
         let sheet = SplatSheet::new(64, 17);
-        let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), ShadingParams::default());
+        // The textbook client has no detail erosion (tested on its own below).
+        let params = ShadingParams {
+            detail_erosion: 0.0,
+            ..ShadingParams::default()
+        };
+        let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
         let view = View::perspective(&Camera::parse("0,0,0,0,10,60").unwrap(), 40, 30);
         // A pseudo-random cloud of billboards in front of the camera, some dense.
         let bbs: Vec<Billboard> = (0..300u64)
@@ -198,6 +294,7 @@ mod tests {
                     tau: 1.0,
                     splat: (h(5) * 63.0) as u16,
                     opacity: 0.5,
+                    tau_sun: -(h(6) as f32).max(1e-6).ln(),
                     sun_transmittance: h(6) as f32,
                     colour: [0.5; 3],
                 }

@@ -63,6 +63,105 @@ pub fn henyey_greenstein(g: f64, cos_theta: f64) -> f64 {
     (1.0 - g * g) / (denom * denom.sqrt())
 }
 
+/// Multiple scattering by scattering octaves (Wrenninge, Kulla & Lundqvist 2013,
+/// "Oz: the great and volumetric", SIGGRAPH talk, §"Multiple scattering"; used by
+/// Hillaire 2016, "Physically based sky, atmosphere and cloud rendering in
+/// Frostbite", §5.1.4, and by Schneider's Nubis): the single-scattering sun term is
+/// summed over `count` octaves, octave `i` with its extinction scaled by `aⁱ`, its
+/// contribution by `bⁱ` and its phase asymmetry by `cⁱ`:
+///
+/// ```text
+/// L_sun = Σ_{i<N} bⁱ · sun · p(θ; cⁱ·g) · exp(−aⁱ · τ_sun)
+/// ```
+///
+/// Each octave stands for light that has scattered more often: it reaches deeper
+/// (smaller effective extinction), it is weaker, and it is more isotropic. With
+/// `count = 1` the sum is the single-scattering term. Hillaire's energy condition
+/// `a ≤ b` keeps the sum of a deep point below that of a shallow one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Octaves {
+    /// Number of octaves N (1 = single scattering only), at most [`MAX_OCTAVES`].
+    pub count: u32,
+    /// Extinction scale per octave `a` in (0, 1].
+    pub attenuation: f64,
+    /// Contribution scale per octave `b` in [0, 1).
+    pub contribution: f64,
+    /// Phase-asymmetry scale per octave `c` in [0, 1].
+    pub eccentricity: f64,
+}
+
+/// Most scattering octaves evaluated.
+pub const MAX_OCTAVES: u32 = 8;
+
+impl Default for Octaves {
+    /// Calibrated against the path tracer when it lands; until then the values of
+    /// Wrenninge et al. 2013 and Hillaire 2016 (a = b = c = ½) with three octaves.
+    fn default() -> Self {
+        Octaves {
+            count: 3,
+            attenuation: 0.5,
+            contribution: 0.5,
+            eccentricity: 0.5,
+        }
+    }
+}
+
+impl Octaves {
+    /// Single scattering only.
+    pub const SINGLE: Octaves = Octaves {
+        count: 1,
+        attenuation: 1.0,
+        contribution: 0.0,
+        eccentricity: 1.0,
+    };
+
+    /// The octave constants with every value forced into its range (NaN → the
+    /// single-scattering value): `(N, a, b, c)`.
+    pub fn sanitised(&self) -> (u32, f64, f64, f64) {
+        let fix = |v: f64, lo: f64, hi: f64, nan: f64| if v.is_finite() { v.clamp(lo, hi) } else { nan };
+        (
+            self.count.clamp(1, MAX_OCTAVES),
+            fix(self.attenuation, 1e-3, 1.0, 1.0),
+            fix(self.contribution, 0.0, 0.99, 0.0),
+            fix(self.eccentricity, 0.0, 1.0, 1.0),
+        )
+    }
+
+    /// `Σ bⁱ · p(cos θ; cⁱ g) · exp(−aⁱ τ)` for `phase` (p normalised to 1 over 4π
+    /// as [`Phase::eval`]). `tau` NaN or negative counts as 0, +∞ gives 0.
+    pub fn sun_sum(&self, phase: &Phase, cos_theta: f64, tau: f64) -> f64 {
+        let (n, a, b, c) = self.sanitised();
+        let tau = if tau > 0.0 { tau } else { 0.0 };
+        let (mut w, mut att, mut ecc, mut sum) = (1.0, 1.0, 1.0, 0.0);
+        for _ in 0..n {
+            let p = Phase {
+                g1: phase.g1 * ecc,
+                g2: phase.g2 * ecc,
+                mix: phase.mix,
+            };
+            sum += w * p.eval(cos_theta) * (-att * tau).exp();
+            w *= b;
+            att *= a;
+            ecc *= c;
+        }
+        sum
+    }
+
+    /// [`Octaves::sun_sum`] for an isotropic phase (p = 1): the 4π-average of the
+    /// sun term, which the pre-shaded billboard colour carries.
+    pub fn isotropic_sum(&self, tau: f64) -> f64 {
+        let (n, a, b, _) = self.sanitised();
+        let tau = if tau > 0.0 { tau } else { 0.0 };
+        let (mut w, mut att, mut sum) = (1.0, 1.0, 0.0);
+        for _ in 0..n {
+            sum += w * (-att * tau).exp();
+            w *= b;
+            att *= a;
+        }
+        sum
+    }
+}
+
 /// How clouds interact with light. Both renderers read the same values.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadingParams {
@@ -75,6 +174,14 @@ pub struct ShadingParams {
     pub sun_intensity: f64,
     /// Sky ambient radiance (linear RGB) at full daylight, added unoccluded.
     pub ambient: [f64; 3],
+    /// Multiple scattering of sunlight in the billboard paths.
+    pub octaves: Octaves,
+    /// Scale of the sky-light attenuation coefficient of [`ShadingParams::sky_extinction`]
+    /// (1 = the diffusion-theory value).
+    pub sky_extinction_scale: f64,
+    /// Strength in [0, 1] of the detail erosion of billboard edges
+    /// (`render::detail`; 0 = smooth metaballs).
+    pub detail_erosion: f64,
 }
 
 impl Default for ShadingParams {
@@ -85,7 +192,33 @@ impl Default for ShadingParams {
             phase: Phase::default(),
             sun_intensity: 1.2,
             ambient: [0.30, 0.34, 0.42],
+            octaves: Octaves::default(),
+            sky_extinction_scale: 1.0,
+            detail_erosion: 0.6,
         }
+    }
+}
+
+impl ShadingParams {
+    /// The fraction of the extinction that attenuates diffuse sky light travelling
+    /// into a cloud: the effective attenuation coefficient of diffusion theory,
+    /// `σ_tr = √(3 σ_a σ_t')` with `σ_a = (1 − ω)σ` and the reduced extinction
+    /// `σ_t' = (1 − ω ḡ)σ` (Ishimaru 1978, ch. 9; Jensen et al. 2001, eq. 5), ḡ the
+    /// mean cosine of the phase function. Defaults (ω = 0.9, ḡ = 0.25) give 0.48:
+    /// diffuse light penetrates about twice as deep as a collimated beam. Times
+    /// `sky_extinction_scale`; finite and in [0, 1] for any input.
+    pub fn sky_extinction(&self) -> f64 {
+        let w = if self.albedo.is_finite() { self.albedo.clamp(0.0, 1.0) } else { 0.0 };
+        let mix = if self.phase.mix.is_finite() { self.phase.mix.clamp(0.0, 1.0) } else { 0.5 };
+        let g = |g: f64| if g.is_finite() { g.clamp(-MAX_ABS_G, MAX_ABS_G) } else { 0.0 };
+        let mean_cos = mix * g(self.phase.g1) + (1.0 - mix) * g(self.phase.g2);
+        let k = (3.0 * (1.0 - w) * (1.0 - w * mean_cos)).sqrt();
+        let scale = if self.sky_extinction_scale.is_finite() {
+            self.sky_extinction_scale.max(0.0)
+        } else {
+            1.0
+        };
+        (k * scale).clamp(0.0, 1.0)
     }
 }
 
@@ -139,15 +272,8 @@ impl Lighting {
     }
 
     /// Source radiance of cloud at a point that receives sunlight transmittance
-    /// `sun_transmittance`, seen along view direction `view_dir` (camera → point):
-    /// `albedo · (sun · T · p(cos θ) + ambient)` with cos θ = view_dir · sun_dir.
-    pub fn cloud_source(&self, sun_transmittance: f64, view_dir: [f64; 3]) -> [f64; 3] {
-        let cos = dot(view_dir, self.sun_dir);
-        let p = self.params.phase.eval(cos);
-        self.source_with_phase(sun_transmittance, p)
-    }
-
-    /// As [`Lighting::cloud_source`] with the phase value given.
+    /// `sun_transmittance`, for the phase value `phase` (single scattering, unoccluded
+    /// ambient; the reference marcher's): `albedo · (sun · T · p + ambient)`.
     pub fn source_with_phase(&self, sun_transmittance: f64, phase: f64) -> [f64; 3] {
         let t = if sun_transmittance.is_finite() {
             sun_transmittance.clamp(0.0, 1.0)
@@ -156,6 +282,49 @@ impl Lighting {
         };
         let a = self.params.albedo.clamp(0.0, 1.0);
         [0, 1, 2].map(|i| a * (self.sun_rgb[i] * t * phase + self.ambient_rgb[i]))
+    }
+
+    /// The scattered sunlight of the billboard paths for a point whose sun ray has
+    /// optical depth `tau_sun`, seen along `view_dir` (camera → point): the octave sum
+    /// of [`Octaves`] times the sun colour (no albedo). With one octave it is
+    /// `sun · p(cos θ) · exp(−τ_sun)`, the single-scattering term of
+    /// [`Lighting::source_with_phase`].
+    pub fn sun_octaves(&self, tau_sun: f64, view_dir: [f64; 3]) -> [f64; 3] {
+        let cos = dot(view_dir, self.sun_dir);
+        let s = self.params.octaves.sun_sum(&self.params.phase, cos, tau_sun);
+        self.sun_rgb.map(|c| c * s)
+    }
+
+    /// What a client adds to a billboard's pre-shaded (isotropic) colour to apply the
+    /// phase function per octave: `albedo · sun · (Σ bⁱ pᵢ(cos θ) e^{−aⁱτ} − Σ bⁱ e^{−aⁱτ})`.
+    pub fn phase_correction(&self, tau_sun: f64, view_dir: [f64; 3]) -> [f64; 3] {
+        let cos = dot(view_dir, self.sun_dir);
+        let o = &self.params.octaves;
+        let d = o.sun_sum(&self.params.phase, cos, tau_sun) - o.isotropic_sum(tau_sun);
+        let a = self.params.albedo.clamp(0.0, 1.0);
+        self.sun_rgb.map(|c| a * c * d)
+    }
+
+    /// The radiance of the ground seen from below a cloud: the ground of
+    /// [`Lighting::background`] under sun transmittance `ground_t`.
+    pub fn ground_below(&self, ground_t: f64) -> [f64; 3] {
+        self.background([0.0, 0.0, -1.0], ground_t)
+    }
+
+    /// Sky and ground light reaching a point inside a cloud, as isotropic in-scattered
+    /// radiance (no albedo): half the sphere sees the sky above through optical depth
+    /// `tau_up`, half the ground below through `tau_down`, each attenuated by
+    /// `exp(−k τ)` with `k` = [`ShadingParams::sky_extinction`]:
+    /// `½ · sky · e^{−k τ_up} + ½ · ground · e^{−k τ_down}`. Cloud bases see the dark
+    /// ground and a sky through the whole cloud, so they are darker than tops. Never
+    /// more than the unoccluded `½ (sky + ground)` (with sky = ground = L it is at most
+    /// L: the white furnace's value).
+    pub fn ambient_source(&self, sky: [f64; 3], ground: [f64; 3], tau_up: f64, tau_down: f64) -> [f64; 3] {
+        let k = self.params.sky_extinction();
+        let att = |t: f64| if t > 0.0 { (-k * t).exp() } else { 1.0 };
+        let (u, d) = (att(tau_up), att(tau_down));
+        let ok = |v: f64| if v.is_finite() { v.max(0.0) } else { 0.0 };
+        [0, 1, 2].map(|i| 0.5 * ok(sky[i]) * u + 0.5 * ok(ground[i]) * d)
     }
 
     /// Radiance of the clear sky seen along `dir` (a unit vector, z up). Directions
@@ -249,7 +418,7 @@ mod tests {
             if el <= -6.0 {
                 assert_eq!(l.sun_rgb, [0.0; 3]);
             }
-            let s = l.cloud_source(f64::NAN, [0.0, 0.0, 1.0]);
+            let s = l.source_with_phase(f64::NAN, l.params.phase.eval(1.0));
             assert!(s.iter().all(|v| v.is_finite()));
         }
         let noon = Lighting::new(Sun::new(0.0, 60.0).unwrap(), ShadingParams::default());

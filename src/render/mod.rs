@@ -37,6 +37,7 @@
 
 pub mod camera;
 pub mod composite;
+pub mod detail;
 pub mod image;
 pub mod light;
 pub mod march;

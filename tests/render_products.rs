@@ -129,7 +129,11 @@ fn billboards_bin_round_trips() {
         assert_eq!(r.colour, b.colour);
         assert_eq!(r.opacity, (b.opacity * 255.0).round() as u8);
         assert_eq!(r.sun_transmittance, (b.sun_transmittance * 255.0).round() as u8);
+        assert_eq!(r.tau_sun, b.tau_sun);
+        // The transmittance is the exponential of the optical depth.
+        assert!((b.sun_transmittance as f64 - (-(b.tau_sun as f64)).exp()).abs() < 1e-6);
     }
+    assert!(t.billboards.iter().any(|b| b.tau_sun > 0.5), "some ball is shadowed");
     assert!(billboards::decode_bin(&bytes[..bytes.len() - 1]).is_err());
     assert!(billboards::decode_bin(b"nope").is_err());
 }

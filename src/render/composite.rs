@@ -274,6 +274,53 @@ mod tests {
     }
 
     #[test]
+    fn detail_erosion_only_removes_opacity_and_bites_edges() {
+        let sheet = SplatSheet::new(64, 17);
+        let view = View::perspective(&Camera::parse("0,0,1000,0,0,60").unwrap(), 96, 64);
+        // A row of overlapping balls 3 km ahead: a soft-edged cloud filling the middle.
+        let bbs: Vec<Billboard> = (0..12)
+            .map(|i| Billboard {
+                centre: [-1100.0 + 200.0 * i as f64, 3000.0, 1000.0],
+                radius: 300.0,
+                density: 0.5,
+                tau: 2.0,
+                splat: 63,
+                opacity: 0.9,
+                tau_sun: 1.0,
+                sun_transmittance: (-1.0f32).exp(),
+                colour: [0.6; 3],
+            })
+            .collect();
+        let draw = |erosion: f64| {
+            let params = ShadingParams {
+                detail_erosion: erosion,
+                ..ShadingParams::default()
+            };
+            let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
+            let mut img = Image::new(96, 64);
+            img.alpha.iter_mut().for_each(|a| *a = 0.0);
+            composite(&mut img, &bbs, &sheet, &lighting, &view);
+            img
+        };
+        let (smooth, eroded) = (draw(0.0), draw(0.8));
+        let mut bitten = 0;
+        for (i, (&a, &b)) in smooth.alpha.iter().zip(&eroded.alpha).enumerate() {
+            assert!(b <= a + 1e-6, "pixel {i}: {b} > {a}");
+            if a > 0.05 && a < 0.9 && b < 0.8 * a {
+                bitten += 1;
+            }
+            // The colour is scaled with the opacity (premultiplied), never brightened.
+            for ch in 0..3 {
+                assert!(eroded.rgb[i][ch] <= smooth.rgb[i][ch] + 1e-6);
+            }
+        }
+        assert!(bitten > 20, "only {bitten} edge pixels eroded");
+        // Opaque cores are left alone.
+        let core = smooth.alpha.iter().zip(&eroded.alpha).filter(|(a, _)| **a > 0.999);
+        assert!(core.clone().count() > 0 && core.clone().all(|(a, b)| (a - b).abs() < 1e-3));
+    }
+
+    #[test]
     fn front_to_back_equals_back_to_front_over() {
         let sheet = SplatSheet::new(64, 17);
         // The textbook client has no detail erosion (tested on its own below).

@@ -135,6 +135,28 @@ mod tests {
     }
 
     #[test]
+    fn noise_is_seamless_across_tile_boundaries() {
+        // A tile edge at level 0 (256 columns of 100 m) and one 2^40 m out: walking
+        // across it in 1 m steps the field moves by a little each step (no seam), and
+        // the point on the edge has one value whichever tile's origin it is taken from.
+        for edge in [25_600.0, 1_099_511_627_776.0] {
+            let wavelength = 187.5;
+            let mut last = noise([edge - 50.0, 3_000.0, 1_500.0], wavelength, 4);
+            for i in -49..=50 {
+                let v = noise([edge + i as f64, 3_000.0, 1_500.0], wavelength, 4);
+                assert!((v - last).abs() < 0.06, "edge {edge} step {i}: {last} -> {v}");
+                last = v;
+            }
+            let from_west = (edge - 25_600.0) + 25_600.0;
+            let from_east = edge + 0.0;
+            assert_eq!(
+                noise([from_west, 10.0, 1_200.0], wavelength, 3),
+                noise([from_east, 10.0, 1_200.0], wavelength, 3)
+            );
+        }
+    }
+
+    #[test]
     fn octaves_follow_the_pixel_footprint() {
         assert_eq!(octaves_for(200.0, 1000.0), 0);
         assert_eq!(octaves_for(200.0, 100.0), 1);

@@ -427,6 +427,111 @@ mod tests {
         assert!(low.sun_rgb[2] / low.sun_rgb[0] < noon.sun_rgb[2] / noon.sun_rgb[0]);
     }
 
+    fn sphere_mean(f: impl Fn(f64) -> f64) -> f64 {
+        integrate_over_sphere(f) / (4.0 * std::f64::consts::PI)
+    }
+
+    #[test]
+    fn one_octave_is_single_scattering() {
+        // Whatever a, b, c are, N = 1 is the single-scattering term p(cos θ)·e^{−τ}.
+        let phase = Phase::default();
+        for (a, b, c) in [(0.5, 0.5, 0.5), (0.1, 0.9, 0.0), (1.0, 0.0, 1.0)] {
+            let o = Octaves {
+                count: 1,
+                attenuation: a,
+                contribution: b,
+                eccentricity: c,
+            };
+            for tau in [0.0, 0.3, 2.0, 17.0] {
+                for cos in [-1.0, -0.3, 0.0, 0.8, 1.0] {
+                    let single = phase.eval(cos) * (-tau as f64).exp();
+                    assert!((o.sun_sum(&phase, cos, tau) - single).abs() < 1e-15, "{a} {b} {c} {tau} {cos}");
+                }
+                assert!((o.isotropic_sum(tau) - (-tau as f64).exp()).abs() < 1e-15);
+            }
+        }
+        // And the billboard path's sun term with one octave is the marcher's.
+        let params = ShadingParams {
+            octaves: Octaves::SINGLE,
+            ..ShadingParams::default()
+        };
+        let l = Lighting::new(Sun::new(40.0, 30.0).unwrap(), params);
+        let dir = [0.3, 0.9, 0.3f64];
+        let n = dot(dir, dir).sqrt();
+        let dir = dir.map(|v| v / n);
+        let tau: f64 = 1.7;
+        let ss = l.source_with_phase((-tau).exp(), params.phase.eval(dot(dir, l.sun_dir)));
+        let oct = l.sun_octaves(tau, dir);
+        for i in 0..3 {
+            let expected = ss[i] - params.albedo * l.ambient_rgb[i];
+            assert!((params.albedo * oct[i] - expected).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn octaves_conserve_what_their_series_allows() {
+        let phase = Phase::default();
+        let o = Octaves::default();
+        let (n, a, b, _) = o.sanitised();
+        assert!(a <= b, "Hillaire's energy condition a <= b");
+        let series = (1.0 - b.powi(n as i32)) / (1.0 - b);
+        let mut last = f64::INFINITY;
+        for tau in [0.0, 0.1, 1.0, 4.0, 20.0, 1e3, f64::INFINITY] {
+            // Each octave's phase is normalised, so the 4π-mean of the sun term is the
+            // isotropic sum the pre-shaded colour carries...
+            let mean = sphere_mean(|mu| o.sun_sum(&phase, mu, tau));
+            let iso = o.isotropic_sum(tau);
+            assert!((mean - iso).abs() < 1e-3 * iso.max(1e-3), "tau={tau}: {mean} vs {iso}");
+            // ...never more than the geometric series 1 + b + … + b^{N−1}, falling with depth.
+            assert!(iso <= series + 1e-12 && iso <= last + 1e-15, "tau={tau}: {iso}");
+            last = iso;
+        }
+        assert_eq!(o.isotropic_sum(f64::INFINITY), 0.0);
+    }
+
+    #[test]
+    fn ambient_is_below_the_white_furnace() {
+        // Sky and ground of one radiance L (a white furnace): the ambient source is L
+        // with no cloud around, less with cloud, never more.
+        let l = Lighting::new(Sun::new(0.0, 45.0).unwrap(), ShadingParams::default());
+        let lum = [0.7, 0.8, 0.9];
+        let open = l.ambient_source(lum, lum, 0.0, 0.0);
+        assert!((0..3).all(|i| (open[i] - lum[i]).abs() < 1e-15));
+        for (up, down) in [(0.5, 0.0), (3.0, 1.0), (1e9, 1e9), (f64::INFINITY, 0.0), (f64::NAN, 2.0)] {
+            let s = l.ambient_source(lum, lum, up, down);
+            assert!((0..3).all(|i| s[i].is_finite() && s[i] >= 0.0 && s[i] <= lum[i]), "{up} {down}: {s:?}");
+        }
+        // The attenuation is diffusion theory's σ_tr / σ for the defaults: √(3·0.1·0.775).
+        assert!((ShadingParams::default().sky_extinction() - (3.0f64 * 0.1 * 0.775).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn octaves_are_finite_at_extremes() {
+        for g in [-1.0, 1.0, f64::NAN, 5.0] {
+            let phase = Phase { g1: g, g2: -g, mix: 0.5 };
+            for o in [
+                Octaves::default(),
+                Octaves { count: 99, attenuation: f64::NAN, contribution: 2.0, eccentricity: -1.0 },
+                Octaves { count: 0, attenuation: 0.0, contribution: f64::INFINITY, eccentricity: f64::NAN },
+            ] {
+                for tau in [0.0, -1.0, 1e300, f64::INFINITY, f64::NAN] {
+                    for mu in [-1.0, 0.0, 1.0, f64::NAN] {
+                        let v = o.sun_sum(&phase, mu, tau);
+                        assert!(v.is_finite() && v >= 0.0 && v < 2.0e5, "{o:?} g={g} tau={tau} mu={mu}: {v}");
+                    }
+                }
+            }
+        }
+        for el in [-90.0, -3.0, 0.0, 1e-9, 90.0] {
+            let l = Lighting::new(Sun::new(0.0, el).unwrap(), ShadingParams::default());
+            for tau in [0.0, f64::INFINITY, f64::NAN] {
+                let c = l.phase_correction(tau, [0.0, 1.0, 0.0]);
+                assert!(c.iter().all(|v| v.is_finite()), "{el} {tau}");
+            }
+            assert!(l.ground_below(f64::NAN).iter().all(|v| v.is_finite() && *v >= 0.0));
+        }
+    }
+
     #[test]
     fn tone_map_is_bounded() {
         assert_eq!(tone_map(f64::NAN), 0.0);

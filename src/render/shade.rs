@@ -364,6 +364,47 @@ mod tests {
     }
 
     #[test]
+    fn bases_are_darker_than_tops_in_sky_light() {
+        // A tall column (12 balls, 1.2 km) lit by the sky and the ground only (no sun):
+        // every ball is darker than the one above it, the base darker than the top.
+        let (balls, lat) = column_of_balls(12, 0.6);
+        let params = ShadingParams {
+            sun_intensity: 0.0,
+            ..ShadingParams::default()
+        };
+        let l = Lighting::new(Sun::new(0.0, 60.0).unwrap(), params);
+        let sheet = SplatSheet::new(64, 17);
+        let (bb, _) = shade(&balls, &lat, &l, &sheet, 0.3, [0.0, 0.0, 10_000.0, 10_000.0]);
+        let lum = |b: &Billboard| b.colour.iter().map(|&c| c as f64).sum::<f64>();
+        // The bottom may see the ground through less cloud than the one above it; from
+        // the second ball up, brightness grows with height, and the top is the brightest.
+        for w in bb[1..].windows(2) {
+            assert!(lum(&w[1]) > lum(&w[0]), "{:?} vs {:?}", w[0].colour, w[1].colour);
+        }
+        assert!(lum(&bb[0]) < 0.8 * lum(bb.last().unwrap()));
+        // The top ball's light is the closed form: half the sky through its own κτ,
+        // half the ground (lit by the sun through the whole column: no sun here, so by
+        // the sky alone) through the column below plus κτ.
+        let top = bb.last().unwrap();
+        let k = l.params.sky_extinction();
+        let tau = top.tau as f64;
+        let below: f64 = bb[..bb.len() - 1].iter().map(|b| b.tau as f64).sum();
+        let ground = l.ground_below(1.0);
+        for ch in 0..3 {
+            let expected = l.params.albedo
+                * (0.5 * l.ambient_rgb[ch] * (-k * SELF_SHADOW * tau).exp()
+                    + 0.5 * ground[ch] * (-k * (below + SELF_SHADOW * tau)).exp());
+            // The balls below are offset by half a spacing on odd levels, so the column
+            // the up-buffer sees under the top is within a factor of its sum.
+            assert!((top.colour[ch] as f64 - expected).abs() < 0.02, "{ch}: {} vs {expected}", top.colour[ch]);
+        }
+        // With the sun overhead as well, the top still outshines the base.
+        let l = Lighting::new(Sun::new(0.0, 89.0).unwrap(), ShadingParams::default());
+        let (bb, _) = shade(&balls, &lat, &l, &sheet, 0.3, [0.0, 0.0, 10_000.0, 10_000.0]);
+        assert!(lum(&bb[0]) < 0.5 * lum(bb.last().unwrap()));
+    }
+
+    #[test]
     fn profile_table_matches_the_closed_form() {
         let t = profile_table();
         for i in 0..=1000 {

@@ -12,15 +12,45 @@
 //! suns, not one picture. It prints every candidate's objective, its worst bin and
 //! mean SSIM, then the best.
 //!
-//!     cargo run --release --example calibrate_scattering -- [SIZE] [PRESET]
+//!     cargo run --release --example calibrate_scattering -- [SIZE] [PRESET] [REFERENCE_DIR]
 //!
-//! The reference is whatever `Quality::Reference` renders (`scene::draw_reference`).
+//! The reference is whatever `Quality::Reference` renders (`scene::draw_reference`),
+//! or, with `REFERENCE_DIR`, the PNGs `scene0.png` … `scene3.png` there (SIZE × SIZE,
+//! display RGB of `tone_map`, inverted to linear radiance: `x = −ln(1 − d^2.2)`), as an
+//! external renderer such as a path tracer wrote them for the same scenes (the
+//! config of the scene worlds is written to `REFERENCE_DIR/scenes.toml`, and the
+//! `cloudscape render` command of each scene is printed).
 
 use cloudscape::bench::quality::{SCENES, SCENE_WORLDS, compare, request, scene_density, shade_grids, view_tau};
 use cloudscape::render::light::Octaves;
+use cloudscape::render::image::Image;
 use cloudscape::render::march::MarchParams;
 use cloudscape::render::{Quality, ShadingParams, scene};
 use cloudscape::world::Config;
+
+/// A tone-mapped PNG back to linear radiance.
+fn read_reference(path: &std::path::Path, size: usize) -> Result<Image, String> {
+    let file = std::fs::File::open(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+    decoder.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut reader = decoder.read_info().map_err(|e| e.to_string())?;
+    let mut buf = vec![0; reader.output_buffer_size().ok_or("PNG too large")?];
+    let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    if info.width as usize != size || info.height as usize != size {
+        return Err(format!("{} is {}x{}, expected {size}x{size}", path.display(), info.width, info.height));
+    }
+    let ch = info.color_type.samples();
+    let mut img = Image::new(size, size);
+    let inv = |d: u8| {
+        let d = (d as f64 / 255.0).powf(2.2).min(1.0 - 1e-4);
+        (-(1.0 - d).ln()) as f32
+    };
+    for i in 0..size * size {
+        img.rgb[i] = [inv(buf[i * ch]), inv(buf[i * ch + 1]), inv(buf[i * ch + 2])];
+        img.alpha[i] = 1.0;
+    }
+    Ok(img)
+}
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -30,17 +60,32 @@ fn main() -> Result<(), String> {
         .map(|s| Quality::parse(s).ok_or("PRESET must be fast | balanced | accurate"))
         .transpose()?
         .unwrap_or(Quality::Balanced);
-    let config = Config::parse(&format!("{}\n{SCENE_WORLDS}", include_str!("../config/default.toml")))
-        .map_err(|e| e.to_string())?;
+    let text = format!("{}\n{SCENE_WORLDS}", include_str!("../config/default.toml"));
+    let config = Config::parse(&text).map_err(|e| e.to_string())?;
+    let external = args.get(2).map(std::path::PathBuf::from);
+    if let Some(dir) = &external {
+        std::fs::write(dir.join("scenes.toml"), &text).map_err(|e| e.to_string())?;
+        for (i, s) in SCENES.iter().enumerate() {
+            println!(
+                "scene{i}: cloudscape render --config {}/scenes.toml --world {} --camera {} --t 1800 --size {size}x{size} --sun {},{} --out {}/scene{i}.png",
+                dir.display(),
+                s.world,
+                s.camera,
+                s.sun.0,
+                s.sun.1,
+                dir.display()
+            );
+        }
+    }
     struct Prepared {
         world: cloudscape::world::World,
-        reference: cloudscape::render::image::Image,
+        reference: Image,
         tau: Vec<f64>,
         grids: Vec<(cloudscape::density::Grid<f32>, usize)>,
         plan: Vec<(usize, cloudscape::render::TileId)>,
     }
     let mut scenes = Vec::new();
-    for s in &SCENES {
+    for (i, s) in SCENES.iter().enumerate() {
         let world = config.world(s.world).ok_or("a scene world is missing")?;
         let ref_req = request(s, Quality::Reference, size)?;
         let (_, grids, plan) = scene_density(&world, &config, &ref_req)?;
@@ -48,7 +93,10 @@ fn main() -> Result<(), String> {
         let vols = scene::volumes(&tiles);
         let step = scene::reference_step(&tiles, Quality::Reference);
         let sun = ref_req.sun.ok_or("no sun")?;
-        let reference = scene::draw_reference(&vols, &ref_req, sun, &MarchParams::with_step(step));
+        let reference = match &external {
+            Some(dir) => read_reference(&dir.join(format!("scene{i}.png")), size)?,
+            None => scene::draw_reference(&vols, &ref_req, sun, &MarchParams::with_step(step)),
+        };
         let tau = view_tau(&tiles, &ref_req);
         let req = request(s, preset, size)?;
         let (_, grids, plan) = scene_density(&world, &config, &req)?;

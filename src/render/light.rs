@@ -94,8 +94,15 @@ pub struct Octaves {
 pub const MAX_OCTAVES: u32 = 8;
 
 impl Default for Octaves {
-    /// Calibrated against the path tracer when it lands; until then the values of
-    /// Wrenninge et al. 2013 and Hillaire 2016 (a = b = c = ½) with three octaves.
+    /// The values of Wrenninge et al. 2013 and Hillaire 2016 (a = b = c = ½), three
+    /// octaves. Not yet fitted: the fit is `examples/calibrate_scattering.rs` (a grid
+    /// over N, a, b and `sky_extinction_scale`, minimising the mean over the four
+    /// scenes of `bench::quality::SCENES` — three views, four suns from 1° to 50° —
+    /// and their occupied view-optical-depth bins of `ln(preset / reference mean
+    /// radiance)²`), and it needs a reference with multiple scattering: against the
+    /// single-scattering marcher it can only prefer fewer octaves (it does: best
+    /// N = 4, a = b = ¼, sky scale ½, i.e. almost single scattering, 1 Dec 2026), so
+    /// those values are not used.
     fn default() -> Self {
         Octaves {
             count: 3,

@@ -1,15 +1,18 @@
 //! The two renderers on an analytic case: one isolated metaball. The compositor
 //! draws its billboard; the ray marcher integrates the very field the billboard
-//! stands for, `ρ(x) = d · f(|x − c| / R) / K`, sampled on a fine grid.
+//! stands for, `ρ(x) = d · f(|x − c| / R) / K`, sampled on a fine grid. The billboard
+//! path is set to what the marcher computes: one scattering octave, no detail
+//! erosion, no sky light; its light from the ground below (which the marcher has not)
+//! is subtracted in closed form.
 
 use cloudscape::density::Grid;
 use cloudscape::density::metaballs::{GridPlacement, Lattice, Metaball, wyvill};
 use cloudscape::render::camera::View;
 use cloudscape::render::composite::composite;
 use cloudscape::render::image::Image;
-use cloudscape::render::light::{Lighting, ShadingParams};
+use cloudscape::render::light::{Lighting, Octaves, ShadingParams};
 use cloudscape::render::march::{self, MarchParams, Volume};
-use cloudscape::render::shade::shade;
+use cloudscape::render::shade::{SELF_SHADOW, shade};
 use cloudscape::render::splats::SplatSheet;
 use cloudscape::render::sun::Sun;
 
@@ -40,9 +43,14 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
     };
     let params = ShadingParams {
         extinction,
+        octaves: Octaves::SINGLE,
+        detail_erosion: 0.0,
         ..ShadingParams::default()
     };
-    let lighting = Lighting::new(sun, params);
+    // No sky light: the marcher adds it unoccluded, the billboards through the cloud.
+    let mut lighting = Lighting::new(sun, params);
+    lighting.ambient_rgb = [0.0; 3];
+    lighting.sky_ambient_above = [0.0; 3];
     let sheet = SplatSheet::new(256, 65);
     let (billboards, _) = shade(&[ball], &lattice, &lighting, &sheet, 0.1, [0.0, 0.0, 1e6, 1e6]);
     assert_eq!(billboards.len(), 1);
@@ -102,15 +110,20 @@ fn draw_both(ball: &Ball, view: &View) -> (Image, Image) {
     (drawn, marched)
 }
 
-fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64) {
+fn single_ball_scene(extinction: f64, sun: Sun) -> (Image, Image, f64, [f64; 3]) {
     let ball = single_ball(extinction, sun);
     let tau = ball.billboards[0].tau as f64;
+    // The ground light of the billboard: half the ground (its sun ray misses the ball)
+    // through κτ of the ball, times the albedo. The marcher has no ground light.
+    let l = &ball.lighting;
+    let ground = l.ambient_source([0.0; 3], l.ground_below(1.0), SELF_SHADOW * tau, SELF_SHADOW * tau);
+    let ground = ground.map(|g| l.params.albedo * g);
     // Orthographic view looking north at the ball, 48×48 pixels over 1.2 diameters.
     let n = 48;
     let mpp = 2.4 * R / n as f64;
     let view = View::orthographic(CENTRE, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], mpp, n, n);
     let (drawn, marched) = draw_both(&ball, &view);
-    (drawn, marched, tau)
+    (drawn, marched, tau, ground)
 }
 
 #[test]
@@ -152,7 +165,12 @@ fn compositor_and_ray_marcher_agree_on_an_isolated_metaball() {
     // A thin ball (centre optical depth ≈ 0.5) lit from the side.
     let sun = Sun::new(90.0, 30.0).unwrap();
     let extinction = 0.5 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
-    let (drawn, marched, tau) = single_ball_scene(extinction, sun);
+    let (mut drawn, marched, tau, ground) = single_ball_scene(extinction, sun);
+    for (c, &a) in drawn.rgb.iter_mut().zip(&drawn.alpha) {
+        for ch in 0..3 {
+            c[ch] -= (a as f64 * ground[ch]) as f32;
+        }
+    }
     assert!((tau - 0.5).abs() < 1e-3, "tau {tau}");
     // Coverage: the splat's opacity is Beer–Lambert of the exact line integral, so
     // opacity agrees to within the splat quantisation (256 splats) and bilinear texels:
@@ -165,13 +183,14 @@ fn compositor_and_ray_marcher_agree_on_an_isolated_metaball() {
     assert!(drawn.alpha.iter().cloned().fold(0.0, f32::max) > 0.3);
     // Colour: the billboard uses one sun transmittance, exp(−τ/2), for the whole
     // ball; the marcher varies it through the ball (e^0 … e^−τ). Stated tolerance:
-    // total radiance within 3 %, every pixel within 8 % of the peak radiance.
+    // total radiance within 3 %, every pixel within 12 % of the peak radiance (the
+    // peak of the sun term alone: no sky light lifts it).
     let lum = |c: &[f32; 3]| (c[0] + c[1] + c[2]) as f64;
     let (sd, sm): (f64, f64) = (drawn.rgb.iter().map(lum).sum(), marched.rgb.iter().map(lum).sum());
     assert!((sd / sm - 1.0).abs() < 0.03, "total radiance {sd} vs {sm}");
     let peak = marched.rgb.iter().map(lum).fold(0.0, f64::max);
     for (a, b) in drawn.rgb.iter().zip(&marched.rgb) {
-        assert!((lum(a) - lum(b)).abs() < 0.08 * peak, "{a:?} vs {b:?} (peak {peak})");
+        assert!((lum(a) - lum(b)).abs() < 0.12 * peak, "{a:?} vs {b:?} (peak {peak})");
     }
 }
 
@@ -184,7 +203,7 @@ fn extremes_render_finite() {
         (0.001, -10.0),
         (0.001, 0.0),
     ] {
-        let (drawn, marched, _) = single_ball_scene(extinction, Sun::new(45.0, el).unwrap());
+        let (drawn, marched, _, _) = single_ball_scene(extinction, Sun::new(45.0, el).unwrap());
         for img in [&drawn, &marched] {
             assert!(
                 img.rgb

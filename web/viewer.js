@@ -24,16 +24,22 @@
 const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
 /** Columns per tile side. */
 const TILE_COLUMNS = 256;
-/** ShadingParams::default(). */
-const SHADING = { albedo: 0.9, g1: 0.7, g2: -0.2, mix: 0.5 };
+/** ShadingParams::default() (src/render/light.rs): octaves N, a, b, c; detail erosion strength. */
+const SHADING = {
+  albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
+  octaves: [3, 0.5, 0.5, 0.5], detailErosion: 0.6,
+};
+/** src/render/detail.rs: most detail octaves, and the footprint an octave must span. */
+const MAX_DETAIL_OCTAVES = 4;
+const MIN_WAVELENGTH_PIXELS = 2;
 /** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
 const MAX_IN_FLIGHT = 4;
 /** Bytes of billboards.bin (src/products/billboards.rs). */
 const BIN_HEADER = 64;
-const BIN_RECORD = 32;
-/** Floats per instance in the GPU buffer: centre xyz, radius, colour rgb, splat, T. */
+const BIN_RECORD = 36;
+/** Floats per instance in the GPU buffer: centre xyz, radius, colour rgb, splat, τ_sun. */
 const INSTANCE_FLOATS = 9;
 /** Cache Storage bucket of revalidatable responses. */
 const CACHE_NAME = 'cloudscape-v1';
@@ -116,6 +122,8 @@ const stats = {
   failures: 0,
   drawCalls: 0,
   billboards: 0,
+  /** Whether the detail-erosion pass ran in the last frame (needs float render targets). */
+  erosion: false,
   frameMs: 0,
   /** Tile URLs requested, in order. */
   urls: [],
@@ -406,32 +414,50 @@ const shadowProgram = compile(
   }`,
 );
 
-// Camera-facing billboards textured with their splat (premultiplied `over`).
+// Camera-facing billboards textured with their splat (premultiplied `over`). The colour
+// is the pre-shaded (isotropic) colour plus the phase correction of the scattering
+// octaves (Lighting::phase_correction, src/render/light.rs):
+// albedo · sun · Σ_{i<N} bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ_sun}. Besides the colour it
+// writes, into two more targets when the erosion pass runs, the opacity-weighted
+// eye-relative point on the billboard and its radius (what src/render/composite.rs
+// accumulates for the detail erosion).
 const billboardProgram = compile(
   `#version 300 es
   layout(location = 0) in vec4 centreRadius; // centre relative to the buffer origin; radius
   layout(location = 1) in vec3 rgb;          // colour, isotropic phase (linear)
-  layout(location = 2) in vec2 splatT;       // splat index, sun transmittance
+  layout(location = 2) in vec2 splatTau;     // splat index, sun optical depth
   uniform mat4 viewProj;
   uniform vec3 eye, right, up, sunRgb;
   uniform vec4 sheet; // columns, size (texels), texture width, texture height
   uniform float albedo;
   uniform vec3 phase; // g1, g2, mix
+  uniform vec4 octaves; // N, a, b, c
   out vec2 corner;
   out vec2 cellOrigin;
   out vec3 radiance;
-  float hg(float g, float c) { float d = 1.0 + g * g - 2.0 * g * c; return (1.0 - g * g) / (d * sqrt(d)); }
+  out vec3 rel;
+  out float radius;
+  float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
   ${ATMOSPHERE}
   void main() {
     corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
     vec3 c = centreRadius.xyz - eye;
     vec3 p = c + (corner.x * right + corner.y * up) * centreRadius.w;
+    rel = p;
+    radius = centreRadius.w;
     gl_Position = viewProj * vec4(p, 1.0);
-    float k = splatT.x;
+    float k = splatTau.x;
     cellOrigin = vec2(mod(k, sheet.x), floor(k / sheet.x)) * sheet.y;
     float cosTheta = dot(normalize(c), sunDir);
-    float ph = mix(hg(phase.y, cosTheta), hg(phase.x, cosTheta), phase.z);
-    radiance = rgb + albedo * sunRgb * splatT.y * (ph - 1.0);
+    float w = 1.0, att = 1.0, ecc = 1.0, corr = 0.0;
+    for (int i = 0; i < 8; i++) {
+      if (float(i) >= octaves.x) break;
+      float g1 = clamp(phase.x * ecc, -0.99, 0.99), g2 = clamp(phase.y * ecc, -0.99, 0.99);
+      float ph = mix(hg(g2, cosTheta), hg(g1, cosTheta), phase.z);
+      corr += w * (ph - 1.0) * exp(-att * splatTau.y);
+      w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
+    }
+    radiance = max(rgb + albedo * sunRgb * corr, vec3(0.0));
     // Aerial perspective by the billboard's distance (composite.rs: c · T + L_in).
     vec3 T, L;
     aerial(c, eye.z, centreRadius.z, 1.0, T, L);
@@ -442,9 +468,13 @@ const billboardProgram = compile(
   in vec2 corner;
   in vec2 cellOrigin;
   in vec3 radiance;
+  in vec3 rel;
+  in float radius;
   uniform sampler2D splats;
   uniform vec4 sheet;
-  out vec4 colour;
+  layout(location = 0) out vec4 colour;
+  layout(location = 1) out vec4 where;
+  layout(location = 2) out vec4 size;
   ${TONE}
   void main() {
     if (dot(corner, corner) >= 1.0) discard;
@@ -452,8 +482,132 @@ const billboardProgram = compile(
     vec2 texel = cellOrigin + 0.5 + c + corner * c;
     float a = texture(splats, texel / sheet.zw).a;
     colour = vec4(tone(radiance) * a, a);
+    where = vec4(rel * a, a);
+    size = vec4(radius * a, 0.0, 0.0, a);
   }`,
 );
+
+// Detail erosion of the accumulated cloud opacity (src/render/detail.rs and
+// composite.rs): A' = erode(A, E · n) with Nubis's remap, n an fBm (first wavelength
+// the opacity-weighted metaball radius, halving, octaves while one spans at least
+// MIN_WAVELENGTH_PIXELS of the pixel footprint) at the opacity-weighted world point,
+// and the colour scaled by A'/A. The rule and constants are the server's; the noise
+// basis is a 3-D gradient noise with a 32-bit integer hash (WebGL has no 64-bit
+// integers), so the pattern is not the server's bit for bit. Coordinates are taken
+// relative to the eye plus the eye's position modulo 65536 m, so f32 noise never sees
+// raw world metres.
+const erosionProgram = compile(
+  `#version 300 es
+  out vec2 uv;
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    uv = p * 0.5 + 0.5;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  precision highp int;
+  in vec2 uv;
+  uniform sampler2D cloud, whereTex, sizeTex;
+  uniform vec3 eyeMod;     // eye position modulo 65536 m (z as is)
+  uniform float pixelAngle; // radians per pixel
+  uniform float strength;
+  out vec4 colour;
+  uint hash(ivec3 q) {
+    uvec3 p = uvec3(q);
+    uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
+    h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
+    return h;
+  }
+  vec3 grad(ivec3 q) {
+    uint h = hash(q);
+    vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
+    return g / max(length(g), 1e-6);
+  }
+  float gnoise(vec3 x) {
+    vec3 i = floor(x), f = x - i;
+    ivec3 b = ivec3(i);
+    vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
+    float n000 = dot(grad(b), f);
+    float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
+    float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
+    float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
+    float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
+    float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
+    float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
+    float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
+    float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
+                  mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
+    return clamp(n * 1.15, -1.0, 1.0);
+  }
+  void main() {
+    vec4 c = texture(cloud, uv);
+    float a = c.a;
+    if (a <= 0.0) discard;
+    vec4 w = texture(whereTex, uv);
+    vec4 s = texture(sizeTex, uv);
+    vec3 rel = w.xyz / max(w.a, 1e-6);
+    float r = s.x / max(s.a, 1e-6);
+    float mpp = length(rel) * pixelAngle;
+    float eroded = a;
+    if (strength > 0.0 && r > 0.0) {
+      vec3 p = (rel + eyeMod) / r;
+      float sum = 0.0, norm = 0.0, amp = 1.0, wl = r;
+      for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
+        if (wl < ${MIN_WAVELENGTH_PIXELS.toFixed(1)} * mpp) break;
+        sum += amp * gnoise(p + float(o) * 17.31);
+        norm += amp;
+        amp *= 0.5; wl *= 0.5; p *= 2.0;
+      }
+      if (norm > 0.0) {
+        float n = strength * clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
+        float lo = n * (1.0 - a);
+        eroded = lo >= 1.0 ? 0.0 : clamp((a - lo) / (1.0 - lo), 0.0, a);
+      }
+    }
+    colour = vec4(c.rgb * (eroded / a), eroded);
+  }`,
+);
+
+/** The offscreen targets of the billboards when the erosion pass runs (null without float targets). */
+const floatTargets = gl.getExtension('EXT_color_buffer_float');
+let cloudTarget = null;
+
+function cloudTargets(w, h) {
+  if (!floatTargets) return null;
+  if (cloudTarget && cloudTarget.w === w && cloudTarget.h === h) return cloudTarget;
+  if (cloudTarget) {
+    gl.deleteFramebuffer(cloudTarget.fb);
+    cloudTarget.textures.forEach((t) => gl.deleteTexture(t));
+  }
+  const make = (internal, format, type) => {
+    const t = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, t);
+    gl.texImage2D(gl.TEXTURE_2D, 0, internal, w, h, 0, format, type, null);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+    return t;
+  };
+  const textures = [
+    make(gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE),
+    make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT),
+    make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT),
+  ];
+  const fb = gl.createFramebuffer();
+  gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
+  textures.forEach((t, i) => gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0));
+  gl.drawBuffers([gl.COLOR_ATTACHMENT0, gl.COLOR_ATTACHMENT1, gl.COLOR_ATTACHMENT2]);
+  const ok = gl.checkFramebufferStatus(gl.FRAMEBUFFER) === gl.FRAMEBUFFER_COMPLETE;
+  gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+  cloudTarget = ok ? { fb, textures, w, h } : null;
+  if (!ok) {
+    gl.deleteFramebuffer(fb);
+    textures.forEach((t) => gl.deleteTexture(t));
+  }
+  return cloudTarget;
+}
 
 const billboardVao = gl.createVertexArray();
 const instanceBuffer = gl.createBuffer();
@@ -661,7 +815,7 @@ function decodeBillboards(buf) {
     data[d + 5] = v.getFloat32(o + 24, true);
     data[d + 6] = v.getFloat32(o + 28, true);
     data[d + 7] = v.getUint16(o + 16, true);
-    data[d + 8] = v.getUint8(o + 19) / 255;
+    data[d + 8] = v.getFloat32(o + 32, true);
   }
   return { header, count, data };
 }
@@ -997,6 +1151,14 @@ function draw() {
     if (!lastSortEye || Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1) {
       sortInstances(eye);
     }
+    // Into the offscreen targets (cleared to nothing) when the erosion pass runs.
+    const target = SHADING.detailErosion > 0 ? cloudTargets(canvas.width, canvas.height) : null;
+    if (target) {
+      gl.bindFramebuffer(gl.FRAMEBUFFER, target.fb);
+      gl.clearColor(0, 0, 0, 0);
+      gl.clear(gl.COLOR_BUFFER_BIT);
+    }
+    stats.erosion = !!target;
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(billboardProgram.program);
@@ -1009,6 +1171,7 @@ function draw() {
     gl.uniform3fv(bu.sunRgb, light.sunRgb);
     gl.uniform1f(bu.albedo, SHADING.albedo);
     gl.uniform3f(bu.phase, SHADING.g1, SHADING.g2, SHADING.mix);
+    gl.uniform4fv(bu.octaves, SHADING.octaves);
     gl.uniform4f(bu.sheet, splatInfo.columns, splatInfo.size, splatInfo.width, splatInfo.height);
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_2D, splatTexture);
@@ -1017,6 +1180,27 @@ function draw() {
     gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, n);
     calls++;
     gl.bindVertexArray(null);
+    if (target) {
+      // Erode the accumulated opacity and lay the clouds over the sky and ground.
+      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.useProgram(erosionProgram.program);
+      const eu = erosionProgram.u;
+      target.textures.forEach((t, i) => {
+        gl.activeTexture(gl.TEXTURE0 + i);
+        gl.bindTexture(gl.TEXTURE_2D, t);
+      });
+      gl.uniform1i(eu.cloud, 0);
+      gl.uniform1i(eu.whereTex, 1);
+      gl.uniform1i(eu.sizeTex, 2);
+      const wrap = (v) => v - 65536 * Math.floor(v / 65536);
+      gl.uniform3f(eu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
+      gl.uniform1f(eu.pixelAngle, (2 * tanH) / canvas.width);
+      gl.uniform1f(eu.strength, SHADING.detailErosion);
+      gl.bindVertexArray(emptyVao);
+      gl.drawArrays(gl.TRIANGLES, 0, 3);
+      calls++;
+      gl.activeTexture(gl.TEXTURE0);
+    }
   }
   stats.drawCalls = calls;
 }

@@ -2,12 +2,24 @@
 //! (at [`REFERENCE_SAMPLES`] samples per pixel) on the scene set of
 //! `benches/render_trade.rs` (which also measures the reference's own convergence;
 //! this section is its speed–accuracy table).
+//!
+//! Beside RMSE and SSIM, two figures that a single score hides:
+//! - **radiance by optical depth**: the pixels are binned by the optical depth of the
+//!   reference's view ray through the density (τ < 0.5, 0.5–2, 2–5, > 5; from
+//!   [`march::view_optical_depth`]), and per bin the preset's mean linear luminance is
+//!   divided by the reference's. Thin edges and deep cores fail differently (multiple
+//!   scattering matters most where τ is large); 1 is right.
+//! - **sharpness**: the high-frequency energy of the display luma (the mean square
+//!   of its 5-point Laplacian), preset over reference. Below 1 is blur, above is
+//!   detail the reference does not have.
 
 use std::time::Instant;
 
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use crate::density::{self, Region};
 use crate::render::image::{Image, rmse, ssim};
+use crate::render::camera::View;
+use crate::render::march;
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
@@ -93,6 +105,83 @@ pub const SCENES: [Scene; 4] = [
     },
 ];
 
+/// Upper edges of the view optical-depth bins (the last bin is open).
+pub const TAU_BIN_EDGES: [f64; 3] = [0.5, 2.0, 5.0];
+/// Labels of the bins.
+pub const TAU_BIN_LABELS: [&str; 4] = ["τ < 0.5", "0.5–2", "2–5", "> 5"];
+
+/// A preset's picture against the reference's.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Comparison {
+    /// RMSE of display RGB in [0, 1].
+    pub rmse: f64,
+    /// SSIM of display luma.
+    pub ssim: f64,
+    /// Mean linear luminance of the preset over the reference's, per optical-depth
+    /// bin ([`TAU_BIN_LABELS`]); `None` for a bin with no pixel.
+    pub radiance_ratio: [Option<f64>; 4],
+    /// High-frequency energy of the display luma, preset over reference.
+    pub sharpness: f64,
+}
+
+fn luminance(c: [f32; 3]) -> f64 {
+    0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64
+}
+
+/// The bin of optical depth `tau`.
+pub fn tau_bin(tau: f64) -> usize {
+    TAU_BIN_EDGES.iter().take_while(|&&e| tau >= e).count()
+}
+
+/// Mean square of the 5-point Laplacian of the luma of `display` (interior pixels).
+pub fn high_frequency_energy(display: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    if width < 3 || height < 3 {
+        return 0.0;
+    }
+    let l = |x: usize, y: usize| luminance(display[y * width + x]);
+    let mut sum = 0.0;
+    for y in 1..height - 1 {
+        for x in 1..width - 1 {
+            let lap = 4.0 * l(x, y) - l(x - 1, y) - l(x + 1, y) - l(x, y - 1) - l(x, y + 1);
+            sum += lap * lap;
+        }
+    }
+    sum / ((width - 2) * (height - 2)) as f64
+}
+
+/// Compares `preset` with `reference` (same size, `width` × `height`) whose view rays
+/// have optical depths `tau` (row-major).
+pub fn compare(preset: &Image, reference: &Image, tau: &[f64], width: usize, height: usize) -> Comparison {
+    let (d, r) = (preset.display(), reference.display());
+    let mut sums = [(0.0f64, 0.0f64, 0usize); 4];
+    for (i, &t) in tau.iter().enumerate() {
+        let b = tau_bin(t);
+        sums[b].0 += luminance(preset.rgb[i]);
+        sums[b].1 += luminance(reference.rgb[i]);
+        sums[b].2 += 1;
+    }
+    let hf_ref = high_frequency_energy(&r, width, height);
+    Comparison {
+        rmse: rmse(&d, &r),
+        ssim: ssim(&d, &r, width, height),
+        radiance_ratio: sums.map(|(p, q, n)| if n > 0 && q > 0.0 { Some(p / q) } else { None }),
+        sharpness: if hf_ref > 0.0 {
+            high_frequency_energy(&d, width, height) / hf_ref
+        } else {
+            0.0
+        },
+    }
+}
+
+/// The optical depth of every view ray of `req` through the reference volumes of
+/// `tiles` (capped at 50, far beyond the last bin).
+pub fn view_tau(tiles: &[ShadedTile], req: &RenderRequest) -> Vec<f64> {
+    let vols = scene::volumes(tiles);
+    let step = scene::reference_step(tiles, Quality::Reference);
+    let view = View::perspective(&req.camera, req.width, req.height);
+    march::view_optical_depth(&vols, req.params.extinction, &view, step, 50.0)
+}
+
 struct Measured {
     density_s: f64,
     billboards_s: f64,
@@ -101,7 +190,8 @@ struct Measured {
     tiles: Vec<ShadedTile>,
 }
 
-fn request(s: &Scene, q: Quality, size: usize) -> Result<RenderRequest, String> {
+/// The request of scene `s` for preset `q` at `size` × `size` pixels.
+pub fn request(s: &Scene, q: Quality, size: usize) -> Result<RenderRequest, String> {
     Ok(RenderRequest {
         camera: Camera::parse(s.camera)?,
         width: size,
@@ -117,6 +207,30 @@ fn request(s: &Scene, q: Quality, size: usize) -> Result<RenderRequest, String> 
 /// Plans, computes density, shades, and draws (billboards, or the volume for
 /// `Reference` and `ReferenceSingle`), timing each stage.
 fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measured, String> {
+    let (density_s, grids, plan) = scene_density(world, config, req)?;
+    let t1 = Instant::now();
+    let tiles = shade_grids(world, req, &plan, grids)?;
+    let billboards_s = t1.elapsed().as_secs_f64();
+    let sun = req.sun.ok_or("the scene has no sun")?;
+    let t2 = Instant::now();
+    let (image, _) = scene::draw(&tiles, req, sun);
+    let draw_s = t2.elapsed().as_secs_f64();
+    Ok(Measured {
+        density_s,
+        billboards_s,
+        draw_s,
+        image,
+        tiles,
+    })
+}
+
+/// The density grids (with halos) of the tiles `req` plans, and the time it took.
+#[allow(clippy::type_complexity)]
+pub fn scene_density(
+    world: &World,
+    config: &Config,
+    req: &RenderRequest,
+) -> Result<(f64, Vec<(density::Grid<f32>, usize)>, Vec<(usize, crate::render::TileId)>), String> {
     let sun = req.sun.ok_or("the scene has no sun")?;
     let plan = scene::plan(world, config, req).map_err(|e| e.to_string())?;
     let t0 = Instant::now();
@@ -137,9 +251,18 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
             halo,
         ));
     }
-    let density_s = t0.elapsed().as_secs_f64();
-    let t1 = Instant::now();
-    let tiles: Vec<ShadedTile> = plan
+    Ok((t0.elapsed().as_secs_f64(), grids, plan))
+}
+
+/// Shades the density grids of [`scene_density`] for `req` (its preset and params).
+pub fn shade_grids(
+    world: &World,
+    req: &RenderRequest,
+    plan: &[(usize, crate::render::TileId)],
+    grids: Vec<(density::Grid<f32>, usize)>,
+) -> Result<Vec<ShadedTile>, String> {
+    let sun = req.sun.ok_or("the scene has no sun")?;
+    Ok(plan
         .iter()
         .zip(grids)
         .map(|(&(li, tile), (g, halo))| {
@@ -155,18 +278,7 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
                 halo,
             )
         })
-        .collect();
-    let billboards_s = t1.elapsed().as_secs_f64();
-    let t2 = Instant::now();
-    let (image, _) = scene::draw(&tiles, req, sun);
-    let draw_s = t2.elapsed().as_secs_f64();
-    Ok(Measured {
-        density_s,
-        billboards_s,
-        draw_s,
-        image,
-        tiles,
-    })
+        .collect())
 }
 
 /// The speed–accuracy table: every preset against the reference, per scene.
@@ -189,24 +301,36 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         "Scene set of `benches/render_trade.rs` (one-layer worlds, t = 1800 s), {size}×{size} pixels. Error against \
          `reference` (path tracer, {REFERENCE_SAMPLES} samples per pixel) on the same tiles: RMSE of display RGB in [0, 1], SSIM of luma. \
          Times: density (shared by every preset), billboards (metaballs + shading), draw. Speed-up against the \
-         reference: total / excluding density. The reference's convergence is in `cargo bench --bench render_trade`.\n\n\
-         | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|\n"
+         reference: total / excluding density. The reference's convergence is in `cargo bench --bench render_trade`. \
+         Mean-radiance ratio (preset / reference, linear luminance) per bin of the reference view ray's optical \
+         depth τ (targets 0.85–1.15), and the sharpness ratio (high-frequency energy of display luma, the mean \
+         square of its Laplacian, preset / reference).\n\n\
+         | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM | {} | {} | {} | {} | sharpness |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+        TAU_BIN_LABELS[0], TAU_BIN_LABELS[1], TAU_BIN_LABELS[2], TAU_BIN_LABELS[3]
     );
     let mut points: Vec<(Quality, f64, f64)> = Vec::new();
     for s in scenes {
         let world = config.world(s.world).ok_or("a scene world is missing")?;
-        let reference = measure(&world, &config, &request(s, Quality::Reference, size)?)?;
-        let ref_display = reference.image.display();
+        let ref_req = request(s, Quality::Reference, size)?;
+        let reference = measure(&world, &config, &ref_req)?;
+        let tau = view_tau(&reference.tiles, &ref_req);
+        let mut counts = [0usize; 4];
+        tau.iter().for_each(|&t| counts[tau_bin(t)] += 1);
         let ref_total = reference.density_s + reference.draw_s;
         for &q in presets {
             let m = measure(&world, &config, &request(s, q, size)?)?;
             let total = m.density_s + m.billboards_s + m.draw_s;
-            let d = m.image.display();
-            let (e, ss) = (rmse(&d, &ref_display), ssim(&d, &ref_display, size, size));
+            let c = compare(&m.image, &reference.image, &tau, size, size);
+            let (e, ss) = (c.rmse, c.ssim);
+            let bins: Vec<String> = c
+                .radiance_ratio
+                .iter()
+                .map(|r| r.map_or("–".into(), |v| format!("{v:.2}")))
+                .collect();
             let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
             md += &format!(
-                "| {} | {} | {} | {n} | {:.2} s | {:.2} s | {:.3} s | {:.2} s | {:.0}× / {:.0}× | {e:.4} | {ss:.3} |\n",
+                "| {} | {} | {} | {n} | {:.2} s | {:.2} s | {:.3} s | {:.2} s | {:.0}× / {:.0}× | {e:.4} | {ss:.3} | {} | {:.2} |\n",
                 s.name,
                 q.as_str(),
                 m.tiles.len(),
@@ -215,17 +339,20 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                 m.draw_s,
                 total,
                 ref_total / total,
-                reference.draw_s / (m.billboards_s + m.draw_s)
+                reference.draw_s / (m.billboards_s + m.draw_s),
+                bins.join(" | "),
+                c.sharpness
             );
             points.push((q, m.billboards_s + m.draw_s, ss));
         }
         md += &format!(
-            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | 0 | 1 |\n",
+            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | 0 | 1 | {} | 1 |\n",
             s.name,
             reference.tiles.len(),
             reference.density_s,
             reference.draw_s,
-            ref_total
+            ref_total,
+            counts.map(|n| format!("{n} px")).join(" | ")
         );
         points.push((Quality::Reference, reference.draw_s, 1.0));
     }

@@ -2,7 +2,8 @@
 //! sheet over HTTP, revalidating with ETags, and composites them exactly as
 //! `cloudscape render` does locally (same level choice, same compositor, same
 //! background), so a remote render matches a local one up to the 8-bit quantisation of
-//! the served products (sun transmittance, shadow maps, splat opacities).
+//! the served shadow maps (the compositor takes each splat's optical depth from the
+//! sheet's count and the record's f32 `tau_sun`, not the 8-bit texels).
 //!
 //! Used by `cloudscape render --server URL`. Knows HTTP only as a client (blocking
 //! reqwest); nothing here depends on the server's code.
@@ -377,6 +378,7 @@ impl TileClient {
                 tau: 0.0,
                 splat: r.splat,
                 opacity: r.opacity as f32 / 255.0,
+                tau_sun: r.tau_sun,
                 sun_transmittance: r.sun_transmittance as f32 / 255.0,
                 colour: r.colour,
             }));

@@ -12,6 +12,11 @@
 //! the right) and its height is altitude (up). A client draws it as a vertical,
 //! camera-facing (cylindrical) billboard centred at `centre` with world `size`.
 //!
+//! **Texel**: one pixel at the nearest distance the tile's level is drawn at
+//! (`column / lod_pixels` of the preset), so impostors are as sharp as the screen;
+//! an impostor wider than [`MAX_IMPOSTOR_PIXELS`] and an atlas taller than
+//! [`MAX_ATLAS_HEIGHT`] get coarser texels.
+//!
 //! **PNG**: RGBA 8-bit, straight (not premultiplied) alpha; colour is tone-mapped
 //! display RGB (`1 − e^{−x}`, gamma 1/2.2). **Manifest** (JSON): the billboard header
 //! (tile, sun bucket, lighting) plus `"width"`, `"height"`, `"alpha": "straight"`, and
@@ -116,7 +121,11 @@ pub fn build(tile: &ShadedTile) -> Atlas {
         })
         .collect();
     // Tallest first for shelf packing; ties keep cluster order.
-    let base_mpp = tile.quality.settings().atlas_texel_columns * tile.column;
+    // The texel from the expected pixel footprint (Szécsi): the level choice shows a
+    // tile's level while one of its columns spans at most `lod_pixels` pixels, so at
+    // its nearest a column covers `lod_pixels` pixels and a texel of
+    // `column / lod_pixels` is one pixel there (no magnification blur).
+    let base_mpp = tile.column / tile.quality.settings().lod_pixels.max(1.0);
     let mut scale = 1.0;
     loop {
         let mpp = base_mpp * scale;

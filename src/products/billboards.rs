@@ -3,10 +3,13 @@
 //! Both hold the tile's shaded metaballs, ready to sort and draw as camera-facing
 //! quads textured with splat `splat` of the sheet named in the header
 //! (`/v1/splats.png?quality=Q`). `colour` is linear RGB pre-shaded for an isotropic
-//! phase, `albedo · (sun_rgb · T + ambient_rgb)`; a client that wants the phase
-//! function uses `albedo · (sun_rgb · T · p(cos θ) + ambient_rgb)` with `T` =
-//! `sun_transmittance` and the header's lighting. Opacity is the splat's texel value;
-//! `opacity` is its peak (centre) value.
+//! phase: `albedo · (sun_rgb · Σ_{i<N} bⁱ e^{−aⁱ τ} + ambient)`, with τ = `tau_sun`,
+//! the scattering octaves (N, a, b, c) of the header's `lighting.octaves`
+//! (src/render/light.rs, `Octaves`) and the ambient sky and ground light already
+//! attenuated through the cloud above and below the ball. A client that wants the
+//! phase function adds `albedo · sun_rgb · Σ bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ}`
+//! (dual Henyey–Greenstein with both g scaled by cⁱ). Opacity is the splat's texel
+//! value; `opacity` is its peak (centre) value.
 //!
 //! # Binary layout (`billboards.bin`), little-endian
 //!
@@ -16,7 +19,7 @@
 //! |---|---|---|
 //! | 0 | `[u8; 4]` | magic `CSBB` |
 //! | 4 | u16 | format version (1) |
-//! | 6 | u16 | record size in bytes (32) |
+//! | 6 | u16 | record size in bytes (36) |
 //! | 8 | u32 | record count |
 //! | 12 | u32 | tile level z |
 //! | 16 | i64 | tile x |
@@ -29,7 +32,7 @@
 //! | 58 | u16 | splat size (texels per side) |
 //! | 60 | f32 | tile side, metres |
 //!
-//! Records, 32 bytes each:
+//! Records, 36 bytes each:
 //!
 //! | offset | type | field |
 //! |---|---|---|
@@ -41,6 +44,7 @@
 //! | 18 | u8 | peak opacity × 255, rounded |
 //! | 19 | u8 | sun transmittance × 255, rounded |
 //! | 20 | 3 × f32 | colour, linear RGB |
+//! | 32 | f32 | optical depth of the sun ray, τ_sun |
 
 use serde_json::json;
 
@@ -52,7 +56,7 @@ pub const BIN_MAGIC: [u8; 4] = *b"CSBB";
 /// Version of the binary layout.
 pub const BIN_VERSION: u16 = 1;
 pub const BIN_HEADER_BYTES: usize = 64;
-pub const BIN_RECORD_BYTES: usize = 32;
+pub const BIN_RECORD_BYTES: usize = 36;
 
 /// Rounds an f64 to a value that prints shortly in JSON (f32 precision), never NaN.
 /// A finite value beyond f32's range keeps its f64 value (rounding it would give ±∞,
@@ -72,6 +76,7 @@ fn f(v: f64) -> f64 {
 pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
     let l = &tile.lighting;
     let s = tile.quality.settings();
+    let octaves = l.params.octaves.sanitised();
     json!({
         "algorithm_version": ALGORITHM_VERSION,
         "layer": tile.layer_name,
@@ -92,6 +97,13 @@ pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
             "albedo": f(l.params.albedo),
             "extinction_per_m": f(l.params.extinction),
             "phase": { "model": "dual Henyey-Greenstein", "g1": f(l.params.phase.g1), "g2": f(l.params.phase.g2), "mix": f(l.params.phase.mix) },
+            "octaves": {
+                "model": "Wrenninge 2013 scattering octaves: sum over i < count of b^i sun p(theta; c^i g) exp(-a^i tau_sun)",
+                "count": octaves.0,
+                "a": f(octaves.1),
+                "b": f(octaves.2),
+                "c": f(octaves.3),
+            },
         },
         "splats": {
             "count": s.splat_count,
@@ -103,7 +115,7 @@ pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
 
 /// `billboards.json`: the header above plus
 /// `"billboards": [{"position": [x, y, z], "radius", "splat", "colour": [r, g, b],
-/// "opacity", "sun_transmittance", "density"}]` and `"count"`.
+/// "opacity", "sun_transmittance", "tau_sun", "density"}]` and `"count"`.
 pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
     /// One billboard as `serde_json` writes a `json!` map: keys in sorted order.
     #[derive(serde::Serialize)]
@@ -115,6 +127,7 @@ pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
         radius: f64,
         splat: u16,
         sun_transmittance: f64,
+        tau_sun: f64,
     }
     let mut v = header_json(tile);
     v["format"] = json!("cloudscape-billboards");
@@ -140,6 +153,7 @@ pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
             radius: f(b.radius as f64),
             splat: b.splat,
             sun_transmittance: f(b.sun_transmittance as f64),
+            tau_sun: f(b.tau_sun as f64),
         };
         serde_json::to_writer(&mut out, &e).expect("a billboard serialises");
     }
@@ -177,6 +191,7 @@ pub fn encode_bin(tile: &ShadedTile) -> Vec<u8> {
         for c in b.colour {
             out.extend_from_slice(&c.to_le_bytes());
         }
+        out.extend_from_slice(&b.tau_sun.to_le_bytes());
     }
     out
 }
@@ -206,6 +221,8 @@ pub struct BinRecord {
     pub opacity: u8,
     pub sun_transmittance: u8,
     pub colour: [f32; 3],
+    /// Optical depth of the sun ray.
+    pub tau_sun: f32,
 }
 
 /// Decodes `billboards.bin`; `Err` names what is wrong.
@@ -243,6 +260,7 @@ pub fn decode_bin(bytes: &[u8]) -> Result<BinBillboards, String> {
                 opacity: bytes[o + 18],
                 sun_transmittance: bytes[o + 19],
                 colour: [f32_at(o + 20), f32_at(o + 24), f32_at(o + 28)],
+                tau_sun: f32_at(o + 32),
             }
         })
         .collect();

@@ -10,24 +10,42 @@
 //! billboard whose footprint is all opaque is skipped whole. That keeps the cost of
 //! the overdraw of dense decks bounded.
 //!
-//! Each billboard's colour is `albedo · (sun · T · p(cos θ) + ambient)` with the
-//! pre-computed sun transmittance `T` and the phase function evaluated for the
-//! direction from the eye to the billboard's centre, then seen through the air
-//! between the eye and that centre (aerial perspective, `c · T_air + L_in`,
-//! [`Lighting::hazed`]; not in orthographic views, the impostors, which a client
-//! hazes by their own distance). The opacity is the splat's.
-//! Because every splat's opacity is `1 − exp(−τ S(p)/S(0))`, the product of
-//! `(1 − α)` along a pixel is exactly the Beer–Lambert transmittance of the metaball
-//! field: the compositor and the ray marcher agree on coverage by construction.
+//! Each billboard's colour is its pre-shaded (isotropic) colour plus
+//! [`Lighting::phase_correction`] of its sun optical depth: the scattering octaves
+//! with the phase function evaluated for the direction from the eye to the
+//! billboard's centre (see `render::light::Octaves`).
+//!
+//! The opacity is the splat's profile evaluated at each pixel, `α = 1 − exp(−τ_k ·
+//! S(p)/S(0))` with `τ_k` the centre optical depth of splat `k` of the preset's sheet
+//! and `p` the impact parameter: sampled once per pixel whatever the billboard's size
+//! on screen (no texture to magnify, so near billboards stay as sharp as the field
+//! itself). Because of that form, the product of `(1 − α)` along a pixel is the
+//! Beer–Lambert transmittance of the metaball field: the compositor and the ray
+//! marcher agree on coverage by construction.
+//!
+//! **Detail erosion** (`render::detail`): after the billboards, each pixel's
+//! accumulated opacity `A` (the smooth field's coverage) is eroded by Nubis's remap,
+//! `A' = erode(A, E · n)`, and its colour scaled by `A'/A`, with `n` the detail
+//! noise at the pixel's opacity-weighted world point on the billboards it took
+//! (first octave one opacity-weighted metaball radius, octaves limited by the
+//! opacity-weighted pixel footprint) and `E` = `ShadingParams::detail_erosion`.
+//! Eroding the sum rather than each ball keeps the lattice invisible (eroding each
+//! ball's rim opens gaps between neighbours), eats thin edges into cauliflower
+//! and leaves opaque cores alone. It only removes opacity.
+//!
+//! Billboards are seen through the air between the eye and their centre (aerial
+//! perspective, `c · T_air + L_in`, [`Lighting::hazed`]; not in orthographic views,
+//! the impostors, which a client hazes by their own distance).
 
 use rayon::prelude::*;
 
 use crate::cancel::Cancel;
 
-use super::camera::View;
+use super::camera::{View, ViewKind};
+use super::detail;
 use super::image::Image;
 use super::light::Lighting;
-use super::shade::Billboard;
+use super::shade::{Billboard, profile_at, profile_table};
 use super::splats::{SplatSheet, centre_line_integral, line_integral_beyond};
 
 /// Rows per band drawn in parallel; each band is drawn independently, so the result
@@ -54,6 +72,105 @@ const NEAR_CLIP_RADII: f64 = 0.5;
 /// is behind the eye: a blank frame or a hole inside a cloud layer.
 const AROUND_EYE_RADII: f64 = 2.0;
 
+/// A billboard as the compositor draws it: where it lands, its colour for this view,
+/// and what its per-pixel opacity needs.
+pub struct Footprint {
+    /// Sort distance from the eye.
+    pub dist: f64,
+    /// Centre on screen and radius, pixels.
+    pub x: f64,
+    pub y: f64,
+    pub r_px: f64,
+    /// Radiance for this view (pre-shaded colour plus the phase correction).
+    pub colour: [f64; 3],
+    /// Centre optical depth of the billboard's splat.
+    tau: f64,
+    centre: [f64; 3],
+    radius: f64,
+    /// Metres per pixel at the billboard's depth.
+    metres_per_pixel: f64,
+    /// The view's screen axes in the world (the billboard's plane).
+    right: [f64; 3],
+    up: [f64; 3],
+}
+
+impl Footprint {
+    /// The footprint of `b` in `view`, or `None` when it is off screen or behind the
+    /// near clip.
+    pub fn new(b: &Billboard, sheet: &SplatSheet, lighting: &Lighting, view: &View) -> Option<Footprint> {
+        let p = view.project(b.centre)?;
+        let r = b.radius as f64;
+        if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, ViewKind::Perspective { .. }) {
+            return None;
+        }
+        let r_px = r * p.scale;
+        if !(r_px.is_finite() && r_px > 0.0) {
+            return None;
+        }
+        let (w, h) = (view.width as f64, view.height as f64);
+        if p.x + r_px < 0.0 || p.y + r_px < 0.0 || p.x - r_px > w || p.y - r_px > h {
+            return None;
+        }
+        let dir = view.direction_to(b.centre);
+        let corr = lighting.phase_correction(b.tau_sun as f64, dir);
+        let colour = [0, 1, 2].map(|i| (b.colour[i] as f64 + corr[i]).max(0.0));
+        // Orthographic views (impostors) have no eye: the client hazes them.
+        let colour = match view.kind {
+            ViewKind::Perspective { .. } => lighting.hazed(colour, view.origin, b.centre),
+            ViewKind::Orthographic { .. } => colour,
+        };
+        Some(Footprint {
+            dist: view.sort_distance(b.centre),
+            x: p.x,
+            y: p.y,
+            r_px,
+            colour,
+            tau: sheet.tau(b.splat as usize),
+            centre: b.centre,
+            radius: r,
+            metres_per_pixel: 1.0 / p.scale,
+            right: view.right,
+            up: view.up,
+        })
+    }
+
+    /// Opacity at (`dx`, `dy`) radii from the centre (screen axes, y down); 0 outside.
+    pub fn alpha(&self, dx: f64, dy: f64) -> f64 {
+        let q = dx * dx + dy * dy;
+        if !(q < 1.0) {
+            return 0.0;
+        }
+        1.0 - (-self.tau * profile_at(profile_table(), q)).exp()
+    }
+
+    /// The world point at (`dx`, `dy`) radii from the centre on the billboard's plane.
+    pub fn point(&self, dx: f64, dy: f64) -> [f64; 3] {
+        let (a, b) = (dx * self.radius, -dy * self.radius);
+        [0, 1, 2].map(|i| self.centre[i] + a * self.right[i] + b * self.up[i])
+    }
+}
+
+/// What the detail erosion of a pixel needs, accumulated over the splats it takes
+/// with their weights `w = (1 − A)·α`: Σ w·(point x, y, z, radius, metres per pixel)
+/// and Σ w (balls around the eye are fog, not edges: they add nothing here).
+type Where = [f64; 6];
+
+/// The eroded opacity of a pixel of accumulated opacity `a` and accumulated
+/// [`Where`] `at`, for erosion strength `strength` (see the module docs).
+fn eroded(a: f64, at: &Where, strength: f64) -> f64 {
+    let w = at[5];
+    if !(a > 0.0) || !(w > 0.0) || strength <= 0.0 {
+        return a;
+    }
+    let p = [at[0] / w, at[1] / w, at[2] / w];
+    let (r, mpp) = (at[3] / w, at[4] / w);
+    let octaves = detail::octaves_for(r, mpp);
+    if octaves == 0 {
+        return a;
+    }
+    detail::erode(a, strength * detail::noise(p, r, octaves))
+}
+
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
 pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
     composite_cancellable(image, billboards, sheet, lighting, view, &Cancel::never());
@@ -70,19 +187,19 @@ pub fn composite_cancellable(
     cancel: &Cancel,
 ) {
     /// How a billboard covers the screen.
-    enum Footprint {
-        /// A splat on a quad of `r_px` pixels around its projected centre.
-        Splat { x: f64, y: f64, r_px: f64, splat: usize },
+    enum Draw {
+        /// A splat around its projected centre.
+        Splat(Footprint),
         /// A ball near the eye, integrated along each pixel's ray: centre, radius
-        /// (metres), the splat's centre optical depth and the sun transmittance.
-        AroundEye { centre: [f64; 3], radius: f64, tau: f64, sun_transmittance: f64 },
+        /// (metres), the splat's centre optical depth, its pre-shaded colour and sun
+        /// optical depth (the phase correction is per ray).
+        AroundEye { centre: [f64; 3], radius: f64, tau: f64, colour: [f64; 3], tau_sun: f64 },
     }
     struct Item {
         dist: f64,
-        colour: [f64; 3],
-        footprint: Footprint,
+        draw: Draw,
     }
-    let perspective = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
+    let perspective = matches!(view.kind, ViewKind::Perspective { .. });
     let items: Vec<Item> = billboards
         .iter()
         .filter_map(|b| {
@@ -94,43 +211,19 @@ pub fn composite_cancellable(
                 }
                 return Some(Item {
                     dist,
-                    colour: [0.0; 3],
-                    footprint: Footprint::AroundEye {
+                    draw: Draw::AroundEye {
                         centre: b.centre,
                         radius: r,
                         tau: sheet.tau(b.splat as usize),
-                        sun_transmittance: b.sun_transmittance as f64,
+                        colour: b.colour.map(|c| c as f64),
+                        tau_sun: b.tau_sun as f64,
                     },
                 });
             }
-            let p = view.project(b.centre)?;
-            if p.depth < NEAR_CLIP_RADII * r && perspective {
-                return None;
-            }
-            let r_px = r * p.scale;
-            if !(r_px.is_finite() && r_px > 0.0) {
-                return None;
-            }
-            let (w, h) = (view.width as f64, view.height as f64);
-            if p.x + r_px < 0.0 || p.y + r_px < 0.0 || p.x - r_px > w || p.y - r_px > h {
-                return None;
-            }
-            let dir = view.direction_to(b.centre);
-            let colour = lighting.cloud_source(b.sun_transmittance as f64, dir);
-            // Orthographic views (impostors) have no eye: the client hazes them.
-            let colour = match view.kind {
-                super::camera::ViewKind::Perspective { .. } => lighting.hazed(colour, view.origin, b.centre),
-                super::camera::ViewKind::Orthographic { .. } => colour,
-            };
+            let f = Footprint::new(b, sheet, lighting, view)?;
             Some(Item {
-                dist,
-                colour,
-                footprint: Footprint::Splat {
-                    x: p.x,
-                    y: p.y,
-                    r_px,
-                    splat: b.splat as usize,
-                },
+                dist: f.dist,
+                draw: Draw::Splat(f),
             })
         })
         .collect();
@@ -141,6 +234,8 @@ pub fn composite_cancellable(
     order.sort_by(|&a, &b| items[a].dist.total_cmp(&items[b].dist).then(b.cmp(&a)));
     let items: Vec<&Item> = order.iter().map(|&i| &items[i]).collect();
 
+    let erosion = lighting.params.detail_erosion;
+    let erosion = if erosion.is_finite() { erosion.clamp(0.0, 1.0) } else { 0.0 };
     let width = image.width;
     let bands: Vec<(usize, usize)> = (0..image.height)
         .step_by(BAND_ROWS)
@@ -152,6 +247,7 @@ pub fn composite_cancellable(
         .into_iter()
         .zip(rgb_chunks.drain(..).zip(a_chunks.drain(..)))
         .collect();
+    let any_around_eye = items.iter().any(|it| matches!(it.draw, Draw::AroundEye { .. }));
     work.into_par_iter().for_each(|((y0, y1), (rgb, alpha))| {
         if cancel.is_fired() {
             return;
@@ -159,6 +255,7 @@ pub fn composite_cancellable(
         let n = (y1 - y0) * width;
         let mut acc = vec![[0.0f64; 3]; n];
         let mut acc_a = vec![0.0f64; n];
+        let mut acc_at: Vec<Where> = vec![[0.0; 6]; if erosion > 0.0 { n } else { 0 }];
         let blocks = width.div_ceil(BLOCK_COLUMNS);
         // Pixels of each block (over the band's rows) not yet opaque.
         let mut open: Vec<usize> = (0..blocks)
@@ -166,7 +263,7 @@ pub fn composite_cancellable(
             .map(|w| w * (y1 - y0))
             .collect();
         // Ray directions of the band's pixels, for balls around the eye.
-        let rays: Vec<[f64; 3]> = if items.iter().any(|it| matches!(it.footprint, Footprint::AroundEye { .. })) {
+        let rays: Vec<[f64; 3]> = if any_around_eye {
             (y0..y1)
                 .flat_map(|py| (0..width).map(move |px| view.ray(px as f64 + 0.5, py as f64 + 0.5).1))
                 .collect()
@@ -174,8 +271,9 @@ pub fn composite_cancellable(
             Vec::new()
         };
         for it in &items {
-            match it.footprint {
-                Footprint::Splat { x, y, r_px, splat } => {
+            match &it.draw {
+                Draw::Splat(f) => {
+                    let (x, y, r_px) = (f.x, f.y, f.r_px);
                     let top = ((y - r_px - 0.5).floor().max(y0 as f64)) as usize;
                     let bottom = ((y + r_px + 0.5).ceil().min(y1 as f64)) as usize;
                     if top >= bottom {
@@ -194,14 +292,23 @@ pub fn composite_cancellable(
                                 continue;
                             }
                             let dx = (px as f64 + 0.5 - x) / r_px;
-                            let a = sheet.sample(splat, dx, dy);
-                            if a > 0.0 {
-                                take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, it.colour);
+                            let a = f.alpha(dx, dy);
+                            if a <= 0.0 {
+                                continue;
                             }
+                            let w = (1.0 - acc_a[i]) * a;
+                            if erosion > 0.0 {
+                                let p = f.point(dx, dy);
+                                let at = &mut acc_at[i];
+                                for (k, v) in [p[0], p[1], p[2], f.radius, f.metres_per_pixel, 1.0].into_iter().enumerate() {
+                                    at[k] += w * v;
+                                }
+                            }
+                            take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, f.colour);
                         }
                     }
                 }
-                Footprint::AroundEye { centre, radius, tau, sun_transmittance } => {
+                &Draw::AroundEye { centre, radius, tau, colour, tau_sun } => {
                     if open.iter().all(|&o| o == 0) {
                         continue;
                     }
@@ -221,15 +328,25 @@ pub fn composite_cancellable(
                         }
                         let a = 1.0 - (-tau * line_integral_beyond(p2.sqrt(), -s_c) / s0).exp();
                         if a > 0.0 {
-                            let colour = lighting.cloud_source(sun_transmittance, *u);
-                            take(&mut acc[i], &mut acc_a[i], &mut open[(i % width) / BLOCK_COLUMNS], a, colour);
+                            let corr = lighting.phase_correction(tau_sun, *u);
+                            let c = [0, 1, 2].map(|k| (colour[k] + corr[k]).max(0.0));
+                            take(&mut acc[i], &mut acc_a[i], &mut open[(i % width) / BLOCK_COLUMNS], a, c);
                         }
                     }
                 }
             }
         }
-        // The background (already in the image) goes under everything.
+        // Detail erosion of the accumulated opacity, then the background (already in
+        // the image) under everything.
         for i in 0..n {
+            if erosion > 0.0 && acc_a[i] > 0.0 {
+                let a = eroded(acc_a[i], &acc_at[i], erosion);
+                let k = a / acc_a[i];
+                for ch in 0..3 {
+                    acc[i][ch] *= k;
+                }
+                acc_a[i] = a;
+            }
             let t = 1.0 - acc_a[i];
             for ch in 0..3 {
                 rgb[i][ch] = (acc[i][ch] + t * rgb[i][ch] as f64) as f32;
@@ -266,17 +383,11 @@ mod tests {
         let mut sorted: Vec<&Billboard> = bbs.iter().collect();
         sorted.sort_by(|a, b| view.sort_distance(b.centre).total_cmp(&view.sort_distance(a.centre)));
         for b in sorted {
-            let Some(p) = view.project(b.centre) else { continue };
-            let r_px = b.radius as f64 * p.scale;
-            let colour = lighting.cloud_source(b.sun_transmittance as f64, view.direction_to(b.centre));
-            let colour = lighting.hazed(colour, view.origin, b.centre);
+            let Some(f) = Footprint::new(b, sheet, lighting, view) else { continue };
+            let colour = f.colour;
             for py in 0..view.height {
                 for px in 0..view.width {
-                    let a = sheet.sample(
-                        b.splat as usize,
-                        (px as f64 + 0.5 - p.x) / r_px,
-                        (py as f64 + 0.5 - p.y) / r_px,
-                    );
+                    let a = f.alpha((px as f64 + 0.5 - f.x) / f.r_px, (py as f64 + 0.5 - f.y) / f.r_px);
                     let i = py * view.width + px;
                     for ch in 0..3 {
                         image.rgb[i][ch] = (a * colour[ch] + (1.0 - a) * image.rgb[i][ch] as f64) as f32;
@@ -288,9 +399,61 @@ mod tests {
     }
 
     #[test]
+    fn detail_erosion_only_removes_opacity_and_bites_edges() {
+        let sheet = SplatSheet::new(64, 17);
+        let view = View::perspective(&Camera::parse("0,0,1000,0,0,60").unwrap(), 96, 64);
+        // A row of overlapping balls 3 km ahead: a soft-edged cloud filling the middle.
+        let bbs: Vec<Billboard> = (0..12)
+            .map(|i| Billboard {
+                centre: [-1100.0 + 200.0 * i as f64, 3000.0, 1000.0],
+                radius: 300.0,
+                density: 0.5,
+                tau: 2.0,
+                splat: 63,
+                opacity: 0.9,
+                tau_sun: 1.0,
+                sun_transmittance: (-1.0f32).exp(),
+                colour: [0.6; 3],
+            })
+            .collect();
+        let draw = |erosion: f64| {
+            let params = ShadingParams {
+                detail_erosion: erosion,
+                ..ShadingParams::default()
+            };
+            let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
+            let mut img = Image::new(96, 64);
+            img.alpha.iter_mut().for_each(|a| *a = 0.0);
+            composite(&mut img, &bbs, &sheet, &lighting, &view);
+            img
+        };
+        let (smooth, eroded) = (draw(0.0), draw(0.8));
+        let mut bitten = 0;
+        for (i, (&a, &b)) in smooth.alpha.iter().zip(&eroded.alpha).enumerate() {
+            assert!(b <= a + 1e-6, "pixel {i}: {b} > {a}");
+            if a > 0.05 && a < 0.9 && b < 0.8 * a {
+                bitten += 1;
+            }
+            // The colour is scaled with the opacity (premultiplied), never brightened.
+            for ch in 0..3 {
+                assert!(eroded.rgb[i][ch] <= smooth.rgb[i][ch] + 1e-6);
+            }
+        }
+        assert!(bitten > 20, "only {bitten} edge pixels eroded");
+        // Opaque cores are left alone.
+        let core = smooth.alpha.iter().zip(&eroded.alpha).filter(|(a, _)| **a > 0.999);
+        assert!(core.clone().count() > 0 && core.clone().all(|(a, b)| (a - b).abs() < 1e-3));
+    }
+
+    #[test]
     fn front_to_back_equals_back_to_front_over() {
         let sheet = SplatSheet::new(64, 17);
-        let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), ShadingParams::default());
+        // The textbook client has no detail erosion (tested on its own below).
+        let params = ShadingParams {
+            detail_erosion: 0.0,
+            ..ShadingParams::default()
+        };
+        let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
         let view = View::perspective(&Camera::parse("0,0,0,0,10,60").unwrap(), 40, 30);
         // A pseudo-random cloud of billboards in front of the camera, some dense.
         let bbs: Vec<Billboard> = (0..300u64)
@@ -303,6 +466,7 @@ mod tests {
                     tau: 1.0,
                     splat: (h(5) * 63.0) as u16,
                     opacity: 0.5,
+                    tau_sun: -(h(6) as f32).max(1e-6).ln(),
                     sun_transmittance: h(6) as f32,
                     colour: [0.5; 3],
                 }

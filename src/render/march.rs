@@ -304,25 +304,59 @@ pub(super) fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64
 
 /// Optical depth from `p` toward the sun through all volumes (capped at `max_shadow_tau`).
 pub fn shadow_tau(volumes: &[Volume], p: [f64; 3], sun: [f64; 3], extinction: f64, params: &MarchParams) -> f64 {
+    optical_depth(volumes, p, sun, f64::INFINITY, extinction, params.shadow_step, params.max_shadow_tau)
+}
+
+/// Optical depth along the ray (`o`, `d`) over [0, `t_max`] through all volumes,
+/// midpoint rule with steps of `step` metres (empty bricks skipped); stops at `cap`.
+pub fn optical_depth(
+    volumes: &[Volume],
+    o: [f64; 3],
+    d: [f64; 3],
+    t_max: f64,
+    extinction: f64,
+    step: f64,
+    cap: f64,
+) -> f64 {
     let mut tau = 0.0;
-    for (i, t0, t1) in intervals(volumes, p, sun, 0.0, f64::INFINITY) {
+    for (i, t0, t1) in intervals(volumes, o, d, 0.0, t_max) {
         let vol = &volumes[i];
         let mut t = t0;
         while t < t1 {
-            if let Some(next) = vol.skip(p, sun, t) {
+            if let Some(next) = vol.skip(o, d, t) {
                 t = next;
                 continue;
             }
-            let dt = params.shadow_step.min(t1 - t);
+            let dt = step.min(t1 - t);
             let m = t + 0.5 * dt;
-            tau += extinction * vol.density([p[0] + sun[0] * m, p[1] + sun[1] * m, p[2] + sun[2] * m]) * dt;
-            if tau > params.max_shadow_tau {
-                return params.max_shadow_tau;
+            tau += extinction * vol.density([o[0] + d[0] * m, o[1] + d[1] * m, o[2] + d[2] * m]) * dt;
+            if tau > cap {
+                return cap;
             }
             t += dt;
         }
     }
     tau
+}
+
+/// The optical depth of every pixel's view ray of `view` through `volumes`, up to the
+/// ground (altitude 0), row-major; steps of `step` metres, capped at `cap`. Rows are
+/// independent, so the result does not depend on the thread count.
+pub fn view_optical_depth(volumes: &[Volume], extinction: f64, view: &View, step: f64, cap: f64) -> Vec<f64> {
+    (0..view.height)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            (0..view.width).map(move |x| {
+                let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
+                let t_max = if d[2] < 0.0 && o[2] > 0.0 {
+                    -o[2] / d[2]
+                } else {
+                    f64::INFINITY
+                };
+                optical_depth(volumes, o, d, t_max, extinction, step, cap)
+            })
+        })
+        .collect()
 }
 
 /// Radiance and transmittance along one view ray up to `t_max`. With `aerial`,

@@ -39,6 +39,7 @@
 
 pub mod camera;
 pub mod composite;
+pub mod detail;
 pub mod image;
 pub mod light;
 pub mod march;
@@ -100,8 +101,6 @@ pub struct QualitySettings {
     /// Level choice: a tile is split into finer tiles while one of its columns would
     /// cover more than this many pixels on screen.
     pub lod_pixels: f64,
-    /// Impostor atlas texel, in columns of the tile's level.
-    pub atlas_texel_columns: f64,
     /// Ray-marcher view step, in cell heights (used by `ReferenceSingle`).
     pub march_step_cells: f64,
 }
@@ -151,7 +150,6 @@ impl Quality {
                 splat_size: 17,
                 light_texel: 0.5,
                 lod_pixels: 8.0,
-                atlas_texel_columns: 1.0,
                 march_step_cells: 0.5,
             },
             Quality::Balanced => QualitySettings {
@@ -161,7 +159,6 @@ impl Quality {
                 splat_size: 33,
                 light_texel: 0.4,
                 lod_pixels: 4.0,
-                atlas_texel_columns: 0.5,
                 march_step_cells: 0.5,
             },
             Quality::Accurate | Quality::Reference | Quality::ReferenceSingle => QualitySettings {
@@ -171,7 +168,6 @@ impl Quality {
                 splat_size: 65,
                 light_texel: 0.33,
                 lod_pixels: 2.0,
-                atlas_texel_columns: 0.25,
                 march_step_cells: 0.25,
             },
         }

@@ -40,10 +40,14 @@ pub struct Billboard {
     pub splat: u16,
     /// Peak opacity of the splat, `1 − exp(−τ_splat)`, in [0, 1).
     pub opacity: f32,
-    /// Sunlight transmittance reaching the ball, in [0, 1].
+    /// Optical depth of the ball's sun ray (the balls in front plus `κ` of its own).
+    pub tau_sun: f32,
+    /// Sunlight transmittance reaching the ball, `exp(−tau_sun)`, in [0, 1].
     pub sun_transmittance: f32,
-    /// Pre-shaded linear RGB for an isotropic phase, `albedo · (sun · T + ambient)`,
-    /// clamped to [0, 2]. A client applying the phase function uses `sun_transmittance`.
+    /// Pre-shaded linear RGB for an isotropic phase,
+    /// `albedo · (sun · Σ bⁱ e^{−aⁱ τ_sun} + ambient)` (see [`shade`]), clamped to
+    /// [0, 2]. A client applying the phase function adds
+    /// [`Lighting::phase_correction`] of `tau_sun`.
     pub colour: [f32; 3],
 }
 
@@ -146,7 +150,7 @@ const PROFILE_ENTRIES: usize = 4096;
 
 /// `S(p) / S(0)` tabulated over `p²` (linear interpolation between entries; the
 /// profile is a smooth polynomial-like function of p², error < 1e-6).
-fn profile_table() -> &'static [f64] {
+pub(crate) fn profile_table() -> &'static [f64] {
     static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
         let s0 = centre_line_integral();
@@ -157,7 +161,7 @@ fn profile_table() -> &'static [f64] {
 }
 
 #[inline]
-fn profile_at(table: &[f64], q: f64) -> f64 {
+pub(crate) fn profile_at(table: &[f64], q: f64) -> f64 {
     let x = q.clamp(0.0, 1.0) * PROFILE_ENTRIES as f64;
     let i = (x as usize).min(PROFILE_ENTRIES - 1);
     let f = x - i as f64;
@@ -172,21 +176,20 @@ pub fn ball_tau(density: f64, lattice: &Lattice, extinction: f64) -> f64 {
     if t.is_nan() { 0.0 } else { t.min(1e6) }
 }
 
-/// Shades `balls` (all of them shadow each other) for `lighting` and returns the
-/// billboards of those whose centres lie in `owned` = [x0, y0, x1, y1), plus the
-/// light buffer. `light_texel` is the buffer texel in radii. Deterministic.
-pub fn shade(
+/// Splats `balls` (optical depths `taus`) into a light buffer perpendicular to `dir`
+/// (a unit vector toward the light), nearest to the light first, and returns for each
+/// ball the optical depth in front of it (through every ball splatted before it, at
+/// its centre), in input order, plus the buffer of all balls.
+fn sweep(
     balls: &[Metaball],
-    lattice: &Lattice,
-    lighting: &Lighting,
-    sheet: &SplatSheet,
+    taus: &[f64],
+    radius: f64,
+    dir: [f64; 3],
     light_texel: f64,
-    owned: [f64; 4],
-) -> (Vec<Billboard>, LightBuffer) {
-    let s = lighting.sun_dir;
-    let (u, v) = plane_basis(s);
-    let origin = [owned[0], owned[1], lattice.base];
-    let r = lattice.radius;
+    origin: [f64; 3],
+) -> (Vec<f64>, LightBuffer) {
+    let (u, v) = plane_basis(dir);
+    let r = radius;
     let rel = |c: [f64; 3]| [c[0] - origin[0], c[1] - origin[1], c[2] - origin[2]];
     let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
     for b in balls {
@@ -216,53 +219,103 @@ pub fn shade(
         height,
         tau: vec![0.0; width * height],
     };
-
-    // Nearest to the sun first; ties by lattice index so the order never depends on
+    // Nearest to the light first; ties by lattice index so the order never depends on
     // anything but the balls themselves.
     let mut order: Vec<(f64, usize)> = balls
         .iter()
         .enumerate()
-        .map(|(i, b)| (dot(rel(b.centre), s), i))
+        .map(|(i, b)| (dot(rel(b.centre), dir), i))
         .collect();
     order.sort_by(|x, y| {
         y.0.total_cmp(&x.0)
             .then_with(|| balls[x.1].index.cmp(&balls[y.1].index))
     });
-
-    let extinction = lighting.params.extinction;
-    let mut out = Vec::new();
-    let mut shaded: Vec<(usize, Billboard)> = Vec::new();
+    let mut front = vec![0.0; balls.len()];
     for &(_, i) in &order {
-        let b = &balls[i];
-        let tau = ball_tau(b.density as f64, lattice, extinction);
-        let p = rel(b.centre);
-        let (a, bb) = (dot(p, u), dot(p, v));
-        let front = buffer.tau_at(b.centre);
-        let t_sun = (-(front + SELF_SHADOW * tau)).exp().clamp(0.0, 1.0);
-        let c = b.centre;
-        if c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3] {
-            let k = sheet.index_for_tau(tau);
-            let colour = lighting.source_with_phase(t_sun, 1.0).map(|x| x.clamp(0.0, 2.0) as f32);
-            shaded.push((
-                i,
-                Billboard {
-                    centre: c,
-                    radius: r as f32,
-                    density: b.density,
-                    tau: tau as f32,
-                    splat: k as u16,
-                    opacity: (1.0 - (-sheet.tau(k)).exp()) as f32,
-                    sun_transmittance: t_sun as f32,
-                    colour,
-                },
-            ));
-        }
-        buffer.splat(a, bb, r, tau);
+        let p = rel(balls[i].centre);
+        front[i] = buffer.tau_at(balls[i].centre);
+        buffer.splat(dot(p, u), dot(p, v), r, taus[i]);
     }
-    // Output in the input (lattice) order.
-    shaded.sort_by_key(|(i, _)| *i);
-    out.extend(shaded.into_iter().map(|(_, b)| b));
-    (out, buffer)
+    (front, buffer)
+}
+
+/// Shades `balls` (all of them shadow each other) for `lighting` and returns the
+/// billboards of those whose centres lie in `owned` = [x0, y0, x1, y1), plus the
+/// light buffer toward the sun. `light_texel` is the buffer texel in radii.
+/// Deterministic.
+///
+/// Two sweeps of the light-buffer machinery: one toward the sun gives each ball's
+/// `τ_sun = τ_front + κ τ_self`; one toward the zenith gives the optical depth of the
+/// balls above (`τ_up`) and, from the column total, of those below (`τ_down`), each
+/// plus `κ τ_self`. The colour is `albedo · (sun · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
+/// with the octaves of [`crate::render::light::Octaves`] and the ambient of
+/// [`Lighting::ambient_source`]: the sky (`ambient_rgb`) through `τ_up`, and the
+/// ground under the ball (lit through the sun buffer's total depth) through `τ_down`.
+pub fn shade(
+    balls: &[Metaball],
+    lattice: &Lattice,
+    lighting: &Lighting,
+    sheet: &SplatSheet,
+    light_texel: f64,
+    owned: [f64; 4],
+) -> (Vec<Billboard>, LightBuffer) {
+    let origin = [owned[0], owned[1], lattice.base];
+    let r = lattice.radius;
+    let extinction = lighting.params.extinction;
+    let taus: Vec<f64> = balls
+        .iter()
+        .map(|b| ball_tau(b.density as f64, lattice, extinction))
+        .collect();
+    let (front_sun, sun_buffer) = sweep(balls, &taus, r, lighting.sun_dir, light_texel, origin);
+    let (front_up, up_buffer) = sweep(balls, &taus, r, [0.0, 0.0, 1.0], light_texel, origin);
+    let sun_up = lighting.sun_dir[2] > 0.0;
+    let albedo = lighting.params.albedo.clamp(0.0, 1.0);
+    let octaves = lighting.params.octaves;
+    let out = balls
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| {
+            let c = b.centre;
+            c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3]
+        })
+        .map(|(i, b)| {
+            let tau = taus[i];
+            let c = b.centre;
+            // Capped so sums stay finite (e^−1e6 = 0 anyway).
+            let tau_sun = (front_sun[i] + SELF_SHADOW * tau).min(1e6);
+            let t_sun = (-tau_sun).exp().clamp(0.0, 1.0);
+            let tau_up = front_up[i] + SELF_SHADOW * tau;
+            let below = (up_buffer.tau_at(c) - front_up[i] - tau).max(0.0);
+            let tau_down = below + SELF_SHADOW * tau;
+            let ground_t = if sun_up {
+                sun_buffer.transmittance_at([c[0], c[1], 0.0])
+            } else {
+                1.0
+            };
+            let ambient = lighting.ambient_source(
+                lighting.ambient_rgb,
+                lighting.ground_below(ground_t),
+                tau_up,
+                tau_down,
+            );
+            let iso = octaves.isotropic_sum(tau_sun);
+            let k = sheet.index_for_tau(tau);
+            let colour =
+                [0, 1, 2].map(|ch| (albedo * (lighting.sun_rgb[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
+            Billboard {
+                centre: c,
+                radius: r as f32,
+                density: b.density,
+                tau: tau as f32,
+                splat: k as u16,
+                opacity: (1.0 - (-sheet.tau(k)).exp()) as f32,
+                tau_sun: tau_sun as f32,
+                sun_transmittance: t_sun as f32,
+                colour,
+            }
+        })
+        .collect();
+    (out, sun_buffer)
 }
 
 #[cfg(test)]
@@ -308,6 +361,47 @@ mod tests {
             "{} vs {expected}",
             second.sun_transmittance
         );
+    }
+
+    #[test]
+    fn bases_are_darker_than_tops_in_sky_light() {
+        // A tall column (12 balls, 1.2 km) lit by the sky and the ground only (no sun):
+        // every ball is darker than the one above it, the base darker than the top.
+        let (balls, lat) = column_of_balls(12, 0.6);
+        let params = ShadingParams {
+            sun_intensity: 0.0,
+            ..ShadingParams::default()
+        };
+        let l = Lighting::new(Sun::new(0.0, 60.0).unwrap(), params);
+        let sheet = SplatSheet::new(64, 17);
+        let (bb, _) = shade(&balls, &lat, &l, &sheet, 0.3, [0.0, 0.0, 10_000.0, 10_000.0]);
+        let lum = |b: &Billboard| b.colour.iter().map(|&c| c as f64).sum::<f64>();
+        // The bottom may see the ground through less cloud than the one above it; from
+        // the second ball up, brightness grows with height, and the top is the brightest.
+        for w in bb[1..].windows(2) {
+            assert!(lum(&w[1]) > lum(&w[0]), "{:?} vs {:?}", w[0].colour, w[1].colour);
+        }
+        assert!(lum(&bb[0]) < 0.8 * lum(bb.last().unwrap()));
+        // The top ball's light is the closed form: half the sky through its own κτ,
+        // half the ground (lit by the sun through the whole column: no sun here, so by
+        // the sky alone) through the column below plus κτ.
+        let top = bb.last().unwrap();
+        let k = l.params.sky_extinction();
+        let tau = top.tau as f64;
+        let below: f64 = bb[..bb.len() - 1].iter().map(|b| b.tau as f64).sum();
+        let ground = l.ground_below(1.0);
+        for ch in 0..3 {
+            let expected = l.params.albedo
+                * (0.5 * l.ambient_rgb[ch] * (-k * SELF_SHADOW * tau).exp()
+                    + 0.5 * ground[ch] * (-k * (below + SELF_SHADOW * tau)).exp());
+            // The balls below are offset by half a spacing on odd levels, so the column
+            // the up-buffer sees under the top is within a factor of its sum.
+            assert!((top.colour[ch] as f64 - expected).abs() < 0.02, "{ch}: {} vs {expected}", top.colour[ch]);
+        }
+        // With the sun overhead as well, the top still outshines the base.
+        let l = Lighting::new(Sun::new(0.0, 89.0).unwrap(), ShadingParams::default());
+        let (bb, _) = shade(&balls, &lat, &l, &sheet, 0.3, [0.0, 0.0, 10_000.0, 10_000.0]);
+        assert!(lum(&bb[0]) < 0.5 * lum(bb.last().unwrap()));
     }
 
     #[test]

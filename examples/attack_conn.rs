@@ -5,11 +5,11 @@
 //!
 //!     cargo run --release --example attack_conn -- BIN [ATTACK...]
 //!
-//! ATTACK is `idle` (2,000 idle + 2,000 slowloris connections, held after 40 s),
+//! ATTACK is `idle` (2,000 idle + 2,000 slowloris connections, held after 15 s),
 //! `headers` (2,000 unfinished 400 KB heads: peak RSS), `sigterm` (50 slow clients:
 //! exit time; drain 1 s), `ulimit` (server under `prlimit --nofile=256`: a new client
 //! while 1,000 idle connections stay open); default all. The server runs with its
-//! default `[server]` settings (header-read 10 s, idle 30 s, drain 1 s) and
+//! default `[server]` settings (header-read 10 s, idle 5 s, drain 1 s) and
 //! `RUST_LOG=warn`, stderr discarded.
 
 use std::process::{Child, Command, Stdio};
@@ -91,7 +91,7 @@ fn main() {
         match attack.as_str() {
             "idle" => {
                 let s = Server::start(&bin, None);
-                let hold = Duration::from_secs(40);
+                let hold = Duration::from_secs(15);
                 let (idle, slow): (Held, Held) = conn_attacks::idle_and_slowloris(&s.addr, 2000, hold).unwrap();
                 line(
                     &bin,

@@ -206,6 +206,73 @@ fn draw_panel(panel: &Panel, area: &DrawingArea<BitMapBackend, plotters::coord::
     Ok(())
 }
 
+/// Layout of [`contact_sheet`]: the label column on the left, in pixels.
+pub const CONTACT_LABEL_WIDTH: usize = 150;
+/// Layout of [`contact_sheet`]: the header row of column titles, in pixels.
+pub const CONTACT_HEADER_HEIGHT: usize = 24;
+/// Layout of [`contact_sheet`]: the caption strip under every cell, in pixels.
+pub const CONTACT_CAPTION_HEIGHT: usize = 18;
+
+/// One picture of a contact sheet: 8-bit RGB, row-major, and the caption under it.
+pub struct SheetCell {
+    pub rgb: Vec<u8>,
+    pub caption: String,
+}
+
+/// A labelled grid of equally sized pictures (`cell` = width, height in pixels):
+/// `rows × columns` cells in row-major order, a title over every column and a label
+/// left of every row. The PNG is `CONTACT_LABEL_WIDTH + columns · width` wide and
+/// `CONTACT_HEADER_HEIGHT + rows · (height + CONTACT_CAPTION_HEIGHT)` high.
+pub fn contact_sheet(
+    row_labels: &[&str],
+    column_titles: &[&str],
+    cells: &[SheetCell],
+    cell: (usize, usize),
+) -> Result<Vec<u8>, String> {
+    register_font();
+    let (cw, ch) = cell;
+    let (rows, cols) = (row_labels.len(), column_titles.len());
+    if cells.len() != rows * cols || cells.iter().any(|c| c.rgb.len() != cw * ch * 3) {
+        return Err("a contact sheet needs one picture of the cell size per row and column".into());
+    }
+    let (w, h) = (
+        CONTACT_LABEL_WIDTH + cols * cw,
+        CONTACT_HEADER_HEIGHT + rows * (ch + CONTACT_CAPTION_HEIGHT),
+    );
+    let mut buf = vec![255u8; w * h * 3];
+    for (i, c) in cells.iter().enumerate() {
+        let (x0, y0) = (
+            CONTACT_LABEL_WIDTH + (i % cols) * cw,
+            CONTACT_HEADER_HEIGHT + (i / cols) * (ch + CONTACT_CAPTION_HEIGHT),
+        );
+        for y in 0..ch {
+            let dst = ((y0 + y) * w + x0) * 3;
+            buf[dst..dst + cw * 3].copy_from_slice(&c.rgb[y * cw * 3..(y + 1) * cw * 3]);
+        }
+    }
+    {
+        let e = |err: DrawingAreaErrorKind<_>| err.to_string();
+        let root = BitMapBackend::with_buffer(&mut buf, (w as u32, h as u32)).into_drawing_area();
+        let big = TextStyle::from((FONT_NAME, 16).into_font()).color(&BLACK);
+        let small = TextStyle::from((FONT_NAME, 12).into_font()).color(&BLACK);
+        for (j, t) in column_titles.iter().enumerate() {
+            let x = (CONTACT_LABEL_WIDTH + j * cw + 4) as i32;
+            root.draw(&Text::new(t.to_string(), (x, 4), big.clone())).map_err(e)?;
+        }
+        for (i, l) in row_labels.iter().enumerate() {
+            let y = (CONTACT_HEADER_HEIGHT + i * (ch + CONTACT_CAPTION_HEIGHT) + ch / 2) as i32 - 8;
+            root.draw(&Text::new(l.to_string(), (6, y), big.clone())).map_err(e)?;
+        }
+        for (i, c) in cells.iter().enumerate() {
+            let x = (CONTACT_LABEL_WIDTH + (i % cols) * cw + 4) as i32;
+            let y = (CONTACT_HEADER_HEIGHT + (i / cols) * (ch + CONTACT_CAPTION_HEIGHT) + ch + 2) as i32;
+            root.draw(&Text::new(c.caption.clone(), (x, y), small.clone())).map_err(e)?;
+        }
+        root.present().map_err(e)?;
+    }
+    Ok(encode_png(w, h, png::ColorType::Rgb, &buf))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -242,5 +309,32 @@ mod tests {
         assert_eq!(tick(2.0, true), "100");
         assert_eq!(tick(0.25, false), "0.25");
         assert_eq!(tick(0.0, false), "0");
+    }
+
+    #[test]
+    fn contact_sheet_places_cells_under_their_titles() {
+        let (cw, ch) = (40, 20);
+        let cells: Vec<SheetCell> = (0..6)
+            .map(|i| SheetCell {
+                rgb: vec![(i * 40) as u8; cw * ch * 3],
+                caption: format!("cell {i}"),
+            })
+            .collect();
+        let png = contact_sheet(&["a", "b"], &["x", "y", "z"], &cells, (cw, ch)).unwrap();
+        let mut reader = png::Decoder::new(std::io::Cursor::new(png)).read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        let (w, h) = (info.width as usize, info.height as usize);
+        assert_eq!(w, CONTACT_LABEL_WIDTH + 3 * cw);
+        assert_eq!(h, CONTACT_HEADER_HEIGHT + 2 * (ch + CONTACT_CAPTION_HEIGHT));
+        // The middle of every cell holds that cell's colour (text lies outside them).
+        for i in 0..6 {
+            let x = CONTACT_LABEL_WIDTH + (i % 3) * cw + cw / 2;
+            let y = CONTACT_HEADER_HEIGHT + (i / 3) * (ch + CONTACT_CAPTION_HEIGHT) + ch / 2;
+            assert_eq!(buf[(y * w + x) * 3], (i * 40) as u8, "cell {i}");
+        }
+        // Labels were drawn: the label column is not all white.
+        assert!((0..h).any(|y| (0..CONTACT_LABEL_WIDTH).any(|x| buf[(y * w + x) * 3] < 128)));
+        assert!(contact_sheet(&["a"], &["x"], &cells[..2], (cw, ch)).is_err());
     }
 }

@@ -768,6 +768,7 @@ async fn operator_routes_health_readiness_metrics_openapi() {
         "/v1/worlds/{world}/render.png",
         "/v1/splats.png",
         "/v1/splats.json",
+        "/v1/sky.json",
     ] {
         assert!(paths.contains_key(p), "openapi lacks {p}");
     }
@@ -999,4 +1000,56 @@ async fn render_png_and_splat_sheets() {
         s.metric("cloudscape_computations_total", &[("kind", "splats")]).await,
         0.0
     );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sky_json_serves_the_renderers_sky_per_sun_bucket() {
+    use cloudscape::render::light::{Lighting, ShadingParams};
+    use cloudscape::render::Sun;
+    let s = start(config_with(&[])).await;
+    let noon = s.json("/v1/sky.json?sun=180,60").await;
+    let (rows, cols) = (noon["sky"]["rows"].as_u64().unwrap(), noon["sky"]["columns"].as_u64().unwrap());
+    let rgb = noon["sky"]["rgb"].as_array().unwrap();
+    assert_eq!(rgb.len() as u64, rows * cols * 3);
+    // The same values as the renderer's own Lighting for the bucket's centre sun.
+    let sun = Sun::new(180.0, 60.0).unwrap().bucket().centre();
+    let l = Lighting::new(sun, ShadingParams::default());
+    let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
+    for c in 0..3 {
+        assert!(close(noon["sun_rgb"][c].as_f64().unwrap(), l.sun_rgb[c]));
+        assert!(close(noon["sky_ambient_above"][c].as_f64().unwrap(), l.sky_ambient_above[c]));
+        assert!(close(noon["sky_ambient_below"][c].as_f64().unwrap(), l.sky_ambient_below[c]));
+    }
+    let zenith_row = (rows - 1) as usize * cols as usize * 3;
+    let night = noon["night_rgb"].as_array().unwrap();
+    let z = l.sky_radiance([0.0, 0.0, 1.0]);
+    for c in 0..3 {
+        let v = rgb[zenith_row + c].as_f64().unwrap() + night[c].as_f64().unwrap();
+        assert!(close(v, z[c]), "zenith channel {c}: {v} vs {}", z[c]);
+    }
+    // A sun in the same ~8° bucket gives the same bytes and ETag; 304 on revalidation.
+    let a = s.get("/v1/sky.json?sun=181,61").await;
+    let b = s.get("/v1/sky.json?sun=180,60").await;
+    let etag = a.headers()["etag"].to_str().unwrap().to_string();
+    assert_eq!(etag, b.headers()["etag"].to_str().unwrap());
+    assert_eq!(a.bytes().await.unwrap(), b.bytes().await.unwrap());
+    let r = s.get_with("/v1/sky.json?sun=180,60", &[("if-none-match", &etag)]).await;
+    assert_eq!(r.status(), StatusCode::NOT_MODIFIED);
+    // The clock's sun at t, and a sunset sky that is redder than noon's.
+    let clock = s.json("/v1/sky.json?t=43200").await;
+    assert!(clock["sun"]["elevation_deg"].as_f64().unwrap() > 0.0);
+    let low = s.json("/v1/sky.json?sun=270,2").await;
+    let ratio = |v: &serde_json::Value| v["sun_rgb"][0].as_f64().unwrap() / v["sun_rgb"][2].as_f64().unwrap();
+    assert!(ratio(&low) > 2.0 * ratio(&noon));
+    // Bad input is a JSON error.
+    for (path, status, code) in [
+        ("/v1/sky.json", 400, "invalid_parameter"),
+        ("/v1/sky.json?sun=10,95", 400, "invalid_parameter"),
+        ("/v1/sky.json?sun=nan,5", 400, "invalid_parameter"),
+        ("/v1/sky.json?t=-1", 422, "time_out_of_range"),
+    ] {
+        let r = s.get(path).await;
+        assert_eq!(r.status().as_u16(), status, "{path}");
+        assert_eq!(r.json_body().await["error"], code, "{path}");
+    }
 }

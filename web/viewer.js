@@ -25,7 +25,7 @@ const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
 /** Columns per tile side. */
 const TILE_COLUMNS = 256;
 /** ShadingParams::default(). */
-const SHADING = { albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5 };
+const SHADING = { albedo: 0.9, g1: 0.7, g2: -0.2, mix: 0.5 };
 /** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
@@ -65,15 +65,14 @@ function sunDirection(az, el) {
   return [Math.sin(rad(az)) * Math.cos(rad(el)), Math.cos(rad(az)) * Math.cos(rad(el)), Math.sin(rad(el))];
 }
 
-/** Lighting::new (src/render/light.rs): sun colour reddened by air mass, ambient scaled by daylight. */
-function lighting(az, el) {
-  el = clamp(el, -90, 90);
-  const h = Math.max(el, 0);
-  const airMass = 1 / (Math.sin(rad(h)) + 0.50572 * Math.pow(h + 6.07995, -1.6364));
-  const visible = smoothstep(-6, 0, el);
-  const sunRgb = [0.05, 0.1, 0.22].map((b) => SHADING.sunIntensity * visible * Math.exp(-b * airMass));
-  const daylight = 0.03 + 0.97 * smoothstep(-12, 10, el);
-  return { dir: sunDirection(az, el), sunRgb, ambient: SHADING.ambient.map((a) => a * daylight), daylight };
+/**
+ * Lighting of the current sky (`GET /v1/sky.json`, src/products/sky.rs): the server's
+ * atmosphere for the sun bucket the tiles are shaded for, so the sky, sun colour,
+ * ambient and aerial perspective are those `cloudscape render` draws.
+ */
+function lighting() {
+  const s = skyInfo;
+  return { dir: s.sun.direction, sunRgb: s.sun_rgb, sunGround: s.sun_rgb_ground, above: s.sky_ambient_above };
 }
 
 // ---------------------------------------------------------------------------
@@ -124,6 +123,11 @@ const stats = {
 
 let worldInfo = null;
 let splatInfo = null;
+/** The parsed /v1/sky.json of the current sun, its URL, and its radiance table as a texture. */
+let skyInfo = null;
+let skyUrlLoaded = '';
+let skyUrlLoading = '';
+let skyTexture = null;
 
 // ---------------------------------------------------------------------------
 // Network: ETag revalidation through the Cache Storage API.
@@ -230,7 +234,91 @@ const TONE = `
 vec3 tone(vec3 x) { return pow(1.0 - exp(-max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
 `;
 
-// Sky and unshadowed ground, per pixel from the view ray (Lighting::background).
+/** Lengths of the sky.json tables (src/render/sky.rs SUN_TABLE_LEN, MS_ALTITUDES). */
+const SUN_TABLE_LEN = 41;
+const MS_LEN = 12;
+
+// The atmosphere of src/render/sky.rs as GLSL: the sky table lookup (Sky::radiance)
+// and aerial perspective (Sky::aerial_lit, Hoffman & Preetham 2002 with the server's
+// coefficients and tables). Uniforms come from /v1/sky.json.
+const ATMOSPHERE = `
+const float PI = 3.14159265358979;
+uniform sampler2D skyTable;
+uniform vec2 skySize;          // columns, rows
+uniform vec3 sunDir, night;
+uniform vec3 betaR;            // Rayleigh scattering per metre
+uniform vec4 mie;              // scattering, extinction, scale height, g
+uniform vec4 air;              // Rayleigh scale height, scatter irradiance, top altitude, sun table step
+uniform vec3 sunT[${SUN_TABLE_LEN}];
+uniform vec3 multi[${MS_LEN}];
+vec3 skyRadiance(vec3 d) {
+  float e = asin(clamp(d.z, 0.0, 1.0));
+  float hd = length(d.xy);
+  float hs = length(sunDir.xy);
+  float phi = 0.0;
+  if (hd > 1e-6 && hs > 1e-6) phi = acos(clamp(dot(d.xy, sunDir.xy) / (hd * hs), -1.0, 1.0));
+  else if (hd > 1e-6) phi = acos(clamp(d.y / hd, -1.0, 1.0));
+  vec2 uv = vec2(phi / PI, sqrt(e / (0.5 * PI)));
+  vec2 tc = (uv * (skySize - 1.0) + 0.5) / skySize;
+  return texture(skyTable, tc).rgb + night;
+}
+float phaseR(float mu) { return 3.0 / (16.0 * PI) * (1.0 + mu * mu); }
+float phaseM(float mu, float g) {
+  float g2 = g * g;
+  float d = max(1.0 + g2 - 2.0 * g * mu, 1e-12);
+  return 3.0 / (8.0 * PI) * (1.0 - g2) * (1.0 + mu * mu) / ((2.0 + g2) * d * sqrt(d));
+}
+float meanDensity(float z0, float z1, float h) {
+  float dz = z1 - z0;
+  if (abs(dz) < 1e-3 * h) return exp(-0.5 * (z0 + z1) / h);
+  return h * (exp(-z0 / h) - exp(-z1 / h)) / dz;
+}
+vec3 sunAt(float h) {
+  float x = clamp(h / air.w, 0.0, float(${SUN_TABLE_LEN} - 1));
+  int i = min(int(x), ${SUN_TABLE_LEN} - 2);
+  return mix(sunT[i], sunT[i + 1], x - float(i));
+}
+vec3 multiAt(float h) {
+  float x = sqrt(clamp(h / air.z, 0.0, 1.0)) * float(${MS_LEN} - 1);
+  int i = min(int(x), ${MS_LEN} - 2);
+  return mix(multi[i], multi[i + 1], x - float(i));
+}
+// The air between the eye (altitude z0) and a point at offset v (altitude z1):
+// transmittance T and in-scattered light L; the sun's share scaled by vis.
+void aerial(vec3 v, float z0, float z1, float vis, out vec3 T, out vec3 L) {
+  float d = length(v);
+  if (!(d > 0.0)) { T = vec3(1.0); L = vec3(0.0); return; }
+  z0 = clamp(z0, 0.0, air.z);
+  z1 = clamp(z1, 0.0, air.z);
+  float mR = meanDensity(z0, z1, air.x);
+  float mM = meanDensity(z0, z1, mie.z);
+  float mu = dot(v / d, sunDir);
+  float h = 0.5 * (z0 + z1);
+  vec3 sr = betaR * mR;
+  float sm = mie.x * mM;
+  vec3 ext = sr + mie.y * mM;
+  T = exp(-ext * d);
+  vec3 src = (sr * phaseR(mu) + sm * phaseM(mu, mie.w)) * air.y * sunAt(h) * vis + (sr + sm) * multiAt(h);
+  L = src / ext * (1.0 - T);
+}
+`;
+
+// The ground (Lighting::ground_radiance): albedo · (sun · t · cos + sky light, turning
+// grey as the shadow deepens), seen through the air (its sunlit in-scatter shadowed too).
+const GROUND = `
+uniform vec3 sunGround, above, groundAlbedo;
+vec3 ground(vec3 v, float eyeZ, float t) {
+  float grey = dot(above, vec3(0.2126, 0.7152, 0.0722));
+  vec3 sky = t * above + (1.0 - t) * vec3(grey);
+  vec3 g = groundAlbedo * (sunGround * t * max(sunDir.z, 0.0) + sky);
+  vec3 T, L;
+  aerial(v, eyeZ, 0.0, t, T, L);
+  return g * T + L;
+}
+`;
+
+// Sky (with the sun's disc) and unshadowed ground, per pixel from the view ray
+// (Lighting::background).
 const skyProgram = compile(
   `#version 300 es
   out vec2 ndc;
@@ -244,49 +332,76 @@ const skyProgram = compile(
   in vec2 ndc;
   uniform vec3 forward, right, up;
   uniform vec2 tanHalf;
-  uniform vec3 sunDir, sunRgb, ambient;
-  uniform float daylight, eyeZ;
+  uniform vec3 sunRgb;
+  uniform vec2 disc; // angular radius, gain
+  uniform float eyeZ;
   out vec4 colour;
   ${TONE}
+  ${ATMOSPHERE}
+  ${GROUND}
   void main() {
     vec3 d = normalize(forward + ndc.x * tanHalf.x * right + ndc.y * tanHalf.y * up);
     vec3 c;
     if (d.z >= 0.0 || eyeZ <= 0.0) {
-      float k = sqrt(clamp(d.z, 0.0, 1.0));
-      c = daylight * mix(vec3(0.62, 0.70, 0.80), vec3(0.22, 0.38, 0.70), k);
-      float s = max(dot(d, sunDir), 0.0);
-      c += sunRgb * (pow(s, 2000.0) * 40.0 + pow(s, 12.0) * 0.15);
+      c = skyRadiance(d);
+      float angle = acos(clamp(dot(d, sunDir), -1.0, 1.0));
+      float k = 1.0 - smoothstep(0.75 * disc.x, 1.25 * disc.x, angle);
+      c += k * disc.y * sunRgb;
     } else {
-      c = vec3(0.26, 0.25, 0.21) * (sunRgb * max(sunDir.z, 0.0) + ambient);
+      c = ground(d * (eyeZ / -d.z), eyeZ, 1.0);
     }
     colour = vec4(tone(c), 1.0);
   }`,
 );
 
-// Ground shadow of one tile: multiplies the ground by (lit with T) / (lit with T = 1).
+// Ground shadow of one tile: multiplies the ground by (lit with T) / (lit with T = 1),
+// both hazed. The tiles (and so the shadows) end near the view distance: over its last
+// 30 % the shadow turns into the layer's mean shadow `far`, and beyond it a quad of
+// `far` alone (mode 1) stands in for the unknown clouds (scene::background does the
+// same), so the far ground has neither a hard edge nor a sunlit band.
 const shadowProgram = compile(
   `#version 300 es
   uniform mat4 viewProj;
   uniform vec4 rect; // x0, y0 relative to the eye; side; eye altitude
   out vec2 uv;
+  out vec3 rel;
   void main() {
     vec2 q = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
     uv = vec2(q.x, 1.0 - q.y); // shadow.png row 0 is the northern edge
-    gl_Position = viewProj * vec4(rect.xy + q * rect.z, -rect.w, 1.0);
+    rel = vec3(rect.xy + q * rect.z, -rect.w);
+    gl_Position = viewProj * vec4(rel, 1.0);
   }`,
   `#version 300 es
   precision highp float;
   in vec2 uv;
+  in vec3 rel;
   uniform sampler2D shadow;
-  uniform vec3 sunDir, sunRgb, ambient;
+  uniform float eyeZ, viewDistance, far, mode; // mode 0: a tile; 1: the far ground
+  uniform vec3 forward, right, up;
+  uniform vec2 tanHalf, viewport;
   out vec4 colour;
   ${TONE}
+  ${ATMOSPHERE}
+  ${GROUND}
   void main() {
-    float t = texture(shadow, uv).r;
-    vec3 g = vec3(0.26, 0.25, 0.21);
-    float c = max(sunDir.z, 0.0);
-    vec3 lit = tone(g * (sunRgb * c + ambient));
-    vec3 shadowed = tone(g * (sunRgb * c * t + ambient));
+    // The ground point from this pixel's view ray (as the sky pass does), not the
+    // interpolated vertex position: both modes see the same r, so the tiles and the
+    // far quad split the ground exactly at the view distance.
+    vec2 ndc = gl_FragCoord.xy / viewport * 2.0 - 1.0;
+    vec3 d = normalize(forward + ndc.x * tanHalf.x * right + ndc.y * tanHalf.y * up);
+    if (d.z >= 0.0) discard;
+    vec3 ray = d * (eyeZ / -d.z);
+    float r = length(ray.xy);
+    float t;
+    if (mode < 0.5) {
+      if (r >= viewDistance) discard;
+      t = mix(texture(shadow, uv).r, far, smoothstep(0.7 * viewDistance, viewDistance, r));
+    } else {
+      if (r < viewDistance) discard;
+      t = far;
+    }
+    vec3 lit = tone(ground(ray, eyeZ, 1.0));
+    vec3 shadowed = tone(ground(ray, eyeZ, t));
     colour = vec4(shadowed / max(lit, vec3(1e-4)), 1.0);
   }`,
 );
@@ -298,7 +413,7 @@ const billboardProgram = compile(
   layout(location = 1) in vec3 rgb;          // colour, isotropic phase (linear)
   layout(location = 2) in vec2 splatT;       // splat index, sun transmittance
   uniform mat4 viewProj;
-  uniform vec3 eye, right, up, sunDir, sunRgb;
+  uniform vec3 eye, right, up, sunRgb;
   uniform vec4 sheet; // columns, size (texels), texture width, texture height
   uniform float albedo;
   uniform vec3 phase; // g1, g2, mix
@@ -306,6 +421,7 @@ const billboardProgram = compile(
   out vec2 cellOrigin;
   out vec3 radiance;
   float hg(float g, float c) { float d = 1.0 + g * g - 2.0 * g * c; return (1.0 - g * g) / (d * sqrt(d)); }
+  ${ATMOSPHERE}
   void main() {
     corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
     vec3 c = centreRadius.xyz - eye;
@@ -316,6 +432,10 @@ const billboardProgram = compile(
     float cosTheta = dot(normalize(c), sunDir);
     float ph = mix(hg(phase.y, cosTheta), hg(phase.x, cosTheta), phase.z);
     radiance = rgb + albedo * sunRgb * splatT.y * (ph - 1.0);
+    // Aerial perspective by the billboard's distance (composite.rs: c · T + L_in).
+    vec3 T, L;
+    aerial(c, eye.z, centreRadius.z, 1.0, T, L);
+    radiance = radiance * T + L;
   }`,
   `#version 300 es
   precision highp float;
@@ -458,10 +578,12 @@ function plan() {
         const dy = Math.max(y0 - cam.y, 0, cam.y - y1);
         const dz = Math.max(zb - cam.z, 0, cam.z - zt);
         if (Math.hypot(dx, dy) > view) continue;
+        // The box reaches down to the ground: a tile's shadow falls there even when
+        // its clouds are out of view (scene.rs `plan_bands`).
         const outside = [true, true, true, true, true];
         for (const cx of [x0, x1]) {
           for (const cy of [y0, y1]) {
-            for (const cz of [zb, zt]) {
+            for (const cz of [Math.min(zb, 0), zt]) {
               const r = [cx - cam.x, cy - cam.y, cz - cam.z];
               const a = dot(r, right);
               const b = dot(r, up);
@@ -544,6 +666,17 @@ function decodeBillboards(buf) {
   return { header, count, data };
 }
 
+/** Mean of the red channel (0..1) of a shadow map: the tile's mean sun transmittance. */
+function meanOf(image) {
+  const c = new OffscreenCanvas(image.width, image.height);
+  const ctx = c.getContext('2d');
+  ctx.drawImage(image, 0, 0);
+  const d = ctx.getImageData(0, 0, image.width, image.height).data;
+  let sum = 0;
+  for (let i = 0; i < d.length; i += 4) sum += d[i];
+  return sum / (255 * (d.length / 4));
+}
+
 async function loadTile(tile) {
   const gen = tile.gen;
   const [bin, png] = await Promise.all([
@@ -569,6 +702,7 @@ function pump() {
         tile.billboards = decoded;
         tile.sun = decoded.header.sun;
         tile.shadow = texture(image, gl.LINEAR);
+        tile.meanShadow = meanOf(image);
         image.close?.();
         tile.state = 'ready';
         instancesDirty = true;
@@ -589,6 +723,10 @@ function pump() {
 /** Re-plans, queues the new tiles and drops the ones no longer needed. */
 function updateTiles() {
   if (!worldInfo) return;
+  loadSky().catch((e) => {
+    stats.failures++;
+    showError(e.message);
+  });
   const gen = generation();
   const planned = plan();
   wanted = planned.map((p) => `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}`);
@@ -712,14 +850,72 @@ function resize() {
   }
 }
 
+/** Sets the ATMOSPHERE and GROUND uniforms of `prog` from skyInfo (sky table on texture unit 1). */
+function setAtmosphere(prog) {
+  const u = prog.u;
+  const s = skyInfo;
+  const a = s.aerial;
+  gl.activeTexture(gl.TEXTURE1);
+  gl.bindTexture(gl.TEXTURE_2D, skyTexture);
+  gl.uniform1i(u.skyTable, 1);
+  gl.uniform2f(u.skySize, s.sky.columns, s.sky.rows);
+  gl.uniform3fv(u.sunDir, s.sun.direction);
+  gl.uniform3fv(u.night, s.night_rgb);
+  gl.uniform3fv(u.betaR, a.rayleigh_scattering);
+  gl.uniform4f(u.mie, a.mie_scattering, a.mie_extinction, a.mie_scale_height, a.mie_g);
+  gl.uniform4f(u.air, a.rayleigh_scale_height, a.scatter_irradiance, a.top_altitude, a.sun_step_m);
+  gl.uniform3fv(u['sunT[0]'], a.sun_transmittance);
+  gl.uniform3fv(u['multi[0]'], a.multiple);
+  if (u.sunGround) {
+    gl.uniform3fv(u.sunGround, s.sun_rgb_ground);
+    gl.uniform3fv(u.above, s.sky_ambient_above);
+    gl.uniform3fv(u.groundAlbedo, s.ground_albedo);
+  }
+  gl.activeTexture(gl.TEXTURE0);
+}
+
+/** The sky.json URL of the current sun: the manual one, else the world clock's at the drawn time. */
+function skyUrl() {
+  return state.sun ? `/v1/sky.json?sun=${state.sun[0]},${state.sun[1]}` : `/v1/sky.json?t=${snapTime(state.t)}`;
+}
+
+/** Loads the sky of the current sun when it changed. */
+async function loadSky() {
+  const url = skyUrl();
+  if (url === skyUrlLoaded || url === skyUrlLoading) return;
+  skyUrlLoading = url;
+  let info;
+  try {
+    info = await fetchJson(url);
+  } finally {
+    skyUrlLoading = '';
+  }
+  if (skyUrl() !== url) return;
+  const { rows, columns, rgb } = info.sky;
+  const data = new Float32Array(rows * columns * 4);
+  for (let i = 0; i < rows * columns; i++) {
+    data.set(rgb.slice(i * 3, i * 3 + 3), i * 4);
+    data[i * 4 + 3] = 1;
+  }
+  if (skyTexture) gl.deleteTexture(skyTexture);
+  skyTexture = gl.createTexture();
+  gl.bindTexture(gl.TEXTURE_2D, skyTexture);
+  gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA16F, columns, rows, 0, gl.RGBA, gl.FLOAT, data);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+  gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+  skyInfo = info;
+  skyUrlLoaded = url;
+}
+
 function draw() {
   resize();
   if (instancesDirty) rebuildInstances();
   const cam = state.camera;
   const aspect = canvas.width / canvas.height;
   const { forward, right, up } = basis(cam);
-  const [az, el] = currentSun();
-  const light = lighting(az, el);
+  const light = lighting();
   const vp = viewProjection(cam, aspect);
   const tanH = Math.tan(rad(cam.fov) / 2);
   let calls = 0;
@@ -736,10 +932,9 @@ function draw() {
   gl.uniform3fv(su.right, right);
   gl.uniform3fv(su.up, up);
   gl.uniform2f(su.tanHalf, tanH, tanH / aspect);
-  gl.uniform3fv(su.sunDir, light.dir);
+  setAtmosphere(skyProgram);
   gl.uniform3fv(su.sunRgb, light.sunRgb);
-  gl.uniform3fv(su.ambient, light.ambient);
-  gl.uniform1f(su.daylight, light.daylight);
+  gl.uniform2f(su.disc, skyInfo.sun_disc.angular_radius, skyInfo.sun_disc.gain);
   gl.uniform1f(su.eyeZ, cam.z);
   gl.bindVertexArray(emptyVao);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
@@ -753,14 +948,43 @@ function draw() {
     gl.useProgram(shadowProgram.program);
     const hu = shadowProgram.u;
     gl.uniformMatrix4fv(hu.viewProj, false, vp);
-    gl.uniform3fv(hu.sunDir, light.dir);
-    gl.uniform3fv(hu.sunRgb, light.sunRgb);
-    gl.uniform3fv(hu.ambient, light.ambient);
+    setAtmosphere(shadowProgram);
+    gl.uniform1f(hu.eyeZ, cam.z);
+    gl.uniform1f(hu.viewDistance, state.viewDistance);
+    gl.uniform3fv(hu.forward, forward);
+    gl.uniform3fv(hu.right, right);
+    gl.uniform3fv(hu.up, up);
+    gl.uniform2f(hu.tanHalf, tanH, tanH / aspect);
+    gl.uniform2f(hu.viewport, canvas.width, canvas.height);
     gl.activeTexture(gl.TEXTURE0);
     gl.uniform1i(hu.shadow, 0);
+    // shadow.png is indexed where the sun ray from the ground crosses the layer's
+    // base (src/products/shadow.rs): draw it shifted away from the sun by
+    // (s_x, s_y) · base / s_z, floored at sin 1° like render::tile::shadow_shift.
+    const sd = light.dir;
+    const sz = Math.max(sd[2], Math.sin(rad(1)));
+    const far = new Map();
     for (const t of drawn) {
+      const e = far.get(t.layer) || { sum: 0, n: 0 };
+      far.set(t.layer, { sum: e.sum + t.meanShadow, n: e.n + 1 });
+    }
+    gl.uniform1f(hu.mode, 0);
+    for (const t of drawn) {
+      const base = worldInfo.layers[t.layer].base;
+      const shift = [(sd[0] * base) / sz, (sd[1] * base) / sz];
+      const f = far.get(t.layer);
+      gl.uniform1f(hu.far, f.sum / f.n);
       gl.bindTexture(gl.TEXTURE_2D, t.shadow);
-      gl.uniform4f(hu.rect, t.origin[0] - cam.x, t.origin[1] - cam.y, t.size, cam.z);
+      gl.uniform4f(hu.rect, t.origin[0] - shift[0] - cam.x, t.origin[1] - shift[1] - cam.y, t.size, cam.z);
+      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      calls++;
+    }
+    // The far ground of each layer, past the view distance.
+    gl.uniform1f(hu.mode, 1);
+    const big = 400000;
+    for (const f of far.values()) {
+      gl.uniform1f(hu.far, f.sum / f.n);
+      gl.uniform4f(hu.rect, -big, -big, 2 * big, cam.z);
       gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
       calls++;
     }
@@ -781,7 +1005,7 @@ function draw() {
     gl.uniform3fv(bu.eye, eye);
     gl.uniform3fv(bu.right, right);
     gl.uniform3fv(bu.up, up);
-    gl.uniform3fv(bu.sunDir, light.dir);
+    setAtmosphere(billboardProgram);
     gl.uniform3fv(bu.sunRgb, light.sunRgb);
     gl.uniform1f(bu.albedo, SHADING.albedo);
     gl.uniform3f(bu.phase, SHADING.g1, SHADING.g2, SHADING.mix);
@@ -947,7 +1171,13 @@ function fly(dt) {
 
 /** True when every wanted tile is drawn. */
 function settled() {
-  return worldInfo !== null && splatTexture !== null && wanted.every((k) => tiles.get(k)?.state === 'ready');
+  return (
+    worldInfo !== null &&
+    splatTexture !== null &&
+    skyInfo !== null &&
+    skyUrlLoaded === skyUrl() &&
+    wanted.every((k) => tiles.get(k)?.state === 'ready')
+  );
 }
 
 // ---------------------------------------------------------------------------
@@ -981,7 +1211,7 @@ function frame(now) {
     const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
     setTime(snapTime(state.t) + period);
   }
-  if (splatTexture) draw();
+  if (splatTexture && skyInfo) draw();
   const cpu = performance.now() - started;
   stats.frameMs = stats.frameMs ? stats.frameMs * 0.9 + cpu * 0.1 : cpu;
   stats.frameInterval = stats.frameInterval ? stats.frameInterval * 0.9 + dt * 100 : dt * 1000;

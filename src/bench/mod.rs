@@ -18,6 +18,7 @@
 //! the same run, side by side.
 
 pub mod core;
+pub mod gallery;
 mod http;
 mod pipeline;
 pub mod quality;

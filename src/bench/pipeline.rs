@@ -33,7 +33,7 @@ fn sun() -> Sun {
 /// or sun bucket of a computed tile costs). The HTTP section gives the cached case.
 pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let config = Config::embedded();
-    let world = config.world("default").expect("the default world exists");
+    let world = config.world("overcast").expect("the overcast world exists");
     let level = if effort == Effort::Smoke { 3 } else { 0 };
     let tile = TileId { z: level, x: 3, y: -2 };
     let sun = sun();
@@ -41,7 +41,7 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let layer = &world.layers[0];
     const SHOWN_T: f64 = 1234.5;
     let mut md = format!(
-        "One 256×256-column tile of the default world's `{}` layer ({} cells deep), level {level}, sun {},{}. \
+        "One 256×256-column tile of the overcast world's `{}` layer ({} cells deep), level {level}, sun {},{}. \
          Each cold run is at a new time; the billboard count and the warm runs are at t = {SHOWN_T} s.\n\n\
          | preset | billboards | cold: density + shading + `billboards.bin` | of which density | warm: shading + encoding from the density |\n|---|---|---|---|---|\n",
         layer.name, layer.depth, SUN.0, SUN.1
@@ -106,7 +106,7 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
 /// Every product encoder on one shaded tile.
 pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let config = Config::embedded();
-    let world = config.world("default").expect("the default world exists");
+    let world = config.world("overcast").expect("the overcast world exists");
     let level = if effort == Effort::Smoke { 3 } else { 0 };
     let tile = TileId { z: level, x: 3, y: -2 };
     let shaded: ShadedTile = shade_tile(
@@ -227,7 +227,7 @@ fn rosa_row(w: usize, l: usize, d: u32, size: (usize, usize)) -> Result<[f64; 3]
         70.0,
     )?;
     let view = View::perspective(&camera, size.0, size.1);
-    let mut image = background(&view, &lighting, |x, y| {
+    let mut image = background(&view, &lighting, 1.0, |x, y| {
         buffer.transmittance_at([x, y, 0.0]).clamp(0.0, 1.0)
     });
     composite(&mut image, &bills, &sheet, &lighting, &view);

@@ -4,6 +4,7 @@
 mod bench;
 mod density;
 mod fuzz;
+mod gallery;
 mod loadtest;
 mod out;
 mod probe;
@@ -32,6 +33,8 @@ enum Command {
     Bench(bench::BenchArgs),
     /// Write the density or cloud grid of a region to a file.
     Density(density::DensityArgs),
+    /// Render the gallery: fixed views of the default world at every quality, and a contact sheet.
+    Gallery(gallery::GalleryArgs),
     /// Load-test a running server with simulated MMO players and game servers.
     Loadtest(loadtest::LoadtestArgs),
     /// Check that a running server answers (exit 0 on a 2xx from its /healthz).
@@ -57,6 +60,7 @@ pub fn main() -> ExitCode {
     let result = match cli.command {
         Command::Bench(args) => bench::run(args),
         Command::Density(args) => density::run(args),
+        Command::Gallery(args) => gallery::run(args),
         Command::Loadtest(args) => loadtest::run(args),
         Command::Probe(args) => probe::run(args),
         Command::Render(args) => render::run(args),

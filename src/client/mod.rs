@@ -17,10 +17,10 @@ use crate::products::billboards::{BinBillboards, decode_bin};
 use crate::render::camera::View;
 use crate::render::composite::composite;
 use crate::render::light::Lighting;
-use crate::render::scene::{LayerBand, background, plan_bands};
+use crate::render::scene::{LayerBand, background, mean_shadow, plan_bands};
 use crate::render::shade::Billboard;
 use crate::render::splats::SplatSheet;
-use crate::render::tile::{TILE_COLUMNS, TileId};
+use crate::render::tile::{TILE_COLUMNS, TileId, shadow_shift};
 use crate::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
 
 /// Times a request is retried after a 503 (overloaded server).
@@ -82,6 +82,8 @@ struct SplatManifest {
 struct ShadowMap {
     origin: [f64; 2],
     column: f64,
+    /// Added to a ground point before the lookup (`render::tile::shadow_shift`).
+    shift: [f64; 2],
     /// Transmittance, 256×256, row 0 = south.
     values: Vec<f32>,
 }
@@ -90,6 +92,7 @@ impl ShadowMap {
     /// Bilinear lookup, 1 outside the tile (as `ShadedTile::shadow_at`).
     fn at(&self, x: f64, y: f64) -> f64 {
         let n = TILE_COLUMNS;
+        let (x, y) = (x + self.shift[0], y + self.shift[1]);
         let u = (x - self.origin[0]) / self.column - 0.5;
         let v = (y - self.origin[1]) / self.column - 0.5;
         if !(u > -0.5 && v > -0.5 && u < n as f64 - 0.5 && v < n as f64 - 0.5) {
@@ -286,7 +289,7 @@ impl TileClient {
         )
     }
 
-    fn shadow_map(&mut self, path: &str, tile: &BinBillboards) -> Result<ShadowMap, ClientError> {
+    fn shadow_map(&mut self, path: &str, tile: &BinBillboards, base: f64) -> Result<ShadowMap, ClientError> {
         let png = self.get(path)?;
         let n = TILE_COLUMNS;
         let (width, height, channels, samples) = decode_png(&png)
@@ -310,9 +313,14 @@ impl TileClient {
         for row in (0..n).rev() {
             values.extend(samples[row * n..(row + 1) * n].iter().map(|&v| v as f32 / 255.0));
         }
+        let sun = Sun::new(tile.sun_azimuth_deg as f64, tile.sun_elevation_deg as f64).unwrap_or(Sun {
+            azimuth_deg: 0.0,
+            elevation_deg: 90.0,
+        });
         Ok(ShadowMap {
             origin: tile.origin,
             column: tile.size as f64 / n as f64,
+            shift: shadow_shift(sun, base),
             values,
         })
     }
@@ -373,7 +381,7 @@ impl TileClient {
                 colour: r.colour,
             }));
             let shadow_path = Self::tile_path(world, tile, "shadow.png", &query, name);
-            shadows.push(self.shadow_map(&shadow_path, &decoded)?);
+            shadows.push(self.shadow_map(&shadow_path, &decoded, bands[layer].base)?);
         }
         // Every tile is shaded for the centre of the request's sun bucket, which the
         // tiles report; the sky and ground use the same.
@@ -393,7 +401,13 @@ impl TileClient {
         let sheet = self.splat_sheet(req.quality)?;
         let view = View::perspective(&req.camera, req.width, req.height);
         let lighting = Lighting::new(sun.bucket().centre(), req.params);
-        let mut image = background(&view, &lighting, |x, y| shadows.iter().map(|s| s.at(x, y)).product());
+        let far = mean_shadow(
+            tiles
+                .iter()
+                .zip(&shadows)
+                .map(|(&(layer, _), s)| (layer, s.values.iter().map(|&v| v as f64).sum::<f64>() / s.values.len().max(1) as f64)),
+        );
+        let mut image = background(&view, &lighting, far, |x, y| shadows.iter().map(|s| s.at(x, y)).product());
         composite(&mut image, &billboards, &sheet, &lighting, &view);
         Ok(Rendered {
             image,
@@ -428,6 +442,7 @@ mod tests {
         let map = ShadowMap {
             origin: [1000.0, 2000.0],
             column: 100.0,
+            shift: [0.0, 0.0],
             values,
         };
         assert_eq!(map.at(1050.0, 2050.0), 0.0);

@@ -138,8 +138,12 @@ pub fn sigterm_with_slow_clients(addr: &str, pid: u32, n: usize, limit: Duration
 /// What a new client saw while a flood of idle connections was open.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct Recovery {
-    /// Idle connections the attacker opened (and kept open throughout).
+    /// Idle connections the attacker tried to open, and how many it could (a server
+    /// that stops accepting leaves the rest unable to connect); they stay open.
     pub flood: usize,
+    pub flood_connected: usize,
+    /// How long opening the flood took (the server may close early ones meanwhile).
+    pub flood_ms: u64,
     /// Time until a new client got any answer, and its status (`None`: none within
     /// the limit).
     pub first_answer_ms: Option<u64>,
@@ -148,16 +152,33 @@ pub struct Recovery {
     pub first_ok_ms: Option<u64>,
 }
 
-/// Opens `flood` idle connections and keeps them open; then a new client asks
-/// `/healthz` (each try waits at most 5 s) until it gets a 200 or `limit` passes.
+/// Opens `flood` idle connections (each connect waits at most 2 s; three
+/// failures in a row end the flood) and keeps them
+/// open; then a new client asks `/healthz` (each try waits at most 5 s) until it gets
+/// a 200 or `limit` passes.
 pub fn recovery_after_flood(addr: &str, flood: usize, limit: Duration) -> io::Result<Recovery> {
+    let target: std::net::SocketAddr = addr
+        .parse()
+        .map_err(|_| io::Error::new(ErrorKind::InvalidInput, "an IP:PORT address"))?;
     let mut attackers = Vec::with_capacity(flood);
+    let mut failed_in_a_row = 0;
+    let flooding = Instant::now();
     for _ in 0..flood {
-        attackers.push(connect(addr)?);
+        match TcpStream::connect_timeout(&target, Duration::from_secs(2)) {
+            Ok(s) => {
+                attackers.push(s);
+                failed_in_a_row = 0;
+            }
+            // The listen queue is full: more tries would only wait.
+            Err(_) if failed_in_a_row >= 2 => break,
+            Err(_) => failed_in_a_row += 1,
+        }
     }
     let start = Instant::now();
     let mut r = Recovery {
         flood,
+        flood_connected: attackers.len(),
+        flood_ms: flooding.elapsed().as_millis() as u64,
         first_answer_ms: None,
         first_status: None,
         first_ok_ms: None,

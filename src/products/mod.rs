@@ -5,4 +5,5 @@ pub mod billboards;
 pub mod coverage;
 pub mod grid;
 pub mod shadow;
+pub mod sky;
 pub mod splats;

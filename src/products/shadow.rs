@@ -2,10 +2,14 @@
 //!
 //! 8-bit greyscale, 256×256, one pixel per column of the tile at its level; row 0 is
 //! the northern edge (a map, north up), column 0 the western edge. The value is the
-//! sunlight transmittance through the layer's clouds to the ground (altitude 0) under
-//! the column's centre, × 255 rounded: 255 = no cloud shadow, 0 = full shadow. When the
-//! sun (bucket centre) is not above the horizon there is no direct light to shadow and
-//! every pixel is 255. Occluders beyond the tile's shadow halo are not included.
+//! sunlight transmittance through the layer's clouds along the sun ray that crosses
+//! the layer's base altitude at the column's centre, × 255 rounded: 255 = no cloud
+//! shadow, 0 = full shadow. The ground point (x, y) (altitude 0) lies on the ray
+//! through `(x, y) + (s_x, s_y) · base / s_z` (s the unit vector toward the bucket's
+//! sun, `render::tile::shadow_shift`): a client draws the map shifted by
+//! `−(s_x, s_y) · base / s_z`. When the sun (bucket centre) is not above the horizon
+//! there is no direct light to shadow and every pixel is 255. Occluders beyond the
+//! tile's shadow halo are not included.
 
 use crate::render::ShadedTile;
 use crate::render::image::{encode_png, to_u8};

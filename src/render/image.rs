@@ -223,5 +223,22 @@ mod tests {
             let reader = dec.read_info().unwrap();
             assert_eq!((reader.info().width, reader.info().height), (3, 2));
         }
+        assert_eq!(png_noise(&img.to_png()), None);
+        assert_eq!(png_noise(b"not a png"), None);
+        let noise = Noise {
+            samples: 64,
+            std_error: 0.012_345_678_9,
+            mean_luminance: 0.5,
+        };
+        let bytes = img.to_png_with_noise(&noise);
+        assert_eq!(png_noise(&bytes), Some(noise));
+        // The same pixels as without the text.
+        let pixels = |b: Vec<u8>| {
+            let mut r = png::Decoder::new(std::io::Cursor::new(b)).read_info().unwrap();
+            let mut buf = vec![0; r.output_buffer_size().unwrap()];
+            r.next_frame(&mut buf).unwrap();
+            buf
+        };
+        assert_eq!(pixels(bytes), pixels(img.to_png()));
     }
 }

@@ -408,6 +408,37 @@ mod tests {
     }
 
     #[test]
+    fn ambients_come_from_the_sky_and_the_ground_is_hazed() {
+        let l = Lighting::new(Sun::new(180.0, 45.0).unwrap(), ShadingParams::default());
+        // Above is the blue sky; below is the ground's (yellowish-grey) reflection.
+        assert!(l.sky_ambient_above[2] > l.sky_ambient_above[0]);
+        assert!(l.sky_ambient_below[0] >= l.sky_ambient_below[2]);
+        for c in 0..3 {
+            let mean = 0.5 * (l.sky_ambient_above[c] + l.sky_ambient_below[c]);
+            assert!((l.ambient_rgb[c] - mean).abs() < 1e-15);
+        }
+        // The ground just below the eye is the ground; far away it takes the horizon's haze.
+        let eye = [0.0, 0.0, 500.0];
+        let near = l.background(eye, [0.0, 0.05, -0.9987], 1.0);
+        let g = l.ground_radiance(1.0);
+        for c in 0..3 {
+            assert!((near[c] - g[c]).abs() < 0.05 * g[c] + 0.01, "{near:?} vs {g:?}");
+        }
+        let far = l.background(eye, [0.0, 0.9999, -0.004], 1.0);
+        let horizon = l.sky_radiance([0.0, 1.0, 0.0]);
+        let lum = |c: [f64; 3]| luminance(c);
+        assert!((lum(far) - lum(horizon)).abs() < (lum(near) - lum(horizon)).abs(), "{far:?} {near:?} {horizon:?}");
+        // The sun's disc is bright; a degree away it is the sky.
+        let disc = l.background(eye, l.sun_dir, 1.0);
+        assert!(disc[0] > 10.0 * l.sky_radiance(l.sun_dir)[0]);
+        let s = l.sun_dir;
+        let off = [s[0], s[1] + 0.02, s[2]];
+        let n = dot(off, off).sqrt();
+        let off = off.map(|v| v / n);
+        assert_eq!(l.background(eye, off, 1.0), l.sky_radiance(off));
+    }
+
+    #[test]
     fn tone_map_is_bounded() {
         assert_eq!(tone_map(f64::NAN), 0.0);
         assert_eq!(tone_map(-1.0), 0.0);

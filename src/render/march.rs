@@ -325,7 +325,9 @@ pub fn shadow_tau(volumes: &[Volume], p: [f64; 3], sun: [f64; 3], extinction: f6
     tau
 }
 
-/// Radiance and transmittance along one view ray up to `t_max`.
+/// Radiance and transmittance along one view ray up to `t_max`. With `aerial`,
+/// each sample is seen through the air between it and `o` (the eye); without it
+/// (orthographic views, whose ray origins are no eye) it is not.
 pub fn march_ray(
     volumes: &[Volume],
     lighting: &Lighting,
@@ -333,6 +335,7 @@ pub fn march_ray(
     o: [f64; 3],
     d: [f64; 3],
     t_max: f64,
+    aerial: bool,
 ) -> ([f64; 3], f64) {
     let sigma_max = lighting.params.extinction;
     let sigma_max = if sigma_max.is_finite() { sigma_max.max(0.0) } else { 1e6 };
@@ -362,7 +365,8 @@ pub fn march_ray(
                 };
                 // Seen through the air between the eye and the sample (aerial
                 // perspective, as the compositor hazes each billboard by its distance).
-                let j = lighting.hazed(lighting.source_with_phase(t_sun, phase), o, p);
+                let j = lighting.source_with_phase(t_sun, phase);
+                let j = if aerial { lighting.hazed(j, o, p) } else { j };
                 for c in 0..3 {
                     radiance[c] += trans * a * j[c];
                 }
@@ -377,7 +381,8 @@ pub fn march_ray(
     (radiance, trans)
 }
 
-/// Renders `view` over `volumes`: clouds, then the sky or the ground (at altitude 0,
+/// Renders `view` over `volumes`: clouds (hazed by the air in perspective views),
+/// then the sky or the ground (at altitude 0,
 /// shadowed by a shadow ray) behind them. Rows are independent, so the image does
 /// not depend on the thread count.
 pub fn render(volumes: &[Volume], lighting: &Lighting, params: &MarchParams, view: &View, background: bool) -> Image {
@@ -396,6 +401,7 @@ pub fn render_cancellable(
 ) -> Image {
     let mut img = Image::new(view.width, view.height);
     let width = view.width;
+    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
     let rows: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..view.height)
         .into_par_iter()
         .map(|y| {
@@ -406,7 +412,7 @@ pub fn render_cancellable(
             }
             for x in 0..width {
                 let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
-                let (c, a) = trace(volumes, lighting, params, o, d, background);
+                let (c, a) = trace(volumes, lighting, params, o, d, background, aerial);
                 rgb.push(c);
                 alpha.push(a);
             }
@@ -427,13 +433,14 @@ fn trace(
     o: [f64; 3],
     d: [f64; 3],
     background: bool,
+    aerial: bool,
 ) -> ([f32; 3], f32) {
     let ground_t = if d[2] < 0.0 && o[2] > 0.0 {
         -o[2] / d[2]
     } else {
         f64::INFINITY
     };
-    let (c, trans) = march_ray(volumes, lighting, params, o, d, ground_t);
+    let (c, trans) = march_ray(volumes, lighting, params, o, d, ground_t, aerial);
     if !background {
         return (c.map(|v| v as f32), (1.0 - trans) as f32);
     }

@@ -194,11 +194,14 @@ pub fn plan_bands(
             if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE {
                 continue;
             }
-            // Frustum culling: drop the box if all 8 corners are outside one plane.
+            // Frustum culling: drop the box if all 8 corners are outside one plane. The
+            // box reaches down to the ground: the tile's shadow falls there even when
+            // its clouds are out of view (without it, a layer above the view's top edge
+            // lost its shadow on the near ground: a seam at the tile's edge).
             let mut outside = [true; 5];
             for &cx in &[x0, x1] {
                 for &cy in &[y0, y1] {
-                    for &cz in &[zb, zt] {
+                    for &cz in &[zb.min(0.0), zt] {
                         let r = [cx - p[0], cy - p[1], cz - p[2]];
                         let (a, b, f) = (
                             r[0] * right[0] + r[1] * right[1] + r[2] * right[2],
@@ -282,7 +285,8 @@ fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: S
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun.bucket().centre(), req.params);
     let sheet = req.quality.splat_sheet();
-    let mut image = background(&view, &lighting, |x, y| {
+    let far = mean_shadow(tiles.iter().map(|t| (t.layer, t.shadow.iter().map(|&v| v as f64).sum::<f64>() / t.shadow.len().max(1) as f64)));
+    let mut image = background(&view, &lighting, far, |x, y| {
         tiles.iter().map(|t| t.shadow_at(x, y)).product()
     });
     let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards.iter().copied()).collect();
@@ -376,8 +380,16 @@ fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel:
 }
 
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
-/// point, and hazed by the air between the eye and it) behind the clouds.
-pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
+/// point, and hazed by the air between the eye and it) behind the clouds. Beyond the
+/// tiles the shadow is unknown: over the last 30 % of [`VIEW_DISTANCE`] it turns
+/// into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
+/// ground has neither a hard edge nor a sunlit band.
+pub fn background(
+    view: &View,
+    lighting: &Lighting,
+    far_t: f64,
+    ground_t: impl Fn(f64, f64) -> f64 + Sync,
+) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
     img.rgb.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
@@ -385,7 +397,11 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
             let (o, d) = view.ray(x as f64 + 0.5, y as f64 + 0.5);
             let t = if d[2] < 0.0 && o[2] > 0.0 && lighting.sun_dir[2] > 0.0 {
                 let s = -o[2] / d[2];
-                ground_t(o[0] + d[0] * s, o[1] + d[1] * s)
+                let (gx, gy) = (o[0] + d[0] * s, o[1] + d[1] * s);
+                let r = ((gx - o[0]).powi(2) + (gy - o[1]).powi(2)).sqrt();
+                let fade = smoothstep(0.7 * VIEW_DISTANCE, VIEW_DISTANCE, r);
+                let near = if fade < 1.0 { ground_t(gx, gy) } else { far_t };
+                near + fade * (far_t - near)
             } else {
                 1.0
             };
@@ -394,6 +410,29 @@ pub fn background(view: &View, lighting: &Lighting, ground_t: impl Fn(f64, f64) 
     });
     img.alpha.iter_mut().for_each(|a| *a = 1.0);
     img
+}
+
+/// The ground's mean sun transmittance under the tiles drawn, from each tile's mean
+/// shadow `(layer, mean)`: the product over layers of the mean over each layer's
+/// tiles (1 with no tiles).
+pub fn mean_shadow(tiles: impl Iterator<Item = (usize, f64)>) -> f64 {
+    let mut sums: Vec<(usize, f64, f64)> = Vec::new();
+    for (layer, m) in tiles {
+        let m = if m.is_finite() { m.clamp(0.0, 1.0) } else { 1.0 };
+        match sums.iter_mut().find(|e| e.0 == layer) {
+            Some(e) => {
+                e.1 += m;
+                e.2 += 1.0;
+            }
+            None => sums.push((layer, m, 1.0)),
+        }
+    }
+    sums.iter().map(|e| e.1 / e.2).product()
+}
+
+fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
+    let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
 }
 
 /// Renders a request: the billboard compositor for `fast | balanced | accurate`, the

@@ -89,6 +89,10 @@ const TRANSMITTANCE_STEPS: usize = 40;
 const VIEW_STEPS: usize = 32;
 const MS_STEPS: usize = 20;
 const MS_DIRECTIONS: usize = 64;
+/// The sun transmittance by altitude that aerial perspective reads: every
+/// [`SUN_TABLE_STEP`] metres from 0 to `(SUN_TABLE_LEN − 1) · SUN_TABLE_STEP`.
+pub const SUN_TABLE_LEN: usize = 41;
+pub const SUN_TABLE_STEP: f64 = 500.0;
 
 /// Rayleigh phase function normalised over the sphere: `3/(16π) (1 + μ²)`.
 pub fn rayleigh_phase(mu: f64) -> f64 {
@@ -268,6 +272,8 @@ pub struct Sky {
     multiple: Vec<[f64; 3]>,
     /// Sky radiance seen from the ground, SKY_ROWS × SKY_COLUMNS (night floor excluded).
     table: Vec<[f64; 3]>,
+    /// Sun transmittance at altitudes `i · SUN_TABLE_STEP` (for aerial perspective).
+    sun_table: Vec<[f64; 3]>,
 }
 
 impl Sky {
@@ -293,7 +299,11 @@ impl Sky {
             transmittance: TransmittanceTable::new(),
             multiple: Vec::new(),
             table: Vec::new(),
+            sun_table: Vec::new(),
         };
+        sky.sun_table = (0..SUN_TABLE_LEN)
+            .map(|i| sky.sun_transmittance(GROUND_RADIUS + i as f64 * SUN_TABLE_STEP, sun_dir[2]))
+            .collect();
         sky.multiple = (0..MS_ALTITUDES).map(|i| sky.multiple_scattering_at(ms_altitude(i))).collect();
         let mut table = Vec::with_capacity(SKY_ROWS * SKY_COLUMNS);
         for i in 0..SKY_ROWS {
@@ -492,10 +502,29 @@ impl Sky {
         &self.table
     }
 
-    /// Ψ_ms per altitude (for clients that apply aerial perspective themselves),
-    /// with the altitudes, metres.
-    pub fn multiple_table(&self) -> Vec<(f64, [f64; 3])> {
-        (0..MS_ALTITUDES).map(|i| (ms_altitude(i), self.multiple[i])).collect()
+    /// Ψ_ms at altitudes `h_i = 60 km · (i / (n − 1))²` (for clients that apply aerial
+    /// perspective themselves: linear in `√(h / 60 km)`).
+    pub fn multiple_table(&self) -> &[[f64; 3]] {
+        &self.multiple
+    }
+
+    /// Sun transmittance at altitudes `i · SUN_TABLE_STEP` (linear in between,
+    /// clamped at the ends), what [`Sky::aerial`] reads.
+    pub fn sun_table(&self) -> &[[f64; 3]] {
+        &self.sun_table
+    }
+
+    fn sun_table_at(&self, h: f64) -> [f64; 3] {
+        let x = (h.max(0.0) / SUN_TABLE_STEP).min((SUN_TABLE_LEN - 1) as f64);
+        let i = (x as usize).min(SUN_TABLE_LEN - 2);
+        let f = x - i as f64;
+        [0, 1, 2].map(|c| self.sun_table[i][c] * (1.0 - f) + self.sun_table[i + 1][c] * f)
+    }
+
+    /// The light the air scatters is lit by this irradiance (`π · sun_intensity ·
+    /// SKY_SCALE`).
+    pub fn scatter_irradiance(&self) -> f64 {
+        self.scatter_irradiance
     }
 
     /// Aerial perspective between an eye and a point (world metres, z = altitude):
@@ -508,7 +537,8 @@ impl Sky {
     /// its optical depth exact for the exponential profiles (`∫ρ = d · H (e^{−z₀/H} −
     /// e^{−z₁/H}) / (z₁ − z₀)`), and the source per unit extinction — sun single
     /// scattering times the sun's transmittance, plus `σ_s Ψ_ms` — taken at the
-    /// path's middle altitude. Ozone (above 10 km) is left out. Altitudes are clamped
+    /// path's middle altitude (the sun's transmittance from [`Sky::sun_table`]).
+    /// Ozone (above 10 km) is left out. Altitudes are clamped
     /// to 0..60 km; finite for any input.
     pub fn aerial(&self, eye: [f64; 3], point: [f64; 3]) -> ([f64; 3], [f64; 3]) {
         self.aerial_lit(eye, point, 1.0)
@@ -544,7 +574,7 @@ impl Sky {
         let cos = dir[0] * s[0] + dir[1] * s[1] + dir[2] * s[2];
         let (pr, pm) = (rayleigh_phase(cos), mie_phase(cos, MIE_G));
         let h = 0.5 * (z0 + z1);
-        let ts = self.sun_transmittance(GROUND_RADIUS + h, s[2]);
+        let ts = self.sun_table_at(h);
         let ms = self.multiple_at(h);
         let mut trans = [1.0; 3];
         let mut inscatter = [0.0; 3];

@@ -71,9 +71,13 @@ pub struct ShadedTile {
     pub column: f64,
     /// The shaded metaballs whose centres lie in the tile, in lattice order.
     pub billboards: Vec<Billboard>,
-    /// Sunlight transmittance through this layer to the ground (altitude 0) under each
-    /// column centre, 256×256, row 0 = south. All 1 when the sun is not above the
-    /// horizon (no direct light to shadow).
+    /// Sunlight transmittance through this layer along the sun ray that crosses the
+    /// layer's base at each column centre, 256×256, row 0 = south. A ground point
+    /// (x, y) lies on the ray through `(x, y) + shadow_shift(sun, base)` (see
+    /// [`ShadedTile::shadow_at`]): indexing by the base rather than the ground keeps
+    /// every occluder of a texel within the tile and its halo, so neighbouring tiles'
+    /// shadows meet without a seam at any sun elevation. All 1 when the sun is not
+    /// above the horizon (no direct light to shadow).
     pub shadow: Vec<f32>,
     /// The density the tile was built from, with `halo` extra columns on each side.
     pub density: Grid<f32>,
@@ -194,10 +198,12 @@ pub fn shade_density(
     if centre_sun.elevation_deg > 0.0 {
         for r in 0..TILE_COLUMNS {
             for c in 0..TILE_COLUMNS {
+                // At the layer's base: the sun line through it crosses only this
+                // tile's clouds and its halo (see `ShadedTile::shadow`).
                 let p = [
                     origin[0] + (c as f64 + 0.5) * column,
                     origin[1] + (r as f64 + 0.5) * column,
-                    0.0,
+                    l.base,
                 ];
                 shadow[r * TILE_COLUMNS + c] = buffer.transmittance_at(p).clamp(0.0, 1.0) as f32;
             }
@@ -224,9 +230,23 @@ pub fn shade_density(
     }
 }
 
+/// Where the sun ray from a ground point crosses altitude `base`, relative to the
+/// point (metres east, north): `(s_x, s_y) · base / s_z` for the unit vector `s`
+/// toward `sun`. The sun's height is floored at sin 1° so the shift stays finite (below
+/// that every shadow map is all 1 anyway).
+pub fn shadow_shift(sun: Sun, base: f64) -> [f64; 2] {
+    let s = sun.direction();
+    let k = base / s[2].max(1f64.to_radians().sin());
+    [s[0] * k, s[1] * k]
+}
+
 impl ShadedTile {
-    /// Shadow transmittance at world (x, y) by bilinear lookup; 1 outside the tile.
+    /// Shadow transmittance at ground point (x, y): the map read at the point where
+    /// the sun ray from it crosses the layer's base ([`shadow_shift`]), by bilinear
+    /// lookup; 1 outside the tile.
     pub fn shadow_at(&self, x: f64, y: f64) -> f64 {
+        let shift = shadow_shift(self.sun, self.place.base);
+        let (x, y) = (x + shift[0], y + shift[1]);
         let n = TILE_COLUMNS;
         let u = (x - self.origin[0]) / self.column - 0.5;
         let v = (y - self.origin[1]) / self.column - 0.5;

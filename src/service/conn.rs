@@ -6,7 +6,9 @@
 //!   until the head is complete, so it also bounds slowloris) and `max_buf_size`
 //!   (a head larger than the buffer gets `431` and the connection closes).
 //! - **Idle timeout**: a connection with no request being handled, nothing waiting to
-//!   be written and no byte in either direction for `idle_timeout` is closed.
+//!   be written and no byte in either direction for `idle_timeout` is closed. (hyper's
+//!   header timer also runs while a kept-alive connection waits for its next request,
+//!   so such a connection is closed after the shorter of the two.)
 //! - **Write timeout**: a connection whose socket accepted no byte for
 //!   `write_timeout` while a write waited (a client that does not read) is closed,
 //!   and the response it held is freed.
@@ -84,12 +86,14 @@ impl ConnLimits {
     }
 
     /// How often a connection's watchdog looks at it: a quarter of the shortest
-    /// timeout, so a timeout is acted on within 25 % of its length.
-    fn tick(&self) -> Duration {
-        [self.idle_timeout, self.write_timeout, self.shutdown_grace]
-            .into_iter()
-            .min()
-            .unwrap_or(Duration::from_secs(1))
+    /// timeout that applies (the shutdown grace only once shutdown began), so a
+    /// timeout is acted on within 25 % of its length, and at least once a second.
+    fn tick(&self, shutting_down: bool) -> Duration {
+        let shortest = match shutting_down {
+            false => self.idle_timeout.min(self.write_timeout),
+            true => self.idle_timeout.min(self.write_timeout).min(self.shutdown_grace),
+        };
+        shortest
             .div_f64(4.0)
             .clamp(Duration::from_millis(20), Duration::from_secs(1))
     }
@@ -474,8 +478,12 @@ impl Connection {
             .header_read_timeout(limits.header_read_timeout)
             .max_buf_size(limits.max_header_bytes);
         let mut conn = pin!(builder.serve_connection(io, service));
-        let mut tick = tokio::time::interval(limits.tick());
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+        let watchdog = |shutting_down| {
+            let mut t = tokio::time::interval(limits.tick(shutting_down));
+            t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            t
+        };
+        let mut tick = watchdog(false);
         let mut shutdown: Option<Instant> = None;
         loop {
             tokio::select! {
@@ -491,6 +499,7 @@ impl Connection {
                 _ = self.closing.wait_for(|&c| c), if shutdown.is_none() => {
                     conn.as_mut().graceful_shutdown();
                     shutdown = Some(Instant::now());
+                    tick = watchdog(true);
                 }
                 _ = tick.tick() => {
                     if let Some(reason) = activity.verdict(limits, shutdown.map(|t| t.elapsed())) {

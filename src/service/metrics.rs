@@ -127,7 +127,7 @@ impl CloseReason {
 pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 8] = [
+pub const KINDS: [&str; 9] = [
     "tile_density",
     "tile_coverage",
     "tile_shaded",
@@ -136,6 +136,7 @@ pub const KINDS: [&str; 8] = [
     "series",
     "render",
     "splats",
+    "sky",
 ];
 
 const LATENCY_BUCKETS: [f64; 14] = [

@@ -9,7 +9,7 @@
 //! Routes (see `openapi.json`): discovery under `/v1/worlds`, tiles under
 //! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}`, region queries (`/sample`,
 //! `/region`, `/series`), `/v1/worlds/{world}/render.png`, the splat sheets
-//! `/v1/splats.{png,json}`, and the operator routes `/healthz`, `/readyz`,
+//! `/v1/splats.{png,json}`, `/v1/sky.json`, and the operator routes `/healthz`, `/readyz`,
 //! `/metrics`, `/openapi.json`.
 //!
 //! Caching: every computed response is keyed by a canonical [`key::CacheKey`] (world
@@ -273,6 +273,7 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/worlds/{world}/render.png", get(render::render_png))
         .route("/v1/splats.png", get(render::splats_png))
         .route("/v1/splats.json", get(render::splats_json))
+        .route("/v1/sky.json", get(render::sky_json))
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))

@@ -20,6 +20,7 @@ use super::{discovery, error, ops, queries, render, stats, tiles};
         render::render_png,
         render::splats_png,
         render::splats_json,
+        render::sky_json,
         ops::healthz,
         ops::readyz,
         ops::metrics,

@@ -1,5 +1,6 @@
 //! `GET /v1/worlds/{world}/render.png` (what a client would see) and the splat sheets
-//! `GET /v1/splats.png`, `GET /v1/splats.json`.
+//! `GET /v1/splats.png`, `GET /v1/splats.json`, and the clear sky of a sun
+//! `GET /v1/sky.json`.
 
 use std::sync::Arc;
 
@@ -9,9 +10,10 @@ use axum::extract::{Path, State};
 use axum::http::{HeaderMap, HeaderName, HeaderValue};
 use axum::response::Response;
 
-use crate::products::splats;
 use crate::cost::{self, Work};
+use crate::products::{sky, splats};
 use crate::render::image::png_noise;
+use crate::render::light::Lighting;
 use crate::render::pathtrace::DEFAULT_SAMPLES;
 use crate::render::scene::{RenderRequest, parse_size, render_cancellable};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
@@ -234,4 +236,53 @@ pub async fn splats_json(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     splats(s, params, headers, true).await
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/sky.json",
+    tag = "render",
+    params(
+        ("sun" = Option<String>, Query, description = "AZ,EL degrees; bucketed to ~8 degrees like every shaded product (the sky is for the bucket's centre)", example = "180,45"),
+        ("t" = Option<f64>, Query, description = "World time, seconds, 0 <= t <= 1e12: the world clock's sun (when no sun is given)", example = 43200),
+    ),
+    responses(
+        (status = 200, description = "The clear sky of the sun: radiance table over view elevation x azimuth from the sun, sun colour, sky ambients, ground albedo and the aerial-perspective constants and tables (src/products/sky.rs)", content_type = "application/json", body = Object),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Neither sun nor t, or a malformed one"),
+        (status = 422, body = super::error::ErrorBody, description = "t out of range"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn sky_json(State(s): State<Arc<AppState>>, params: Params, headers: HeaderMap) -> Result<Response, ApiError> {
+    let sun = match parse_sun(&params)? {
+        Some(sun) => sun,
+        None => {
+            if params.get("t").is_none() {
+                return Err(ApiError::InvalidParameter {
+                    name: "sun".to_string(),
+                    message: "give the sun as sun=AZ,EL or a world time t for the clock's sun".to_string(),
+                });
+            }
+            Sun::from_clock(params.time("t")?, &s.worlds.config().sun)
+        }
+    };
+    let bucket = sun.bucket();
+    let key = CacheKey::global("sky").with("s", bucket.id());
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control: &s.settings.cache_control,
+        frame: None,
+    };
+    if let Some(not_modified) = repr.not_modified(&headers) {
+        return Ok(not_modified);
+    }
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, "sky", key, Work::default(), move |_| {
+            let lighting = Lighting::new(bucket.centre(), ShadingParams::default());
+            Ok(Bytes::from(sky::encode_json(bucket, &lighting)))
+        })
+        .await?;
+    repr.ok(&s, "application/json", bytes)
 }

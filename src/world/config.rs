@@ -57,7 +57,9 @@ pub struct ServerConfig {
     /// from when the server waits for it: bounds slowloris clients.
     pub header_read_timeout_ms: u64,
     /// A kept-alive connection with no request and no byte moving for this long is
-    /// closed, ms.
+    /// closed, ms. (The header-read timeout also runs while a connection waits for
+    /// its next request: the shorter one applies.) Proxies in front should drop idle
+    /// upstream connections sooner (nginx `keepalive_timeout` in the upstream block).
     pub idle_timeout_ms: u64,
     /// A connection whose client takes no byte of its response for this long is
     /// closed and the response freed, ms.
@@ -67,7 +69,9 @@ pub struct ServerConfig {
     /// reserve (at most 4096).
     pub max_connections: u32,
     /// Largest request head (start line and headers) in bytes, the connection's read
-    /// buffer: a larger one gets 431. Within [8192, 1048576].
+    /// buffer: a larger one gets 431. Within [8192, 1048576]. The default, 96 KiB, has
+    /// room for the longest target the URI parser accepts (64 KiB, else 414) and
+    /// 32 KiB of headers.
     pub max_header_bytes: u32,
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
@@ -111,10 +115,10 @@ impl Default for ServerConfig {
             shutdown_timeout_ms: 30_000,
             shutdown_grace_ms: 1000,
             header_read_timeout_ms: 10_000,
-            idle_timeout_ms: 30_000,
+            idle_timeout_ms: 5_000,
             write_timeout_ms: 15_000,
             max_connections: 0,
-            max_header_bytes: 64 << 10,
+            max_header_bytes: 96 << 10,
             max_series: 256,
             redis_url: String::new(),
             redis_timeout_ms: 100,

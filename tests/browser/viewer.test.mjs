@@ -6,13 +6,16 @@
 // Checks: the page loads without console errors; it requests exactly the tile URLs
 // its view needs; the canvas is not blank and is brighter where the server's coverage
 // map says cloud; moving the time slider changes the picture; a reload revalidates
-// every tile with a 304 and downloads no tile body. Saves screenshots in OUT_DIR and
+// every tile with a 304 and downloads no tile body; the default view's ground has no
+// seam; the sky (the server's /v1/sky.json) is blue above and brighter at the horizon
+// at noon, reddish toward a low sun. Saves screenshots in OUT_DIR and
 // prints figures (draw calls, billboards, bytes, frame time) for BENCHMARKS.md; no
 // assertion depends on time.
 
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { chromium } from 'playwright-core';
+import { galleryScreenshots } from './gallery.mjs';
 
 const base = process.argv[2];
 const outDir = process.argv[3] || 'target/browser';
@@ -102,6 +105,29 @@ async function canvasLuminance(page) {
   });
 }
 
+/** Mean R, G, B (0..1) of each canvas row, read back in the page. */
+async function canvasRows(page) {
+  return page.evaluate(() => {
+    const src = document.getElementById('view');
+    const c = document.createElement('canvas');
+    c.width = src.clientWidth;
+    c.height = src.clientHeight;
+    const ctx = c.getContext('2d');
+    ctx.drawImage(src, 0, 0, c.width, c.height);
+    const d = ctx.getImageData(0, 0, c.width, c.height).data;
+    const rows = [];
+    for (let y = 0; y < c.height; y++) {
+      const m = [0, 0, 0];
+      for (let x = 0; x < c.width; x++) for (let k = 0; k < 3; k++) m[k] += d[(y * c.width + x) * 4 + k] / 255;
+      rows.push(m.map((v) => v / c.width));
+    }
+    return rows;
+  });
+}
+const rowLum = (m) => 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
+/** Mean colour of rows [a, b). */
+const rowsMean = (rows, a, b) => [0, 1, 2].map((k) => rows.slice(a, b).reduce((s, m) => s + m[k], 0) / (b - a));
+
 const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);
 const std = (a) => {
   const m = mean(a);
@@ -111,12 +137,13 @@ const std = (a) => {
 try {
   const context = await browser.newContext({ viewport: VIEWPORT });
 
-  // --- Scene A: straight down on the stratocumulus layer from 9 km. -----------------
+  // --- Scene A: straight down on the overcast world's stratocumulus deck from 9 km. ----
+  // (The overcast world: its deck covers most columns, so cloud and clear both show.)
   // The server's level rule (a column may span at most 4 px for `balanced`) gives
   // exactly one tile here: level 0, tile (0, 0), whose footprint lies inside it.
   const t0 = 43200;
   const camera = '12800,12800,9000,0,-90,60';
-  const scene = `/?world=default&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
+  const scene = `/?world=overcast&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
   const { page, log } = await openPage(context);
   // The same view with no layer drawn: sky and ground only, the reference that
   // tells cloud from ground below.
@@ -128,7 +155,7 @@ try {
   await settle(page);
 
   const expected = ['billboards.bin', 'shadow.png'].map(
-    (p) => `/v1/worlds/default/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
+    (p) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
   );
   const requested = [...new Set(log.tileRequests)].sort();
   check(
@@ -145,7 +172,7 @@ try {
 
   // Project every column of the server's coverage map to the screen and compare.
   const coverage = await page.evaluate(async (t) => {
-    const url = `/v1/worlds/default/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
+    const url = `/v1/worlds/overcast/tiles/0/0/0/coverage.png?t=${t}&layer=stratocumulus`;
     const res = await fetch(url);
     const img = await createImageBitmap(await res.blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
     const c = document.createElement('canvas');
@@ -154,7 +181,7 @@ try {
     const ctx = c.getContext('2d');
     ctx.drawImage(img, 0, 0);
     const d = ctx.getImageData(0, 0, img.width, img.height).data;
-    const info = await (await fetch('/v1/worlds/default')).json();
+    const info = await (await fetch('/v1/worlds/overcast')).json();
     const layer = info.layers.find((l) => l.name === 'stratocumulus');
     const column = layer.cell_size; // level 0
     const mid = (layer.base + layer.top) / 2;
@@ -237,6 +264,13 @@ try {
     const s = window.cloudscape.stats;
     return { drawCalls: s.drawCalls, billboards: s.billboards, tiles: window.cloudscape.tiles().length, median: times[10], cpu: s.frameMs };
   });
+  // The ground has no seam: before the fix a layer whose tile was out of view lost its
+  // shadow on the near ground, a jump of 0.16 in row luminance at the tile edge (now
+  // about 0.02 from the shadows' own texture).
+  const dr = await canvasRows(def.page);
+  let jump = 0;
+  for (let y = Math.floor((dr.length * 2) / 3); y < dr.length - 1; y++) jump = Math.max(jump, Math.abs(rowLum(dr[y + 1]) - rowLum(dr[y])));
+  check('the ground in the lower third has no row-to-row jump in brightness over 0.06', jump < 0.06, `largest jump ${jump.toFixed(3)}`);
   figure('default view: draw calls', ds.drawCalls);
   figure('default view: billboards', ds.billboards);
   figure('default view: tiles', ds.tiles);
@@ -244,6 +278,35 @@ try {
   figure('default view: CPU time per frame, ms', ds.cpu.toFixed(2));
   check('the default view logs no console errors', def.log.errors.length === 0, def.log.errors.slice(0, 5).join(' | '));
   await def.page.close();
+
+  // --- The sky: the server's atmosphere (/v1/sky.json) drawn with no layers. --------
+  const sky = await openPage(context);
+  const horizonRow = (page, el) =>
+    page.evaluate((el) => {
+      const c = window.cloudscape.state.camera;
+      const yaw = (c.yaw * Math.PI) / 180;
+      const far = 1e6;
+      const p = window.cloudscape.project([c.x + far * Math.sin(yaw), c.y + far * Math.cos(yaw), c.z + far * Math.tan((el * Math.PI) / 180)]);
+      return Math.round(p[1]);
+    }, el);
+  await sky.page.goto(`${base}/?camera=12800,-6000,900,0,15,75&sun=180,60&layers=`);
+  await settle(sky.page);
+  await sky.page.screenshot({ path: join(outDir, 'sky-noon.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+  let rows = await canvasRows(sky.page);
+  const top = rowsMean(rows, 0, 20);
+  const h1 = await horizonRow(sky.page, 1.5);
+  const low = rowsMean(rows, h1 - 5, h1 + 1);
+  check('at noon the sky above is blue', top[2] > top[0] + 0.15 && top[2] > top[1], `top rows rgb ${top.map((v) => v.toFixed(2))}`);
+  check('at noon the sky is brighter at the horizon', rowLum(low) > rowLum(top) + 0.05, `horizon ${rowLum(low).toFixed(3)} vs top ${rowLum(top).toFixed(3)}`);
+  await sky.page.goto(`${base}/?camera=12800,-6000,900,270,8,75&sun=270,2&layers=`);
+  await settle(sky.page);
+  await sky.page.screenshot({ path: join(outDir, 'sky-sunset.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+  rows = await canvasRows(sky.page);
+  const h2 = await horizonRow(sky.page, 2);
+  const dusk = rowsMean(rows, h2 - 10, h2 + 1);
+  check('at sunset the sky toward the sun is reddish near the horizon', dusk[0] > dusk[2] + 0.1, `rgb ${dusk.map((v) => v.toFixed(2))}`);
+  check('the sky pages log no console errors', sky.log.errors.length === 0, sky.log.errors.slice(0, 5).join(' | '));
+  await sky.page.close();
 
   // A fresh context (empty caches): bytes for a 10 km view.
   const fresh = await browser.newContext({ viewport: VIEWPORT });
@@ -256,6 +319,11 @@ try {
   figure('10 km view: body bytes (decoded)', ts.bodyBytes);
   check('the 10 km view logs no console errors', ten.log.errors.length === 0, ten.log.errors.slice(0, 5).join(' | '));
   await fresh.close();
+
+  // --- The gallery's views (tests/browser/gallery.mjs). ------------------------------
+  await galleryScreenshots(browser, base, outDir, VIEWPORT, {
+    check, figure, settle, canvasLuminance, std, openPage, screenshotTimeout: SCREENSHOT_TIMEOUT_MS,
+  });
   writeFileSync(join(outDir, 'figures.txt'), figures.join('\n') + '\n');
 } catch (e) {
   check('the browser test ran to the end', false, e.stack || String(e));

@@ -356,6 +356,7 @@ fn coverage_maps_and_renders_are_finite_at_the_extremes() {
         ([1e12, -1e12, 500.0], 90.0, 90.0, Quality::Fast),
         ([-1e12, 1e12, 30000.0], -90.0, -90.0, Quality::Balanced),
         ([1e12, 1e12, 1200.0], 10.0, 0.0, Quality::Reference),
+        ([1e12, -1e12, 1200.0], 10.0, -3.0, Quality::ReferenceSingle),
         ([-1e12, -1e12, 50.0], 0.0, 0.1, Quality::Accurate),
     ] {
         let req = RenderRequest {

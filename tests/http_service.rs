@@ -983,11 +983,59 @@ async fn render_png_and_splat_sheets() {
             "not_finite",
         ),
         ("/v1/splats.png?quality=ultra", 400, "invalid_parameter"),
+        // The path tracer's samples: an integer of at least 2, only for reference, and
+        // samples × pixels within [limits] max_path_samples (2^24), refused before work.
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=16x9&quality=reference&samples=1",
+            400,
+            "invalid_parameter",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=16x9&quality=reference&samples=2.5",
+            400,
+            "invalid_number",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=16x9&quality=fast&samples=8",
+            400,
+            "invalid_parameter",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=1024x1024&quality=reference&samples=64",
+            413,
+            "too_much_work",
+        ),
+        (
+            "/v1/worlds/default/render.png?camera=0,0,1200,0,10,60&t=0&size=16x9&quality=reference&samples=99999999999",
+            413,
+            "too_much_work",
+        ),
     ] {
         let r = s.get(path).await;
         assert_eq!(r.status().as_u16(), status, "{path}");
         assert_eq!(r.json_body().await["error"], code, "{path}");
     }
+
+    // The path tracer states its noise, in a header and in the PNG's text, also when the
+    // image comes from the cache; the single-scattering marcher states none.
+    let url = "/v1/worlds/default/render.png?camera=12800,-20000,1200,0,8,70&t=43200&size=16x9&quality=reference&samples=4";
+    let mut first = None;
+    for _ in 0..2 {
+        let r = s.get(url).await;
+        assert_eq!(r.status(), StatusCode::OK);
+        assert_eq!(r.headers()["x-cloudscape-samples"], "4");
+        let noise: f64 = r.headers()["x-cloudscape-noise"].to_str().unwrap().parse().unwrap();
+        assert!(noise.is_finite() && noise > 0.0, "{noise}");
+        let bytes = r.bytes().await.unwrap();
+        let stated = cloudscape::render::image::png_noise(&bytes).unwrap();
+        assert_eq!((stated.samples, stated.std_error), (4, noise));
+        assert_eq!(*first.get_or_insert(bytes.clone()), bytes);
+    }
+    let single = s
+        .get("/v1/worlds/default/render.png?camera=12800,-20000,1200,0,8,70&t=43200&size=16x9&quality=reference-single")
+        .await;
+    assert_eq!(single.status(), StatusCode::OK);
+    assert!(single.headers().get("x-cloudscape-noise").is_none());
 
     // The sheets are made during start-up: serving them computes nothing.
     let png = s.get("/v1/splats.png?quality=fast").await;

@@ -42,7 +42,7 @@ fn render_writes_a_png_deterministically() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config_file(dir.path());
     let mut outputs = Vec::new();
-    for (quality, threads) in [("balanced", 1), ("balanced", 2), ("reference", 2)] {
+    for (quality, threads) in [("balanced", 1), ("balanced", 2), ("reference", 1), ("reference", 2), ("reference-single", 2)] {
         let out = dir.path().join(format!("{quality}-{threads}.png"));
         let o = cloudscape(
             &[
@@ -66,13 +66,20 @@ fn render_writes_a_png_deterministically() {
             ],
             threads,
         );
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{err}");
+        // The path tracer states its noise; the others print nothing.
+        assert_eq!(err.contains("32 samples per pixel, noise"), quality == "reference", "{quality}: {err}");
         let bytes = std::fs::read(&out).unwrap();
         let reader = png::Decoder::new(std::io::Cursor::new(&bytes)).read_info().unwrap();
         assert_eq!((reader.info().width, reader.info().height), (48, 32));
         outputs.push(bytes);
     }
     assert_eq!(outputs[0], outputs[1], "thread count changed the image");
+    assert_eq!(outputs[2], outputs[3], "thread count changed the path-traced image");
+    let noise = cloudscape::render::image::png_noise(&outputs[2]).expect("the PNG states its noise");
+    assert!(noise.samples == 32 && noise.std_error.is_finite());
+    assert_ne!(outputs[3], outputs[4], "reference and reference-single are different renderers");
 }
 
 #[test]
@@ -81,7 +88,7 @@ fn bad_requests_fail_with_one_sentence_and_no_file() {
     let out = dir.path().join("x.png");
     let out = out.to_str().unwrap();
     let base = ["render", "--t", "0", "--out", out];
-    let cases: [(&[&str], &str); 7] = [
+    let cases: [(&[&str], &str); 10] = [
         (&["--camera", "0,0,0,0,95,60", "--size", "8x8"], "pitch"),
         (&["--camera", "0,0,0,0", "--size", "8x8"], "camera"),
         (&["--camera", CAMERA, "--size", "8"], "size"),
@@ -90,6 +97,18 @@ fn bad_requests_fail_with_one_sentence_and_no_file() {
         (
             &["--camera", CAMERA, "--size", "5000x5000", "--quality", "reference"],
             "limit",
+        ),
+        (
+            &["--camera", CAMERA, "--size", "8x8", "--quality", "balanced", "--samples", "8"],
+            "--samples applies",
+        ),
+        (
+            &["--camera", CAMERA, "--size", "8x8", "--quality", "reference", "--samples", "1"],
+            "at least 2",
+        ),
+        (
+            &["--camera", CAMERA, "--size", "1000x1000", "--quality", "reference", "--samples", "64"],
+            "the limit is 16777216",
         ),
         (&["--camera", CAMERA, "--size", "8x8"], "unknown world"),
     ];

@@ -313,6 +313,7 @@ const ODD_PATHS: &[&str] = &[
     "/v1/splats.png",
     "/v1/splats.json",
     "/v1/splats.gif",
+    "/v1/sky.json",
     "/V1/WORLDS",
     "/v2/worlds",
     "/index.html",

@@ -143,7 +143,10 @@ try {
   // exactly one tile here: level 0, tile (0, 0), whose footprint lies inside it.
   const t0 = 43200;
   const camera = '12800,12800,9000,0,-90,60';
-  const scene = `/?world=overcast&t=${t0}&camera=${camera}&quality=balanced&sun=180,60`;
+  // The sun at the zenith: shadows fall right under their clouds (at a lower sun they
+  // fall beside them, src/products/shadow.rs), so cloudy columns are told from clear
+  // ones by the clouds and their shadows together.
+  const scene = `/?world=overcast&t=${t0}&camera=${camera}&quality=balanced&sun=180,90`;
   const { page, log } = await openPage(context);
   // The same view with no layer drawn: sky and ground only, the reference that
   // tells cloud from ground below.
@@ -155,7 +158,7 @@ try {
   await settle(page);
 
   const expected = ['billboards.bin', 'shadow.png'].map(
-    (p) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,60&layer=stratocumulus`,
+    (p) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,90&layer=stratocumulus`,
   );
   const requested = [...new Set(log.tileRequests)].sort();
   check(

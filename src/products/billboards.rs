@@ -298,6 +298,7 @@ mod tests {
                     "colour": b.colour.map(|c| f(c as f64)),
                     "opacity": f(b.opacity as f64),
                     "sun_transmittance": f(b.sun_transmittance as f64),
+                    "tau_sun": f(b.tau_sun as f64),
                     "density": f(b.density as f64),
                 })
             })

@@ -16,6 +16,12 @@
 //! Because every splat's opacity is `1 − exp(−τ S(p)/S(0))`, the product of
 //! `(1 − α)` along a pixel is exactly the Beer–Lambert transmittance of the metaball
 //! field: the compositor and the ray marcher agree on coverage by construction.
+//!
+//! A ball within [`AROUND_EYE_RADII`] of the eye is not a quad: its field is integrated
+//! along each pixel's ray over the part of the chord in front of the eye (closed form,
+//! [`line_integral_beyond`]), and shaded for that ray's direction. Inside a cloud layer
+//! that is fog, thicker toward nearby ball centres, with the same opacity as the ray
+//! marcher sees through the same field.
 
 use rayon::prelude::*;
 
@@ -53,15 +59,15 @@ const AROUND_EYE_RADII: f64 = 2.0;
 pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
     /// How a billboard covers the screen.
     enum Footprint {
-        /// A splat on a quad of `r_px` pixels around its projected centre.
-        Splat { x: f64, y: f64, r_px: f64, splat: usize },
+        /// A splat on a quad of `r_px` pixels around its projected centre, shaded
+        /// for the direction from the eye to the centre.
+        Splat { x: f64, y: f64, r_px: f64, splat: usize, colour: [f64; 3] },
         /// A ball near the eye, integrated along each pixel's ray: centre, radius
         /// (metres), the splat's centre optical depth and the sun transmittance.
         AroundEye { centre: [f64; 3], radius: f64, tau: f64, sun_transmittance: f64 },
     }
     struct Item {
         dist: f64,
-        colour: [f64; 3],
         footprint: Footprint,
     }
     let perspective = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
@@ -76,7 +82,6 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
                 }
                 return Some(Item {
                     dist,
-                    colour: [0.0; 3],
                     footprint: Footprint::AroundEye {
                         centre: b.centre,
                         radius: r,
@@ -101,12 +106,12 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
             let colour = lighting.cloud_source(b.sun_transmittance as f64, dir);
             Some(Item {
                 dist,
-                colour,
                 footprint: Footprint::Splat {
                     x: p.x,
                     y: p.y,
                     r_px,
                     splat: b.splat as usize,
+                    colour,
                 },
             })
         })
@@ -149,7 +154,7 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
         };
         for it in &items {
             match it.footprint {
-                Footprint::Splat { x, y, r_px, splat } => {
+                Footprint::Splat { x, y, r_px, splat, colour } => {
                     let top = ((y - r_px - 0.5).floor().max(y0 as f64)) as usize;
                     let bottom = ((y + r_px + 0.5).ceil().min(y1 as f64)) as usize;
                     if top >= bottom {
@@ -170,7 +175,7 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
                             let dx = (px as f64 + 0.5 - x) / r_px;
                             let a = sheet.sample(splat, dx, dy);
                             if a > 0.0 {
-                                take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, it.colour);
+                                take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, colour);
                             }
                         }
                     }

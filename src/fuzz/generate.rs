@@ -273,6 +273,7 @@ const QUALITIES: &[&str] = &[
     "balanced",
     "accurate",
     "reference",
+    "reference-single",
     "ultra",
     "",
     "FAST",

@@ -140,6 +140,7 @@ pub fn render_gallery(
     config: &Config,
     width: usize,
     height: usize,
+    samples: u32,
     mut progress: impl FnMut(&GalleryView, Quality),
 ) -> Result<Gallery, String> {
     let world = config
@@ -160,7 +161,7 @@ pub fn render_gallery(
                 quality: q,
                 sun: Some(Sun::new(v.sun.0, v.sun.1).ok_or("a gallery sun is out of range")?),
                 params: ShadingParams::default(),
-                samples: crate::render::pathtrace::DEFAULT_SAMPLES,
+                samples,
             };
             let start = Instant::now();
             let rendered = render(&world, config, &req).map_err(|e| format!("view `{}`, {}: {e}", v.name, q.as_str()))?;

@@ -18,6 +18,9 @@ pub struct GalleryArgs {
     /// A quick look: smaller pictures by default.
     #[arg(long)]
     quick: bool,
+    /// Samples per pixel of the reference (the path tracer).
+    #[arg(long, default_value_t = crate::render::pathtrace::DEFAULT_SAMPLES)]
+    samples: u32,
     /// Config file (default: the embedded config); the views look at its `default` world.
     #[arg(long)]
     config: Option<String>,
@@ -31,9 +34,12 @@ pub fn run(a: GalleryArgs) -> Result<(), String> {
     if width > 1920 || height > 1080 {
         return Err(format!("--size is at most 1920x1080 for a gallery of {cells} pictures, got `{size}`"));
     }
+    if a.samples < 2 || a.samples > 4096 {
+        return Err(format!("--samples must be between 2 and 4096, got {}", a.samples));
+    }
     let config = super::load_config(a.config.as_deref())?;
     std::fs::create_dir_all(&a.out).map_err(|e| format!("cannot create {}: {e}", a.out))?;
-    let gallery = render_gallery(&config, width, height, |v, q| {
+    let gallery = render_gallery(&config, width, height, a.samples, |v, q| {
         eprintln!("gallery: {} {}", v.name, q.as_str());
     })?;
     let dir = std::path::Path::new(&a.out);

@@ -237,6 +237,10 @@ struct Segment {
     /// Σ over tentative collisions of T̂ · σ/σ̄ · T̂_sun: the sun scattered once on the
     /// segment, before albedo, phase and sun colour.
     sun: f64,
+    /// With aerial perspective from the segment's origin (the eye): the same sum with
+    /// each term times the air's transmittance between the eye and its collision
+    /// point, per channel (`sun` × 1 without).
+    sun_hazed: [f64; 3],
     /// An estimate of the segment's transmittance to its end: 1 or 0 (delta tracking
     /// escaped or collided) on a segment that scatters, ratio tracking otherwise.
     transmittance: f64,
@@ -410,15 +414,17 @@ impl<'a> Tracer<'a> {
     /// tentative collision, weighted by the running ratio-tracking transmittance.
     /// Otherwise (the last segment of a capped path) only the ratio-tracking
     /// transmittance to the end.
-    fn segment(&self, o: [f64; 3], d: [f64; 3], t_max: f64, scatter: bool, rng: &mut Stream) -> Segment {
+    fn segment(&self, o: [f64; 3], d: [f64; 3], t_max: f64, scatter: bool, hazed: bool, rng: &mut Stream) -> Segment {
         if !scatter {
             return Segment {
                 sun: 0.0,
+                sun_hazed: [0.0; 3],
                 transmittance: self.medium.transmittance(o, d, t_max, rng),
                 collision: None,
             };
         }
         let mut sun_sum = 0.0;
+        let mut sun_hazed = [0.0; 3];
         let mut tr = if self.sun_up { 1.0 } else { 0.0 };
         let mut collision = None;
         let sun = self.env.lighting.sun_dir;
@@ -433,10 +439,19 @@ impl<'a> Tracer<'a> {
                     // 1/NEE_WEIGHT shadow rays per segment in expectation (Σ weights ≤ 1).
                     let w = tr * r;
                     let p = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
-                    if w >= NEE_WEIGHT {
-                        sun_sum += w * self.medium.transmittance(p, sun, f64::INFINITY, rng);
+                    let gathered = if w >= NEE_WEIGHT {
+                        w * self.medium.transmittance(p, sun, f64::INFINITY, rng)
                     } else if rng.next() * NEE_WEIGHT < w {
-                        sun_sum += NEE_WEIGHT * self.medium.transmittance(p, sun, f64::INFINITY, rng);
+                        NEE_WEIGHT * self.medium.transmittance(p, sun, f64::INFINITY, rng)
+                    } else {
+                        0.0
+                    };
+                    if gathered > 0.0 {
+                        sun_sum += gathered;
+                        let air = if hazed { self.env.lighting.aerial(o, p).0 } else { [1.0; 3] };
+                        for c in 0..3 {
+                            sun_hazed[c] += gathered * air[c];
+                        }
                     }
                     tr *= 1.0 - r;
                     roulette(&mut tr, rng);
@@ -446,17 +461,34 @@ impl<'a> Tracer<'a> {
         });
         Segment {
             sun: sun_sum,
+            sun_hazed,
             transmittance: if collision.is_none() { 1.0 } else { 0.0 },
             collision,
         }
     }
 
-    /// One path from `o` along `d`: its radiance estimate.
-    fn path(&self, mut o: [f64; 3], mut d: [f64; 3], rng: &mut Stream) -> [f64; 3] {
+    /// One path from `o` along `d`: its radiance estimate. With `aerial` (a
+    /// perspective view: `o` is the eye), what the primary ray meets is seen through
+    /// the air between the eye and it, as in the marcher and the compositor
+    /// (`L · T_air + L_in`, [`Lighting::aerial`]): the sun gathered on the primary
+    /// segment is hazed at each collision point, everything beyond the first
+    /// collision p₁ is multiplied by `T_air(eye, p₁)` and `L_in(eye, p₁)` is added
+    /// (whose expectation over p₁ is the marcher's `Σ T_k a_k L_in(p_k)`). The ground
+    /// behind an escaping primary ray is hazed by [`Lighting::background`]; the sky
+    /// needs none.
+    fn path(&self, mut o: [f64; 3], mut d: [f64; 3], aerial: bool, rng: &mut Stream) -> [f64; 3] {
         let lighting = self.env.lighting;
         let (sun, sun_rgb) = (lighting.sun_dir, lighting.sun_rgb);
         let phase = lighting.params.phase;
+        let eye = o;
         let mut radiance = [0.0; 3];
+        // The primary segment's radiance and the air at the first collision.
+        let mut primary = [0.0; 3];
+        let mut air: Option<([f64; 3], [f64; 3])> = None;
+        let finish = |radiance: [f64; 3], primary: [f64; 3], air: Option<([f64; 3], [f64; 3])>| match air {
+            Some((tr, l)) => [0, 1, 2].map(|c| primary[c] + radiance[c] * tr[c] + l[c]),
+            None => [0, 1, 2].map(|c| primary[c] + radiance[c]),
+        };
         let mut throughput = 1.0;
         let mut scatterings = 0;
         loop {
@@ -465,11 +497,14 @@ impl<'a> Tracer<'a> {
             } else {
                 f64::INFINITY
             };
-            let seg = self.segment(o, d, ground_t, scatterings < self.params.max_scatterings, rng);
+            let first = scatterings == 0;
+            let hazed = aerial && first;
+            let seg = self.segment(o, d, ground_t, scatterings < self.params.max_scatterings, hazed, rng);
             if seg.sun > 0.0 {
-                let w = throughput * self.albedo * seg.sun * phase.eval(dot(d, sun));
+                let w = throughput * self.albedo * phase.eval(dot(d, sun));
+                let out = if first { &mut primary } else { &mut radiance };
                 for c in 0..3 {
-                    radiance[c] += w * sun_rgb[c];
+                    out[c] += w * seg.sun_hazed[c] * sun_rgb[c];
                 }
             }
             if seg.transmittance > 0.0 {
@@ -485,25 +520,29 @@ impl<'a> Tracer<'a> {
                 } else {
                     self.env.sky(d)
                 };
+                let out = if first { &mut primary } else { &mut radiance };
                 for c in 0..3 {
-                    radiance[c] += throughput * seg.transmittance * behind[c];
+                    out[c] += throughput * seg.transmittance * behind[c];
                 }
             }
             let Some(t) = seg.collision else {
-                return radiance;
+                return finish(radiance, primary, air);
             };
             scatterings += 1;
+            o = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
+            if hazed {
+                air = Some(lighting.aerial(eye, o));
+            }
             throughput *= self.albedo;
             if !(throughput > 0.0) {
-                return radiance;
+                return finish(radiance, primary, air);
             }
-            o = [o[0] + d[0] * t, o[1] + d[1] * t, o[2] + d[2] * t];
             let cos = phase.sample_cos(rng.next(), rng.next());
             d = deflect(d, cos, 2.0 * std::f64::consts::PI * rng.next());
             if scatterings >= ROULETTE_AFTER {
                 let survive = throughput.min(1.0);
                 if rng.next() >= survive {
-                    return radiance;
+                    return finish(radiance, primary, air);
                 }
                 throughput /= survive;
             }
@@ -529,6 +568,9 @@ pub fn render_cancellable(
 ) -> Traced {
     let samples = params.samples.max(2);
     let tracer = Tracer::new(volumes, env, *params);
+    // Perspective views have an eye, whose air hazes what it sees; orthographic ones
+    // do not (as in the marcher).
+    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
     let width = view.width;
     let rows: Vec<(Vec<[f32; 3]>, f64, f64)> = (0..view.height)
         .into_par_iter()
@@ -545,7 +587,7 @@ pub fn render_cancellable(
                 let (mut mean, mut m2) = (0.0, 0.0);
                 for s in 0..samples {
                     let mut rng = Stream::new(x, y, s);
-                    let c = tracer.path(o, d, &mut rng);
+                    let c = tracer.path(o, d, aerial, &mut rng);
                     for i in 0..3 {
                         sum[i] += c[i];
                     }

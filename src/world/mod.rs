@@ -15,7 +15,12 @@ use serde::Deserialize;
 /// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
 /// 3: one random key per word, salted per event.
 /// 4: ARS-5 (AES-round) 16-bit draws, compared in full (no high-byte ties).
-pub const ALGORITHM_VERSION: u32 = 4;
+/// 5: pictures judged against physics (issue 20): a path-traced `reference`, a
+///    physical sky and aerial perspective, scattering octaves and sky light through
+///    the cloud in the billboards (records of 36 bytes), per-pixel splats with detail
+///    erosion, fog around the eye, far levels without haze where no cloud can form,
+///    and a fair-weather `default` world.
+pub const ALGORITHM_VERSION: u32 = 5;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -1093,7 +1093,7 @@ async fn sky_json_serves_the_renderers_sky_per_sun_bucket() {
     for (path, status, code) in [
         ("/v1/sky.json", 400, "invalid_parameter"),
         ("/v1/sky.json?sun=10,95", 400, "invalid_parameter"),
-        ("/v1/sky.json?sun=nan,5", 400, "invalid_parameter"),
+        ("/v1/sky.json?sun=nan,5", 400, "not_finite"),
         ("/v1/sky.json?t=-1", 422, "time_out_of_range"),
     ] {
         let r = s.get(path).await;

@@ -185,6 +185,14 @@ struct TransmittanceTable {
 }
 
 impl TransmittanceTable {
+    /// The table, computed once per process: it depends on no sun or setting (a
+    /// pure function of the constants above, so the same bytes everywhere; the
+    /// splat profile table of `shade.rs` is kept the same way).
+    fn shared() -> &'static TransmittanceTable {
+        static TABLE: std::sync::OnceLock<TransmittanceTable> = std::sync::OnceLock::new();
+        TABLE.get_or_init(TransmittanceTable::new)
+    }
+
     fn new() -> TransmittanceTable {
         let mut values = Vec::with_capacity(T_ROWS * T_COLUMNS);
         for i in 0..T_ROWS {
@@ -206,9 +214,17 @@ impl TransmittanceTable {
         let r = r.clamp(GROUND_RADIUS, TOP_RADIUS);
         let mu = mu.clamp(-1.0, 1.0);
         let mu_h = horizon_mu(r);
-        // Elevation of the sun's centre above the local horizon, radians.
-        let above = mu.asin() - mu_h.asin();
-        let visible = smoothstep(-SUN_ANGULAR_RADIUS, SUN_ANGULAR_RADIUS, above);
+        // The disc's fade over the sun's centre's elevation above the local horizon
+        // within ±SUN_ANGULAR_RADIUS; outside that band (compared on cosines:
+        // sin(asin μ_h ± ρ) = μ_h cos ρ ± (R/r) sin ρ, as √(1 − μ_h²) = R/r) no asin.
+        let (c, sr) = (SUN_ANGULAR_RADIUS.cos(), SUN_ANGULAR_RADIUS.sin() * GROUND_RADIUS / r);
+        let visible = if mu >= mu_h * c + sr {
+            1.0
+        } else if mu <= mu_h * c - sr {
+            0.0
+        } else {
+            smoothstep(-SUN_ANGULAR_RADIUS, SUN_ANGULAR_RADIUS, mu.asin() - mu_h.asin())
+        };
         if visible <= 0.0 {
             return [0.0; 3];
         }
@@ -267,7 +283,7 @@ pub struct Sky {
     irradiance: f64,
     /// `irradiance · SKY_SCALE`: what the air's scattering is lit by.
     scatter_irradiance: f64,
-    transmittance: TransmittanceTable,
+    transmittance: &'static TransmittanceTable,
     /// Ψ_ms (Hillaire 2020 eq. 10) per altitude of [`ms_altitude`], for this sun.
     multiple: Vec<[f64; 3]>,
     /// Sky radiance seen from the ground, SKY_ROWS × SKY_COLUMNS (night floor excluded).
@@ -296,7 +312,7 @@ impl Sky {
             sun_dir,
             irradiance: PI * intensity,
             scatter_irradiance: PI * intensity * SKY_SCALE,
-            transmittance: TransmittanceTable::new(),
+            transmittance: TransmittanceTable::shared(),
             multiple: Vec::new(),
             table: Vec::new(),
             sun_table: Vec::new(),

@@ -433,9 +433,23 @@ pub fn render_cancellable(
     background: bool,
     cancel: &Cancel,
 ) -> Image {
+    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
+    render_with_air(volumes, lighting, params, view, background, aerial, cancel)
+}
+
+/// [`render_cancellable`] with aerial perspective switched by `aerial` (tests compare
+/// the cloud alone against renderers without air).
+pub(crate) fn render_with_air(
+    volumes: &[Volume],
+    lighting: &Lighting,
+    params: &MarchParams,
+    view: &View,
+    background: bool,
+    aerial: bool,
+    cancel: &Cancel,
+) -> Image {
     let mut img = Image::new(view.width, view.height);
     let width = view.width;
-    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
     let rows: Vec<(Vec<[f32; 3]>, Vec<f32>)> = (0..view.height)
         .into_par_iter()
         .map(|y| {

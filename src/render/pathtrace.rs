@@ -569,8 +569,9 @@ pub fn render_cancellable(
     let samples = params.samples.max(2);
     let tracer = Tracer::new(volumes, env, *params);
     // Perspective views have an eye, whose air hazes what it sees; orthographic ones
-    // do not (as in the marcher).
-    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. });
+    // do not (as in the marcher). The air belongs to the clear sky: under a uniform
+    // test sky (the white furnace) there is none.
+    let aerial = matches!(view.kind, super::camera::ViewKind::Perspective { .. }) && matches!(env.sky, Sky::Clear);
     let width = view.width;
     let rows: Vec<(Vec<[f32; 3]>, f64, f64)> = (0..view.height)
         .into_par_iter()
@@ -901,7 +902,10 @@ mod tests {
         l.ambient_rgb = [0.0; 3];
         let view = lumpy_view(12, 8);
         let vol = lumpy();
-        let marched = march::render(std::slice::from_ref(&vol), &l, &MarchParams::with_step(50.0 / 16.0), &view, false);
+        // No air on either side: the uniform (black) test sky has none.
+        let step = MarchParams::with_step(50.0 / 16.0);
+        let never = Cancel::never();
+        let marched = march::render_with_air(std::slice::from_ref(&vol), &l, &step, &view, false, false, &never);
         let env = Environment {
             lighting: &l,
             sky: Sky::Uniform([0.0; 3]),

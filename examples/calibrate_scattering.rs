@@ -102,19 +102,20 @@ fn main() -> Result<(), String> {
         scenes.push((s, Prepared { world, reference, tau, grids, plan }));
     }
     let mut best: Option<(f64, String)> = None;
-    for count in [1u32, 2, 3, 4] {
-        for a in [0.25, 0.5, 0.75] {
+    for count in [1u32, 2, 3, 4, 6] {
+        for a in [0.25, 0.5, 0.75, 1.0] {
             for b in [0.25, 0.5, 0.75] {
                 if count == 1 && (a != 0.5 || b != 0.5) {
                     continue;
                 }
-                for sky in [0.5, 1.0, 2.0] {
+                for sky in [0.125, 0.25, 0.5, 1.0, 2.0] {
                     let params = ShadingParams {
                         octaves: Octaves { count, attenuation: a, contribution: b, eccentricity: 0.5 },
                         sky_extinction_scale: sky,
                         ..ShadingParams::default()
                     };
                     let (mut sum, mut n, mut worst, mut ssim) = (0.0, 0, 1.0f64, 0.0);
+                    let mut bins = String::new();
                     for (s, p) in &scenes {
                         let mut req = request(s, preset, size)?;
                         req.params = params;
@@ -129,6 +130,9 @@ fn main() -> Result<(), String> {
                             }
                         }
                         ssim += c.ssim / scenes.len() as f64;
+                        let r: Vec<String> =
+                            c.radiance_ratio.iter().map(|r| r.map_or("-".into(), |r| format!("{r:.2}"))).collect();
+                        bins += &format!("\n    {}: SSIM {:.3}, bins {}", s.name, c.ssim, r.join(" "));
                     }
                     let objective = sum / n.max(1) as f64;
                     let line = format!(
@@ -136,7 +140,7 @@ fn main() -> Result<(), String> {
                     );
                     println!("{line}");
                     if best.as_ref().is_none_or(|(o, _)| objective < *o) {
-                        best = Some((objective, line));
+                        best = Some((objective, format!("{line}{bins}")));
                     }
                 }
             }

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
 # numpy opens what `cloudscape density` writes: shape, dtype, range, and the raw
-# f32 file holds the same numbers.
+# f32 file holds the same numbers (the overcast world: its stratocumulus has depth 10).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 bin=target/release/cloudscape
 d=$(mktemp -d); trap 'rm -rf "$d"' EXIT
-$bin density --world default --bbox 0,0,6400,3200 --t 500 --out "$d/a.npy"
-$bin density --world default --bbox 0,0,6400,3200 --t 500 --format f32 --out "$d/a.f32"
-$bin density --world default --bbox 0,0,6400,3200 --t 500 --field cld --out "$d/c.npy"
+$bin density --world overcast --bbox 0,0,6400,3200 --t 500 --out "$d/a.npy"
+$bin density --world overcast --bbox 0,0,6400,3200 --t 500 --format f32 --out "$d/a.f32"
+$bin density --world overcast --bbox 0,0,6400,3200 --t 500 --field cld --out "$d/c.npy"
 python3 - "$d" <<'PY'
 import sys, numpy as np
 d = sys.argv[1]

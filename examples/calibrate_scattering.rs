@@ -21,9 +21,9 @@
 //! config of the scene worlds is written to `REFERENCE_DIR/scenes.toml`, and the
 //! `cloudscape render` command of each scene is printed).
 
-use cloudscape::bench::quality::{SCENES, SCENE_WORLDS, compare, request, scene_density, shade_grids, view_tau};
-use cloudscape::render::light::Octaves;
+use cloudscape::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau};
 use cloudscape::render::image::Image;
+use cloudscape::render::light::Octaves;
 use cloudscape::render::{Quality, ShadingParams, scene};
 use cloudscape::world::Config;
 
@@ -36,7 +36,12 @@ fn read_reference(path: &std::path::Path, size: usize) -> Result<Image, String> 
     let mut buf = vec![0; reader.output_buffer_size().ok_or("PNG too large")?];
     let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
     if info.width as usize != size || info.height as usize != size {
-        return Err(format!("{} is {}x{}, expected {size}x{size}", path.display(), info.width, info.height));
+        return Err(format!(
+            "{} is {}x{}, expected {size}x{size}",
+            path.display(),
+            info.width,
+            info.height
+        ));
     }
     let ch = info.color_type.samples();
     let mut img = Image::new(size, size);
@@ -53,7 +58,11 @@ fn read_reference(path: &std::path::Path, size: usize) -> Result<Image, String> 
 
 fn main() -> Result<(), String> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let size: usize = args.first().map(|s| s.parse().map_err(|_| "SIZE must be a number")).transpose()?.unwrap_or(128);
+    let size: usize = args
+        .first()
+        .map(|s| s.parse().map_err(|_| "SIZE must be a number"))
+        .transpose()?
+        .unwrap_or(128);
     let preset = args
         .get(1)
         .map(|s| Quality::parse(s).ok_or("PRESET must be fast | balanced | accurate"))
@@ -99,7 +108,16 @@ fn main() -> Result<(), String> {
         let req = request(s, preset, size)?;
         let (_, grids, plan) = scene_density(&world, &config, &req)?;
         eprintln!("prepared {}", s.name);
-        scenes.push((s, Prepared { world, reference, tau, grids, plan }));
+        scenes.push((
+            s,
+            Prepared {
+                world,
+                reference,
+                tau,
+                grids,
+                plan,
+            },
+        ));
     }
     let mut best: Option<(f64, String)> = None;
     for count in [1u32, 2, 3, 4, 6] {
@@ -110,7 +128,12 @@ fn main() -> Result<(), String> {
                 }
                 for sky in [0.125, 0.25, 0.5, 1.0, 2.0] {
                     let params = ShadingParams {
-                        octaves: Octaves { count, attenuation: a, contribution: b, eccentricity: 0.5 },
+                        octaves: Octaves {
+                            count,
+                            attenuation: a,
+                            contribution: b,
+                            eccentricity: 0.5,
+                        },
                         sky_extinction_scale: sky,
                         ..ShadingParams::default()
                     };
@@ -130,8 +153,11 @@ fn main() -> Result<(), String> {
                             }
                         }
                         ssim += c.ssim / scenes.len() as f64;
-                        let r: Vec<String> =
-                            c.radiance_ratio.iter().map(|r| r.map_or("-".into(), |r| format!("{r:.2}"))).collect();
+                        let r: Vec<String> = c
+                            .radiance_ratio
+                            .iter()
+                            .map(|r| r.map_or("-".into(), |r| format!("{r:.2}")))
+                            .collect();
                         bins += &format!("\n    {}: SSIM {:.3}, bins {}", s.name, c.ssim, r.join(" "));
                     }
                     let objective = sum / n.max(1) as f64;

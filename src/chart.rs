@@ -266,7 +266,8 @@ pub fn contact_sheet(
         for (i, c) in cells.iter().enumerate() {
             let x = (CONTACT_LABEL_WIDTH + (i % cols) * cw + 4) as i32;
             let y = (CONTACT_HEADER_HEIGHT + (i / cols) * (ch + CONTACT_CAPTION_HEIGHT) + ch + 2) as i32;
-            root.draw(&Text::new(c.caption.clone(), (x, y), small.clone())).map_err(e)?;
+            root.draw(&Text::new(c.caption.clone(), (x, y), small.clone()))
+                .map_err(e)?;
         }
         root.present().map_err(e)?;
     }

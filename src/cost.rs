@@ -146,7 +146,14 @@ fn shaded(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Su
 
 /// The work of a tile product: `render::shade_tile(world, layer, tile, t, q, sun, ..)`
 /// and the encoding of the tile's products.
-pub fn shade_tile(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Sun) -> Result<Work, RenderError> {
+pub fn shade_tile(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    q: Quality,
+    sun: Sun,
+) -> Result<Work, RenderError> {
     let (work, _) = shaded(world, layer, tile, t, q, sun)?;
     let l = &world.layers[layer];
     let encoded = tile_balls(l, tile.z, q).saturating_mul(ENCODED_BYTES_PER_BALL);
@@ -329,7 +336,10 @@ mod tests {
             let tile = TileId { z: 0, x: 0, y: 0 };
             let sun = Sun::new(180.0, 40.0).unwrap();
             let est = shade_tile(&world, 0, tile, 43200.0, q, sun).unwrap();
-            println!("  (march steps of the world: {})", march_steps(&world, Quality::Reference));
+            println!(
+                "  (march steps of the world: {})",
+                march_steps(&world, Quality::Reference)
+            );
             let balls = tile_balls(&world.layers[0], 0, q);
             measure(&format!("shade_tile {} ({balls} balls)", q.as_str()), est, &mut || {
                 let s = crate::render::shade_tile(
@@ -360,9 +370,13 @@ mod tests {
             let req = view(q, size);
             let tiles = plan(&world, &config, &req).unwrap().len();
             let est = render(&world, &config, &req).unwrap();
-            measure(&format!("render {} {size}² ({tiles} tiles)", q.as_str()), est, &mut || {
-                crate::render::render(&world, &config, &req).unwrap().image.to_png();
-            });
+            measure(
+                &format!("render {} {size}² ({tiles} tiles)", q.as_str()),
+                est,
+                &mut || {
+                    crate::render::render(&world, &config, &req).unwrap().image.to_png();
+                },
+            );
         }
     }
 }

@@ -80,9 +80,16 @@ async fn work_that_cannot_fit_the_budget_or_the_memory_limit_is_refused_up_front
     // Within the CPU budget but over limits.max_request_bytes (128 MiB here).
     let a = get(&c, render(&server.base, 1, "1024x1024", "balanced")).await;
     assert_eq!(a.status, 413, "{}", a.json);
-    assert!(a.json["message"].as_str().unwrap().contains("limits.max_request_bytes"), "{}", a.json);
+    assert!(
+        a.json["message"].as_str().unwrap().contains("limits.max_request_bytes"),
+        "{}",
+        a.json
+    );
     assert_eq!(metric(&server, "cloudscape_refused_total", &[("kind", "render")]), 2.0);
-    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "render")]), 0.0);
+    assert_eq!(
+        metric(&server, "cloudscape_computations_total", &[("kind", "render")]),
+        0.0
+    );
     // A small view is admitted (drawn, or at worst over its budget on a loaded box).
     let a = get(&c, render(&server.base, 2, "64x36", "fast")).await;
     assert!(a.status == 200 || a.status == 503, "{}", a.json);
@@ -113,7 +120,11 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
         assert!(a.status == 200 || a.status == 503, "status {} {}", a.status, a.json);
         if a.status == 503 {
             assert!(a.retry_after.is_some_and(|s| (1..=60).contains(&s)));
-            assert!(matches!(a.json["error"].as_str(), Some("timeout" | "overloaded")), "{}", a.json);
+            assert!(
+                matches!(a.json["error"].as_str(), Some("timeout" | "overloaded")),
+                "{}",
+                a.json
+            );
         }
     }
     let answered = started.elapsed();
@@ -136,7 +147,11 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
     );
     assert!(metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) > 0.0);
     // An uncached cheap request is served at once.
-    let a = get(&c, format!("{}/v1/worlds/default/tiles/0/77/-5/density.u8?t=40", server.base)).await;
+    let a = get(
+        &c,
+        format!("{}/v1/worlds/default/tiles/0/77/-5/density.u8?t=40", server.base),
+    )
+    .await;
     assert_eq!(a.status, 200);
 }
 
@@ -154,11 +169,21 @@ async fn retry_after_follows_the_queue_not_a_constant() {
     let c = client();
     // Two renders one after the other teach the queue its job time (~1.5 s or more).
     for i in 0..2 {
-        assert_eq!(get(&c, render(&server.base, 200 + i, "1024x1024", "balanced")).await.status, 200);
+        assert_eq!(
+            get(&c, render(&server.base, 200 + i, "1024x1024", "balanced"))
+                .await
+                .status,
+            200
+        );
     }
     // Fill the queue with four more, then ask for a fifth.
     let handles: Vec<_> = (0..4)
-        .map(|i| tokio::spawn(get_owned(c.clone(), render(&server.base, 300 + i, "1024x1024", "balanced"))))
+        .map(|i| {
+            tokio::spawn(get_owned(
+                c.clone(),
+                render(&server.base, 300 + i, "1024x1024", "balanced"),
+            ))
+        })
         .collect();
     let mut shed = None;
     for _ in 0..50 {
@@ -189,14 +214,20 @@ async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billbo
     assert_eq!(a.status, 413, "{}", a.json);
     assert_eq!(a.json["error"], "response_too_large");
     let m = a.json["message"].as_str().unwrap();
-    assert!(m.contains("billboards.bin") && m.contains("limits.max_response_bytes"), "{m}");
+    assert!(
+        m.contains("billboards.bin") && m.contains("limits.max_response_bytes"),
+        "{m}"
+    );
     // The binary form of the same billboards is within the limit, and came from the
     // same shading (no second computation); so does the repeated refusal.
     let bin = get(&c, tile("billboards.bin")).await;
     assert_eq!(bin.status, 200);
     assert!(bin.bytes < 1 << 20);
     assert_eq!(get(&c, tile("billboards.json")).await.status, 413);
-    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "tile_shaded")]), 1.0);
+    assert_eq!(
+        metric(&server, "cloudscape_computations_total", &[("kind", "tile_shaded")]),
+        1.0
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -213,7 +244,10 @@ async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
         assert_eq!(get(&c, tile("density.u8")).await.status, 200);
     }
     // The f32 grid was computed twice (never kept), the u8 grid once (kept).
-    assert_eq!(metric(&server, "cloudscape_computations_total", &[("kind", "tile_density")]), 3.0);
+    assert_eq!(
+        metric(&server, "cloudscape_computations_total", &[("kind", "tile_density")]),
+        3.0
+    );
     // The cache grew by the u8 grid and the small entries beside it, never by the
     // 2.6 MB f32 grid (which alone would be more than it grew).
     let grown = metric(&server, "cloudscape_cache_bytes", &[]) - before;
@@ -280,13 +314,37 @@ fn the_attack_scenario_holds_against_the_real_binary() {
     let dir = tempfile::tempdir().unwrap();
     let report = dir.path().join("attack.json");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args(["fuzz", "--scenario", "attack", "--target", &server.base, "--budget", "3"])
-        .args(["--heavy-size", "1024x1024", "--heavy-quality", "fast", "--rss-limit-mib", "768"])
-        .args(["--pid", &server.child.id().to_string(), "--json", report.to_str().unwrap()])
+        .args([
+            "fuzz",
+            "--scenario",
+            "attack",
+            "--target",
+            &server.base,
+            "--budget",
+            "3",
+        ])
+        .args([
+            "--heavy-size",
+            "1024x1024",
+            "--heavy-quality",
+            "fast",
+            "--rss-limit-mib",
+            "768",
+        ])
+        .args([
+            "--pid",
+            &server.child.id().to_string(),
+            "--json",
+            report.to_str().unwrap(),
+        ])
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(r["held"], true, "{stdout}");
     let attack = |name: &str| {
@@ -309,7 +367,10 @@ fn the_attack_scenario_holds_against_the_real_binary() {
     assert!(admitted["figures"]["recovery_s"].as_f64().unwrap() <= 6.0, "{stdout}");
     // No answer over the 64 MiB response limit (126 MB before).
     let amp = attack("amplification");
-    assert!(amp["figures"]["largest_answer_bytes"].as_f64().unwrap() <= 67108864.0, "{stdout}");
+    assert!(
+        amp["figures"]["largest_answer_bytes"].as_f64().unwrap() <= 67108864.0,
+        "{stdout}"
+    );
     assert!(r["peak_rss_kb"].as_u64().unwrap() <= 768 * 1024, "{stdout}");
 }
 

@@ -487,10 +487,20 @@ fn seams_hold_in_a_saturated_humid_world() {
 }
 
 /// `density --level Z` as f32 values, with an optional config file.
-fn level_grid(dir: &Path, cfg: Option<&Path>, world: &str, layer: Option<&str>, bbox: &str, t: &str, level: u32) -> Vec<f32> {
+fn level_grid(
+    dir: &Path,
+    cfg: Option<&Path>,
+    world: &str,
+    layer: Option<&str>,
+    bbox: &str,
+    t: &str,
+    level: u32,
+) -> Vec<f32> {
     let out = dir.join(format!("level{level}"));
     let level = level.to_string();
-    let mut args = vec!["--world", world, "--bbox", bbox, "--t", t, "--level", &level, "--format", "f32"];
+    let mut args = vec![
+        "--world", world, "--bbox", bbox, "--t", t, "--level", &level, "--format", "f32",
+    ];
     if let Some(c) = cfg {
         args.extend(["--config", c.to_str().unwrap()]);
     }
@@ -529,7 +539,10 @@ fn far_levels_make_no_cloud_where_the_automaton_cannot() {
     std::fs::write(&cfg, format!("{base}\n{preset}\n{world}")).unwrap();
     for level in 0..=4 {
         let outside = level_grid(d.path(), Some(&cfg), "x", None, "-25600,-25600,0,25600", "1000", level);
-        assert!(!outside.is_empty() && outside.iter().all(|&x| x == 0.0), "level {level} outside");
+        assert!(
+            !outside.is_empty() && outside.iter().all(|&x| x == 0.0),
+            "level {level} outside"
+        );
         let inside = level_grid(d.path(), Some(&cfg), "x", None, "0,0,25600,25600", "1000", level);
         let mean = inside.iter().sum::<f32>() / inside.len() as f32;
         assert!(mean > 0.05, "level {level}: the extent itself is cloudy (mean {mean})");
@@ -556,7 +569,10 @@ fn far_levels_track_the_level_0_mean_and_stay_clear_in_clear_columns() {
         let z = level_grid(d.path(), None, world, layer, bbox, "1000", level);
         assert_eq!(z.len(), depth * m * m);
         let mean_z = z.iter().map(|&x| x as f64).sum::<f64>() / z.len() as f64;
-        assert!((mean_z - mean0).abs() < 0.03, "level {level}: mean {mean_z} against level 0's {mean0}");
+        assert!(
+            (mean_z - mean0).abs() < 0.03,
+            "level {level}: mean {mean_z} against level 0's {mean0}"
+        );
         // Level-Z columns whose 2^Z × 2^Z level-0 cells are all clear.
         let (mut clear_sum, mut clear_n) = (0f64, 0usize);
         for k in 0..depth {
@@ -574,7 +590,10 @@ fn far_levels_track_the_level_0_mean_and_stay_clear_in_clear_columns() {
         if clear_n > 0 {
             let haze = clear_sum / clear_n as f64;
             // Before the fix this was 0.04-0.05 (activation floored where p_hum = 0).
-            assert!(haze < 0.01, "level {level}: mean density {haze} in {clear_n} clear columns");
+            assert!(
+                haze < 0.01,
+                "level {level}: mean density {haze} in {clear_n} clear columns"
+            );
         }
     }
 }

@@ -392,7 +392,10 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     // The sky of a sun: hostile suns and times.
     runner(16)
         .run(
-            &(prop::option::of(list(2, -400.0, 400.0)), prop::option::of(value(-10.0, 2e12))),
+            &(
+                prop::option::of(list(2, -400.0, 400.0)),
+                prop::option::of(value(-10.0, 2e12)),
+            ),
             |(sun, t)| {
                 let target = format!("/v1/sky.json?{}", query(vec![("sun", sun), ("t", t)]));
                 check(&target, &get(&server, &target), "application/json")

@@ -710,7 +710,10 @@ async fn a_request_that_cannot_finish_in_its_time_budget_is_refused_before_any_w
     assert_eq!(r.status(), StatusCode::PAYLOAD_TOO_LARGE);
     let body = r.json_body().await;
     assert_eq!(body["error"], "too_much_work");
-    assert!(body["message"].as_str().unwrap().contains("server.request_timeout_ms"), "{body}");
+    assert!(
+        body["message"].as_str().unwrap().contains("server.request_timeout_ms"),
+        "{body}"
+    );
     assert_eq!(
         s.metric("cloudscape_computations_total", &[("kind", "region")]).await,
         0.0
@@ -1018,7 +1021,8 @@ async fn render_png_and_splat_sheets() {
 
     // The path tracer states its noise, in a header and in the PNG's text, also when the
     // image comes from the cache; the single-scattering marcher states none.
-    let url = "/v1/worlds/default/render.png?camera=12800,-20000,1200,0,8,70&t=43200&size=16x9&quality=reference&samples=4";
+    let url =
+        "/v1/worlds/default/render.png?camera=12800,-20000,1200,0,8,70&t=43200&size=16x9&quality=reference&samples=4";
     let mut first = None;
     for _ in 0..2 {
         let r = s.get(url).await;
@@ -1052,11 +1056,14 @@ async fn render_png_and_splat_sheets() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sky_json_serves_the_renderers_sky_per_sun_bucket() {
-    use cloudscape::render::light::{Lighting, ShadingParams};
     use cloudscape::render::Sun;
+    use cloudscape::render::light::{Lighting, ShadingParams};
     let s = start(config_with(&[])).await;
     let noon = s.json("/v1/sky.json?sun=180,60").await;
-    let (rows, cols) = (noon["sky"]["rows"].as_u64().unwrap(), noon["sky"]["columns"].as_u64().unwrap());
+    let (rows, cols) = (
+        noon["sky"]["rows"].as_u64().unwrap(),
+        noon["sky"]["columns"].as_u64().unwrap(),
+    );
     let rgb = noon["sky"]["rgb"].as_array().unwrap();
     assert_eq!(rgb.len() as u64, rows * cols * 3);
     // The same values as the renderer's own Lighting for the bucket's centre sun.
@@ -1065,8 +1072,14 @@ async fn sky_json_serves_the_renderers_sky_per_sun_bucket() {
     let close = |a: f64, b: f64| (a - b).abs() <= 1e-6 * b.abs().max(1e-3);
     for c in 0..3 {
         assert!(close(noon["sun_rgb"][c].as_f64().unwrap(), l.sun_rgb[c]));
-        assert!(close(noon["sky_ambient_above"][c].as_f64().unwrap(), l.sky_ambient_above[c]));
-        assert!(close(noon["sky_ambient_below"][c].as_f64().unwrap(), l.sky_ambient_below[c]));
+        assert!(close(
+            noon["sky_ambient_above"][c].as_f64().unwrap(),
+            l.sky_ambient_above[c]
+        ));
+        assert!(close(
+            noon["sky_ambient_below"][c].as_f64().unwrap(),
+            l.sky_ambient_below[c]
+        ));
     }
     let zenith_row = (rows - 1) as usize * cols as usize * 3;
     let night = noon["night_rgb"].as_array().unwrap();

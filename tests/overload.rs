@@ -64,7 +64,9 @@ async fn fetch(client: reqwest::Client, url: String) -> Outcome {
         .and_then(|v| v["error"].as_str().map(str::to_string));
     Outcome {
         status,
-        proper_503: status == 503 && retry_after && matches!(code.as_deref(), Some("overloaded" | "timeout" | "reply_memory_full")),
+        proper_503: status == 503
+            && retry_after
+            && matches!(code.as_deref(), Some("overloaded" | "timeout" | "reply_memory_full")),
         latency: started.elapsed(),
     }
 }

@@ -138,11 +138,11 @@ fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
     let ball = single_ball(extinction, sun);
     let (w, h) = (32, 20);
     for (offset, yaw, pitch) in [
-        ([0.0, -0.4, 0.0], 0.0, 0.0),    // inside, looking through the centre
-        ([0.0, -0.4, 0.0], 180.0, 0.0),  // inside, looking out of the ball
-        ([0.3, 0.2, -0.3], 60.0, 20.0),  // inside, off-axis
-        ([0.0, -0.97, 0.0], 0.0, 10.0),  // at the rim
-        ([-1.3, -0.6, 0.1], 60.0, 0.0),  // beside the ball, which fills part of the view
+        ([0.0, -0.4, 0.0], 0.0, 0.0),   // inside, looking through the centre
+        ([0.0, -0.4, 0.0], 180.0, 0.0), // inside, looking out of the ball
+        ([0.3, 0.2, -0.3], 60.0, 20.0), // inside, off-axis
+        ([0.0, -0.97, 0.0], 0.0, 10.0), // at the rim
+        ([-1.3, -0.6, 0.1], 60.0, 0.0), // beside the ball, which fills part of the view
     ] {
         let eye = [0, 1, 2].map(|i| CENTRE[i] + offset[i] * R);
         let cam = cloudscape::render::Camera::new(eye, yaw, pitch, 90.0).unwrap();
@@ -155,7 +155,10 @@ fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
         // Splat quantisation (256 τ steps) and the marcher's 4 m steps on a 10 m grid.
         assert!(max_err < 0.03, "eye {offset:?} yaw {yaw}: opacity error {max_err}");
         // Not a uniform frame: the opacity varies across the view by a visible amount.
-        let (lo, hi) = drawn.alpha.iter().fold((1.0f32, 0.0f32), |(l, h), &a| (l.min(a), h.max(a)));
+        let (lo, hi) = drawn
+            .alpha
+            .iter()
+            .fold((1.0f32, 0.0f32), |(l, h), &a| (l.min(a), h.max(a)));
         assert!(hi - lo > 0.05, "eye {offset:?} yaw {yaw}: opacity {lo}..{hi}");
     }
 }

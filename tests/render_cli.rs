@@ -42,7 +42,13 @@ fn render_writes_a_png_deterministically() {
     let dir = tempfile::tempdir().unwrap();
     let cfg = config_file(dir.path());
     let mut outputs = Vec::new();
-    for (quality, threads) in [("balanced", 1), ("balanced", 2), ("reference", 1), ("reference", 2), ("reference-single", 2)] {
+    for (quality, threads) in [
+        ("balanced", 1),
+        ("balanced", 2),
+        ("reference", 1),
+        ("reference", 2),
+        ("reference-single", 2),
+    ] {
         let out = dir.path().join(format!("{quality}-{threads}.png"));
         let o = cloudscape(
             &[
@@ -69,7 +75,11 @@ fn render_writes_a_png_deterministically() {
         let err = String::from_utf8_lossy(&o.stderr);
         assert!(o.status.success(), "{err}");
         // The path tracer states its noise; the others print nothing.
-        assert_eq!(err.contains("32 samples per pixel, noise"), quality == "reference", "{quality}: {err}");
+        assert_eq!(
+            err.contains("32 samples per pixel, noise"),
+            quality == "reference",
+            "{quality}: {err}"
+        );
         let bytes = std::fs::read(&out).unwrap();
         let reader = png::Decoder::new(std::io::Cursor::new(&bytes)).read_info().unwrap();
         assert_eq!((reader.info().width, reader.info().height), (48, 32));
@@ -79,7 +89,10 @@ fn render_writes_a_png_deterministically() {
     assert_eq!(outputs[2], outputs[3], "thread count changed the path-traced image");
     let noise = cloudscape::render::image::png_noise(&outputs[2]).expect("the PNG states its noise");
     assert!(noise.samples == 32 && noise.std_error.is_finite());
-    assert_ne!(outputs[3], outputs[4], "reference and reference-single are different renderers");
+    assert_ne!(
+        outputs[3], outputs[4],
+        "reference and reference-single are different renderers"
+    );
 }
 
 #[test]
@@ -99,15 +112,42 @@ fn bad_requests_fail_with_one_sentence_and_no_file() {
             "limit",
         ),
         (
-            &["--camera", CAMERA, "--size", "8x8", "--quality", "balanced", "--samples", "8"],
+            &[
+                "--camera",
+                CAMERA,
+                "--size",
+                "8x8",
+                "--quality",
+                "balanced",
+                "--samples",
+                "8",
+            ],
             "--samples applies",
         ),
         (
-            &["--camera", CAMERA, "--size", "8x8", "--quality", "reference", "--samples", "1"],
+            &[
+                "--camera",
+                CAMERA,
+                "--size",
+                "8x8",
+                "--quality",
+                "reference",
+                "--samples",
+                "1",
+            ],
             "at least 2",
         ),
         (
-            &["--camera", CAMERA, "--size", "1000x1000", "--quality", "reference", "--samples", "64"],
+            &[
+                "--camera",
+                CAMERA,
+                "--size",
+                "1000x1000",
+                "--quality",
+                "reference",
+                "--samples",
+                "64",
+            ],
             "the limit is 16777216",
         ),
         (&["--camera", CAMERA, "--size", "8x8"], "unknown world"),
@@ -189,9 +229,15 @@ fn inside_a_cloud_layer_the_view_is_fog_like_the_reference() {
         stats.push(luminance_stats(&out));
     }
     let ((mean_b, sd_b), (mean_r, _)) = (stats[0], stats[1]);
-    assert!(sd_b > 2.0, "balanced from inside the layer is nearly uniform (sd {sd_b})");
+    assert!(
+        sd_b > 2.0,
+        "balanced from inside the layer is nearly uniform (sd {sd_b})"
+    );
     // The reference is the path tracer (every order of scattering); the billboards'
     // octaves are an approximation held to the band for mean radiance against
     // it, 0.85–1.15 (measured 0.91 here).
-    assert!((mean_b / mean_r - 1.0).abs() < 0.15, "mean luminance {mean_b} against the reference's {mean_r}");
+    assert!(
+        (mean_b / mean_r - 1.0).abs() < 0.15,
+        "mean luminance {mean_b} against the reference's {mean_r}"
+    );
 }

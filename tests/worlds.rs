@@ -7,7 +7,10 @@ mod common;
 use common::{ServeProcess, client};
 
 fn coverage(server: &ServeProcess, world: &str, layer: &str, bbox: &str, t: f64) -> f64 {
-    let url = format!("{}/v1/worlds/{world}/region?bbox={bbox}&t={t}&layer={layer}", server.base);
+    let url = format!(
+        "{}/v1/worlds/{world}/region?bbox={bbox}&t={t}&layer={layer}",
+        server.base
+    );
     let r = client().get(&url).send().unwrap();
     assert_eq!(r.status().as_u16(), 200, "{url}");
     let v: serde_json::Value = serde_json::from_slice(&r.bytes().unwrap()).unwrap();
@@ -17,7 +20,12 @@ fn coverage(server: &ServeProcess, world: &str, layer: &str, bbox: &str, t: f64)
 #[test]
 fn the_showcase_worlds_are_listed_and_have_their_weather() {
     let server = ServeProcess::start(&[], &[]);
-    let body = client().get(format!("{}/v1/worlds", server.base)).send().unwrap().bytes().unwrap();
+    let body = client()
+        .get(format!("{}/v1/worlds", server.base))
+        .send()
+        .unwrap()
+        .bytes()
+        .unwrap();
     let list: serde_json::Value = serde_json::from_slice(&body).unwrap();
     let names: Vec<&str> = list["worlds"]
         .as_array()
@@ -31,11 +39,18 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
     // Default: fair-weather cumulus, 30–50 % of columns covered in every box and time
     // (measured 0.385–0.493 over five boxes and three times; the box gave 0.854
     // under the old default), with a broken deck above and cirrus.
-    for (bbox, t) in [("0,0,20000,20000", 60.0), ("40000,-30000,60000,-10000", 4000.0), ("-80000,50000,-60000,70000", 43200.0)] {
+    for (bbox, t) in [
+        ("0,0,20000,20000", 60.0),
+        ("40000,-30000,60000,-10000", 4000.0),
+        ("-80000,50000,-60000,70000", 43200.0),
+    ] {
         let c = coverage(&server, "default", "cumulus", bbox, t);
         assert!((0.3..=0.5).contains(&c), "default cumulus {bbox} t={t}: {c}");
         let deck = coverage(&server, "default", "stratocumulus", bbox, t);
-        assert!((0.15..=0.5).contains(&deck), "default stratocumulus {bbox} t={t}: {deck}");
+        assert!(
+            (0.15..=0.5).contains(&deck),
+            "default stratocumulus {bbox} t={t}: {deck}"
+        );
     }
     // Overcast: the old default's heavy deck.
     let c = coverage(&server, "overcast", "stratocumulus", "0,0,20000,20000", 60.0);
@@ -46,12 +61,19 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
     let band = coverage(&server, "storm-front", "cumulonimbus", "0,26000,20000,34000", t);
     assert!(band > 0.8, "in the band: {band}");
     for clear in ["0,60000,20000,80000", "0,-20000,20000,0"] {
-        assert_eq!(coverage(&server, "storm-front", "cumulonimbus", clear, t), 0.0, "{clear}");
+        assert_eq!(
+            coverage(&server, "storm-front", "cumulonimbus", clear, t),
+            0.0,
+            "{clear}"
+        );
         assert_eq!(coverage(&server, "storm-front", "anvil", clear, t), 0.0, "{clear}");
     }
     // The front moves north with the wind: an hour later the band is 5.4 km farther.
     let later = 3600.0;
     let ahead_now = coverage(&server, "storm-front", "cumulonimbus", "0,40000,20000,46000", t);
     let ahead_later = coverage(&server, "storm-front", "cumulonimbus", "0,40000,20000,46000", later);
-    assert!(ahead_later > ahead_now + 0.1, "the front advances: {ahead_now} then {ahead_later}");
+    assert!(
+        ahead_later > ahead_now + 0.1,
+        "the front advances: {ahead_now} then {ahead_later}"
+    );
 }

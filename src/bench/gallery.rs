@@ -164,7 +164,8 @@ pub fn render_gallery(
                 samples,
             };
             let start = Instant::now();
-            let rendered = render(&world, config, &req).map_err(|e| format!("view `{}`, {}: {e}", v.name, q.as_str()))?;
+            let rendered =
+                render(&world, config, &req).map_err(|e| format!("view `{}`, {}: {e}", v.name, q.as_str()))?;
             let seconds = start.elapsed().as_secs_f64();
             let display = rendered.image.display();
             let (e, s) = match &reference_display {

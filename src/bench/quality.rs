@@ -17,8 +17,8 @@ use std::time::Instant;
 
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use crate::density::{self, Region};
-use crate::render::image::{Image, rmse, ssim};
 use crate::render::camera::View;
+use crate::render::image::{Image, rmse, ssim};
 use crate::render::march;
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
@@ -230,7 +230,14 @@ pub fn scene_density(
     world: &World,
     config: &Config,
     req: &RenderRequest,
-) -> Result<(f64, Vec<(density::Grid<f32>, usize)>, Vec<(usize, crate::render::TileId)>), String> {
+) -> Result<
+    (
+        f64,
+        Vec<(density::Grid<f32>, usize)>,
+        Vec<(usize, crate::render::TileId)>,
+    ),
+    String,
+> {
     let sun = req.sun.ok_or("the scene has no sun")?;
     let plan = scene::plan(world, config, req).map_err(|e| e.to_string())?;
     let t0 = Instant::now();

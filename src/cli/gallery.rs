@@ -32,7 +32,9 @@ pub fn run(a: GalleryArgs) -> Result<(), String> {
     // Checked before any work: the reference renderer's own limit refuses larger.
     let cells = VIEWS.len() * QUALITIES.len();
     if width > 1920 || height > 1080 {
-        return Err(format!("--size is at most 1920x1080 for a gallery of {cells} pictures, got `{size}`"));
+        return Err(format!(
+            "--size is at most 1920x1080 for a gallery of {cells} pictures, got `{size}`"
+        ));
     }
     if a.samples < 2 || a.samples > 4096 {
         return Err(format!("--samples must be between 2 and 4096, got {}", a.samples));

@@ -5,8 +5,8 @@
 use clap::Args;
 
 use crate::client::TileClient;
-use crate::render::scene::{RenderRequest, parse_size, render};
 use crate::render::pathtrace::DEFAULT_SAMPLES;
+use crate::render::scene::{RenderRequest, parse_size, render};
 use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
 
 #[derive(Args)]

@@ -332,12 +332,10 @@ impl TileClient {
     /// volume, which the server does not serve as billboards).
     pub fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
         if req.quality.is_volumetric() {
-            return Err(RenderError::BadRequest(
-                format!(
-                    "quality `{}` renders the density locally; a remote render draws billboards (fast, balanced, accurate)",
-                    req.quality.as_str()
-                ),
-            )
+            return Err(RenderError::BadRequest(format!(
+                "quality `{}` renders the density locally; a remote render draws billboards (fast, balanced, accurate)",
+                req.quality.as_str()
+            ))
             .into());
         }
         let info = self.world(world)?;
@@ -403,13 +401,15 @@ impl TileClient {
         let sheet = self.splat_sheet(req.quality)?;
         let view = View::perspective(&req.camera, req.width, req.height);
         let lighting = Lighting::new(sun.bucket().centre(), req.params);
-        let far = mean_shadow(
-            tiles
-                .iter()
-                .zip(&shadows)
-                .map(|(&(layer, _), s)| (layer, s.values.iter().map(|&v| v as f64).sum::<f64>() / s.values.len().max(1) as f64)),
-        );
-        let mut image = background(&view, &lighting, far, |x, y| shadows.iter().map(|s| s.at(x, y)).product());
+        let far = mean_shadow(tiles.iter().zip(&shadows).map(|(&(layer, _), s)| {
+            (
+                layer,
+                s.values.iter().map(|&v| v as f64).sum::<f64>() / s.values.len().max(1) as f64,
+            )
+        }));
+        let mut image = background(&view, &lighting, far, |x, y| {
+            shadows.iter().map(|s| s.at(x, y)).product()
+        });
         composite(&mut image, &billboards, &sheet, &lighting, &view);
         Ok(Rendered {
             image,

@@ -60,7 +60,10 @@ fn run_specs(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> (Vec<StepPlan>,
 pub fn cell_steps(sim: &LayerSim, region: Region, t: f64) -> u64 {
     let Sampling { steps, windows, .. } = sampling(sim, region, t);
     let (_, specs) = run_specs(sim, &steps, &windows);
-    specs.values().map(|spec| sim.run_cells(spec)).fold(0, u64::saturating_add)
+    specs
+        .values()
+        .map(|spec| sim.run_cells(spec))
+        .fold(0, u64::saturating_add)
 }
 
 /// Runs every run the plans of `steps` need, over the given per-level windows,

@@ -69,7 +69,11 @@ pub fn cloud_cells(world: &World, layer: usize, region: Region, t: f64) -> Resul
 /// which use the mean-field model and run no automaton). Checked like `density`.
 pub fn cell_steps(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<u64, SimError> {
     let sim = prepare(world, layer, level, region, t)?;
-    Ok(if level == 0 { exact::cell_steps(&sim, region, t) } else { 0 })
+    Ok(if level == 0 {
+        exact::cell_steps(&sim, region, t)
+    } else {
+        0
+    })
 }
 
 fn prepare(world: &World, layer: usize, level: u32, region: Region, t: f64) -> Result<LayerSim, SimError> {

@@ -99,14 +99,22 @@ impl AttackReport {
                 s += &format!("    {n}\n");
             }
         }
-        let mib = |kb: Option<u64>| kb.map_or("unknown (no --pid)".to_string(), |k| format!("{:.0} MiB", k as f64 / 1024.0));
+        let mib = |kb: Option<u64>| {
+            kb.map_or("unknown (no --pid)".to_string(), |k| {
+                format!("{:.0} MiB", k as f64 / 1024.0)
+            })
+        };
         s += &format!(
             "server RSS: before {}, peak {} (limit {:.0} MiB)\n",
             mib(self.rss_before_kb),
             mib(self.peak_rss_kb),
             self.rss_limit_kb as f64 / 1024.0
         );
-        s += if self.held { "the server held\n" } else { "the server did NOT hold\n" };
+        s += if self.held {
+            "the server held\n"
+        } else {
+            "the server did NOT hold\n"
+        };
         s
     }
 }
@@ -145,10 +153,7 @@ pub fn is_loopback_target(target: &str) -> bool {
         Some(v6) => v6.split(']').next().unwrap_or(""),
         None => host.rsplit_once(':').map_or(host, |(h, _)| h),
     };
-    host == "localhost"
-        || host
-            .parse::<std::net::IpAddr>()
-            .is_ok_and(|ip| ip.is_loopback())
+    host == "localhost" || host.parse::<std::net::IpAddr>().is_ok_and(|ip| ip.is_loopback())
 }
 
 /// Runs every attack in turn and reports.
@@ -160,7 +165,10 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
         ));
     }
     if !(opts.budget_s.is_finite() && opts.budget_s > 0.0 && opts.budget_s <= 600.0) {
-        return Err(format!("the budget must be within (0, 600] seconds, got {}", opts.budget_s));
+        return Err(format!(
+            "the budget must be within (0, 600] seconds, got {}",
+            opts.budget_s
+        ));
     }
     let client = reqwest::blocking::Client::builder()
         .no_proxy()
@@ -324,7 +332,12 @@ fn recovery(o: &AttackOptions, client: &reqwest::blocking::Client, since: Instan
     None
 }
 
-fn outcome(name: &str, statuses: BTreeMap<String, u64>, figures: BTreeMap<String, f64>, notes: Vec<String>) -> AttackOutcome {
+fn outcome(
+    name: &str,
+    statuses: BTreeMap<String, u64>,
+    figures: BTreeMap<String, f64>,
+    notes: Vec<String>,
+) -> AttackOutcome {
     AttackOutcome {
         name: name.to_string(),
         held: notes.is_empty(),
@@ -337,7 +350,9 @@ fn outcome(name: &str, statuses: BTreeMap<String, u64>, figures: BTreeMap<String
 /// Eight requests that cannot finish in any budget: refused up front, and the
 /// server serves at once afterwards.
 fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
-    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, "4096x4096", "accurate", 0)).collect();
+    let urls: Vec<String> = (0..o.burst)
+        .map(|i| render_url(o, i, "4096x4096", "accurate", 0))
+        .collect();
     let started = Instant::now();
     let answers = burst(client, &urls);
     let answered_s = started.elapsed().as_secs_f64();
@@ -372,7 +387,9 @@ fn check_recovery(o: &AttackOptions, rec: Option<f64>, notes: &mut Vec<String>) 
 /// the queue is free again within 2 × the budget.
 fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
     let run = salt() % 100_000;
-    let urls: Vec<String> = (0..o.burst).map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run)).collect();
+    let urls: Vec<String> = (0..o.burst)
+        .map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run))
+        .collect();
     let started = Instant::now();
     let answers = burst(client, &urls);
     let answered_s = started.elapsed().as_secs_f64();

@@ -138,7 +138,10 @@ pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
     // The list is written straight into the output (a `serde_json::Value` per
     // billboard would take ~900 bytes each while encoding), spliced where the empty
     // placeholder sorted: the same bytes as serialising the whole value.
-    let at = head.find(r#""billboards":[]"#).expect("the placeholder is in the header") + r#""billboards":["#.len();
+    let at = head
+        .find(r#""billboards":[]"#)
+        .expect("the placeholder is in the header")
+        + r#""billboards":["#.len();
     let mut out = Vec::with_capacity(head.len() + 190 * tile.billboards.len());
     out.extend_from_slice(&head.as_bytes()[..at]);
     for (i, b) in tile.billboards.iter().enumerate() {
@@ -314,7 +317,10 @@ mod tests {
     fn streamed_json_is_the_bytes_of_the_whole_value() {
         let config = Config::embedded();
         let world = config.world("default").unwrap();
-        for (tile, t) in [(TileId { z: 0, x: 0, y: 0 }, 43200.0), (TileId { z: 3, x: -1, y: 2 }, 1000.0)] {
+        for (tile, t) in [
+            (TileId { z: 0, x: 0, y: 0 }, 43200.0),
+            (TileId { z: 3, x: -1, y: 2 }, 1000.0),
+        ] {
             let s = shade_tile(
                 &world,
                 0,

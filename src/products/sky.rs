@@ -16,9 +16,9 @@
 
 use serde_json::json;
 
+use crate::render::SunBucket;
 use crate::render::light::{Lighting, SUN_DISC_GAIN};
 use crate::render::sky::{self, GROUND_RADIUS, SKY_COLUMNS, SKY_ROWS, SUN_TABLE_STEP, TOP_RADIUS};
-use crate::render::SunBucket;
 use crate::world::ALGORITHM_VERSION;
 
 fn f(v: f64) -> f64 {

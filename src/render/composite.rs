@@ -199,7 +199,13 @@ pub fn composite_cancellable(
         /// A ball near the eye, integrated along each pixel's ray: centre, radius
         /// (metres), the splat's centre optical depth, its pre-shaded colour and sun
         /// optical depth (the phase correction is per ray).
-        AroundEye { centre: [f64; 3], radius: f64, tau: f64, colour: [f64; 3], tau_sun: f64 },
+        AroundEye {
+            centre: [f64; 3],
+            radius: f64,
+            tau: f64,
+            colour: [f64; 3],
+            tau_sun: f64,
+        },
     }
     struct Item {
         dist: f64,
@@ -241,7 +247,11 @@ pub fn composite_cancellable(
     let items: Vec<&Item> = order.iter().map(|&i| &items[i]).collect();
 
     let erosion = lighting.params.detail_erosion;
-    let erosion = if erosion.is_finite() { erosion.clamp(0.0, 1.0) } else { 0.0 };
+    let erosion = if erosion.is_finite() {
+        erosion.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
     let width = image.width;
     let bands: Vec<(usize, usize)> = (0..image.height)
         .step_by(BAND_ROWS)
@@ -306,7 +316,10 @@ pub fn composite_cancellable(
                             if erosion > 0.0 {
                                 let p = f.point(dx, dy);
                                 let at = &mut acc_at[i];
-                                for (k, v) in [p[0], p[1], p[2], f.radius, f.metres_per_pixel, 1.0].into_iter().enumerate() {
+                                for (k, v) in [p[0], p[1], p[2], f.radius, f.metres_per_pixel, 1.0]
+                                    .into_iter()
+                                    .enumerate()
+                                {
                                     at[k] += w * v;
                                 }
                             }
@@ -314,7 +327,13 @@ pub fn composite_cancellable(
                         }
                     }
                 }
-                &Draw::AroundEye { centre, radius, tau, colour, tau_sun } => {
+                &Draw::AroundEye {
+                    centre,
+                    radius,
+                    tau,
+                    colour,
+                    tau_sun,
+                } => {
                     if open.iter().all(|&o| o == 0) {
                         continue;
                     }
@@ -389,7 +408,9 @@ mod tests {
         let mut sorted: Vec<&Billboard> = bbs.iter().collect();
         sorted.sort_by(|a, b| view.sort_distance(b.centre).total_cmp(&view.sort_distance(a.centre)));
         for b in sorted {
-            let Some(f) = Footprint::new(b, sheet, lighting, view) else { continue };
+            let Some(f) = Footprint::new(b, sheet, lighting, view) else {
+                continue;
+            };
             let colour = f.colour;
             for py in 0..view.height {
                 for px in 0..view.width {

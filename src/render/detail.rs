@@ -117,7 +117,11 @@ mod tests {
         let mut lo: f64 = 1.0;
         let mut hi: f64 = 0.0;
         for i in 0..2000 {
-            let p = [i as f64 * 37.3, (i * 7 % 101) as f64 * 11.1, 1500.0 + (i % 13) as f64 * 9.0];
+            let p = [
+                i as f64 * 37.3,
+                (i * 7 % 101) as f64 * 11.1,
+                1500.0 + (i % 13) as f64 * 9.0,
+            ];
             let v = noise(p, 150.0, 4);
             assert!((0.0..=1.0).contains(&v));
             lo = lo.min(v);

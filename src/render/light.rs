@@ -254,9 +254,23 @@ impl ShadingParams {
     /// diffuse light penetrates about twice as deep as a collimated beam. Times
     /// `sky_extinction_scale`; finite and in [0, 1] for any input.
     pub fn sky_extinction(&self) -> f64 {
-        let w = if self.albedo.is_finite() { self.albedo.clamp(0.0, 1.0) } else { 0.0 };
-        let mix = if self.phase.mix.is_finite() { self.phase.mix.clamp(0.0, 1.0) } else { 0.5 };
-        let g = |g: f64| if g.is_finite() { g.clamp(-MAX_ABS_G, MAX_ABS_G) } else { 0.0 };
+        let w = if self.albedo.is_finite() {
+            self.albedo.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let mix = if self.phase.mix.is_finite() {
+            self.phase.mix.clamp(0.0, 1.0)
+        } else {
+            0.5
+        };
+        let g = |g: f64| {
+            if g.is_finite() {
+                g.clamp(-MAX_ABS_G, MAX_ABS_G)
+            } else {
+                0.0
+            }
+        };
         let mean_cos = mix * g(self.phase.g1) + (1.0 - mix) * g(self.phase.g2);
         let k = (3.0 * (1.0 - w) * (1.0 - w * mean_cos)).sqrt();
         let scale = if self.sky_extinction_scale.is_finite() {
@@ -516,8 +530,16 @@ mod tests {
         // code paths, so agreement tests both.
         for phase in [
             Phase::default(),
-            Phase { g1: 0.95, g2: -0.6, mix: 0.8 },
-            Phase { g1: 0.0, g2: 0.0005, mix: 0.3 },
+            Phase {
+                g1: 0.95,
+                g2: -0.6,
+                mix: 0.8,
+            },
+            Phase {
+                g1: 0.0,
+                g2: 0.0005,
+                mix: 0.3,
+            },
         ] {
             let (n, bins) = (400_000usize, 20usize);
             let mut hist = vec![0usize; bins];
@@ -538,7 +560,10 @@ mod tests {
                     / 2.0;
                 let got = count as f64 / n as f64;
                 let sigma = (want * (1.0 - want) / n as f64).sqrt();
-                assert!((got - want).abs() < 5.0 * sigma + 1e-4, "{phase:?} bin {b}: {got} vs {want}");
+                assert!(
+                    (got - want).abs() < 5.0 * sigma + 1e-4,
+                    "{phase:?} bin {b}: {got} vs {want}"
+                );
             }
         }
         for g in [-1.0, -0.99, 0.0, 0.5, 1.0, f64::NAN] {
@@ -601,7 +626,10 @@ mod tests {
             for tau in [0.0, 0.3, 2.0, 17.0] {
                 for cos in [-1.0, -0.3, 0.0, 0.8, 1.0] {
                     let single = phase.eval(cos) * (-tau as f64).exp();
-                    assert!((o.sun_sum(&phase, cos, tau) - single).abs() < 1e-15, "{a} {b} {c} {tau} {cos}");
+                    assert!(
+                        (o.sun_sum(&phase, cos, tau) - single).abs() < 1e-15,
+                        "{a} {b} {c} {tau} {cos}"
+                    );
                 }
                 assert!((o.isotropic_sum(tau) - (-tau as f64).exp()).abs() < 1e-15);
             }
@@ -653,9 +681,18 @@ mod tests {
         let lum = [0.7, 0.8, 0.9];
         let open = l.ambient_source(lum, lum, 0.0, 0.0);
         assert!((0..3).all(|i| (open[i] - lum[i]).abs() < 1e-15));
-        for (up, down) in [(0.5, 0.0), (3.0, 1.0), (1e9, 1e9), (f64::INFINITY, 0.0), (f64::NAN, 2.0)] {
+        for (up, down) in [
+            (0.5, 0.0),
+            (3.0, 1.0),
+            (1e9, 1e9),
+            (f64::INFINITY, 0.0),
+            (f64::NAN, 2.0),
+        ] {
             let s = l.ambient_source(lum, lum, up, down);
-            assert!((0..3).all(|i| s[i].is_finite() && s[i] >= 0.0 && s[i] <= lum[i]), "{up} {down}: {s:?}");
+            assert!(
+                (0..3).all(|i| s[i].is_finite() && s[i] >= 0.0 && s[i] <= lum[i]),
+                "{up} {down}: {s:?}"
+            );
         }
         // The attenuation is diffusion theory's σ_tr / σ for the defaults: √(3·0.1·0.775).
         assert!((ShadingParams::default().sky_extinction() - (3.0f64 * 0.1 * 0.775).sqrt()).abs() < 1e-12);
@@ -664,16 +701,33 @@ mod tests {
     #[test]
     fn octaves_are_finite_at_extremes() {
         for g in [-1.0, 1.0, f64::NAN, 5.0] {
-            let phase = Phase { g1: g, g2: -g, mix: 0.5 };
+            let phase = Phase {
+                g1: g,
+                g2: -g,
+                mix: 0.5,
+            };
             for o in [
                 Octaves::default(),
-                Octaves { count: 99, attenuation: f64::NAN, contribution: 2.0, eccentricity: -1.0 },
-                Octaves { count: 0, attenuation: 0.0, contribution: f64::INFINITY, eccentricity: f64::NAN },
+                Octaves {
+                    count: 99,
+                    attenuation: f64::NAN,
+                    contribution: 2.0,
+                    eccentricity: -1.0,
+                },
+                Octaves {
+                    count: 0,
+                    attenuation: 0.0,
+                    contribution: f64::INFINITY,
+                    eccentricity: f64::NAN,
+                },
             ] {
                 for tau in [0.0, -1.0, 1e300, f64::INFINITY, f64::NAN] {
                     for mu in [-1.0, 0.0, 1.0, f64::NAN] {
                         let v = o.sun_sum(&phase, mu, tau);
-                        assert!(v.is_finite() && v >= 0.0 && v < 2.0e5, "{o:?} g={g} tau={tau} mu={mu}: {v}");
+                        assert!(
+                            v.is_finite() && v >= 0.0 && v < 2.0e5,
+                            "{o:?} g={g} tau={tau} mu={mu}: {v}"
+                        );
                     }
                 }
             }
@@ -708,7 +762,10 @@ mod tests {
         let far = l.background(eye, [0.0, 0.9999, -0.004], 1.0);
         let horizon = l.sky_radiance([0.0, 1.0, 0.0]);
         let lum = |c: [f64; 3]| luminance(c);
-        assert!((lum(far) - lum(horizon)).abs() < (lum(near) - lum(horizon)).abs(), "{far:?} {near:?} {horizon:?}");
+        assert!(
+            (lum(far) - lum(horizon)).abs() < (lum(near) - lum(horizon)).abs(),
+            "{far:?} {near:?} {horizon:?}"
+        );
         // The sun's disc is bright; a degree away it is the sky.
         let disc = l.background(eye, l.sun_dir, 1.0);
         assert!(disc[0] > 10.0 * l.sky_radiance(l.sun_dir)[0]);

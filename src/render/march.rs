@@ -292,7 +292,13 @@ impl Volume {
 }
 
 /// The volumes a ray crosses within [t_min, t_max], sorted by entry.
-pub(super) fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64, t_max: f64) -> Vec<(usize, f64, f64)> {
+pub(super) fn intervals(
+    volumes: &[Volume],
+    o: [f64; 3],
+    d: [f64; 3],
+    t_min: f64,
+    t_max: f64,
+) -> Vec<(usize, f64, f64)> {
     let mut v: Vec<(usize, f64, f64)> = volumes
         .iter()
         .enumerate()
@@ -304,7 +310,15 @@ pub(super) fn intervals(volumes: &[Volume], o: [f64; 3], d: [f64; 3], t_min: f64
 
 /// Optical depth from `p` toward the sun through all volumes (capped at `max_shadow_tau`).
 pub fn shadow_tau(volumes: &[Volume], p: [f64; 3], sun: [f64; 3], extinction: f64, params: &MarchParams) -> f64 {
-    optical_depth(volumes, p, sun, f64::INFINITY, extinction, params.shadow_step, params.max_shadow_tau)
+    optical_depth(
+        volumes,
+        p,
+        sun,
+        f64::INFINITY,
+        extinction,
+        params.shadow_step,
+        params.max_shadow_tau,
+    )
 }
 
 /// Optical depth along the ray (`o`, `d`) over [0, `t_max`] through all volumes,

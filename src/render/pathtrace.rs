@@ -395,7 +395,11 @@ impl<'a> Tracer<'a> {
         } else {
             p.extinction.clamp(0.0, MAX_EXTINCTION)
         };
-        let albedo = if p.albedo.is_finite() { p.albedo.clamp(0.0, 1.0) } else { 0.0 };
+        let albedo = if p.albedo.is_finite() {
+            p.albedo.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         let l = env.lighting;
         let sun_up = l.sun_rgb.iter().all(|c| c.is_finite()) && l.sun_rgb.iter().any(|&c| c > 0.0);
         Tracer {
@@ -448,7 +452,11 @@ impl<'a> Tracer<'a> {
                     };
                     if gathered > 0.0 {
                         sun_sum += gathered;
-                        let air = if hazed { self.env.lighting.aerial(o, p).0 } else { [1.0; 3] };
+                        let air = if hazed {
+                            self.env.lighting.aerial(o, p).0
+                        } else {
+                            [1.0; 3]
+                        };
                         for c in 0..3 {
                             sun_hazed[c] += gathered * air[c];
                         }
@@ -630,9 +638,9 @@ mod tests {
     use super::*;
     use crate::density::Grid;
     use crate::density::metaballs::GridPlacement;
+    use crate::render::Camera;
     use crate::render::light::{Phase, ShadingParams};
     use crate::render::march::{self, MarchParams};
-    use crate::render::Camera;
     use crate::render::sun::Sun;
 
     /// A volume of `cols × rows × depth` cells (`column` × `column` × `cell_height`
@@ -762,7 +770,14 @@ mod tests {
         let (mu_s, mu_v) = (theta_s.to_radians().cos(), theta_v.to_radians().cos());
         for (rho, phase) in [
             (0.04f32, Phase::default()),
-            (0.3, Phase { g1: 0.0, g2: 0.0, mix: 0.5 }),
+            (
+                0.3,
+                Phase {
+                    g1: 0.0,
+                    g2: 0.0,
+                    mix: 0.5,
+                },
+            ),
         ] {
             let params = ShadingParams {
                 extinction: 0.01,
@@ -842,7 +857,11 @@ mod tests {
     fn thick_slab_matches_an_independent_plane_parallel_monte_carlo() {
         let (theta_s, theta_v): (f64, f64) = (30.0, 50.0);
         let (mu_s, mu_v) = (theta_s.to_radians().cos(), theta_v.to_radians().cos());
-        let isotropic = Phase { g1: 0.0, g2: 0.0, mix: 0.5 };
+        let isotropic = Phase {
+            g1: 0.0,
+            g2: 0.0,
+            mix: 0.5,
+        };
         let (rho, omega) = (0.6f32, 0.9);
         let tau = 0.01 * rho as f64 * 500.0;
         let params = ShadingParams {
@@ -863,7 +882,10 @@ mod tests {
         let (golden, golden_se) = slab_plane_parallel_mc(omega, tau, mu_s, mu_v, 400_000);
         let ss = slab_single_scattering(omega, 1.0, 1.0, tau, mu_s, mu_v);
         // The golden value itself: multiple scattering adds a good part at τ = 3.
-        assert!(golden > 1.3 * ss && golden < 1.0 / mu_v, "golden {golden} vs single {ss}");
+        assert!(
+            golden > 1.3 * ss && golden < 1.0 / mu_v,
+            "golden {golden} vs single {ss}"
+        );
         let f = luminance(l.sun_rgb);
         let got = mean_luminance(&full.image) / f;
         let se = full.noise.std_error / 6.0 / f;
@@ -916,7 +938,10 @@ mod tests {
         let n = traced.image.rgb.len() as f64;
         let se = traced.noise.std_error / n.sqrt();
         assert!(b > 0.02, "the cloud is lit: {b}");
-        assert!((a - b).abs() <= 3.0 * se + 0.01 * b, "path tracer {a} (se {se}) vs marcher {b}");
+        assert!(
+            (a - b).abs() <= 3.0 * se + 0.01 * b,
+            "path tracer {a} (se {se}) vs marcher {b}"
+        );
         // Per pixel, within 4 stated standard errors (the per-pixel error is within a
         // factor 2 of the mean one here) and 2 % for the marcher's step.
         for (p, q) in traced.image.rgb.iter().zip(&marched.rgb) {
@@ -949,7 +974,10 @@ mod tests {
             pts.push(((n as f64).ln(), mse.sqrt().ln()));
         }
         // Least-squares slope of log RMSE against log samples.
-        let (mx, my) = (pts.iter().map(|p| p.0).sum::<f64>() / 3.0, pts.iter().map(|p| p.1).sum::<f64>() / 3.0);
+        let (mx, my) = (
+            pts.iter().map(|p| p.0).sum::<f64>() / 3.0,
+            pts.iter().map(|p| p.1).sum::<f64>() / 3.0,
+        );
         let slope = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum::<f64>()
             / pts.iter().map(|p| (p.0 - mx).powi(2)).sum::<f64>();
         assert!((-0.65..=-0.35).contains(&slope), "slope {slope}: {pts:?}");
@@ -984,24 +1012,38 @@ mod tests {
             let shift = FAR;
             v.place.x0 += shift;
             v.place.y0 += shift;
-            Volume::new(v.grid, v.place, [
-                v.bounds[0] + shift,
-                v.bounds[1] + shift,
-                v.bounds[2],
-                v.bounds[3] + shift,
-                v.bounds[4] + shift,
-                v.bounds[5],
-            ])
+            Volume::new(
+                v.grid,
+                v.place,
+                [
+                    v.bounds[0] + shift,
+                    v.bounds[1] + shift,
+                    v.bounds[2],
+                    v.bounds[3] + shift,
+                    v.bounds[4] + shift,
+                    v.bounds[5],
+                ],
+            )
         };
         let empty = volume([8, 8, 4], 50.0, 50.0, 1000.0, |_, _, _| 0.0);
-        let wild = Phase { g1: 1.0, g2: -1.0, mix: f64::NAN };
+        let wild = Phase {
+            g1: 1.0,
+            g2: -1.0,
+            mix: f64::NAN,
+        };
         for (vol, eye) in [
             (lumpy(), [600.0, -900.0, 1300.0]),
             (empty, [200.0, -500.0, 1100.0]),
             (far, [FAR + 600.0, FAR - 900.0, 1300.0]),
         ] {
             for el in [-90.0, -10.0, -3.0, 0.0, 1e-9, 90.0] {
-                for (extinction, albedo) in [(0.0, 0.9), (1e300, 0.9), (f64::INFINITY, 1.0), (f64::NAN, f64::NAN), (0.01, 1.0)] {
+                for (extinction, albedo) in [
+                    (0.0, 0.9),
+                    (1e300, 0.9),
+                    (f64::INFINITY, 1.0),
+                    (f64::NAN, f64::NAN),
+                    (0.01, 1.0),
+                ] {
                     let params = ShadingParams {
                         extinction,
                         albedo,
@@ -1013,7 +1055,11 @@ mod tests {
                     let view = View::perspective(&camera, 4, 3);
                     let t = render(std::slice::from_ref(&vol), world_like(&l), &PathParams::new(4), &view);
                     assert!(
-                        t.image.rgb.iter().flatten().all(|v| v.is_finite() && *v >= 0.0 && *v < 50.0),
+                        t.image
+                            .rgb
+                            .iter()
+                            .flatten()
+                            .all(|v| v.is_finite() && *v >= 0.0 && *v < 50.0),
                         "el {el} ext {extinction}: {:?}",
                         t.image.rgb
                     );
@@ -1023,4 +1069,3 @@ mod tests {
         }
     }
 }
-

@@ -116,7 +116,9 @@ fn check_samples(req: &RenderRequest, max_path_samples: u64) -> Result<(), Rende
     if req.quality != Quality::Reference {
         return Ok(());
     }
-    let work = (req.width as u64).saturating_mul(req.height as u64).saturating_mul(req.samples as u64);
+    let work = (req.width as u64)
+        .saturating_mul(req.height as u64)
+        .saturating_mul(req.samples as u64);
     if work > max_path_samples {
         return Err(RenderError::TooMuchWork(format!(
             "{} samples per pixel × {} pixels is {work} paths; the limit is {max_path_samples} \
@@ -271,7 +273,17 @@ pub fn prepare_cancellable(
     tiles
         .par_iter()
         .map(|&(layer, tile)| {
-            shade_tile_cancellable(world, layer, tile, req.t, req.quality, sun, &req.params, &config.limits, cancel)
+            shade_tile_cancellable(
+                world,
+                layer,
+                tile,
+                req.t,
+                req.quality,
+                sun,
+                &req.params,
+                &config.limits,
+                cancel,
+            )
         })
         .collect()
 }
@@ -285,7 +297,12 @@ fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: S
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun.bucket().centre(), req.params);
     let sheet = req.quality.splat_sheet();
-    let far = mean_shadow(tiles.iter().map(|t| (t.layer, t.shadow.iter().map(|&v| v as f64).sum::<f64>() / t.shadow.len().max(1) as f64)));
+    let far = mean_shadow(tiles.iter().map(|t| {
+        (
+            t.layer,
+            t.shadow.iter().map(|&v| v as f64).sum::<f64>() / t.shadow.len().max(1) as f64,
+        )
+    }));
     let mut image = background(&view, &lighting, far, |x, y| {
         tiles.iter().map(|t| t.shadow_at(x, y)).product()
     });
@@ -348,7 +365,12 @@ pub fn draw_path_traced(volumes: &[Volume], req: &RenderRequest, sun: Sun) -> pa
     draw_path_traced_cancellable(volumes, req, sun, &Cancel::never())
 }
 
-fn draw_path_traced_cancellable(volumes: &[Volume], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> pathtrace::Traced {
+fn draw_path_traced_cancellable(
+    volumes: &[Volume],
+    req: &RenderRequest,
+    sun: Sun,
+    cancel: &Cancel,
+) -> pathtrace::Traced {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun, req.params);
     let params = PathParams::new(req.samples);
@@ -371,7 +393,10 @@ fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel:
         }
         Quality::ReferenceSingle => {
             let params = MarchParams::with_step(reference_step(tiles, req.quality));
-            (draw_single_cancellable(&volumes(tiles), req, sun, &params, cancel), None)
+            (
+                draw_single_cancellable(&volumes(tiles), req, sun, &params, cancel),
+                None,
+            )
         }
         Quality::Fast | Quality::Balanced | Quality::Accurate => {
             (draw_billboards_cancellable(tiles, req, sun, cancel), None)
@@ -384,12 +409,7 @@ fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel:
 /// tiles the shadow is unknown: over the last 30 % of [`VIEW_DISTANCE`] it turns
 /// into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
 /// ground has neither a hard edge nor a sunlit band.
-pub fn background(
-    view: &View,
-    lighting: &Lighting,
-    far_t: f64,
-    ground_t: impl Fn(f64, f64) -> f64 + Sync,
-) -> Image {
+pub fn background(view: &View, lighting: &Lighting, far_t: f64, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
     let w = view.width;
     img.rgb.par_chunks_mut(w).enumerate().for_each(|(y, row)| {

@@ -292,12 +292,8 @@ pub fn shade(
             } else {
                 1.0
             };
-            let ambient = lighting.ambient_source(
-                lighting.ambient_rgb,
-                lighting.ground_below(ground_t),
-                tau_up,
-                tau_down,
-            );
+            let ambient =
+                lighting.ambient_source(lighting.ambient_rgb, lighting.ground_below(ground_t), tau_up, tau_down);
             let iso = octaves.isotropic_sum(tau_sun);
             let k = sheet.index_for_tau(tau);
             let colour =
@@ -396,7 +392,11 @@ mod tests {
                     + 0.5 * ground[ch] * (-k * (below + SELF_SHADOW * tau)).exp());
             // The balls below are offset by half a spacing on odd levels, so the column
             // the up-buffer sees under the top is within a factor of its sum.
-            assert!((top.colour[ch] as f64 - expected).abs() < 0.02, "{ch}: {} vs {expected}", top.colour[ch]);
+            assert!(
+                (top.colour[ch] as f64 - expected).abs() < 0.02,
+                "{ch}: {} vs {expected}",
+                top.colour[ch]
+            );
         }
         // With the sun overhead as well, the top still outshines the base.
         let l = Lighting::new(Sun::new(0.0, 89.0).unwrap(), ShadingParams::default());

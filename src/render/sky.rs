@@ -320,7 +320,9 @@ impl Sky {
         sky.sun_table = (0..SUN_TABLE_LEN)
             .map(|i| sky.sun_transmittance(GROUND_RADIUS + i as f64 * SUN_TABLE_STEP, sun_dir[2]))
             .collect();
-        sky.multiple = (0..MS_ALTITUDES).map(|i| sky.multiple_scattering_at(ms_altitude(i))).collect();
+        sky.multiple = (0..MS_ALTITUDES)
+            .map(|i| sky.multiple_scattering_at(ms_altitude(i)))
+            .collect();
         let mut table = Vec::with_capacity(SKY_ROWS * SKY_COLUMNS);
         for i in 0..SKY_ROWS {
             let u = i as f64 / (SKY_ROWS - 1) as f64;
@@ -676,7 +678,10 @@ mod tests {
         let high = Sky::new(sun(60.0), 1.2);
         let low = Sky::new(sun(2.0), 1.2);
         let red = |c: [f64; 3]| c[0] / c[2];
-        let (sh, sl) = (high.sun_rgb_at(SUN_REFERENCE_ALTITUDE), low.sun_rgb_at(SUN_REFERENCE_ALTITUDE));
+        let (sh, sl) = (
+            high.sun_rgb_at(SUN_REFERENCE_ALTITUDE),
+            low.sun_rgb_at(SUN_REFERENCE_ALTITUDE),
+        );
         assert!(red(sl) > 2.0 * red(sh), "{sh:?} {sl:?}");
         assert!(sl[0] > sl[1] && sl[1] > sl[2], "{sl:?}");
         // The sky near the low sun is warm (red over blue larger than at noon).
@@ -703,8 +708,17 @@ mod tests {
             let a = luminance(sky.ambient_above());
             assert!(a >= last - 1e-12, "el {el}: {a} after {last}");
             last = a;
-            for d in [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 0.0, 0.0], [f64::NAN, 1.0, 0.0]] {
-                assert!(sky.radiance(d).iter().all(|v| v.is_finite() && *v >= 0.0), "el {el} {d:?}");
+            for d in [
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 0.0],
+                [0.0, 0.0, -1.0],
+                [0.0, 0.0, 0.0],
+                [f64::NAN, 1.0, 0.0],
+            ] {
+                assert!(
+                    sky.radiance(d).iter().all(|v| v.is_finite() && *v >= 0.0),
+                    "el {el} {d:?}"
+                );
             }
             let (t, l) = sky.aerial([0.0, 0.0, 1000.0], [1e9, 0.0, -5.0]);
             assert!(t.iter().chain(&l).all(|v| v.is_finite() && *v >= 0.0), "el {el}");

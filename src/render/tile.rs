@@ -1,8 +1,8 @@
 //! One tile, shaded: density (with a halo) → metaballs → sun shading → billboards
 //! and the ground shadow map. Every tile product is encoded from a [`ShadedTile`].
 
-use crate::density::metaballs::{GridPlacement, Lattice};
 use crate::cancel::Cancel;
+use crate::density::metaballs::{GridPlacement, Lattice};
 use crate::density::{self, Grid, Region, SimError, check_time};
 use crate::world::{Layer, Limits, World};
 

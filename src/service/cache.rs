@@ -227,12 +227,7 @@ pub struct ResponseCache {
 pub const MAX_ENTRY_FRACTION: u64 = 4;
 
 impl ResponseCache {
-    pub fn new(
-        max_bytes: u64,
-        queue: ComputeQueue,
-        budget: Duration,
-        shared: Option<SharedCache>,
-    ) -> ResponseCache {
+    pub fn new(max_bytes: u64, queue: ComputeQueue, budget: Duration, shared: Option<SharedCache>) -> ResponseCache {
         let max_entry = (max_bytes / MAX_ENTRY_FRACTION).min(u32::MAX as u64) as usize;
         let cache = Cache::builder()
             // An entry over `max_entry` weighs more than the whole cache, so moka does

@@ -68,8 +68,14 @@ pub enum ApiError {
     #[error("{0}")]
     ResponseTooLarge(String),
     /// The bytes held by replies still being sent are at their budget.
-    #[error("the server holds {held_mib} MiB of replies still being sent (server.reply_bytes is {budget_mib} MiB); retry in {retry_after} s")]
-    ReplyMemoryFull { held_mib: u64, budget_mib: u64, retry_after: u32 },
+    #[error(
+        "the server holds {held_mib} MiB of replies still being sent (server.reply_bytes is {budget_mib} MiB); retry in {retry_after} s"
+    )]
+    ReplyMemoryFull {
+        held_mib: u64,
+        budget_mib: u64,
+        retry_after: u32,
+    },
     /// The server is shutting down.
     #[error("the server is shutting down")]
     Draining,

@@ -59,11 +59,11 @@ pub use error::ApiError;
 pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
 
 use self::cache::{ComputeQueue, ResponseCache};
-use self::reply::ReplyBudget;
-use crate::cost::Work;
 use self::key::{Frame, Worlds};
 use self::metrics::Metrics;
+use self::reply::ReplyBudget;
 use self::shared::SharedCache;
+use crate::cost::Work;
 
 /// Where the server is in its life, as `/readyz` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -132,7 +132,10 @@ pub async fn render_png(
     let mut response = repr.ok(&s, "image/png", bytes)?;
     if let Some(noise) = noise {
         let h = response.headers_mut();
-        h.insert(HeaderName::from_static("x-cloudscape-samples"), HeaderValue::from(noise.samples));
+        h.insert(
+            HeaderName::from_static("x-cloudscape-samples"),
+            HeaderValue::from(noise.samples),
+        );
         if let Ok(v) = HeaderValue::from_str(&format!("{:e}", noise.std_error)) {
             h.insert(HeaderName::from_static("x-cloudscape-noise"), v);
         }
@@ -254,7 +257,11 @@ pub async fn splats_json(
         (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
-pub async fn sky_json(State(s): State<Arc<AppState>>, params: Params, headers: HeaderMap) -> Result<Response, ApiError> {
+pub async fn sky_json(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
     let sun = match parse_sun(&params)? {
         Some(sun) => sun,
         None => {

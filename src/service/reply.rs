@@ -130,7 +130,10 @@ mod tests {
         assert_eq!(b.gauge.get(), 2930 * 1024);
         // A second body of the same size does not fit in 4 MiB.
         let refused = b.body(bytes.clone(), 7).unwrap_err();
-        assert!(matches!(refused, ApiError::ReplyMemoryFull { retry_after: 7, .. }), "{refused:?}");
+        assert!(
+            matches!(refused, ApiError::ReplyMemoryFull { retry_after: 7, .. }),
+            "{refused:?}"
+        );
         let got = axum::body::to_bytes(body, usize::MAX).await.unwrap();
         assert_eq!(got.as_ref(), &data[..]);
         // Sent and dropped: the share is back.

@@ -11,10 +11,10 @@ use axum::extract::{Path, State};
 use axum::http::HeaderMap;
 use axum::response::Response;
 
+use crate::cost;
 use crate::density::{self, Region};
 use crate::products::grid::{GridFormat, encode_density};
 use crate::products::{atlas, billboards, coverage, shadow};
-use crate::cost;
 use crate::render::tile::shade_tile_cancellable;
 use crate::render::{Quality, ShadedTile, ShadingParams, Sun, SunBucket, TileId};
 
@@ -250,59 +250,63 @@ pub async fn tile(
     let limits = limits.clone();
     let bytes = s
         .cache
-        .get_or_compute_with_siblings(&s.metrics, product.kind(), key, work, move |cancel| match (product, shading) {
-            (Product::Density(format), _) => {
-                let grid = density::density_cancellable(&world, layer_index, z, region, frame.t, cancel)?;
-                Ok((Bytes::from(encode_density(&grid, format)), Vec::new()))
+        .get_or_compute_with_siblings(&s.metrics, product.kind(), key, work, move |cancel| {
+            match (product, shading) {
+                (Product::Density(format), _) => {
+                    let grid = density::density_cancellable(&world, layer_index, z, region, frame.t, cancel)?;
+                    Ok((Bytes::from(encode_density(&grid, format)), Vec::new()))
+                }
+                (Product::Coverage, _) => {
+                    let png = coverage::encode_png_for_tile(&world, layer_index, tile, frame.t, &limits)?;
+                    Ok((Bytes::from(png), Vec::new()))
+                }
+                (Product::Shaded(wanted), Some((q, sun))) => {
+                    let shaded = shade_tile_cancellable(
+                        &world,
+                        layer_index,
+                        tile,
+                        frame.t,
+                        q,
+                        sun,
+                        &ShadingParams::default(),
+                        &limits,
+                        cancel,
+                    )?;
+                    // Shading was the long part: stop here rather than encode for nobody.
+                    cancel.check().map_err(|_| ApiError::Cancelled)?;
+                    let mut atlas = Some(atlas::build(&shaded));
+                    let mut all: Vec<(Shaded, Bytes)> = Shaded::ALL
+                        .into_iter()
+                        .map(|p| {
+                            let bytes = match p {
+                                Shaded::BillboardsJson => json_within(&shaded, limits.max_response_bytes),
+                                Shaded::BillboardsBin => billboards::encode_bin(&shaded),
+                                Shaded::ShadowPng => shadow::encode_png_map(&shaded),
+                                Shaded::AtlasPng => {
+                                    atlas.as_mut().map_or_else(Vec::new, |a| std::mem::take(&mut a.png))
+                                }
+                                Shaded::AtlasJson => atlas
+                                    .as_mut()
+                                    .map_or_else(Vec::new, |a| std::mem::take(&mut a.manifest)),
+                            };
+                            (p, Bytes::from(bytes))
+                        })
+                        .collect();
+                    atlas.take();
+                    let i = all
+                        .iter()
+                        .position(|(p, _)| *p == wanted)
+                        .expect("every shaded product is encoded");
+                    let (_, wanted_bytes) = all.swap_remove(i);
+                    let bucket = sun.bucket();
+                    let siblings = all
+                        .into_iter()
+                        .map(|(p, b)| (tile_key(&base, Product::Shaded(p), Some((q, bucket))), b))
+                        .collect();
+                    Ok((wanted_bytes, siblings))
+                }
+                (Product::Shaded(_), None) => Err(ApiError::Internal("shaded product without shading".into())),
             }
-            (Product::Coverage, _) => {
-                let png = coverage::encode_png_for_tile(&world, layer_index, tile, frame.t, &limits)?;
-                Ok((Bytes::from(png), Vec::new()))
-            }
-            (Product::Shaded(wanted), Some((q, sun))) => {
-                let shaded = shade_tile_cancellable(
-                    &world,
-                    layer_index,
-                    tile,
-                    frame.t,
-                    q,
-                    sun,
-                    &ShadingParams::default(),
-                    &limits,
-                    cancel,
-                )?;
-                // Shading was the long part: stop here rather than encode for nobody.
-                cancel.check().map_err(|_| ApiError::Cancelled)?;
-                let mut atlas = Some(atlas::build(&shaded));
-                let mut all: Vec<(Shaded, Bytes)> = Shaded::ALL
-                    .into_iter()
-                    .map(|p| {
-                        let bytes = match p {
-                            Shaded::BillboardsJson => json_within(&shaded, limits.max_response_bytes),
-                            Shaded::BillboardsBin => billboards::encode_bin(&shaded),
-                            Shaded::ShadowPng => shadow::encode_png_map(&shaded),
-                            Shaded::AtlasPng => atlas.as_mut().map_or_else(Vec::new, |a| std::mem::take(&mut a.png)),
-                            Shaded::AtlasJson => atlas
-                                .as_mut()
-                                .map_or_else(Vec::new, |a| std::mem::take(&mut a.manifest)),
-                        };
-                        (p, Bytes::from(bytes))
-                    })
-                    .collect();
-                atlas.take();
-                let i = all
-                    .iter()
-                    .position(|(p, _)| *p == wanted)
-                    .expect("every shaded product is encoded");
-                let (_, wanted_bytes) = all.swap_remove(i);
-                let bucket = sun.bucket();
-                let siblings = all
-                    .into_iter()
-                    .map(|(p, b)| (tile_key(&base, Product::Shaded(p), Some((q, bucket))), b))
-                    .collect();
-                Ok((wanted_bytes, siblings))
-            }
-            (Product::Shaded(_), None) => Err(ApiError::Internal("shaded product without shading".into())),
         })
         .await?;
     if product == Product::Shaded(Shaded::BillboardsJson) && bytes.is_empty() {

@@ -303,7 +303,7 @@ mod tests {
     /// Prints units, measured CPU and memory, and the estimate, for each kind of work
     /// (see the module docs). Run by hand: it takes minutes.
     #[test]
-    #[ignore]
+    #[ignore = "calibrates the cost constants against measured CPU and memory; takes minutes, run by hand"]
     fn calibrate() {
         let config = Config::embedded();
         let world = config.world("default").unwrap();

@@ -90,8 +90,7 @@ pub fn run(a: FuzzArgs) -> Result<(), String> {
     })?;
     print!("{}", report.summary());
     if let Some(path) = &a.json {
-        let text = serde_json::to_string_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
-        super::write_out(path, text.as_bytes())?;
+        write_report(path, &report)?;
     }
     if report.passed() {
         Ok(())
@@ -126,12 +125,17 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
     })?;
     print!("{}", report.summary());
     if let Some(path) = &a.json {
-        let text = serde_json::to_string_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
-        super::write_out(path, text.as_bytes())?;
+        write_report(path, &report)?;
     }
     if report.held {
         Ok(())
     } else {
         Err("the server did not hold under the attack scenario".to_string())
     }
+}
+
+/// Writes a report as pretty JSON to `path` (`--json`).
+fn write_report(path: &str, report: &impl serde::Serialize) -> Result<(), String> {
+    let text = serde_json::to_string_pretty(report).map_err(|e| format!("cannot encode the report: {e}"))?;
+    super::write_out(path, text.as_bytes())
 }

@@ -183,22 +183,41 @@ pub fn splats_bytes(quality: Quality, json: bool) -> Bytes {
 
 async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool) -> Result<Response, ApiError> {
     let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
-    let key = splats_key(quality, json);
+    let content_type = if json { "application/json" } else { "image/png" };
+    serve_global(
+        s,
+        &headers,
+        "splats",
+        splats_key(quality, json),
+        content_type,
+        move || splats_bytes(quality, json),
+    )
+    .await
+}
+
+/// A product that depends on no world (splat sheets, the sky): its ETag from `key`,
+/// 304 on a match, else the cached or computed bytes.
+async fn serve_global(
+    s: Arc<AppState>,
+    headers: &HeaderMap,
+    kind: &'static str,
+    key: CacheKey,
+    content_type: &'static str,
+    compute: impl FnOnce() -> Bytes + Send + 'static,
+) -> Result<Response, ApiError> {
     let repr = Representation {
         etag: key.etag(),
         cache_control: &s.settings.cache_control,
         frame: None,
     };
-    if let Some(not_modified) = repr.not_modified(&headers) {
+    if let Some(not_modified) = repr.not_modified(headers) {
         return Ok(not_modified);
     }
     let bytes = s
         .cache
-        .get_or_compute(&s.metrics, "splats", key, Work::default(), move |_| {
-            Ok(splats_bytes(quality, json))
-        })
+        .get_or_compute(&s.metrics, kind, key, Work::default(), move |_| Ok(compute()))
         .await?;
-    repr.ok(&s, if json { "application/json" } else { "image/png" }, bytes)
+    repr.ok(&s, content_type, bytes)
 }
 
 #[utoipa::path(
@@ -276,20 +295,9 @@ pub async fn sky_json(
     };
     let bucket = sun.bucket();
     let key = CacheKey::global("sky").with("s", bucket.id());
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control: &s.settings.cache_control,
-        frame: None,
-    };
-    if let Some(not_modified) = repr.not_modified(&headers) {
-        return Ok(not_modified);
-    }
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, "sky", key, Work::default(), move |_| {
-            let lighting = Lighting::new(bucket.centre(), ShadingParams::default());
-            Ok(Bytes::from(sky::encode_json(bucket, &lighting)))
-        })
-        .await?;
-    repr.ok(&s, "application/json", bytes)
+    serve_global(s, &headers, "sky", key, "application/json", move || {
+        let lighting = Lighting::new(bucket.centre(), ShadingParams::default());
+        Bytes::from(sky::encode_json(bucket, &lighting))
+    })
+    .await
 }

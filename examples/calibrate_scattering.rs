@@ -119,14 +119,24 @@ fn main() -> Result<(), String> {
             },
         ));
     }
+    let defaults = std::env::var_os("CALIBRATE_DEFAULTS_ONLY").is_some();
     let mut best: Option<(f64, String)> = None;
     for count in [1u32, 2, 3, 4, 6] {
         for a in [0.25, 0.5, 0.75, 1.0] {
-            for b in [0.25, 0.5, 0.75] {
+            for b in [0.25, 0.5, 0.75, 0.9] {
                 if count == 1 && (a != 0.5 || b != 0.5) {
                     continue;
                 }
-                for sky in [0.125, 0.25, 0.5, 1.0, 2.0] {
+                for sky in [0.25, 0.5, 1.0, 2.0, 4.0, 8.0] {
+                    let d = ShadingParams::default();
+                    if defaults
+                        && (count != d.octaves.count
+                            || a != d.octaves.attenuation
+                            || b != d.octaves.contribution
+                            || sky != d.sky_extinction_scale)
+                    {
+                        continue;
+                    }
                     let params = ShadingParams {
                         octaves: Octaves {
                             count,

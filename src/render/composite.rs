@@ -25,13 +25,18 @@
 //!
 //! **Detail erosion** (`render::detail`): after the billboards, each pixel's
 //! accumulated opacity `A` (the smooth field's coverage) is eroded by Nubis's remap,
-//! `A' = erode(A, E · n)`, and its colour scaled by `A'/A`, with `n` the detail
-//! noise at the pixel's opacity-weighted world point on the billboards it took
-//! (first octave one opacity-weighted metaball radius, octaves limited by the
-//! opacity-weighted pixel footprint) and `E` = `ShadingParams::detail_erosion`.
+//! `A' = erode(A, E · n)`, and its colour scaled by `A'/A`, with
+//! `E` = `ShadingParams::detail_erosion` and `n = Σ_k w_k n_k / Σ_k w_k` the
+//! opacity-weighted mean over the billboards the pixel took (`w_k = (1 − A)·α_k`) of
+//! the detail noise `n_k` at the pixel's point on billboard `k`'s plane (first
+//! octave one radius of `k`, octaves limited by `k`'s pixel footprint; `n_k = 0`,
+//! no erosion, where not even the first octave spans the footprint). Each `n_k` is
+//! smooth across the screen, so their mean is too; the noise at the mean *point*
+//! is not: where near and far billboards overlap, that point sweeps along the view
+//! ray through many wavelengths within a few pixels and draws contour ripples.
 //! Eroding the sum rather than each ball keeps the lattice invisible (eroding each
-//! ball's rim opens gaps between neighbours), eats thin edges into cauliflower
-//! and leaves opaque cores alone. It only removes opacity.
+//! ball's rim opens gaps between neighbours), eats thin edges into cauliflower and
+//! leaves opaque cores alone. It only removes opacity.
 //!
 //! Billboards are seen through the air between the eye and their centre (aerial
 //! perspective, `c · T_air + L_in`, [`Lighting::hazed`]; not in orthographic views,
@@ -93,8 +98,8 @@ pub struct Footprint {
     tau: f64,
     centre: [f64; 3],
     radius: f64,
-    /// Metres per pixel at the billboard's depth.
-    metres_per_pixel: f64,
+    /// Octaves of detail noise the billboard's pixel footprint carries.
+    detail_octaves: u32,
     /// The view's screen axes in the world (the billboard's plane).
     right: [f64; 3],
     up: [f64; 3],
@@ -134,7 +139,7 @@ impl Footprint {
             tau: sheet.tau(b.splat as usize),
             centre: b.centre,
             radius: r,
-            metres_per_pixel: 1.0 / p.scale,
+            detail_octaves: detail::octaves_for(r, 1.0 / p.scale),
             right: view.right,
             up: view.up,
         })
@@ -157,24 +162,18 @@ impl Footprint {
 }
 
 /// What the detail erosion of a pixel needs, accumulated over the splats it takes
-/// with their weights `w = (1 − A)·α`: Σ w·(point x, y, z, radius, metres per pixel)
-/// and Σ w (balls around the eye are fog, not edges: they add nothing here).
-type Where = [f64; 6];
+/// with their weights `w = (1 − A)·α`: Σ w·n_k and Σ w (balls around the eye are
+/// fog, not edges: they add nothing here).
+type Where = [f64; 2];
 
 /// The eroded opacity of a pixel of accumulated opacity `a` and accumulated
 /// [`Where`] `at`, for erosion strength `strength` (see the module docs).
 fn eroded(a: f64, at: &Where, strength: f64) -> f64 {
-    let w = at[5];
+    let w = at[1];
     if !(a > 0.0) || !(w > 0.0) || strength <= 0.0 {
         return a;
     }
-    let p = [at[0] / w, at[1] / w, at[2] / w];
-    let (r, mpp) = (at[3] / w, at[4] / w);
-    let octaves = detail::octaves_for(r, mpp);
-    if octaves == 0 {
-        return a;
-    }
-    detail::erode(a, strength * detail::noise(p, r, octaves))
+    detail::erode(a, strength * at[0] / w)
 }
 
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
@@ -271,7 +270,7 @@ pub fn composite_cancellable(
         let n = (y1 - y0) * width;
         let mut acc = vec![[0.0f64; 3]; n];
         let mut acc_a = vec![0.0f64; n];
-        let mut acc_at: Vec<Where> = vec![[0.0; 6]; if erosion > 0.0 { n } else { 0 }];
+        let mut acc_at: Vec<Where> = vec![[0.0; 2]; if erosion > 0.0 { n } else { 0 }];
         let blocks = width.div_ceil(BLOCK_COLUMNS);
         // Pixels of each block (over the band's rows) not yet opaque.
         let mut open: Vec<usize> = (0..blocks)
@@ -314,14 +313,13 @@ pub fn composite_cancellable(
                             }
                             let w = (1.0 - acc_a[i]) * a;
                             if erosion > 0.0 {
-                                let p = f.point(dx, dy);
-                                let at = &mut acc_at[i];
-                                for (k, v) in [p[0], p[1], p[2], f.radius, f.metres_per_pixel, 1.0]
-                                    .into_iter()
-                                    .enumerate()
-                                {
-                                    at[k] += w * v;
-                                }
+                                let n = if f.detail_octaves > 0 {
+                                    detail::noise(f.point(dx, dy), f.radius, f.detail_octaves)
+                                } else {
+                                    0.0
+                                };
+                                acc_at[i][0] += w * n;
+                                acc_at[i][1] += w;
                             }
                             take(&mut acc[i], &mut acc_a[i], &mut open[px / BLOCK_COLUMNS], a, f.colour);
                         }

@@ -321,7 +321,7 @@ impl Lighting {
     /// the sun colour and the ambients from them. Finite at every elevation.
     pub fn new(sun: Sun, params: ShadingParams) -> Lighting {
         let sun_dir = sun.direction();
-        let sky = Sky::new(sun_dir, params.sun_intensity);
+        let sky = Sky::shared(sun_dir, params.sun_intensity);
         let sun_rgb = sky.sun_rgb_at(SUN_REFERENCE_ALTITUDE);
         let above = sky.ambient_above();
         let sun_ground = sky.sun_rgb_at(0.0);
@@ -347,7 +347,7 @@ impl Lighting {
             ambient_rgb,
             params,
             daylight,
-            sky: Arc::new(sky),
+            sky,
         }
     }
 

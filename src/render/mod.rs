@@ -7,7 +7,7 @@
 //! ```text
 //! Quality::parse("fast" | "balanced" | "accurate" | "reference" | "reference-single") -> Option<Quality>;  q.as_str()
 //! Sun::parse("AZ,EL") -> Result<Sun, String>;  Sun::from_clock(t, &config.sun) -> Sun
-//! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets)
+//! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets, 1° near the horizon)
 //! TileId { z, x, y }
 //!
 //! // Density + metaballs + shading of one tile, once; every tile product encodes it.

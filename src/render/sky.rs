@@ -42,6 +42,10 @@
 //! pure black.
 
 use std::f64::consts::PI;
+use std::sync::{Arc, Mutex};
+
+/// How many skies [`Sky::shared`] keeps (a few suns in flight at once).
+pub const SHARED_SKIES: usize = 16;
 
 /// Ground radius, metres (Hillaire 2020 Table 1).
 pub const GROUND_RADIUS: f64 = 6_360_000.0;
@@ -293,6 +297,33 @@ pub struct Sky {
 }
 
 impl Sky {
+    /// [`Sky::new`], shared: the last [`SHARED_SKIES`] skies built are kept, keyed by
+    /// the exact bits of their inputs, so the tiles of one sun bucket (every tile a
+    /// request shades) build the tables once instead of once each (~15 ms). The value
+    /// is the same as `Sky::new`'s whichever thread built it first.
+    pub fn shared(sun_dir: [f64; 3], sun_intensity: f64) -> Arc<Sky> {
+        type Key = ([u64; 3], u64);
+        static CACHE: Mutex<Vec<(Key, Arc<Sky>)>> = Mutex::new(Vec::new());
+        let key: Key = (sun_dir.map(f64::to_bits), sun_intensity.to_bits());
+        let found = CACHE
+            .lock()
+            .ok()
+            .and_then(|c| c.iter().find(|(k, _)| *k == key).map(|(_, s)| s.clone()));
+        if let Some(sky) = found {
+            return sky;
+        }
+        let sky = Arc::new(Sky::new(sun_dir, sun_intensity));
+        if let Ok(mut c) = CACHE.lock() {
+            if !c.iter().any(|(k, _)| *k == key) {
+                if c.len() >= SHARED_SKIES {
+                    c.remove(0);
+                }
+                c.push((key, sky.clone()));
+            }
+        }
+        sky
+    }
+
     /// The sky for the sun in direction `sun_dir` (unit, z up) with `sun_intensity`
     /// (the renderer's units: a white surface facing the sun above the atmosphere
     /// reads this). Non-finite or negative intensity counts as 0.
@@ -631,6 +662,25 @@ mod tests {
     /// Travis 1974 (eq. 2.32: τ_R = 0.008569 λ⁻⁴ (1 + 0.0113 λ⁻² + 0.00013 λ⁻⁴), λ in
     /// µm, the fit Bucholtz 1995 compares with): 0.0409, 0.0973, 0.2428 at 680, 550,
     /// 440 nm. The Bruneton constants are within 15 % of it.
+    #[test]
+    fn a_shared_sky_is_the_sky_it_stands_for() {
+        let sun = [0.3, -0.5, 0.81];
+        let norm = (sun[0] * sun[0] + sun[1] * sun[1] + sun[2] * sun[2]) as f64;
+        let dir = sun.map(|c: f64| c / norm.sqrt());
+        let (a, b) = (Sky::shared(dir, 2.0), Sky::shared(dir, 2.0));
+        assert!(Arc::ptr_eq(&a, &b), "the second call built its own");
+        let fresh = Sky::new(dir, 2.0);
+        for v in [[0.0, 0.0, 1.0], [0.6, 0.0, 0.8], [0.0, 1.0, 0.0], [0.0, 0.6, -0.8]] {
+            assert_eq!(a.radiance(v), fresh.radiance(v));
+        }
+        assert_eq!(a.ambient_above(), fresh.ambient_above());
+        // Another intensity is another sky, and the cache stays bounded.
+        assert!(!Arc::ptr_eq(&a, &Sky::shared(dir, 3.0)));
+        for i in 0..2 * SHARED_SKIES {
+            let _ = Sky::shared(dir, 10.0 + i as f64);
+        }
+    }
+
     #[test]
     fn rayleigh_zenith_optical_depth_matches_hansen_travis() {
         let n = 4000;

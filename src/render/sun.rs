@@ -3,9 +3,24 @@
 
 use crate::world::SunConfig;
 
-/// Width of a sun-direction bucket, degrees of arc (elevation bands, and azimuth
-/// bands measured along the band's centre circle).
+/// Width of a sun-direction bucket away from the horizon, degrees of arc (elevation
+/// bands above 16° and below −8°, and azimuth bands measured along a band's centre
+/// circle).
 pub const BUCKET_DEGREES: f64 = 8.0;
+
+/// Edges of the elevation bands, degrees, ascending: 8° bands, narrowing toward the
+/// horizon to 1° between −1° and 4°. Near the horizon the sunlight's path through the
+/// air (its colour and brightness) and through a layer (its shadows) changes fastest:
+/// at 1° the sun's air mass is about 27, at 4° about 13, so an 8° band lit by its 4°
+/// centre makes a sunset two to four times too bright. 1° there keeps that within the
+/// error of the fast presets.
+pub const ELEVATION_EDGES: [f64; 33] = [
+    -90.0, -88.0, -80.0, -72.0, -64.0, -56.0, -48.0, -40.0, -32.0, -24.0, -16.0, -8.0, -4.0, -2.0, -1.0, 0.0,
+    1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 40.0, 48.0, 56.0, 64.0, 72.0, 80.0, 88.0,
+];
+
+/// Index of the first elevation band above the horizon (the band `[0°, 1°)`).
+const HORIZON_BAND: i32 = 15;
 
 /// A sun position: azimuth clockwise from north, elevation above the horizon, degrees.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,16 +33,19 @@ pub struct Sun {
 
 /// A sun-direction bucket: the cache-key part of every pre-shaded product.
 ///
-/// Bucketing (Harris & Lastra relight when the sun moves; we relight per ~8°):
-/// elevation bands are `[8e, 8e + 8)` degrees for `e = floor(el / 8)` (so the horizon
-/// is a band edge: a sun just below it is never shaded as if above it); within a band,
-/// the azimuth circle is cut into `n = max(1, round(360 · cos(el_c) / 8))` equal bands,
-/// where `el_c` is the band's centre elevation, so every bucket spans about 8° of arc.
+/// Bucketing (Harris & Lastra relight when the sun moves; we relight per ~8°, finer
+/// near the horizon): elevation bands are the intervals between
+/// [`ELEVATION_EDGES`] (the last, `[88°, 90°]`, holds the zenith), numbered so that
+/// band 0 is `[0°, 1°)` and negative bands lie below the horizon (so the horizon is a
+/// band edge: a sun just below it is never shaded as if above it); within a band, the
+/// azimuth circle is cut into `n = max(1, round(360 · cos(el_c) / 8))` equal bands,
+/// where `el_c` is the band's centre elevation, so every bucket spans at most about 8°
+/// of arc.
 /// Products are shaded with the bucket's centre sun, so every sun within a bucket
 /// gives identical bytes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct SunBucket {
-    /// Elevation band index, -12..=11.
+    /// Elevation band index, −15..=17: 0 is `[0°, 1°)`, negative below the horizon.
     pub elevation_band: i32,
     /// Azimuth band index within the elevation band, 0..azimuth_bands.
     pub azimuth_band: u32,
@@ -95,7 +113,11 @@ impl Sun {
 
     /// The bucket this sun falls in.
     pub fn bucket(&self) -> SunBucket {
-        let e = ((self.elevation_deg / BUCKET_DEGREES).floor() as i32).clamp(-12, 11);
+        let below = ELEVATION_EDGES[1..]
+            .iter()
+            .take_while(|&&edge| self.elevation_deg >= edge)
+            .count() as i32;
+        let e = below - HORIZON_BAND;
         let n = azimuth_bands(e);
         let a = ((self.azimuth_deg / 360.0 * n as f64).floor() as i64).rem_euclid(n as i64) as u32;
         SunBucket {
@@ -107,7 +129,9 @@ impl Sun {
 }
 
 fn band_centre_elevation(e: i32) -> f64 {
-    ((e as f64 + 0.5) * BUCKET_DEGREES).clamp(-90.0, 90.0)
+    let i = (e + HORIZON_BAND).clamp(0, ELEVATION_EDGES.len() as i32 - 1) as usize;
+    let top = ELEVATION_EDGES.get(i + 1).copied().unwrap_or(90.0);
+    0.5 * (ELEVATION_EDGES[i] + top)
 }
 
 fn azimuth_bands(e: i32) -> u32 {
@@ -125,10 +149,10 @@ impl SunBucket {
         }
     }
 
-    /// A short stable id for cache keys and manifests, e.g. `e05a17`
-    /// (elevation band + 12, azimuth band).
+    /// A short stable id for cache keys and manifests, e.g. `e20a17`
+    /// (elevation band + 15, azimuth band).
     pub fn id(&self) -> String {
-        format!("e{:02}a{:02}", self.elevation_band + 12, self.azimuth_band)
+        format!("e{:02}a{:02}", self.elevation_band + HORIZON_BAND, self.azimuth_band)
     }
 }
 
@@ -185,6 +209,34 @@ mod tests {
             },
         );
         assert!(am.azimuth_deg > 45.0 && am.azimuth_deg < 135.0, "{am:?}");
+    }
+
+    #[test]
+    fn bands_tile_the_sphere_and_narrow_at_the_horizon() {
+        // Every edge starts its own band, and the band just below starts one edge down.
+        for (i, w) in ELEVATION_EDGES.windows(2).enumerate() {
+            assert!(w[0] < w[1]);
+            let e = i as i32 - HORIZON_BAND;
+            let low = Sun::new(0.0, w[0]).unwrap().bucket();
+            let mid = Sun::new(0.0, 0.5 * (w[0] + w[1])).unwrap().bucket();
+            assert_eq!((low.elevation_band, mid.elevation_band), (e, e), "band {i}");
+            assert_eq!(band_centre_elevation(e), 0.5 * (w[0] + w[1]));
+        }
+        assert_eq!(Sun::new(0.0, 90.0).unwrap().bucket().elevation_band, 17);
+        assert_eq!(Sun::new(0.0, -90.0).unwrap().bucket().elevation_band, -15);
+        // A sunset at 1° is lit at 1.5°, not at 4° (the old 8° band's centre).
+        assert_eq!(Sun::new(270.0, 1.0).unwrap().bucket().centre().elevation_deg, 1.5);
+        // Ids stay two digits per part and distinct per bucket.
+        let mut ids = std::collections::HashSet::new();
+        for el in -90..=90 {
+            for az in (0..360).step_by(3) {
+                let b = Sun::new(az as f64, el as f64).unwrap().bucket();
+                assert_eq!(b.id().len(), 6);
+                ids.insert((b.id(), b));
+            }
+        }
+        let unique: std::collections::HashSet<_> = ids.iter().map(|(id, _)| id.clone()).collect();
+        assert_eq!(unique.len(), ids.len());
     }
 
     #[test]

@@ -27,7 +27,7 @@ const TILE_COLUMNS = 256;
 /** ShadingParams::default() (src/render/light.rs): octaves N, a, b, c; detail erosion strength. */
 const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
-  octaves: [3, 0.5, 0.5, 0.5], detailErosion: 0.6,
+  octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.6,
 };
 /** src/render/detail.rs: most detail octaves, and the footprint an octave must span. */
 const MAX_DETAIL_OCTAVES = 4;

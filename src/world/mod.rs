@@ -20,7 +20,10 @@ use serde::Deserialize;
 ///    the cloud in the billboards (records of 36 bytes), per-pixel splats with detail
 ///    erosion, fog around the eye, far levels without haze where no cloud can form,
 ///    and a fair-weather `default` world.
-pub const ALGORITHM_VERSION: u32 = 5;
+/// 6: sun buckets 1° wide near the horizon; scattering octaves and sky-light
+///    attenuation fitted to the path tracer (b = ¾, sky scale 2); detail erosion by
+///    the mean of each billboard's own noise.
+pub const ALGORITHM_VERSION: u32 = 6;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -124,6 +124,54 @@ fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
 }
 
 #[test]
+fn bench_only_rewrites_the_sections_it_names() {
+    let dir = tempfile::tempdir().unwrap();
+    let md = dir.path().join("BENCHMARKS.md");
+    let doc = "# Benchmarks\n\n<!-- bench:http:begin -->\nkept\n<!-- bench:http:end -->\n\n\
+               <!-- bench:quality:begin -->\nstale\n<!-- bench:quality:end -->\n";
+    std::fs::write(&md, doc).unwrap();
+    let plots = dir.path().join("plots");
+    let out = cloudscape(&[
+        "bench",
+        "--smoke",
+        "--only",
+        "quality",
+        "--out",
+        md.to_str().unwrap(),
+        "--plots",
+        plots.to_str().unwrap(),
+    ]);
+    ok(&out);
+    let text = std::fs::read_to_string(&md).unwrap();
+    assert!(
+        text.contains("<!-- bench:http:begin -->\nkept\n<!-- bench:http:end -->"),
+        "{text}"
+    );
+    assert!(!text.contains("stale") && text.contains("half vs half"), "{text}");
+    assert!(
+        !text.contains("bench:machine:begin"),
+        "only the named section is measured"
+    );
+    // An unknown section is refused before any measuring, naming the known ones.
+    let bad = cloudscape(&[
+        "bench",
+        "--smoke",
+        "--only",
+        "quality,nope",
+        "--out",
+        md.to_str().unwrap(),
+    ]);
+    assert!(!bad.status.success());
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("`nope`") && err.contains("scaling"), "{err}");
+    assert_eq!(
+        std::fs::read_to_string(&md).unwrap(),
+        text,
+        "a refused run writes nothing"
+    );
+}
+
+#[test]
 fn bench_keeps_its_figures_when_an_edit_midway_breaks_the_markers() {
     let dir = tempfile::tempdir().unwrap();
     let md = dir.path().join("BENCHMARKS.md");

@@ -158,8 +158,30 @@ pub fn fmt_rate(r: f64) -> String {
 /// One section of a run: it measures and adds its tables to the run.
 type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
 
-/// Runs every section and reports each one's name to `progress` as it starts.
-pub fn run(effort: Effort, mut progress: impl FnMut(&str)) -> Result<BenchRun, String> {
+/// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
+pub const SECTION_NAMES: [&str; 9] = [
+    "machine",
+    "automaton",
+    "fields",
+    "tiles",
+    "encoders",
+    "quality",
+    "http",
+    "rosa",
+    "scaling",
+];
+
+/// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names) and
+/// reports each one's name to `progress` as it starts.
+pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&str)) -> Result<BenchRun, String> {
+    if let Some(names) = only
+        && let Some(bad) = names.iter().find(|n| !SECTION_NAMES.contains(&n.as_str()))
+    {
+        return Err(format!(
+            "no bench section `{bad}` (sections: {})",
+            SECTION_NAMES.join(", ")
+        ));
+    }
     let mut out = BenchRun::default();
     let steps: [(&str, SectionFn); 9] = [
         ("machine", |e, o| {
@@ -175,7 +197,10 @@ pub fn run(effort: Effort, mut progress: impl FnMut(&str)) -> Result<BenchRun, S
         ("rosa 2013", pipeline::rosa),
         ("scaling", core::scaling),
     ];
-    for (name, step) in steps {
+    for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {
+        if only.is_some_and(|names| !names.iter().any(|n| n == id)) {
+            continue;
+        }
         progress(name);
         step(effort, &mut out).map_err(|e| format!("bench section {name}: {e}"))?;
     }

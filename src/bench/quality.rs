@@ -11,7 +11,12 @@
 //!   scattering matters most where τ is large); 1 is right.
 //! - **sharpness**: the high-frequency energy of the display luma (the mean square
 //!   of its 5-point Laplacian), preset over reference. Below 1 is blur, above is
-//!   detail the reference does not have.
+//!   detail the reference does not have. The reference's own is measured without its
+//!   Monte Carlo noise: it is rendered as two independent halves `A`, `B` (disjoint
+//!   sample ranges, [`PathParams::first_sample`]) and its energy taken as the mean of
+//!   `∇²A · ∇²B`, in which the independent noises cancel in expectation
+//!   ([`cross_high_frequency_energy`]); the mean square of one noisy image would count
+//!   the noise as detail. The same halves give the noise ceiling of SSIM: `SSIM(A, B)`.
 
 use std::time::Instant;
 
@@ -19,7 +24,9 @@ use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use crate::density::{self, Region};
 use crate::render::camera::View;
 use crate::render::image::{Image, rmse, ssim};
+use crate::render::light::Lighting;
 use crate::render::march;
+use crate::render::pathtrace::{self, Environment, PathParams};
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
@@ -149,6 +156,57 @@ pub fn high_frequency_energy(display: &[[f32; 3]], width: usize, height: usize) 
     sum / ((width - 2) * (height - 2)) as f64
 }
 
+/// The mean of `∇²a · ∇²b` over interior pixels of the display lumas `a`, `b` (5-point
+/// Laplacian): for two independent noisy estimates of one picture, its high-frequency
+/// energy without the noise (the cross term of independent zero-mean noises vanishes
+/// in expectation). `a` with itself is [`high_frequency_energy`].
+pub fn cross_high_frequency_energy(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    if width < 3 || height < 3 || a.len() != width * height || b.len() != a.len() {
+        return 0.0;
+    }
+    let lap = |d: &[[f32; 3]], x: usize, y: usize| {
+        let l = |x: usize, y: usize| luminance(d[y * width + x]);
+        4.0 * l(x, y) - l(x - 1, y) - l(x + 1, y) - l(x, y - 1) - l(x, y + 1)
+    };
+    let mut sum = 0.0;
+    for y in 1..height - 1 {
+        for x in 1..width - 1 {
+            sum += lap(a, x, y) * lap(b, x, y);
+        }
+    }
+    sum / ((width - 2) * (height - 2)) as f64
+}
+
+/// The reference drawn as two independent halves of `req.samples` (disjoint sample
+/// ranges) and their mean, which is the full render's estimate.
+pub struct SplitReference {
+    pub image: Image,
+    pub halves: [Image; 2],
+}
+
+/// Path-traces `tiles` for `req` as a [`SplitReference`].
+pub fn split_reference(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> SplitReference {
+    let vols = scene::volumes(tiles);
+    let view = View::perspective(&req.camera, req.width, req.height);
+    let lighting = Lighting::new(sun, req.params);
+    let half = (req.samples / 2).max(2);
+    let draw = |first: u32| {
+        let params = PathParams {
+            first_sample: first,
+            ..PathParams::new(half)
+        };
+        pathtrace::render(&vols, Environment::world(&lighting), &params, &view).image
+    };
+    let halves = [draw(0), draw(half)];
+    let mut image = halves[0].clone();
+    for (i, p) in image.rgb.iter_mut().enumerate() {
+        for c in 0..3 {
+            p[c] = 0.5 * (p[c] + halves[1].rgb[i][c]);
+        }
+    }
+    SplitReference { image, halves }
+}
+
 /// Compares `preset` with `reference` (same size, `width` × `height`) whose view rays
 /// have optical depths `tau` (row-major).
 pub fn compare(preset: &Image, reference: &Image, tau: &[f64], width: usize, height: usize) -> Comparison {
@@ -188,6 +246,8 @@ struct Measured {
     draw_s: f64,
     image: Image,
     tiles: Vec<ShadedTile>,
+    /// The reference's independent halves (the path tracer only).
+    halves: Option<[Image; 2]>,
 }
 
 /// The request of scene `s` for preset `q` at `size` × `size` pixels.
@@ -213,7 +273,12 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
     let billboards_s = t1.elapsed().as_secs_f64();
     let sun = req.sun.ok_or("the scene has no sun")?;
     let t2 = Instant::now();
-    let (image, _) = scene::draw(&tiles, req, sun);
+    let (image, halves) = if req.quality == Quality::Reference {
+        let r = split_reference(&tiles, req, sun);
+        (r.image, Some(r.halves))
+    } else {
+        (scene::draw(&tiles, req, sun).0, None)
+    };
     let draw_s = t2.elapsed().as_secs_f64();
     Ok(Measured {
         density_s,
@@ -221,6 +286,7 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
         draw_s,
         image,
         tiles,
+        halves,
     })
 }
 
@@ -311,7 +377,8 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
          reference: total / excluding density. The reference's convergence is in `cargo bench --bench render_trade`. \
          Mean-radiance ratio (preset / reference, linear luminance) per bin of the reference view ray's optical \
          depth τ (targets 0.85–1.15), and the sharpness ratio (high-frequency energy of display luma, the mean \
-         square of its Laplacian, preset / reference).\n\n\
+         square of its Laplacian, preset / reference; the reference's without its noise, from two independent \
+         halves of its samples). The reference row's SSIM is its noise ceiling: one half against the other.\n\n\
          | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM | {} | {} | {} | {} | sharpness |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         TAU_BIN_LABELS[0], TAU_BIN_LABELS[1], TAU_BIN_LABELS[2], TAU_BIN_LABELS[3]
@@ -322,13 +389,22 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         let ref_req = request(s, Quality::Reference, size)?;
         let reference = measure(&world, &config, &ref_req)?;
         let tau = view_tau(&reference.tiles, &ref_req);
+        let [ha, hb] = reference.halves.as_ref().ok_or("the reference has no halves")?;
+        let (da, db) = (ha.display(), hb.display());
+        let hf_ref = cross_high_frequency_energy(&da, &db, size, size);
+        let ceiling = ssim(&da, &db, size, size);
         let mut counts = [0usize; 4];
         tau.iter().for_each(|&t| counts[tau_bin(t)] += 1);
         let ref_total = reference.density_s + reference.draw_s;
         for &q in presets {
             let m = measure(&world, &config, &request(s, q, size)?)?;
             let total = m.density_s + m.billboards_s + m.draw_s;
-            let c = compare(&m.image, &reference.image, &tau, size, size);
+            let mut c = compare(&m.image, &reference.image, &tau, size, size);
+            c.sharpness = if hf_ref > 0.0 {
+                high_frequency_energy(&m.image.display(), size, size) / hf_ref
+            } else {
+                0.0
+            };
             let (e, ss) = (c.rmse, c.ssim);
             let bins: Vec<String> = c
                 .radiance_ratio
@@ -353,7 +429,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
             points.push((q, m.billboards_s + m.draw_s, ss));
         }
         md += &format!(
-            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | 0 | 1 | {} | 1 |\n",
+            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | – | half vs half {ceiling:.3} | {} | 1 |\n",
             s.name,
             reference.tiles.len(),
             reference.density_s,
@@ -396,4 +472,52 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         markdown: md,
     });
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fields::noise::mix64;
+
+    /// Uniform noise in [−½, ½) from a counter.
+    fn noise(i: u64) -> f32 {
+        ((mix64(i) >> 40) as f32 / (1u64 << 24) as f32) - 0.5
+    }
+
+    #[test]
+    fn cross_energy_keeps_detail_and_drops_independent_noise() {
+        let (w, h) = (64, 64);
+        // A checkerboard of period 8 px: detail both images share.
+        let signal = |x: usize, y: usize| if (x / 4 + y / 4) % 2 == 0 { 0.7 } else { 0.3 };
+        let img = |seed: u64, amp: f32| -> Vec<[f32; 3]> {
+            (0..w * h)
+                .map(|i| {
+                    let v = signal(i % w, i / w) + amp * noise(seed * 1_000_003 + i as u64);
+                    [v; 3]
+                })
+                .collect()
+        };
+        let clean = img(0, 0.0);
+        let hf = high_frequency_energy(&clean, w, h);
+        // Without noise the cross energy is the energy.
+        assert!((cross_high_frequency_energy(&clean, &clean, w, h) - hf).abs() < 1e-12);
+        // With noise as large as the detail, each image's own energy more than doubles,
+        // while the cross energy of two independent draws stays within 10 % of the
+        // clean one (the noise terms have mean 0 and a spread ~1/√pixels).
+        let (a, b) = (img(1, 0.4), img(2, 0.4));
+        let own = high_frequency_energy(&a, w, h);
+        let cross = cross_high_frequency_energy(&a, &b, w, h);
+        assert!(own > 1.5 * hf, "own {own} vs clean {hf}");
+        assert!((cross / hf - 1.0).abs() < 0.1, "cross {cross} vs clean {hf}");
+        // Flat picture, pure noise: no detail.
+        let flat = |seed: u64| -> Vec<[f32; 3]> {
+            (0..w * h)
+                .map(|i| [0.5 + 0.3 * noise(seed + i as u64 * 7); 3])
+                .collect()
+        };
+        let (fa, fb) = (flat(10), flat(20_000));
+        assert!(cross_high_frequency_energy(&fa, &fb, w, h).abs() < 0.1 * high_frequency_energy(&fa, w, h));
+        // Mismatched sizes are no detail, not a panic.
+        assert_eq!(cross_high_frequency_energy(&fa, &fb[..10], w, h), 0.0);
+    }
 }

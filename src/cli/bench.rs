@@ -22,6 +22,10 @@ pub struct BenchArgs {
     /// Directory for the PNG plots (default: `bench/` beside the Markdown file).
     #[arg(long)]
     plots: Option<String>,
+    /// Measure only these sections (comma-separated: machine, automaton, fields,
+    /// tiles, encoders, quality, http, rosa, scaling); the others are left as they are.
+    #[arg(long, value_delimiter = ',')]
+    only: Option<Vec<String>>,
 }
 
 /// `to` relative to directory `from` when `to` is inside it, else `to` as given.
@@ -50,7 +54,7 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
     std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
 
     let start = Instant::now();
-    let run = bench::run(effort, |name| {
+    let run = bench::run(effort, a.only.as_deref(), |name| {
         eprintln!("[{:>6.1} s] bench: {name}", start.elapsed().as_secs_f64());
     })?;
     let prefix = link(&out_dir, &plots);

@@ -698,8 +698,15 @@ mod tests {
                 "{up} {down}: {s:?}"
             );
         }
-        // The attenuation is diffusion theory's σ_tr / σ for the defaults: √(3·0.1·0.775).
-        assert!((ShadingParams::default().sky_extinction() - (3.0f64 * 0.1 * 0.775).sqrt()).abs() < 1e-12);
+        // The attenuation is diffusion theory's σ_tr / σ for the defaults, √(3·0.1·0.775),
+        // times the fitted scale 2.
+        let diffusion = (3.0f64 * 0.1 * 0.775).sqrt();
+        assert!((ShadingParams::default().sky_extinction() - 2.0 * diffusion).abs() < 1e-12);
+        let unscaled = ShadingParams {
+            sky_extinction_scale: 1.0,
+            ..ShadingParams::default()
+        };
+        assert!((unscaled.sky_extinction() - diffusion).abs() < 1e-12);
     }
 
     #[test]

@@ -102,6 +102,10 @@ pub struct PathParams {
     /// Most scatterings along a path: [`MAX_SCATTERINGS`] for full transport, 1 for
     /// single scattering.
     pub max_scatterings: u32,
+    /// Index of the first sample: the image takes samples `first_sample ..
+    /// first_sample + samples` of each pixel's sequence, so two renders with disjoint
+    /// ranges are independent estimates (and their mean is the render of both ranges).
+    pub first_sample: u32,
 }
 
 impl PathParams {
@@ -110,6 +114,7 @@ impl PathParams {
         PathParams {
             samples,
             max_scatterings: MAX_SCATTERINGS,
+            first_sample: 0,
         }
     }
 
@@ -118,6 +123,7 @@ impl PathParams {
         PathParams {
             samples,
             max_scatterings: 1,
+            first_sample: 0,
         }
     }
 }
@@ -595,7 +601,7 @@ pub fn render_cancellable(
                 // Welford's running mean and squared deviations of the luminance.
                 let (mut mean, mut m2) = (0.0, 0.0);
                 for s in 0..samples {
-                    let mut rng = Stream::new(x, y, s);
+                    let mut rng = Stream::new(x, y, params.first_sample.wrapping_add(s));
                     let c = tracer.path(o, d, aerial, &mut rng);
                     for i in 0..3 {
                         sum[i] += c[i];

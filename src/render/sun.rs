@@ -15,8 +15,8 @@ pub const BUCKET_DEGREES: f64 = 8.0;
 /// centre makes a sunset two to four times too bright. 1° there keeps that within the
 /// error of the fast presets.
 pub const ELEVATION_EDGES: [f64; 33] = [
-    -90.0, -88.0, -80.0, -72.0, -64.0, -56.0, -48.0, -40.0, -32.0, -24.0, -16.0, -8.0, -4.0, -2.0, -1.0, 0.0,
-    1.0, 2.0, 3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 40.0, 48.0, 56.0, 64.0, 72.0, 80.0, 88.0,
+    -90.0, -88.0, -80.0, -72.0, -64.0, -56.0, -48.0, -40.0, -32.0, -24.0, -16.0, -8.0, -4.0, -2.0, -1.0, 0.0, 1.0, 2.0,
+    3.0, 4.0, 6.0, 8.0, 12.0, 16.0, 24.0, 32.0, 40.0, 48.0, 56.0, 64.0, 72.0, 80.0, 88.0,
 ];
 
 /// Index of the first elevation band above the horizon (the band `[0°, 1°)`).

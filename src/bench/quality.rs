@@ -157,24 +157,58 @@ pub fn high_frequency_energy(display: &[[f32; 3]], width: usize, height: usize) 
 }
 
 /// The mean of `∇²a · ∇²b` over interior pixels of the display lumas `a`, `b` (5-point
-/// Laplacian): for two independent noisy estimates of one picture, its high-frequency
-/// energy without the noise (the cross term of independent zero-mean noises vanishes
-/// in expectation). `a` with itself is [`high_frequency_energy`].
-pub fn cross_high_frequency_energy(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> f64 {
+/// Laplacian), and the standard error of that mean: for two independent noisy
+/// estimates of one picture, its high-frequency energy without the noise (the cross
+/// term of independent zero-mean noises vanishes in expectation; its spread is what
+/// the standard error states). `a` with itself is [`high_frequency_energy`].
+pub fn cross_high_frequency_energy(a: &[[f32; 3]], b: &[[f32; 3]], width: usize, height: usize) -> (f64, f64) {
     if width < 3 || height < 3 || a.len() != width * height || b.len() != a.len() {
-        return 0.0;
+        return (0.0, 0.0);
     }
     let lap = |d: &[[f32; 3]], x: usize, y: usize| {
         let l = |x: usize, y: usize| luminance(d[y * width + x]);
         4.0 * l(x, y) - l(x - 1, y) - l(x + 1, y) - l(x, y - 1) - l(x, y + 1)
     };
-    let mut sum = 0.0;
+    let (mut sum, mut sq) = (0.0, 0.0);
     for y in 1..height - 1 {
         for x in 1..width - 1 {
-            sum += lap(a, x, y) * lap(b, x, y);
+            let v = lap(a, x, y) * lap(b, x, y);
+            sum += v;
+            sq += v * v;
         }
     }
-    sum / ((width - 2) * (height - 2)) as f64
+    let n = ((width - 2) * (height - 2)) as f64;
+    let mean = sum / n;
+    (mean, ((sq / n - mean * mean).max(0.0) / n).sqrt())
+}
+
+/// `display` (`width` × `height`) averaged over `k` × `k` blocks (edges that do not
+/// fill a block are dropped), with its new size.
+pub fn binned(display: &[[f32; 3]], width: usize, height: usize, k: usize) -> (Vec<[f32; 3]>, usize, usize) {
+    let k = k.max(1);
+    let (w, h) = (width / k, height / k);
+    let mut out = vec![[0.0f32; 3]; w * h];
+    for y in 0..h {
+        for x in 0..w {
+            let mut c = [0.0f64; 3];
+            for dy in 0..k {
+                for dx in 0..k {
+                    let p = display[(y * k + dy) * width + x * k + dx];
+                    (0..3).for_each(|i| c[i] += p[i] as f64);
+                }
+            }
+            out[y * w + x] = c.map(|v| (v / (k * k) as f64) as f32);
+        }
+    }
+    (out, w, h)
+}
+
+/// Pixels per side of the blocks sharpness is measured on: the scale of a 128-pixel
+/// picture. Finer, the path tracer's noise at 64 samples outweighs the detail (its
+/// Laplacian energy per pixel falls with the pixel's size, the noise's does not) and
+/// the cross energy is within its own standard error.
+pub fn sharpness_block(size: usize) -> usize {
+    (size / 128).max(1)
 }
 
 /// The reference drawn as two independent halves of `req.samples` (disjoint sample
@@ -377,11 +411,16 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
          reference: total / excluding density. The reference's convergence is in `cargo bench --bench render_trade`. \
          Mean-radiance ratio (preset / reference, linear luminance) per bin of the reference view ray's optical \
          depth τ (targets 0.85–1.15), and the sharpness ratio (high-frequency energy of display luma, the mean \
-         square of its Laplacian, preset / reference; the reference's without its noise, from two independent \
-         halves of its samples). The reference row's SSIM is its noise ceiling: one half against the other.\n\n\
+         square of its Laplacian, preset / reference, on {k}×{k}-pixel blocks; the reference's without its noise, \
+         from two independent halves of its samples, and \"– (noise)\" where that is within three standard errors \
+         of 0). The reference row's SSIM is its noise ceiling: one half against the other.\n\n\
          | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM | {} | {} | {} | {} | sharpness |\n\
          |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-        TAU_BIN_LABELS[0], TAU_BIN_LABELS[1], TAU_BIN_LABELS[2], TAU_BIN_LABELS[3]
+        TAU_BIN_LABELS[0],
+        TAU_BIN_LABELS[1],
+        TAU_BIN_LABELS[2],
+        TAU_BIN_LABELS[3],
+        k = sharpness_block(size)
     );
     let mut points: Vec<(Quality, f64, f64)> = Vec::new();
     for s in scenes {
@@ -391,7 +430,12 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         let tau = view_tau(&reference.tiles, &ref_req);
         let [ha, hb] = reference.halves.as_ref().ok_or("the reference has no halves")?;
         let (da, db) = (ha.display(), hb.display());
-        let hf_ref = cross_high_frequency_energy(&da, &db, size, size);
+        let k = sharpness_block(size);
+        let (ba, bw, bh) = binned(&da, size, size, k);
+        let (bb, _, _) = binned(&db, size, size, k);
+        let (hf_ref, hf_se) = cross_high_frequency_energy(&ba, &bb, bw, bh);
+        // The reference's detail is measured only where it stands out of its noise.
+        let hf_ref = if hf_ref > 3.0 * hf_se { hf_ref } else { f64::NAN };
         let ceiling = ssim(&da, &db, size, size);
         let mut counts = [0usize; 4];
         tau.iter().for_each(|&t| counts[tau_bin(t)] += 1);
@@ -400,11 +444,8 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
             let m = measure(&world, &config, &request(s, q, size)?)?;
             let total = m.density_s + m.billboards_s + m.draw_s;
             let mut c = compare(&m.image, &reference.image, &tau, size, size);
-            c.sharpness = if hf_ref > 0.0 {
-                high_frequency_energy(&m.image.display(), size, size) / hf_ref
-            } else {
-                0.0
-            };
+            let (bp, _, _) = binned(&m.image.display(), size, size, k);
+            c.sharpness = high_frequency_energy(&bp, bw, bh) / hf_ref;
             let (e, ss) = (c.rmse, c.ssim);
             let bins: Vec<String> = c
                 .radiance_ratio
@@ -413,7 +454,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                 .collect();
             let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
             md += &format!(
-                "| {} | {} | {} | {n} | {:.2} s | {:.2} s | {:.3} s | {:.2} s | {:.0}× / {:.0}× | {e:.4} | {ss:.3} | {} | {:.2} |\n",
+                "| {} | {} | {} | {n} | {:.2} s | {:.2} s | {:.3} s | {:.2} s | {:.0}× / {:.0}× | {e:.4} | {ss:.3} | {} | {} |\n",
                 s.name,
                 q.as_str(),
                 m.tiles.len(),
@@ -424,7 +465,11 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                 ref_total / total,
                 reference.draw_s / (m.billboards_s + m.draw_s),
                 bins.join(" | "),
-                c.sharpness
+                if c.sharpness.is_finite() {
+                    format!("{:.2}", c.sharpness)
+                } else {
+                    "– (noise)".into()
+                }
             );
             points.push((q, m.billboards_s + m.draw_s, ss));
         }
@@ -500,13 +545,14 @@ mod tests {
         let clean = img(0, 0.0);
         let hf = high_frequency_energy(&clean, w, h);
         // Without noise the cross energy is the energy.
-        assert!((cross_high_frequency_energy(&clean, &clean, w, h) - hf).abs() < 1e-12);
+        assert!((cross_high_frequency_energy(&clean, &clean, w, h).0 - hf).abs() < 1e-12);
         // With noise as large as the detail, each image's own energy more than doubles,
         // while the cross energy of two independent draws stays within 10 % of the
         // clean one (the noise terms have mean 0 and a spread ~1/√pixels).
         let (a, b) = (img(1, 0.4), img(2, 0.4));
         let own = high_frequency_energy(&a, w, h);
-        let cross = cross_high_frequency_energy(&a, &b, w, h);
+        let (cross, se) = cross_high_frequency_energy(&a, &b, w, h);
+        assert!(se > 0.0 && cross > 3.0 * se, "{cross} ± {se}");
         assert!(own > 1.5 * hf, "own {own} vs clean {hf}");
         assert!((cross / hf - 1.0).abs() < 0.1, "cross {cross} vs clean {hf}");
         // Flat picture, pure noise: no detail.
@@ -516,8 +562,17 @@ mod tests {
                 .collect()
         };
         let (fa, fb) = (flat(10), flat(20_000));
-        assert!(cross_high_frequency_energy(&fa, &fb, w, h).abs() < 0.1 * high_frequency_energy(&fa, w, h));
+        let (flat_cross, flat_se) = cross_high_frequency_energy(&fa, &fb, w, h);
+        assert!(flat_cross.abs() < 0.1 * high_frequency_energy(&fa, w, h));
+        assert!(flat_cross.abs() < 4.0 * flat_se, "pure noise is within its standard error");
         // Mismatched sizes are no detail, not a panic.
-        assert_eq!(cross_high_frequency_energy(&fa, &fb[..10], w, h), 0.0);
+        assert_eq!(cross_high_frequency_energy(&fa, &fb[..10], w, h), (0.0, 0.0));
+        // Blocks average: a 2×2 checkerboard of 0 and 1 bins to 0.5 everywhere.
+        let board: Vec<[f32; 3]> = (0..16).map(|i| [((i % 4 + i / 4) % 2) as f32; 3]).collect();
+        let (b, bw, bh) = binned(&board, 4, 4, 2);
+        assert_eq!((bw, bh), (2, 2));
+        assert!(b.iter().all(|p| p[0] == 0.5));
+        assert_eq!(sharpness_block(512), 4);
+        assert_eq!(sharpness_block(96), 1);
     }
 }

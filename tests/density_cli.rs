@@ -14,17 +14,18 @@ fn run(args: &[&str], envs: &[(&str, &str)]) -> Output {
     c.output().expect("run cloudscape")
 }
 
-/// Runs `density` writing raw f32 (density) or u8 (cld) and returns the bytes.
-fn grid(
-    dir: &Path,
-    name: &str,
-    world: &str,
-    layer: &str,
-    bbox: &str,
-    t: &str,
-    field: &str,
-    envs: &[(&str, &str)],
-) -> Vec<u8> {
+/// What a `density` run asks for besides its box: the same across the boxes a test compares.
+struct Request<'a> {
+    world: &'a str,
+    layer: &'a str,
+    t: &'a str,
+    field: &'a str,
+}
+
+/// Runs `density` for `req` over `bbox`, writing raw f32 (density) or u8 (cld) to
+/// `dir/name`, and returns the bytes.
+fn grid(dir: &Path, name: &str, req: &Request, bbox: &str, envs: &[(&str, &str)]) -> Vec<u8> {
+    let Request { world, layer, t, field } = *req;
     let out = dir.join(name);
     let fmt = if field == "cld" { "u8" } else { "f32" };
     let o = run(
@@ -84,34 +85,31 @@ fn seams_two_halves_equal_the_whole() {
         for t in times {
             for field in ["cld", "density"] {
                 let item = if field == "cld" { 1 } else { 4 };
+                let req = Request {
+                    world: "overcast",
+                    layer: "stratocumulus",
+                    t,
+                    field,
+                };
                 let whole = grid(
                     d.path(),
                     "w",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0, y0, x0 + 2.0 * l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 let left = grid(
                     d.path(),
                     "l",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0, y0, x0 + l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 let right = grid(
                     d.path(),
                     "r",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0 + l, y0, x0 + 2.0 * l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 assert_eq!(whole.len(), 2 * left.len());
@@ -134,36 +132,15 @@ fn seams_two_halves_equal_the_whole() {
 fn seams_hold_for_rosa_layers_and_other_layers() {
     let d = tmp();
     for (layer, l) in [("cirrus", 4800.0), ("altocumulus", 1920.0)] {
-        let whole = grid(
-            d.path(),
-            "w",
-            "overcast",
+        let req = Request {
+            world: "overcast",
             layer,
-            &format!("0,0,{},{}", 2.0 * l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
-        let left = grid(
-            d.path(),
-            "l",
-            "overcast",
-            layer,
-            &format!("0,0,{},{}", l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
-        let right = grid(
-            d.path(),
-            "r",
-            "overcast",
-            layer,
-            &format!("{},0,{},{}", l, 2.0 * l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
+            t: "4321.5",
+            field: "density",
+        };
+        let whole = grid(d.path(), "w", &req, &format!("0,0,{},{}", 2.0 * l, l), &[]);
+        let left = grid(d.path(), "l", &req, &format!("0,0,{},{}", l, l), &[]);
+        let right = grid(d.path(), "r", &req, &format!("{},0,{},{}", l, 2.0 * l, l), &[]);
         let depth = whole.len() / 4 / (24 * 48);
         assert_eq!(columns(&whole, depth, 24, 48, 4, 0, 24), left, "{layer}");
         assert_eq!(columns(&whole, depth, 24, 48, 4, 24, 48), right, "{layer}");
@@ -174,36 +151,15 @@ fn seams_hold_for_rosa_layers_and_other_layers() {
 fn output_is_identical_across_thread_counts_and_runs() {
     let d = tmp();
     let bbox = "-3000,-3000,3400,3400";
-    let a = grid(
-        d.path(),
-        "a",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "1")],
-    );
-    let b = grid(
-        d.path(),
-        "b",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "2")],
-    );
-    let c = grid(
-        d.path(),
-        "c",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "2")],
-    );
+    let req = Request {
+        world: "default",
+        layer: "stratocumulus",
+        t: "777.7",
+        field: "density",
+    };
+    let a = grid(d.path(), "a", &req, bbox, &[("RAYON_NUM_THREADS", "1")]);
+    let b = grid(d.path(), "b", &req, bbox, &[("RAYON_NUM_THREADS", "2")]);
+    let c = grid(d.path(), "c", &req, bbox, &[("RAYON_NUM_THREADS", "2")]);
     assert_eq!(a, b);
     assert_eq!(b, c);
     assert!(
@@ -322,7 +278,13 @@ fn huge_coordinates_and_times_give_finite_well_formed_density() {
     // 2^40 cells of 100 m from the origin, at t = 1e12.
     let far = (1u64 << 40) as f64 * 100.0;
     let bbox = format!("{},{},{},{}", far, -far, far + 6400.0, -far + 6400.0);
-    let v = grid(d.path(), "f", "default", "stratocumulus", &bbox, "1e12", "density", &[]);
+    let req = Request {
+        world: "default",
+        layer: "stratocumulus",
+        t: "1e12",
+        field: "density",
+    };
+    let v = grid(d.path(), "f", &req, &bbox, &[]);
     let vals: Vec<f32> = v.chunks(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
     assert!(vals.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
     let distinct = vals

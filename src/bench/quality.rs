@@ -199,9 +199,9 @@ pub fn split_reference(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> S
     };
     let halves = [draw(0), draw(half)];
     let mut image = halves[0].clone();
-    for (i, p) in image.rgb.iter_mut().enumerate() {
-        for c in 0..3 {
-            p[c] = 0.5 * (p[c] + halves[1].rgb[i][c]);
+    for (p, q) in image.rgb.iter_mut().zip(&halves[1].rgb) {
+        for (p, &q) in p.iter_mut().zip(q) {
+            *p = 0.5 * (*p + q);
         }
     }
     SplitReference { image, halves }
@@ -488,7 +488,7 @@ mod tests {
     fn cross_energy_keeps_detail_and_drops_independent_noise() {
         let (w, h) = (64, 64);
         // A checkerboard of period 8 px: detail both images share.
-        let signal = |x: usize, y: usize| if (x / 4 + y / 4) % 2 == 0 { 0.7 } else { 0.3 };
+        let signal = |x: usize, y: usize| if (x / 4 + y / 4).is_multiple_of(2) { 0.7 } else { 0.3 };
         let img = |seed: u64, amp: f32| -> Vec<[f32; 3]> {
             (0..w * h)
                 .map(|i| {

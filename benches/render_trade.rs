@@ -17,9 +17,7 @@ use cloudscape::render::image::{Image, encode_png, rmse, ssim};
 use cloudscape::render::scene::{self, RenderRequest};
 use cloudscape::render::tile::{ShadedTile, shade_density, tile_halo};
 use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
-use cloudscape::world::{Config, World};
-
-const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+use cloudscape::world::{Config, DEFAULT_CONFIG, World};
 
 use cloudscape::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
 

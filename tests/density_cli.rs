@@ -3,6 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use cloudscape::world::DEFAULT_CONFIG;
+
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 
 fn run(args: &[&str], envs: &[(&str, &str)]) -> Output {
@@ -199,7 +201,7 @@ fn npy_output_has_the_documented_shape() {
 
 /// A world whose only layer has the given probability ranges (hum, act, ext).
 fn extreme_config(dir: &Path, hum: [f64; 2], act: [f64; 2], ext: [f64; 2]) -> PathBuf {
-    let base = include_str!("../config/default.toml");
+    let base = DEFAULT_CONFIG;
     let preset = format!(
         "[presets.extreme]\nmode = \"dobashi\"\nhumidity = {{ frequency = 0.1, range = [{}, {}] }}\nactivation = {{ frequency = 0.1, range = [{}, {}] }}\nextinction = {{ frequency = 0.1, range = [{}, {}] }}\n",
         hum[0], hum[1], act[0], act[1], ext[0], ext[1]
@@ -491,7 +493,7 @@ fn far_levels_make_no_cloud_where_the_automaton_cannot() {
     }
     // A cloudy layer bounded by an extent with a feather: outside the extent every
     // field is 0, so every level is clear there, while inside it is cloudy.
-    let base = include_str!("../config/default.toml");
+    let base = DEFAULT_CONFIG;
     let feather = "feather = { start = 0.0, depth = 2000.0 }";
     let preset = format!(
         "[presets.bounded]\nmode = \"dobashi\"\nhumidity = {{ frequency = 0.12, cutoff = [0.3, 0.7], range = [0.0, 0.4], {feather} }}\nactivation = {{ frequency = 0.25, cutoff = [0.3, 0.8], range = [0.0, 0.03], {feather} }}\nextinction = {{ frequency = 0.2, range = [0.04, 0.01] }}\n"

@@ -30,7 +30,7 @@ use crate::render::pathtrace::{self, Environment, PathParams};
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
-use crate::world::{Config, World};
+use crate::world::{Config, DEFAULT_CONFIG, World};
 
 use super::{BenchRun, Effort, Plot, Section};
 
@@ -365,11 +365,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         ),
         Effort::Full => (&SCENES, 512, &[Quality::Fast, Quality::Balanced, Quality::Accurate]),
     };
-    let config = Config::parse(&format!(
-        "{}\n{SCENE_WORLDS}",
-        include_str!("../../config/default.toml")
-    ))
-    .map_err(|e| e.to_string())?;
+    let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).map_err(|e| e.to_string())?;
     let mut md = format!(
         "Scene set of `benches/render_trade.rs` (one-layer worlds, t = 1800 s), {size}×{size} pixels. Error against \
          `reference` (path tracer, {REFERENCE_SAMPLES} samples per pixel) on the same tiles: RMSE of display RGB in [0, 1], SSIM of luma. \

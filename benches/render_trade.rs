@@ -17,9 +17,7 @@ use cloudscape::render::image::{Image, encode_png, rmse, ssim};
 use cloudscape::render::scene::{self, RenderRequest};
 use cloudscape::render::tile::{ShadedTile, shade_density, tile_halo};
 use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
-use cloudscape::world::{Config, World};
-
-const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+use cloudscape::world::{Config, DEFAULT_CONFIG, World};
 
 use cloudscape::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
 
@@ -36,6 +34,14 @@ struct Measured {
     /// The path tracer's stated noise (0 for billboards).
     noise: f64,
     tiles: Vec<ShadedTile>,
+}
+
+/// One preset's figures over the scene set, one entry per scene.
+struct PresetSummary {
+    quality: Quality,
+    speed_up: Vec<f64>,
+    speed_up_excl_density: Vec<f64>,
+    ssim: Vec<f64>,
 }
 
 fn request(s: &Scene, q: Quality, size: usize) -> RenderRequest {
@@ -128,11 +134,14 @@ fn main() {
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let mut points: Vec<(Quality, f64, f64)> = Vec::new();
     let mut per_tile: Vec<(Quality, f64, usize)> = Vec::new();
-    let mut summary: Vec<(Quality, Vec<f64>, Vec<f64>, Vec<f64>)> =
-        [Quality::Fast, Quality::Balanced, Quality::Accurate]
-            .iter()
-            .map(|&q| (q, vec![], vec![], vec![]))
-            .collect();
+    let mut summary: Vec<PresetSummary> = [Quality::Fast, Quality::Balanced, Quality::Accurate]
+        .map(|quality| PresetSummary {
+            quality,
+            speed_up: vec![],
+            speed_up_excl_density: vec![],
+            ssim: vec![],
+        })
+        .into();
     for s in &SCENES {
         let world = config.world(s.world).unwrap();
         let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE));
@@ -167,9 +176,9 @@ fn main() {
                 ss
             );
             points.push((q, m.billboards_s + m.draw_s, ss));
-            summary[qi].1.push(speed);
-            summary[qi].2.push(speed_ex);
-            summary[qi].3.push(ss);
+            summary[qi].speed_up.push(speed);
+            summary[qi].speed_up_excl_density.push(speed_ex);
+            summary[qi].ssim.push(ss);
             write_png(&out_dir, s.name, q.as_str(), &m.image);
             // Per-tile time to billboards + atlas.
             let t = Instant::now();
@@ -192,15 +201,16 @@ fn main() {
     println!("\nSummary over the scene set (geometric mean of speed-ups, minimum SSIM):\n");
     println!("| preset | speed-up total | speed-up excl. density | min SSIM | mean SSIM |");
     println!("|---|---|---|---|---|");
-    for (q, sp, spx, ss) in &summary {
-        let gm = |v: &Vec<f64>| (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp();
+    for p in &summary {
+        let gm = |v: &[f64]| (v.iter().map(|x| x.ln()).sum::<f64>() / v.len() as f64).exp();
+        let ss = &p.ssim;
         let min = ss.iter().cloned().fold(f64::INFINITY, f64::min);
         let mean = ss.iter().sum::<f64>() / ss.len() as f64;
         println!(
             "| {} | {:.0}× | {:.0}× | {:.3} | {:.3} |",
-            q.as_str(),
-            gm(sp),
-            gm(spx),
+            p.quality.as_str(),
+            gm(&p.speed_up),
+            gm(&p.speed_up_excl_density),
             min,
             mean
         );

@@ -25,7 +25,7 @@ use cloudscape::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_d
 use cloudscape::render::image::Image;
 use cloudscape::render::light::Octaves;
 use cloudscape::render::{Quality, ShadingParams, scene};
-use cloudscape::world::Config;
+use cloudscape::world::{Config, DEFAULT_CONFIG};
 
 /// A tone-mapped PNG back to linear radiance.
 fn read_reference(path: &std::path::Path, size: usize) -> Result<Image, String> {
@@ -68,7 +68,7 @@ fn main() -> Result<(), String> {
         .map(|s| Quality::parse(s).ok_or("PRESET must be fast | balanced | accurate"))
         .transpose()?
         .unwrap_or(Quality::Balanced);
-    let text = format!("{}\n{SCENE_WORLDS}", include_str!("../config/default.toml"));
+    let text = format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}");
     let config = Config::parse(&text).map_err(|e| e.to_string())?;
     let external = args.get(2).map(std::path::PathBuf::from);
     if let Some(dir) = &external {

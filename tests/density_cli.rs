@@ -3,6 +3,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use cloudscape::world::DEFAULT_CONFIG;
+
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 
 fn run(args: &[&str], envs: &[(&str, &str)]) -> Output {
@@ -14,17 +16,18 @@ fn run(args: &[&str], envs: &[(&str, &str)]) -> Output {
     c.output().expect("run cloudscape")
 }
 
-/// Runs `density` writing raw f32 (density) or u8 (cld) and returns the bytes.
-fn grid(
-    dir: &Path,
-    name: &str,
-    world: &str,
-    layer: &str,
-    bbox: &str,
-    t: &str,
-    field: &str,
-    envs: &[(&str, &str)],
-) -> Vec<u8> {
+/// What a `density` run asks for besides its box: the same across the boxes a test compares.
+struct Request<'a> {
+    world: &'a str,
+    layer: &'a str,
+    t: &'a str,
+    field: &'a str,
+}
+
+/// Runs `density` for `req` over `bbox`, writing raw f32 (density) or u8 (cld) to
+/// `dir/name`, and returns the bytes.
+fn grid(dir: &Path, name: &str, req: &Request, bbox: &str, envs: &[(&str, &str)]) -> Vec<u8> {
+    let Request { world, layer, t, field } = *req;
     let out = dir.join(name);
     let fmt = if field == "cld" { "u8" } else { "f32" };
     let o = run(
@@ -84,34 +87,31 @@ fn seams_two_halves_equal_the_whole() {
         for t in times {
             for field in ["cld", "density"] {
                 let item = if field == "cld" { 1 } else { 4 };
+                let req = Request {
+                    world: "overcast",
+                    layer: "stratocumulus",
+                    t,
+                    field,
+                };
                 let whole = grid(
                     d.path(),
                     "w",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0, y0, x0 + 2.0 * l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 let left = grid(
                     d.path(),
                     "l",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0, y0, x0 + l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 let right = grid(
                     d.path(),
                     "r",
-                    "overcast",
-                    "stratocumulus",
+                    &req,
                     &format!("{},{},{},{}", x0 + l, y0, x0 + 2.0 * l, y0 + l),
-                    t,
-                    field,
                     &[],
                 );
                 assert_eq!(whole.len(), 2 * left.len());
@@ -134,36 +134,15 @@ fn seams_two_halves_equal_the_whole() {
 fn seams_hold_for_rosa_layers_and_other_layers() {
     let d = tmp();
     for (layer, l) in [("cirrus", 4800.0), ("altocumulus", 1920.0)] {
-        let whole = grid(
-            d.path(),
-            "w",
-            "overcast",
+        let req = Request {
+            world: "overcast",
             layer,
-            &format!("0,0,{},{}", 2.0 * l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
-        let left = grid(
-            d.path(),
-            "l",
-            "overcast",
-            layer,
-            &format!("0,0,{},{}", l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
-        let right = grid(
-            d.path(),
-            "r",
-            "overcast",
-            layer,
-            &format!("{},0,{},{}", l, 2.0 * l, l),
-            "4321.5",
-            "density",
-            &[],
-        );
+            t: "4321.5",
+            field: "density",
+        };
+        let whole = grid(d.path(), "w", &req, &format!("0,0,{},{}", 2.0 * l, l), &[]);
+        let left = grid(d.path(), "l", &req, &format!("0,0,{},{}", l, l), &[]);
+        let right = grid(d.path(), "r", &req, &format!("{},0,{},{}", l, 2.0 * l, l), &[]);
         let depth = whole.len() / 4 / (24 * 48);
         assert_eq!(columns(&whole, depth, 24, 48, 4, 0, 24), left, "{layer}");
         assert_eq!(columns(&whole, depth, 24, 48, 4, 24, 48), right, "{layer}");
@@ -174,36 +153,15 @@ fn seams_hold_for_rosa_layers_and_other_layers() {
 fn output_is_identical_across_thread_counts_and_runs() {
     let d = tmp();
     let bbox = "-3000,-3000,3400,3400";
-    let a = grid(
-        d.path(),
-        "a",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "1")],
-    );
-    let b = grid(
-        d.path(),
-        "b",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "2")],
-    );
-    let c = grid(
-        d.path(),
-        "c",
-        "default",
-        "stratocumulus",
-        bbox,
-        "777.7",
-        "density",
-        &[("RAYON_NUM_THREADS", "2")],
-    );
+    let req = Request {
+        world: "default",
+        layer: "stratocumulus",
+        t: "777.7",
+        field: "density",
+    };
+    let a = grid(d.path(), "a", &req, bbox, &[("RAYON_NUM_THREADS", "1")]);
+    let b = grid(d.path(), "b", &req, bbox, &[("RAYON_NUM_THREADS", "2")]);
+    let c = grid(d.path(), "c", &req, bbox, &[("RAYON_NUM_THREADS", "2")]);
     assert_eq!(a, b);
     assert_eq!(b, c);
     assert!(
@@ -243,7 +201,7 @@ fn npy_output_has_the_documented_shape() {
 
 /// A world whose only layer has the given probability ranges (hum, act, ext).
 fn extreme_config(dir: &Path, hum: [f64; 2], act: [f64; 2], ext: [f64; 2]) -> PathBuf {
-    let base = include_str!("../config/default.toml");
+    let base = DEFAULT_CONFIG;
     let preset = format!(
         "[presets.extreme]\nmode = \"dobashi\"\nhumidity = {{ frequency = 0.1, range = [{}, {}] }}\nactivation = {{ frequency = 0.1, range = [{}, {}] }}\nextinction = {{ frequency = 0.1, range = [{}, {}] }}\n",
         hum[0], hum[1], act[0], act[1], ext[0], ext[1]
@@ -322,7 +280,13 @@ fn huge_coordinates_and_times_give_finite_well_formed_density() {
     // 2^40 cells of 100 m from the origin, at t = 1e12.
     let far = (1u64 << 40) as f64 * 100.0;
     let bbox = format!("{},{},{},{}", far, -far, far + 6400.0, -far + 6400.0);
-    let v = grid(d.path(), "f", "default", "stratocumulus", &bbox, "1e12", "density", &[]);
+    let req = Request {
+        world: "default",
+        layer: "stratocumulus",
+        t: "1e12",
+        field: "density",
+    };
+    let v = grid(d.path(), "f", &req, &bbox, &[]);
     let vals: Vec<f32> = v.chunks(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
     assert!(vals.iter().all(|x| x.is_finite() && (0.0..=1.0).contains(x)));
     let distinct = vals
@@ -529,7 +493,7 @@ fn far_levels_make_no_cloud_where_the_automaton_cannot() {
     }
     // A cloudy layer bounded by an extent with a feather: outside the extent every
     // field is 0, so every level is clear there, while inside it is cloudy.
-    let base = include_str!("../config/default.toml");
+    let base = DEFAULT_CONFIG;
     let feather = "feather = { start = 0.0, depth = 2000.0 }";
     let preset = format!(
         "[presets.bounded]\nmode = \"dobashi\"\nhumidity = {{ frequency = 0.12, cutoff = [0.3, 0.7], range = [0.0, 0.4], {feather} }}\nactivation = {{ frequency = 0.25, cutoff = [0.3, 0.8], range = [0.0, 0.03], {feather} }}\nextinction = {{ frequency = 0.2, range = [0.04, 0.01] }}\n"

@@ -76,7 +76,7 @@ fn stats(origin: i64) -> (f64, f64, f64) {
     let mut v = Vec::new();
     let mut max_step: f64 = 0.0;
     for j in 0..96 {
-        let mut prev = None;
+        let mut prev: Option<f64> = None;
         for i in 0..96 {
             let s = fbm.sample(
                 4,
@@ -85,7 +85,7 @@ fn stats(origin: i64) -> (f64, f64, f64) {
                 Some(Coord::new(origin / 7, 0.25)),
             );
             if let Some(p) = prev {
-                max_step = max_step.max((s - p as f64).abs());
+                max_step = max_step.max((s - p).abs());
             }
             prev = Some(s);
             v.push(s);

@@ -4,6 +4,8 @@
 
 use std::process::Command;
 
+use cloudscape::world::DEFAULT_CONFIG;
+
 const VIEWS: [&str; 7] = [
     "ground-noon",
     "up-60",
@@ -18,7 +20,7 @@ const QUALITIES: [&str; 4] = ["fast", "balanced", "accurate", "reference"];
 /// The embedded config with a cheap `default` world (one thin layer of coarse cells),
 /// so the 28 renders take seconds.
 fn small_config(dir: &std::path::Path) -> String {
-    let base = include_str!("../config/default.toml");
+    let base = DEFAULT_CONFIG;
     let presets = &base[..base.find("[worlds.default]").expect("the default world")];
     let world = "[worlds.default]\nseed = 3\n[[worlds.default.layers]]\nname = \"cumulus\"\npreset = \"cumulus\"\nbase = 1200.0\ncell_size = 400.0\ncell_height = 200.0\ndepth = 2\ndt = 20.0\nwind = [6.0, 2.0]\n";
     let path = dir.join("small.toml");

@@ -3,7 +3,7 @@
 
 use std::process::Command;
 
-const DEFAULT_CONFIG: &str = include_str!("../config/default.toml");
+use cloudscape::world::DEFAULT_CONFIG;
 
 /// The default config plus a one-layer world, so a test render computes one tile.
 fn config_file(dir: &std::path::Path) -> String {

@@ -174,11 +174,9 @@ impl LayerSim {
                         let words = lv.wpr * lv.rows;
                         let (mut hum, mut act, mut keep) = (vec![0u64; words], vec![0u64; words], vec![0u64; words]);
                         conv.each_word(|i, p| {
-                            for b in 0..64 {
-                                hum[i] |= ((p[0][b] > thresholds[0]) as u64) << b;
-                                act[i] |= ((p[1][b] > thresholds[1]) as u64) << b;
-                                keep[i] |= ((p[2][b] > thresholds[2]) as u64) << b;
-                            }
+                            hum[i] |= lanes_above(&p[0], thresholds[0]);
+                            act[i] |= lanes_above(&p[1], thresholds[1]);
+                            keep[i] |= lanes_above(&p[2], thresholds[2]);
                         });
                         Drives::Threshold { hum, act, keep }
                     }
@@ -312,6 +310,15 @@ impl Conversion<'_> {
             }
         }
     }
+}
+
+/// A Rosa drive word: bit b is set where lane b's texture is above `threshold`.
+#[inline]
+fn lanes_above(lanes: &[f32; 64], threshold: f32) -> u64 {
+    lanes
+        .iter()
+        .enumerate()
+        .fold(0, |word, (b, &v)| word | (((v > threshold) as u64) << b))
 }
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds

@@ -17,7 +17,7 @@ use crate::render::shade::shade;
 use crate::render::splats::SplatSheet;
 use crate::render::tile::{MIN_BALL_DENSITY, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadedTile, ShadingParams, Sun, TileId, shade_tile};
-use crate::world::{Config, World};
+use crate::world::{Config, DEFAULT_CONFIG, World};
 
 use super::{BenchRun, Effort, Plot, Section, fmt_s, time};
 
@@ -170,9 +170,8 @@ pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
 /// One-layer worlds of Rosa's grid depths (cells 100 m wide, 50 m high).
 fn rosa_world(depth: u32) -> Result<World, String> {
     let text = format!(
-        "{}\n[worlds.rosa]\nseed = 2013\n[[worlds.rosa.layers]]\nname = \"rosa\"\npreset = \"cumulus\"\n\
-         base = 1000.0\ncell_size = 100.0\ncell_height = 50.0\ndepth = {depth}\ndt = 20.0\nwind = [6.0, 0.0]\n",
-        include_str!("../../config/default.toml")
+        "{DEFAULT_CONFIG}\n[worlds.rosa]\nseed = 2013\n[[worlds.rosa.layers]]\nname = \"rosa\"\npreset = \"cumulus\"\n\
+         base = 1000.0\ncell_size = 100.0\ncell_height = 50.0\ndepth = {depth}\ndt = 20.0\nwind = [6.0, 0.0]\n"
     );
     let config = Config::parse(&text).map_err(|e| e.to_string())?;
     config.world("rosa").ok_or_else(|| "the rosa world is missing".into())

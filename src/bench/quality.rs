@@ -30,7 +30,7 @@ use crate::render::pathtrace::{self, Environment, PathParams};
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
-use crate::world::{Config, World};
+use crate::world::{Config, DEFAULT_CONFIG, World};
 
 use super::{BenchRun, Effort, Plot, Section};
 
@@ -233,9 +233,9 @@ pub fn split_reference(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> S
     };
     let halves = [draw(0), draw(half)];
     let mut image = halves[0].clone();
-    for (i, p) in image.rgb.iter_mut().enumerate() {
-        for c in 0..3 {
-            p[c] = 0.5 * (p[c] + halves[1].rgb[i][c]);
+    for (p, q) in image.rgb.iter_mut().zip(&halves[1].rgb) {
+        for (p, &q) in p.iter_mut().zip(q) {
+            *p = 0.5 * (*p + q);
         }
     }
     SplitReference { image, halves }
@@ -399,11 +399,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         ),
         Effort::Full => (&SCENES, 512, &[Quality::Fast, Quality::Balanced, Quality::Accurate]),
     };
-    let config = Config::parse(&format!(
-        "{}\n{SCENE_WORLDS}",
-        include_str!("../../config/default.toml")
-    ))
-    .map_err(|e| e.to_string())?;
+    let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).map_err(|e| e.to_string())?;
     let mut md = format!(
         "Scene set of `benches/render_trade.rs` (one-layer worlds, t = 1800 s), {size}×{size} pixels. Error against \
          `reference` (path tracer, {REFERENCE_SAMPLES} samples per pixel) on the same tiles: RMSE of display RGB in [0, 1], SSIM of luma. \
@@ -533,7 +529,7 @@ mod tests {
     fn cross_energy_keeps_detail_and_drops_independent_noise() {
         let (w, h) = (64, 64);
         // A checkerboard of period 8 px: detail both images share.
-        let signal = |x: usize, y: usize| if (x / 4 + y / 4) % 2 == 0 { 0.7 } else { 0.3 };
+        let signal = |x: usize, y: usize| if (x / 4 + y / 4).is_multiple_of(2) { 0.7 } else { 0.3 };
         let img = |seed: u64, amp: f32| -> Vec<[f32; 3]> {
             (0..w * h)
                 .map(|i| {

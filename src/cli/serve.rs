@@ -9,9 +9,7 @@
 use clap::Args;
 
 use crate::service::Server;
-use crate::world::Config;
-
-const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
+use crate::world::{Config, DEFAULT_CONFIG};
 
 /// Sections whose keys the environment may override.
 const ENV_SECTIONS: [&str; 2] = ["server", "limits"];

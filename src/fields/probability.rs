@@ -69,7 +69,9 @@ impl FieldWindow {
 /// x86-64); a unit test compares the two on every f32 in [0, 1]. NaN gives 0.
 #[inline]
 pub fn quantize(p: f32) -> u32 {
-    // `max` returns the other operand for NaN, so x is a number in [0, 65536].
+    // `max` returns the other operand for NaN, so x is a number in [0, 65536]
+    // (`clamp` would keep the NaN, which the unchecked conversion below must not see).
+    #[allow(clippy::manual_clamp)]
     let x = p.max(0.0).min(1.0) * 65536.0;
     let r = (x + 0.5).floor();
     // `x + 0.5` can round up across an integer when x is just below n − 0.5.
@@ -184,6 +186,7 @@ impl LayerFields {
     /// at cell centres. `spacing` > 1 evaluates noise on a coarser lattice aligned
     /// to multiples of `spacing` in frame coordinates and interpolates bilinearly
     /// (the lattice is global, so any window gives the same values).
+    #[allow(clippy::too_many_arguments)] // x0, y0, w, h: a rectangle type would only wrap them
     pub fn window(
         &self,
         x0: i64,

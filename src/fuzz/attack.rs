@@ -315,7 +315,7 @@ fn salt() -> u64 {
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_nanos() as u64);
-    nanos / 1_000_000 ^ (std::process::id() as u64) << 20
+    (nanos / 1_000_000) ^ ((std::process::id() as u64) << 20)
 }
 
 /// Seconds from `since` until a cheap uncached request answers 200 (probing every

@@ -27,14 +27,17 @@ pub enum Kind {
     Protocol,
 }
 
+/// A header name and its raw value (the value need not be valid UTF-8).
+pub type RawHeader = (String, Vec<u8>);
+
 /// One generated request, ready to write on a socket.
 #[derive(Clone, Debug)]
 pub struct FuzzRequest {
     pub method: String,
     /// The request target (path and query) as raw bytes: it may not be valid UTF-8.
     pub target: Vec<u8>,
-    /// Extra headers (name, value), raw.
-    pub headers: Vec<(String, Vec<u8>)>,
+    /// Extra headers, raw.
+    pub headers: Vec<RawHeader>,
     pub kind: Kind,
     /// The content type a 200 must have, when the route fixes it.
     pub ok_type: Option<&'static str>,
@@ -685,7 +688,7 @@ fn uri_safe(path: &str) -> Vec<u8> {
 }
 
 /// A header a client may send that the server must tolerate.
-fn odd_header(d: &mut Draws) -> (String, Vec<u8>) {
+fn odd_header(d: &mut Draws) -> RawHeader {
     match d.below(8) {
         0 => (
             "If-None-Match".into(),
@@ -722,7 +725,7 @@ fn odd_header(d: &mut Draws) -> (String, Vec<u8>) {
 /// Malformed at the HTTP level.
 fn protocol_request(d: &mut Draws) -> FuzzRequest {
     let good = b"/v1/worlds/default/tiles/0/0/0/density.u8?t=0".to_vec();
-    let (method, target, headers): (String, Vec<u8>, Vec<(String, Vec<u8>)>) = match d.below(8) {
+    let (method, target, headers): (String, Vec<u8>, Vec<RawHeader>) = match d.below(8) {
         // Raw invalid UTF-8 and control bytes in the target.
         0 => {
             let mut t = b"/v1/worlds/".to_vec();

@@ -310,7 +310,7 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
     while Instant::now() < shared.deadline {
         let s = shared.seconds(Instant::now());
         agent.plan(&shared.world, &mut shared.paths.lock().unwrap(), s);
-        while let Some(req) = agent.next() {
+        while let Some(req) = agent.next_request() {
             if Instant::now() >= shared.deadline {
                 return;
             }
@@ -352,7 +352,7 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
                     shared.seconds(intended),
                 );
             }
-            a.next()
+            a.next_request()
         };
         let Some(req) = req else { continue };
         let permit = slots
@@ -628,7 +628,6 @@ impl Report {
                 colour: PALETTE[0],
                 mark: Mark::Line,
             }],
-            ..Panel::default()
         };
         render(&[over_time, rates, distribution], 3, (520, 400))
     }

@@ -335,7 +335,7 @@ impl Agent {
     }
 
     /// The next request of the current tick, with the ETag held for its resource.
-    pub fn next(&mut self) -> Option<Request> {
+    pub fn next_request(&mut self) -> Option<Request> {
         let mut r = self.pending.pop()?;
         r.etag = self.etags.get(&r.resource).cloned();
         Some(r)
@@ -390,7 +390,7 @@ mod tests {
         let mut agent = Agent::new(Role::Player(Player::new(0, 1)));
         agent.plan(&w, &mut paths, 0.0);
         let mut reqs = Vec::new();
-        while let Some(r) = agent.next() {
+        while let Some(r) = agent.next_request() {
             reqs.push(r);
         }
         assert_eq!(reqs[0].kind, RequestKind::Splats);
@@ -400,7 +400,7 @@ mod tests {
         agent.answered(&tiles[0].resource, Some("\"abc\"".into()));
         // One second later: a new time, the same resources, the held ETag is sent.
         agent.plan(&w, &mut paths, 1.0);
-        let first = agent.next().unwrap();
+        let first = agent.next_request().unwrap();
         assert_eq!(first.kind, RequestKind::Tile, "the splat sheet is fetched once");
         assert_eq!(first.resource, tiles[0].resource);
         assert_eq!(first.etag.as_deref(), Some("\"abc\""));

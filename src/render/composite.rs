@@ -258,7 +258,7 @@ pub fn composite_cancellable(
         .collect();
     let mut rgb_chunks: Vec<&mut [[f32; 3]]> = image.rgb.chunks_mut(BAND_ROWS * width).collect();
     let mut a_chunks: Vec<&mut [f32]> = image.alpha.chunks_mut(BAND_ROWS * width).collect();
-    let work: Vec<((usize, usize), (&mut [[f32; 3]], &mut [f32]))> = bands
+    let work: Vec<_> = bands
         .into_iter()
         .zip(rgb_chunks.drain(..).zip(a_chunks.drain(..)))
         .collect();
@@ -365,8 +365,8 @@ pub fn composite_cancellable(
             if erosion > 0.0 && acc_a[i] > 0.0 {
                 let a = eroded(acc_a[i], &acc_at[i], erosion);
                 let k = a / acc_a[i];
-                for ch in 0..3 {
-                    acc[i][ch] *= k;
+                for c in acc[i].iter_mut() {
+                    *c *= k;
                 }
                 acc_a[i] = a;
             }
@@ -414,8 +414,8 @@ mod tests {
                 for px in 0..view.width {
                     let a = f.alpha((px as f64 + 0.5 - f.x) / f.r_px, (py as f64 + 0.5 - f.y) / f.r_px);
                     let i = py * view.width + px;
-                    for ch in 0..3 {
-                        image.rgb[i][ch] = (a * colour[ch] + (1.0 - a) * image.rgb[i][ch] as f64) as f32;
+                    for (out, &c) in image.rgb[i].iter_mut().zip(&colour) {
+                        *out = (a * c + (1.0 - a) * *out as f64) as f32;
                     }
                     image.alpha[i] = (a + (1.0 - a) * image.alpha[i] as f64) as f32;
                 }

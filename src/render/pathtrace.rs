@@ -738,7 +738,7 @@ mod tests {
         for (eye, pitch) in [([800.0, -1500.0, 1600.0], 0.0), ([800.0, 800.0, 1500.0], -20.0)] {
             let camera = Camera::new(eye, 0.0, pitch, 60.0).unwrap();
             let view = View::perspective(&camera, 8, 6);
-            let traced = render(&[vol.clone()], env, &PathParams::new(64), &view);
+            let traced = render(std::slice::from_ref(&vol), env, &PathParams::new(64), &view);
             // Every path returns exactly L (a collision and an escape complement each
             // other, see the module comment), so only f32 rounding remains.
             for px in &traced.image.rgb {

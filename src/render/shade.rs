@@ -390,6 +390,7 @@ mod tests {
         let tau = top.tau as f64;
         let below: f64 = bb[..bb.len() - 1].iter().map(|b| b.tau as f64).sum();
         let ground = l.ground_below(1.0);
+        #[allow(clippy::needless_range_loop)] // ch indexes three arrays and names the channel in the message
         for ch in 0..3 {
             let expected = l.params.albedo
                 * (0.5 * l.ambient_rgb[ch] * (-k * SELF_SHADOW * tau).exp()

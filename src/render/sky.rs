@@ -173,8 +173,8 @@ fn optical_depth_to_top(r: f64, mu: f64, steps: usize) -> [f64; 3] {
         let t = (i as f64 + 0.5) * dt;
         let ri = (r * r + t * t + 2.0 * r * t * mu).sqrt();
         let m = medium(ri - GROUND_RADIUS);
-        for c in 0..3 {
-            tau[c] += m.extinction[c] * dt;
+        for (t, e) in tau.iter_mut().zip(m.extinction) {
+            *t += e * dt;
         }
     }
     tau
@@ -313,13 +313,13 @@ impl Sky {
             return sky;
         }
         let sky = Arc::new(Sky::new(sun_dir, sun_intensity));
-        if let Ok(mut c) = CACHE.lock() {
-            if !c.iter().any(|(k, _)| *k == key) {
-                if c.len() >= SHARED_SKIES {
-                    c.remove(0);
-                }
-                c.push((key, sky.clone()));
+        if let Ok(mut c) = CACHE.lock()
+            && !c.iter().any(|(k, _)| *k == key)
+        {
+            if c.len() >= SHARED_SKIES {
+                c.remove(0);
             }
+            c.push((key, sky.clone()));
         }
         sky
     }
@@ -664,9 +664,9 @@ mod tests {
     /// 440 nm. The Bruneton constants are within 15 % of it.
     #[test]
     fn a_shared_sky_is_the_sky_it_stands_for() {
-        let sun = [0.3, -0.5, 0.81];
-        let norm = (sun[0] * sun[0] + sun[1] * sun[1] + sun[2] * sun[2]) as f64;
-        let dir = sun.map(|c: f64| c / norm.sqrt());
+        let sun: [f64; 3] = [0.3, -0.5, 0.81];
+        let norm = sun[0] * sun[0] + sun[1] * sun[1] + sun[2] * sun[2];
+        let dir = sun.map(|c| c / norm.sqrt());
         let (a, b) = (Sky::shared(dir, 2.0), Sky::shared(dir, 2.0));
         assert!(Arc::ptr_eq(&a, &b), "the second call built its own");
         let fresh = Sky::new(dir, 2.0);
@@ -688,8 +688,8 @@ mod tests {
         let mut tau = [0.0; 3];
         for i in 0..n {
             let m = medium((i as f64 + 0.5) * dt);
-            for c in 0..3 {
-                tau[c] += m.rayleigh[c] * dt;
+            for (t, r) in tau.iter_mut().zip(m.rayleigh) {
+                *t += r * dt;
             }
         }
         let hansen = |l: f64| 0.008569 * l.powi(-4) * (1.0 + 0.0113 * l.powi(-2) + 0.00013 * l.powi(-4));

@@ -124,7 +124,10 @@ fn open_file_limit() -> Option<u64> {
         };
         // SAFETY: getrlimit writes one rlimit struct, which `limit` is.
         let ok = unsafe { libc::getrlimit(libc::RLIMIT_NOFILE, &mut limit) } == 0;
-        (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(limit.rlim_cur as u64)
+        // `rlim_t` is u64 here but i64 on FreeBSD and u32 on 32-bit Android.
+        #[allow(clippy::unnecessary_cast)]
+        let soft = limit.rlim_cur as u64;
+        (ok && limit.rlim_cur != libc::RLIM_INFINITY).then_some(soft)
     }
     #[cfg(not(unix))]
     None

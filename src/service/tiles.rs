@@ -170,6 +170,10 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
     }
 }
 
+/// The tile route's segments as sent: world, z, x, y, product (parsed in [`tile`], so
+/// a malformed one gets our error rather than the extractor's).
+type TileSegments = (String, String, String, String, String);
+
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}",
@@ -201,7 +205,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
 )]
 pub async fn tile(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<(String, String, String, String, String)>, PathRejection>,
+    path: Result<Path<TileSegments>, PathRejection>,
     params: Params,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {

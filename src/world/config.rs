@@ -6,7 +6,8 @@ use serde::Deserialize;
 
 use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, Preset, World};
 
-/// The embedded default configuration.
+/// The embedded default configuration, the text of `config/default.toml`: the one
+/// place it is compiled in (the binary, benches, examples and tests all read this).
 pub const DEFAULT_CONFIG: &str = include_str!("../../config/default.toml");
 
 /// A configuration that could not be used. The message names the offending key.

@@ -1,13 +1,14 @@
 //! Worlds, layers and presets: the configuration everything downstream reads.
 //!
 //! A [`World`] is a seed plus a climate (its [`Layer`]s). The configuration is
-//! TOML; the default one is embedded in the binary (`config/default.toml`).
+//! TOML; the default one is embedded in the binary ([`DEFAULT_CONFIG`], the text of
+//! `config/default.toml`).
 //! Parsing rejects unknown keys and invalid values with a message that names
 //! the key, before anything else runs.
 
 mod config;
 
-pub use config::{Config, ConfigError, Limits, ServerConfig, SunConfig};
+pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, ServerConfig, SunConfig};
 
 use serde::Deserialize;
 

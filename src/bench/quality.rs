@@ -560,7 +560,10 @@ mod tests {
         let (fa, fb) = (flat(10), flat(20_000));
         let (flat_cross, flat_se) = cross_high_frequency_energy(&fa, &fb, w, h);
         assert!(flat_cross.abs() < 0.1 * high_frequency_energy(&fa, w, h));
-        assert!(flat_cross.abs() < 4.0 * flat_se, "pure noise is within its standard error");
+        assert!(
+            flat_cross.abs() < 4.0 * flat_se,
+            "pure noise is within its standard error"
+        );
         // Mismatched sizes are no detail, not a panic.
         assert_eq!(cross_high_frequency_energy(&fa, &fb[..10], w, h), (0.0, 0.0));
         // Blocks average: a 2×2 checkerboard of 0 and 1 bins to 0.5 everywhere.

@@ -98,22 +98,22 @@ impl Worlds {
 
 /// A time snapped to the layer's frame grid.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Frame {
+pub struct SnappedTime {
     /// Frame index: `t_frame = index * dt / frames_per_step`.
     pub index: u64,
     /// The time the bytes are computed for.
     pub t: f64,
 }
 
-impl Frame {
+impl SnappedTime {
     /// Snaps a checked `t` (finite, 0..=1e12) to the nearest frame, staying within range.
-    pub fn snap(t: f64, layer: &Layer, frames_per_step: u32) -> Frame {
+    pub fn snap(t: f64, layer: &Layer, frames_per_step: u32) -> SnappedTime {
         let period = layer.dt / frames_per_step as f64;
         let mut index = (t / period).round() as u64;
         if index as f64 * period > MAX_TIME {
             index = (MAX_TIME / period).floor() as u64;
         }
-        Frame {
+        SnappedTime {
             index,
             t: index as f64 * period,
         }
@@ -217,13 +217,13 @@ mod tests {
         let c = Config::embedded();
         let layer = &c.worlds["default"].layers[0];
         let period = layer.dt / 4.0;
-        let f = Frame::snap(period * 3.4, layer, 4);
+        let f = SnappedTime::snap(period * 3.4, layer, 4);
         assert_eq!(f.index, 3);
         assert_eq!(f.t, period * 3.0);
         assert!(!f.is_exact(period * 3.4));
-        assert!(Frame::snap(period * 3.0, layer, 4).is_exact(period * 3.0));
-        assert!(Frame::snap(MAX_TIME, layer, 4).t <= MAX_TIME);
-        assert_eq!(Frame::snap(0.0, layer, 4).index, 0);
+        assert!(SnappedTime::snap(period * 3.0, layer, 4).is_exact(period * 3.0));
+        assert!(SnappedTime::snap(MAX_TIME, layer, 4).t <= MAX_TIME);
+        assert_eq!(SnappedTime::snap(0.0, layer, 4).index, 0);
     }
 
     #[test]

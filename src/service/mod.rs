@@ -59,7 +59,7 @@ pub use error::ApiError;
 pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
 
 use self::cache::{ComputeQueue, ResponseCache};
-use self::key::{Frame, Worlds};
+use self::key::{SnappedTime, Worlds};
 use self::metrics::Metrics;
 use self::reply::ReplyBudget;
 use self::shared::SharedCache;
@@ -68,7 +68,7 @@ use crate::cost::Work;
 /// Where the server is in its life, as `/readyz` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
-pub enum Phase {
+pub enum Lifecycle {
     /// Start-up work is running; requests are served but the server is not ready.
     Starting = 0,
     Ready = 1,
@@ -82,19 +82,19 @@ pub enum Phase {
 pub struct Readiness(AtomicU8);
 
 impl Readiness {
-    pub fn get(&self) -> Phase {
+    pub fn get(&self) -> Lifecycle {
         match self.0.load(Ordering::SeqCst) {
-            0 => Phase::Starting,
-            1 => Phase::Ready,
-            2 => Phase::Failed,
-            _ => Phase::Draining,
+            0 => Lifecycle::Starting,
+            1 => Lifecycle::Ready,
+            2 => Lifecycle::Failed,
+            _ => Lifecycle::Draining,
         }
     }
 
     /// Moves to `to`, except that draining is final.
-    fn set(&self, to: Phase) {
+    fn set(&self, to: Lifecycle) {
         let _ = self.0.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |p| {
-            (p != Phase::Draining as u8).then_some(to as u8)
+            (p != Lifecycle::Draining as u8).then_some(to as u8)
         });
     }
 }
@@ -139,7 +139,7 @@ impl AppState {
             cache: Arc::new(cache),
             replies,
             metrics,
-            readiness: Readiness(AtomicU8::new(Phase::Starting as u8)),
+            readiness: Readiness(AtomicU8::new(Lifecycle::Starting as u8)),
             request_ids: (prefix, AtomicU64::new(0)),
         })
     }
@@ -188,7 +188,7 @@ impl AppState {
     }
 
     /// The `Cache-Control` for a response computed for `frame` when `t` was asked.
-    fn cache_control(&self, frame: Frame, requested: f64) -> &str {
+    fn cache_control(&self, frame: SnappedTime, requested: f64) -> &str {
         if frame.is_exact(requested) {
             &self.settings.cache_control
         } else {
@@ -247,7 +247,7 @@ impl Server {
             let state = Arc::clone(&state);
             async move {
                 let _ = stop.wait_for(|&s| s).await;
-                state.readiness.set(Phase::Draining);
+                state.readiness.set(Lifecycle::Draining);
                 state.metrics.ready.set(0);
                 tracing::info!(drain_ms = state.settings.drain_ms, "shutdown: draining");
                 tokio::time::sleep(Duration::from_millis(state.settings.drain_ms)).await;
@@ -364,7 +364,7 @@ struct Representation<'a> {
     etag: String,
     cache_control: &'a str,
     /// The canonical frame the bytes were computed for, if time-dependent.
-    frame: Option<Frame>,
+    frame: Option<SnappedTime>,
 }
 
 impl Representation<'_> {

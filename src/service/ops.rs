@@ -12,7 +12,7 @@ use crate::density::{self, Region};
 
 use super::error::ApiError;
 use super::render::{splats_bytes, splats_key};
-use super::{AppState, Phase};
+use super::{AppState, Lifecycle};
 use crate::render::Quality;
 
 /// `/healthz` and `/readyz` bodies.
@@ -63,14 +63,14 @@ pub async fn start_up(state: Arc<AppState>) {
     };
     match result {
         Ok(()) => {
-            state.readiness.set(Phase::Ready);
-            if state.readiness.get() == Phase::Ready {
+            state.readiness.set(Lifecycle::Ready);
+            if state.readiness.get() == Lifecycle::Ready {
                 state.metrics.ready.set(1);
             }
             tracing::info!("start-up done: ready");
         }
         Err(e) => {
-            state.readiness.set(Phase::Failed);
+            state.readiness.set(Lifecycle::Failed);
             tracing::error!(error = %e, "start-up failed: the server will not become ready");
         }
     }
@@ -96,10 +96,10 @@ pub async fn healthz() -> Response {
     ))]
 pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
     match s.readiness.get() {
-        Phase::Ready => no_store(StatusCode::OK, Status { status: "ok" }),
-        Phase::Starting => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "starting" }),
-        Phase::Failed => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "failed" }),
-        Phase::Draining => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "draining" }),
+        Lifecycle::Ready => no_store(StatusCode::OK, Status { status: "ok" }),
+        Lifecycle::Starting => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "starting" }),
+        Lifecycle::Failed => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "failed" }),
+        Lifecycle::Draining => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "draining" }),
     }
 }
 

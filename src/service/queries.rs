@@ -18,7 +18,7 @@ use crate::density::{self, MAX_CELL_INDEX, Region};
 use crate::world::{Layer, World};
 
 use super::error::ApiError;
-use super::key::{CacheKey, Frame};
+use super::key::{CacheKey, SnappedTime};
 use super::params::Params;
 use super::stats::{RegionStats, region_stats};
 use super::tiles::path_error;
@@ -161,7 +161,7 @@ pub async fn sample(
     };
     let Some((layer_index, layer)) = chosen else {
         // No layer spans this altitude: clear sky, nothing to compute.
-        let frame = Frame::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
+        let frame = SnappedTime::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
         let answer = SampleAnswer {
             world: resolved.world.name.clone(),
             layer: None,
@@ -204,7 +204,7 @@ pub async fn sample(
     };
     let limits = &s.worlds.config().limits;
     region.check(0, layer.depth, limits)?;
-    let frame = Frame::snap(t, layer, s.settings.frames_per_step);
+    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
     let key = CacheKey::new("sample", &resolved, layer_index)
         .with("c", col)
         .with("r", row)
@@ -274,7 +274,7 @@ pub async fn region(
     let t = params.time("t")?;
     let level = params.level(limits.max_level)?;
     let region = Region::from_bbox(layer, level, bbox, limits)?;
-    let frame = Frame::snap(t, layer, s.settings.frames_per_step);
+    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
     let key = CacheKey::new("region", &resolved, layer_index)
         .with("z", level)
         .with(
@@ -370,7 +370,7 @@ pub async fn series(
     let region = Region::from_bbox(layer, level, bbox, limits)?;
     let fps = s.settings.frames_per_step;
     let times: Vec<f64> = (0..points as u64).map(|i| (t0 + i as f64 * step).min(t1)).collect();
-    let frames: Vec<Frame> = times.iter().map(|&t| Frame::snap(t, layer, fps)).collect();
+    let frames: Vec<SnappedTime> = times.iter().map(|&t| SnappedTime::snap(t, layer, fps)).collect();
     let frame_list = frames.iter().map(|f| f.index.to_string()).collect::<Vec<_>>().join(",");
     let key = CacheKey::new("series", &resolved, layer_index)
         .with("z", level)
@@ -396,7 +396,7 @@ pub async fn series(
     }
     let world = resolved.world;
     // Each distinct frame once; consecutive points often share one.
-    let mut distinct: Vec<Frame> = frames.clone();
+    let mut distinct: Vec<SnappedTime> = frames.clone();
     distinct.dedup_by_key(|f| f.index);
     let mut work = Work::default();
     for f in &distinct {

@@ -19,7 +19,7 @@ use crate::render::scene::{RenderRequest, parse_size, render_cancellable};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
 
 use super::error::ApiError;
-use super::key::{CacheKey, Frame};
+use super::key::{CacheKey, SnappedTime};
 use super::params::Params;
 use super::tiles::{parse_quality, parse_sun, path_error};
 use super::{AppState, Representation};
@@ -73,7 +73,7 @@ pub async fn render_png(
     let samples = parse_samples(&params, quality)?;
     let config = s.worlds.config();
     // Every layer of a view is rendered at one time: the first layer's frame.
-    let frame = Frame::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
+    let frame = SnappedTime::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
     let sun = parse_sun(&params)?.unwrap_or_else(|| Sun::from_clock(frame.t, &config.sun));
     let request = RenderRequest {
         camera,

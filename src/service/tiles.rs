@@ -19,7 +19,7 @@ use crate::render::tile::shade_tile_cancellable;
 use crate::render::{Quality, ShadedTile, ShadingParams, Sun, SunBucket, TileId};
 
 use super::error::ApiError;
-use super::key::{CacheKey, Frame};
+use super::key::{CacheKey, SnappedTime};
 use super::params::{Params, parse_level, parse_tile_coordinate};
 use super::{AppState, Representation};
 
@@ -222,7 +222,7 @@ pub async fn tile(
     let sun = parse_sun(&params)?;
     let region = tile_region(z, x, y)?;
     region.check(z, layer.depth, limits)?;
-    let frame = Frame::snap(t, layer, s.settings.frames_per_step);
+    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
     let base = CacheKey::new("tile", &resolved, layer_index)
         .with("z", z)
         .with("x", x)

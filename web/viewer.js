@@ -414,13 +414,62 @@ const shadowProgram = compile(
   }`,
 );
 
+// The detail noise of src/render/detail.rs as GLSL: fBm in [0, 1] of a 3-D gradient
+// noise, lacunarity 2, gain ½. The octave rule and constants are the server's; the
+// basis has a 32-bit integer hash (WebGL has no 64-bit integers), so the pattern is
+// not the server's bit for bit. `p` is the point in units of the first wavelength.
+const DETAIL_NOISE = `
+uint hash(ivec3 q) {
+  uvec3 p = uvec3(q);
+  uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
+  h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
+  return h;
+}
+vec3 grad(ivec3 q) {
+  uint h = hash(q);
+  vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
+  return g / max(length(g), 1e-6);
+}
+float gnoise(vec3 x) {
+  vec3 i = floor(x), f = x - i;
+  ivec3 b = ivec3(i);
+  vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
+  float n000 = dot(grad(b), f);
+  float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
+  float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
+  float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
+  float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
+  float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
+  float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
+  float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
+  float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
+                mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
+  return clamp(n * 1.15, -1.0, 1.0);
+}
+float detailNoise(vec3 p, int octaves) {
+  float sum = 0.0, norm = 0.0, amp = 1.0;
+  for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
+    if (o >= octaves) break;
+    sum += amp * gnoise(p + float(o) * 17.31);
+    norm += amp;
+    amp *= 0.5; p *= 2.0;
+  }
+  return clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
+}
+`;
+
 // Camera-facing billboards textured with their splat (premultiplied `over`). The colour
 // is the pre-shaded (isotropic) colour plus the phase correction of the scattering
 // octaves (Lighting::phase_correction, src/render/light.rs):
-// albedo · sun · Σ_{i<N} bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ_sun}. Besides the colour it
-// writes, into two more targets when the erosion pass runs, the opacity-weighted
-// eye-relative point on the billboard and its radius (what src/render/composite.rs
-// accumulates for the detail erosion).
+// albedo · sun · Σ_{i<N} bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ_sun}. When the erosion pass
+// runs it also writes, into a second target with the same `over`, (n_k · α, 0, 0, α):
+// n_k the detail noise at the fragment's own point on billboard k's plane (first
+// wavelength k's radius, octaves while one spans MIN_WAVELENGTH_PIXELS of k's pixel
+// footprint, distance · pixelAngle; n_k = 0 when not even the first does). Blended
+// back to front that sums Σ_k w_k n_k with w_k = (1 − A)·α_k, the weights
+// src/render/composite.rs accumulates front to back, and its alpha is Σ_k w_k = A.
+// Points are taken relative to the eye plus the eye's position modulo 65536 m, so
+// f32 noise never sees raw world metres.
 const billboardProgram = compile(
   `#version 300 es
   layout(location = 0) in vec4 centreRadius; // centre relative to the buffer origin; radius
@@ -432,11 +481,14 @@ const billboardProgram = compile(
   uniform float albedo;
   uniform vec3 phase; // g1, g2, mix
   uniform vec4 octaves; // N, a, b, c
+  uniform float pixelAngle; // radians per pixel
+  uniform bool detail;      // whether the erosion pass runs
   out vec2 corner;
   out vec2 cellOrigin;
   out vec3 radiance;
   out vec3 rel;
-  out float radius;
+  flat out float radius;
+  flat out int detailOctaves;
   float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
   ${ATMOSPHERE}
   void main() {
@@ -445,6 +497,14 @@ const billboardProgram = compile(
     vec3 p = c + (corner.x * right + corner.y * up) * centreRadius.w;
     rel = p;
     radius = centreRadius.w;
+    // detail::octaves_for(radius, metres per pixel at the billboard's distance).
+    float mpp = length(c) * pixelAngle;
+    float wl = radius;
+    detailOctaves = 0;
+    while (detail && detailOctaves < ${MAX_DETAIL_OCTAVES} && wl >= ${MIN_WAVELENGTH_PIXELS.toFixed(1)} * mpp) {
+      detailOctaves++;
+      wl *= 0.5;
+    }
     gl_Position = viewProj * vec4(p, 1.0);
     float k = splatTau.x;
     cellOrigin = vec2(mod(k, sheet.x), floor(k / sheet.x)) * sheet.y;
@@ -465,37 +525,38 @@ const billboardProgram = compile(
   }`,
   `#version 300 es
   precision highp float;
+  precision highp int;
   in vec2 corner;
   in vec2 cellOrigin;
   in vec3 radiance;
   in vec3 rel;
-  in float radius;
+  flat in float radius;
+  flat in int detailOctaves;
   uniform sampler2D splats;
   uniform vec4 sheet;
+  uniform vec3 eyeMod; // eye position modulo 65536 m (z as is)
   layout(location = 0) out vec4 colour;
-  layout(location = 1) out vec4 where;
-  layout(location = 2) out vec4 size;
+  layout(location = 1) out vec4 detailOut;
   ${TONE}
+  ${DETAIL_NOISE}
   void main() {
     if (dot(corner, corner) >= 1.0) discard;
     float c = (sheet.y - 1.0) * 0.5; // SplatSheet::sample: texel centres span [-1, 1]
     vec2 texel = cellOrigin + 0.5 + c + corner * c;
     float a = texture(splats, texel / sheet.zw).a;
     colour = vec4(tone(radiance) * a, a);
-    where = vec4(rel * a, a);
-    size = vec4(radius * a, 0.0, 0.0, a);
+    float n = detailOctaves > 0 && a > 0.0 ? detailNoise((rel + eyeMod) / radius, detailOctaves) : 0.0;
+    detailOut = vec4(n * a, 0.0, 0.0, a);
   }`,
 );
 
 // Detail erosion of the accumulated cloud opacity (src/render/detail.rs and
-// composite.rs): A' = erode(A, E · n) with Nubis's remap, n an fBm (first wavelength
-// the opacity-weighted metaball radius, halving, octaves while one spans at least
-// MIN_WAVELENGTH_PIXELS of the pixel footprint) at the opacity-weighted world point,
-// and the colour scaled by A'/A. The rule and constants are the server's; the noise
-// basis is a 3-D gradient noise with a 32-bit integer hash (WebGL has no 64-bit
-// integers), so the pattern is not the server's bit for bit. Coordinates are taken
-// relative to the eye plus the eye's position modulo 65536 m, so f32 noise never sees
-// raw world metres.
+// composite.rs): A' = erode(A, E · n) with Nubis's remap and the colour scaled by
+// A'/A, where n = Σ_k w_k n_k / Σ_k w_k is the weighted mean of the billboards' own
+// detail noise (see billboardProgram). Averaging the noise values rather than taking
+// the noise at the weighted mean point keeps rims where near and far billboards
+// overlap free of contour ripples: that point sweeps along the view ray through many
+// wavelengths within a few pixels, each n_k is smooth across the screen.
 const erosionProgram = compile(
   `#version 300 es
   out vec2 uv;
@@ -506,65 +567,18 @@ const erosionProgram = compile(
   }`,
   `#version 300 es
   precision highp float;
-  precision highp int;
   in vec2 uv;
-  uniform sampler2D cloud, whereTex, sizeTex;
-  uniform vec3 eyeMod;     // eye position modulo 65536 m (z as is)
-  uniform float pixelAngle; // radians per pixel
+  uniform sampler2D cloud, detailTex;
   uniform float strength;
   out vec4 colour;
-  uint hash(ivec3 q) {
-    uvec3 p = uvec3(q);
-    uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
-    h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
-    return h;
-  }
-  vec3 grad(ivec3 q) {
-    uint h = hash(q);
-    vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
-    return g / max(length(g), 1e-6);
-  }
-  float gnoise(vec3 x) {
-    vec3 i = floor(x), f = x - i;
-    ivec3 b = ivec3(i);
-    vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
-    float n000 = dot(grad(b), f);
-    float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
-    float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
-    float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
-    float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
-    float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
-    float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
-    float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
-    float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
-                  mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
-    return clamp(n * 1.15, -1.0, 1.0);
-  }
   void main() {
     vec4 c = texture(cloud, uv);
     float a = c.a;
     if (a <= 0.0) discard;
-    vec4 w = texture(whereTex, uv);
-    vec4 s = texture(sizeTex, uv);
-    vec3 rel = w.xyz / max(w.a, 1e-6);
-    float r = s.x / max(s.a, 1e-6);
-    float mpp = length(rel) * pixelAngle;
-    float eroded = a;
-    if (strength > 0.0 && r > 0.0) {
-      vec3 p = (rel + eyeMod) / r;
-      float sum = 0.0, norm = 0.0, amp = 1.0, wl = r;
-      for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
-        if (wl < ${MIN_WAVELENGTH_PIXELS.toFixed(1)} * mpp) break;
-        sum += amp * gnoise(p + float(o) * 17.31);
-        norm += amp;
-        amp *= 0.5; wl *= 0.5; p *= 2.0;
-      }
-      if (norm > 0.0) {
-        float n = strength * clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
-        float lo = n * (1.0 - a);
-        eroded = lo >= 1.0 ? 0.0 : clamp((a - lo) / (1.0 - lo), 0.0, a);
-      }
-    }
+    vec4 d = texture(detailTex, uv);
+    float n = d.a > 0.0 ? strength * clamp(d.x / d.a, 0.0, 1.0) : 0.0;
+    float lo = n * (1.0 - a);
+    float eroded = lo >= 1.0 ? 0.0 : clamp((a - lo) / (1.0 - lo), 0.0, a);
     colour = vec4(c.rgb * (eroded / a), eroded);
   }`,
 );
@@ -590,15 +604,12 @@ function cloudTargets(w, h) {
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
     return t;
   };
-  const textures = [
-    make(gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE),
-    make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT),
-    make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT),
-  ];
+  // The colour, and (Σ w_k n_k, 0, 0, A) of the detail noise.
+  const textures = [make(gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE), make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT)];
   const fb = gl.createFramebuffer();
   gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
   textures.forEach((t, i) => gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0));
-  gl.drawBuffers([gl.COLOR_ATTACHMENT0, gl.COLOR_ATTACHMENT1, gl.COLOR_ATTACHMENT2]);
+  gl.drawBuffers([gl.COLOR_ATTACHMENT0, gl.COLOR_ATTACHMENT1]);
   const ok = gl.checkFramebufferStatus(gl.FRAMEBUFFER) === gl.FRAMEBUFFER_COMPLETE;
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
   cloudTarget = ok ? { fb, textures, w, h } : null;
@@ -1173,6 +1184,10 @@ function draw() {
     gl.uniform3f(bu.phase, SHADING.g1, SHADING.g2, SHADING.mix);
     gl.uniform4fv(bu.octaves, SHADING.octaves);
     gl.uniform4f(bu.sheet, splatInfo.columns, splatInfo.size, splatInfo.width, splatInfo.height);
+    const wrap = (v) => v - 65536 * Math.floor(v / 65536);
+    gl.uniform3f(bu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
+    gl.uniform1f(bu.pixelAngle, (2 * tanH) / canvas.width);
+    gl.uniform1i(bu.detail, target ? 1 : 0);
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_2D, splatTexture);
     gl.uniform1i(bu.splats, 0);
@@ -1190,11 +1205,7 @@ function draw() {
         gl.bindTexture(gl.TEXTURE_2D, t);
       });
       gl.uniform1i(eu.cloud, 0);
-      gl.uniform1i(eu.whereTex, 1);
-      gl.uniform1i(eu.sizeTex, 2);
-      const wrap = (v) => v - 65536 * Math.floor(v / 65536);
-      gl.uniform3f(eu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
-      gl.uniform1f(eu.pixelAngle, (2 * tanH) / canvas.width);
+      gl.uniform1i(eu.detailTex, 1);
       gl.uniform1f(eu.strength, SHADING.detailErosion);
       gl.bindVertexArray(emptyVao);
       gl.drawArrays(gl.TRIANGLES, 0, 3);

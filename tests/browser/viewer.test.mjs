@@ -8,7 +8,8 @@
 // map says cloud; moving the time slider changes the picture; a reload revalidates
 // every tile with a 304 and downloads no tile body; the default view's ground has no
 // seam; the sky (the server's /v1/sky.json) is blue above and brighter at the horizon
-// at noon, reddish toward a low sun. Saves screenshots in OUT_DIR and
+// at noon, reddish toward a low sun; at the far horizon `fast` shows no brighter band
+// than `balanced` (issue 20). Saves screenshots in OUT_DIR and
 // prints figures (draw calls, billboards, bytes, frame time) for BENCHMARKS.md; no
 // assertion depends on time.
 
@@ -327,6 +328,30 @@ try {
   await galleryScreenshots(browser, base, outDir, VIEWPORT, {
     check, figure, settle, canvasLuminance, std, openPage, screenshotTimeout: SCREENSHOT_TIMEOUT_MS,
   });
+
+  // --- The far horizon at `fast` and `balanced` (the gallery's horizon view). -------
+  // Between the horizon and 2° above it the eye sees the bases of the farthest clouds
+  // and, under them, the sky past the view distance. Issue 20 saw `fast` add a white
+  // haze band there; the band's mean luminance must be that of `balanced` (they differ
+  // by about 0.01 today; the reference path tracer shows the same bright sky strip).
+  const band = {};
+  for (const q of ['fast', 'balanced']) {
+    const hp = await openPage(context);
+    await hp.page.goto(`${base}/?world=default&t=43200&camera=12800,-20000,400,0,4,60&sun=135,35&quality=${q}`);
+    await settle(hp.page);
+    await hp.page.screenshot({ path: join(outDir, `horizon-${q}.png`), timeout: SCREENSHOT_TIMEOUT_MS });
+    const r = await canvasRows(hp.page);
+    const [h2, h0] = [await horizonRow(hp.page, 2), await horizonRow(hp.page, 0)];
+    band[q] = rowLum(rowsMean(r, h2, h0));
+    figure(`horizon view ${q}: mean luminance from 2° above the horizon down to it`, band[q].toFixed(3));
+    check(`the horizon view at ${q} logs no console errors`, hp.log.errors.length === 0, hp.log.errors.slice(0, 5).join(' | '));
+    await hp.page.close();
+  }
+  check(
+    'at the far horizon fast shows no band that balanced does not (mean luminance within 0.04)',
+    Math.abs(band.fast - band.balanced) < 0.04,
+    `fast ${band.fast.toFixed(3)}, balanced ${band.balanced.toFixed(3)}`,
+  );
   writeFileSync(join(outDir, 'figures.txt'), figures.join('\n') + '\n');
 } catch (e) {
   check('the browser test ran to the end', false, e.stack || String(e));

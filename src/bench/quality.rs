@@ -20,13 +20,13 @@
 
 use std::time::Instant;
 
+use crate::cancel::Cancel;
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use crate::density::{self, Region};
 use crate::render::camera::View;
 use crate::render::image::{Image, rmse, ssim};
-use crate::render::light::Lighting;
 use crate::render::march;
-use crate::render::pathtrace::{self, Environment, PathParams};
+use crate::render::pathtrace::PathParams;
 use crate::render::scene::{self, RenderRequest};
 use crate::render::tile::{ShadedTile, shade_density, tile_halo};
 use crate::render::{Camera, Quality, ShadingParams, Sun};
@@ -221,15 +221,13 @@ pub struct SplitReference {
 /// Path-traces `tiles` for `req` as a [`SplitReference`].
 pub fn split_reference(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> SplitReference {
     let vols = scene::volumes(tiles);
-    let view = View::perspective(&req.camera, req.width, req.height);
-    let lighting = Lighting::new(sun, req.params);
     let half = (req.samples / 2).max(2);
     let draw = |first: u32| {
         let params = PathParams {
             first_sample: first,
             ..PathParams::new(half)
         };
-        pathtrace::render(&vols, Environment::world(&lighting), &params, &view).image
+        scene::draw_path_traced_with(&vols, req, sun, &params, &Cancel::never()).image
     };
     let halves = [draw(0), draw(half)];
     let mut image = halves[0].clone();

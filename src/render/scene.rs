@@ -371,10 +371,21 @@ fn draw_path_traced_cancellable(
     sun: Sun,
     cancel: &Cancel,
 ) -> pathtrace::Traced {
+    draw_path_traced_with(volumes, req, sun, &PathParams::new(req.samples), cancel)
+}
+
+/// [`draw_path_traced`] with explicit path-tracer parameters (a sample range of its
+/// own, say), stopping early once `cancel` fires.
+pub fn draw_path_traced_with(
+    volumes: &[Volume],
+    req: &RenderRequest,
+    sun: Sun,
+    params: &PathParams,
+    cancel: &Cancel,
+) -> pathtrace::Traced {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun, req.params);
-    let params = PathParams::new(req.samples);
-    pathtrace::render_cancellable(volumes, Environment::world(&lighting), &params, &view, cancel)
+    pathtrace::render_cancellable(volumes, Environment::world(&lighting), params, &view, cancel)
 }
 
 /// Draws shaded tiles with the renderer of `req.quality`: the path tracer

@@ -27,6 +27,12 @@ if (!base) {
 mkdirSync(outDir, { recursive: true });
 
 const VIEWPORT = { width: 800, height: 450 };
+/**
+ * The gallery's seven views are drawn smaller: software GL's frame time grows with the
+ * pixels times the billboards over each (the detail noise runs per billboard fragment),
+ * and seven views at 800×450 took about half an hour of the suite on a 2-core machine.
+ */
+const GALLERY_VIEWPORT = { width: 480, height: 270 };
 /** Generous: a cold server computes every tile on a shared 2-core machine. */
 const LOAD_TIMEOUT_MS = 600_000;
 /** SwiftShader draws a frame of ~100k billboards slowly. */
@@ -63,6 +69,9 @@ const browser = await chromium.launch({
     '--enable-unsafe-swiftshader',
     '--use-angle=swiftshader',
     '--ignore-gpu-blocklist',
+    // A software-GL frame of a dense view can outlast the GPU watchdog's timeout, which
+    // then kills the GPU process and closes the page mid-screenshot.
+    '--disable-gpu-watchdog',
   ],
 });
 
@@ -325,7 +334,7 @@ try {
   await fresh.close();
 
   // --- The gallery's views (tests/browser/gallery.mjs). ------------------------------
-  await galleryScreenshots(browser, base, outDir, VIEWPORT, {
+  await galleryScreenshots(browser, base, outDir, GALLERY_VIEWPORT, {
     check, figure, settle, canvasLuminance, std, openPage, screenshotTimeout: SCREENSHOT_TIMEOUT_MS,
   });
 

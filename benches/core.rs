@@ -10,14 +10,14 @@
 use std::hint::black_box;
 use std::time::Duration;
 
-use cloudscape::automaton::kernel::Rect;
-use cloudscape::automaton::naive;
-use cloudscape::automaton::{LayerSim, RunSpec, plan_step};
-use cloudscape::bench::core::{Grids, packed_steps, scene, step_grids, to_naive};
-use cloudscape::density::{self, Region, exact};
-use cloudscape::fields::noise::{Backend, Fbm};
-use cloudscape::fields::probability::Which;
-use cloudscape::world::{Config, World};
+use cloudscape_core::automaton::kernel::Rect;
+use cloudscape_core::automaton::naive;
+use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
+use cloudscape_core::density::{self, Region, exact};
+use cloudscape_core::fields::noise::{Backend, Fbm};
+use cloudscape_core::fields::probability::Which;
+use cloudscape_core::world::{Config, World};
+use cloudscape_tools::bench::core::{Grids, packed_steps, scene, step_grids, to_naive};
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
 

@@ -11,15 +11,15 @@
 
 use std::time::Instant;
 
-use cloudscape::density::{self, Region};
-use cloudscape::products::atlas;
-use cloudscape::render::image::{Image, encode_png, rmse, ssim};
-use cloudscape::render::scene::{self, RenderRequest};
-use cloudscape::render::tile::{ShadedTile, shade_density, tile_halo};
-use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
-use cloudscape::world::{Config, DEFAULT_CONFIG, World};
+use cloudscape_core::density::{self, Region};
+use cloudscape_core::products::atlas;
+use cloudscape_core::render::image::{Image, encode_png, rmse, ssim};
+use cloudscape_core::render::scene::{self, RenderRequest};
+use cloudscape_core::render::tile::{ShadedTile, shade_density, tile_halo};
+use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
+use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
-use cloudscape::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
+use cloudscape_tools::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
 
 const SIZE: usize = 512;
 const CONVERGENCE_SIZE: usize = 192;

@@ -15,8 +15,8 @@
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
-use cloudscape::fuzz::conn_attacks::{self, Held};
-use cloudscape::fuzz::http::Connection;
+use cloudscape_tools::soak::conn_attacks::{self, Held};
+use cloudscape_tools::soak::http::Connection;
 
 struct Server {
     child: Child,

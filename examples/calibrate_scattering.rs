@@ -21,11 +21,11 @@
 //! config of the scene worlds is written to `REFERENCE_DIR/scenes.toml`, and the
 //! `cloudscape render` command of each scene is printed).
 
-use cloudscape::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau};
-use cloudscape::render::image::Image;
-use cloudscape::render::light::Octaves;
-use cloudscape::render::{Quality, ShadingParams, scene};
-use cloudscape::world::{Config, DEFAULT_CONFIG};
+use cloudscape_core::render::image::Image;
+use cloudscape_core::render::light::Octaves;
+use cloudscape_core::render::{Quality, ShadingParams, scene};
+use cloudscape_core::world::{Config, DEFAULT_CONFIG};
+use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau};
 
 /// A tone-mapped PNG back to linear radiance.
 fn read_reference(path: &std::path::Path, size: usize) -> Result<Image, String> {
@@ -86,11 +86,11 @@ fn main() -> Result<(), String> {
         }
     }
     struct Prepared {
-        world: cloudscape::world::World,
+        world: cloudscape_core::world::World,
         reference: Image,
         tau: Vec<f64>,
-        grids: Vec<(cloudscape::density::Grid<f32>, usize)>,
-        plan: Vec<(usize, cloudscape::render::TileId)>,
+        grids: Vec<(cloudscape_core::density::Grid<f32>, usize)>,
+        plan: Vec<(usize, cloudscape_core::render::TileId)>,
     }
     let mut scenes = Vec::new();
     for (i, s) in SCENES.iter().enumerate() {

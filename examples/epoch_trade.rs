@@ -15,10 +15,10 @@
 
 use std::time::Instant;
 
-use cloudscape::automaton::{LayerSim, Rect, RunSpec, plan_step};
-use cloudscape::density::exact::frame_cells;
-use cloudscape::density::{self, Region};
-use cloudscape::world::Config;
+use cloudscape_core::automaton::{LayerSim, Rect, RunSpec, plan_step};
+use cloudscape_core::density::exact::frame_cells;
+use cloudscape_core::density::{self, Region};
+use cloudscape_core::world::Config;
 
 fn main() {
     let specs: Vec<(u32, u32)> = std::env::args()

@@ -17,10 +17,10 @@
 
 use std::hint::black_box;
 
-use cloudscape::automaton::kernel::{Level, Rect, StepContext, step_level};
-use cloudscape::automaton::{LayerSim, RunSpec};
-use cloudscape::density::{self, Region};
-use cloudscape::world::Config;
+use cloudscape_core::automaton::kernel::{Level, Rect, StepContext, step_level};
+use cloudscape_core::automaton::{LayerSim, RunSpec};
+use cloudscape_core::density::{self, Region};
+use cloudscape_core::world::Config;
 
 /// CPU time of every thread of this process so far (ns), from /proc/self/task/*/schedstat.
 /// On a VM whose vCPUs are often stolen this excludes the stolen time, which wall
@@ -53,7 +53,7 @@ fn main() {
     if what == "scene" {
         // The criterion scene (`cargo bench --bench core -- automaton/packed`):
         // 512×512×10 cells, 8 steps on all threads; prints the best of 30 rounds.
-        let (sim, mut levels, mut drives) = cloudscape::bench::core::scene(512);
+        let (sim, mut levels, mut drives) = cloudscape_tools::bench::core::scene(512);
         // ROWS=N keeps the first N rows of every level (a smaller working set).
         if let Some(rows) = std::env::var("ROWS").ok().and_then(|s| s.parse::<usize>().ok()) {
             for (l, d) in levels.iter_mut().zip(drives.iter_mut()) {
@@ -62,7 +62,7 @@ fn main() {
                 l.hum.truncate(n);
                 l.act.truncate(n);
                 l.cld.truncate(n);
-                if let cloudscape::automaton::kernel::Drives::Stochastic(w) = d {
+                if let cloudscape_core::automaton::kernel::Drives::Stochastic(w) = d {
                     w.truncate(n);
                 }
             }
@@ -70,7 +70,7 @@ fn main() {
         let (mut best, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
         for _ in 0..30 {
             let (start, cpu) = (std::time::Instant::now(), cpu_ns());
-            cloudscape::bench::core::packed_steps(&sim, &levels, &drives, 8);
+            cloudscape_tools::bench::core::packed_steps(&sim, &levels, &drives, 8);
             best = best.min(start.elapsed().as_secs_f64());
             best_cpu = best_cpu.min((cpu_ns() - cpu) as f64 * 1e-9);
         }

@@ -3,7 +3,7 @@
 //!
 //!     cargo run --release --example quality_presets -- [smoke|quick|full]
 
-use cloudscape::bench::{BenchRun, Effort, quality};
+use cloudscape_tools::bench::{BenchRun, Effort, quality};
 
 fn main() -> Result<(), String> {
     let effort = match std::env::args().nth(1).as_deref() {

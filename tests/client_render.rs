@@ -12,10 +12,10 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::sync::mpsc;
 
-use cloudscape::client::{ClientError, TileClient};
-use cloudscape::render::{Camera, Quality, RenderRequest, ShadingParams, render};
-use cloudscape::service::{Server, ShutdownHandle};
-use cloudscape::world::Config;
+use cloudscape_client::{ClientError, TileClient};
+use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render};
+use cloudscape_core::world::Config;
+use cloudscape_server::{Server, ServerConfig, ShutdownHandle};
 
 const MEAN_TOLERANCE: f64 = 1.0 / 255.0;
 const MAX_TOLERANCE: f64 = 12.0 / 255.0;
@@ -37,15 +37,18 @@ impl Drop for RunningServer {
 
 /// `cloudscape serve` on the embedded config, in-process on 127.0.0.1:0.
 fn start_server() -> RunningServer {
-    let mut config = Config::embedded();
-    config.server.listen = "127.0.0.1:0".to_string();
-    config.server.request_timeout_ms = 600_000;
-    config.server.drain_ms = 0;
+    let config = Config::embedded();
+    let settings = ServerConfig {
+        listen: "127.0.0.1:0".to_string(),
+        request_timeout_ms: 600_000,
+        drain_ms: 0,
+        ..ServerConfig::embedded()
+    };
     let (tx, rx) = mpsc::channel::<(SocketAddr, ShutdownHandle)>();
     let thread = std::thread::spawn(move || {
         let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
         runtime.block_on(async move {
-            let server = Server::bind(config).await.expect("bind 127.0.0.1:0");
+            let server = Server::bind(config, settings).await.expect("bind 127.0.0.1:0");
             tx.send((server.local_addr().unwrap(), server.shutdown_handle()))
                 .unwrap();
             server.run().await.expect("server runs");

@@ -15,8 +15,8 @@ use std::net::TcpStream;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use cloudscape::fuzz::http::Connection;
-use cloudscape::fuzz::process_memory_kb;
+use cloudscape_tools::soak::http::Connection;
+use cloudscape_tools::soak::process_memory_kb;
 use common::{ServeProcess, free_port, metric};
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use cloudscape::world::DEFAULT_CONFIG;
+use cloudscape_core::world::DEFAULT_CONFIG;
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 

@@ -16,11 +16,11 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use cloudscape::density::{self, Region};
-use cloudscape::products::grid::{GridFormat, encode_cells, encode_density};
-use cloudscape::products::{atlas, billboards, coverage, shadow, splats};
-use cloudscape::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
-use cloudscape::world::{ALGORITHM_VERSION, Config};
+use cloudscape_core::density::{self, Region};
+use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
+use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
+use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
+use cloudscape_core::world::{ALGORITHM_VERSION, Config};
 
 const TABLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/determinism/hashes.toml");
 const REGENERATE: &str = "CLOUDSCAPE_REGENERATE_HASHES=1 cargo test --release --test determinism";

@@ -5,10 +5,10 @@
 //! within its documented range, and the products stay seamless there: a 2L×L region
 //! equals its two L×L halves, bit for bit.
 
-use cloudscape::density::{self, Grid, Region};
-use cloudscape::products::{atlas, billboards, coverage, shadow};
-use cloudscape::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
-use cloudscape::world::{Config, Limits, World};
+use cloudscape_core::density::{self, Grid, Region};
+use cloudscape_core::products::{atlas, billboards, coverage, shadow};
+use cloudscape_core::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
+use cloudscape_core::world::{Config, Limits, World};
 
 /// 2^40 cells.
 const FAR: i64 = 1 << 40;

@@ -6,7 +6,7 @@
 //! `i32` lattice indices). Ours hashes full `i64` lattice indices and keeps the
 //! fraction exact, so a field 2^40 cells out is as well-formed as at the origin.
 
-use cloudscape::fields::noise::{Coord, Fbm, simplex2, simplex3};
+use cloudscape_core::fields::noise::{Coord, Fbm, simplex2, simplex3};
 use noise::{NoiseFn, Perlin, Simplex};
 
 #[test]

@@ -4,7 +4,7 @@
 
 use std::process::Command;
 
-use cloudscape::world::DEFAULT_CONFIG;
+use cloudscape_core::world::DEFAULT_CONFIG;
 
 const VIEWS: [&str; 7] = [
     "ground-noon",

@@ -13,8 +13,8 @@ mod common;
 use std::process::Command;
 use std::time::Duration;
 
-use cloudscape::fuzz::http::{Answer, Connection};
-use cloudscape::fuzz::{SoakOptions, process_memory_kb, soak};
+use cloudscape_tools::soak::http::{Answer, Connection};
+use cloudscape_tools::soak::{SoakOptions, process_memory_kb, soak};
 use common::ServeProcess;
 use proptest::prelude::*;
 use proptest::test_runner::{Config as ProptestConfig, TestCaseError, TestRunner};

@@ -7,8 +7,8 @@ mod common;
 use std::collections::HashMap;
 use std::time::Duration;
 
-use cloudscape::service::{Server, ShutdownHandle};
-use cloudscape::world::Config;
+use cloudscape_core::world::Config;
+use cloudscape_server::{Server, ServerConfig, ShutdownHandle};
 use reqwest::StatusCode;
 use reqwest::header::{HeaderMap, HeaderValue};
 
@@ -86,7 +86,7 @@ struct TestServer {
 }
 
 /// The test config with `[server]` keys replaced.
-fn config_with(server_overrides: &[(&str, &str)]) -> Config {
+fn config_with(server_overrides: &[(&str, &str)]) -> (Config, ServerConfig) {
     let mut text = TEST_CONFIG.to_string();
     for (k, v) in server_overrides {
         let line = text
@@ -98,11 +98,14 @@ fn config_with(server_overrides: &[(&str, &str)]) -> Config {
             None => text = text.replacen("[server]\n", &format!("[server]\n{k} = {v}\n"), 1),
         }
     }
-    Config::parse(&text).expect("test config is valid")
+    (
+        Config::parse(&text).expect("test config is valid"),
+        ServerConfig::parse(&text).expect("test config is valid"),
+    )
 }
 
-async fn start(config: Config) -> TestServer {
-    let server = Server::bind(config).await.expect("bind 127.0.0.1:0");
+async fn start((config, settings): (Config, ServerConfig)) -> TestServer {
+    let server = Server::bind(config, settings).await.expect("bind 127.0.0.1:0");
     let addr = server.local_addr().unwrap();
     let shutdown = server.shutdown_handle();
     let task = tokio::spawn(server.run());
@@ -212,7 +215,7 @@ async fn discovery_lists_worlds_and_describes_layers() {
         .map(|w| w["name"].as_str().unwrap())
         .collect();
     assert_eq!(names, ["default", "other"]);
-    assert_eq!(list["algorithm_version"], cloudscape::world::ALGORITHM_VERSION);
+    assert_eq!(list["algorithm_version"], cloudscape_core::world::ALGORITHM_VERSION);
 
     let w = s.json("/v1/worlds/default").await;
     assert_eq!(w["tile_size"], 256);
@@ -551,7 +554,7 @@ fn coverage_from_tiles(tiles: &HashMap<(i64, i64), Vec<f32>>, bbox: [f64; 4], ce
         for col in cx0..cx1 {
             let tile = &tiles[&(col.div_euclid(256), row.div_euclid(256))];
             let (r, c) = (row.rem_euclid(256) as usize, col.rem_euclid(256) as usize);
-            if (0..depth).any(|k| tile[(k * 256 + r) * 256 + c] >= cloudscape::service::CLOUD_THRESHOLD) {
+            if (0..depth).any(|k| tile[(k * 256 + r) * 256 + c] >= cloudscape_server::CLOUD_THRESHOLD) {
                 covered += 1;
             }
         }
@@ -852,13 +855,14 @@ fn serve_command_prints_config_and_stops_on_sigterm() {
         .output()
         .unwrap();
     assert!(out.status.success());
-    let printed = Config::parse(&String::from_utf8(out.stdout).unwrap()).expect("printed config parses");
-    assert_eq!(printed.server.cache_bytes, 12345);
+    let text = String::from_utf8(out.stdout).unwrap();
+    let printed = Config::parse(&text).expect("printed config parses");
+    assert_eq!(ServerConfig::parse(&text).unwrap().cache_bytes, 12345);
     assert_eq!(printed.worlds, Config::parse(TEST_CONFIG).unwrap().worlds);
 
     let out = Command::new(exe).args(["serve", "--print-config"]).output().unwrap();
-    let printed = Config::parse(&String::from_utf8(out.stdout).unwrap()).unwrap();
-    assert_eq!(printed.server.listen, "127.0.0.1:8080", "default listen address");
+    let printed = ServerConfig::parse(&String::from_utf8(out.stdout).unwrap()).unwrap();
+    assert_eq!(printed.listen, "127.0.0.1:8080", "default listen address");
 
     let bad = Command::new(exe)
         .args(["serve", "--print-config"])
@@ -1031,7 +1035,7 @@ async fn render_png_and_splat_sheets() {
         let noise: f64 = r.headers()["x-cloudscape-noise"].to_str().unwrap().parse().unwrap();
         assert!(noise.is_finite() && noise > 0.0, "{noise}");
         let bytes = r.bytes().await.unwrap();
-        let stated = cloudscape::render::image::png_noise(&bytes).unwrap();
+        let stated = cloudscape_core::render::image::png_noise(&bytes).unwrap();
         assert_eq!((stated.samples, stated.std_error), (4, noise));
         assert_eq!(*first.get_or_insert(bytes.clone()), bytes);
     }
@@ -1056,8 +1060,8 @@ async fn render_png_and_splat_sheets() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn sky_json_serves_the_renderers_sky_per_sun_bucket() {
-    use cloudscape::render::Sun;
-    use cloudscape::render::light::{Lighting, ShadingParams};
+    use cloudscape_core::render::Sun;
+    use cloudscape_core::render::light::{Lighting, ShadingParams};
     let s = start(config_with(&[])).await;
     let noon = s.json("/v1/sky.json?sun=180,60").await;
     let (rows, cols) = (

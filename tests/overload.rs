@@ -15,7 +15,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use cloudscape::fuzz::process_memory_kb;
+use cloudscape_tools::soak::process_memory_kb;
 use common::ServeProcess;
 
 const CONFIG: &str = r#"

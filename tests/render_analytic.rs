@@ -5,23 +5,23 @@
 //! erosion, no sky light; its light from the ground below (which the marcher has not)
 //! is subtracted in closed form.
 
-use cloudscape::density::Grid;
-use cloudscape::density::metaballs::{GridPlacement, Lattice, Metaball, wyvill};
-use cloudscape::render::camera::View;
-use cloudscape::render::composite::composite;
-use cloudscape::render::image::Image;
-use cloudscape::render::light::{Lighting, Octaves, ShadingParams};
-use cloudscape::render::march::{self, MarchParams, Volume};
-use cloudscape::render::shade::{SELF_SHADOW, shade};
-use cloudscape::render::splats::SplatSheet;
-use cloudscape::render::sun::Sun;
+use cloudscape_core::density::Grid;
+use cloudscape_core::density::metaballs::{GridPlacement, Lattice, Metaball, wyvill};
+use cloudscape_core::render::camera::View;
+use cloudscape_core::render::composite::composite;
+use cloudscape_core::render::image::Image;
+use cloudscape_core::render::light::{Lighting, Octaves, ShadingParams};
+use cloudscape_core::render::march::{self, MarchParams, Volume};
+use cloudscape_core::render::shade::{SELF_SHADOW, shade};
+use cloudscape_core::render::splats::SplatSheet;
+use cloudscape_core::render::sun::Sun;
 
 const R: f64 = 500.0;
 const CENTRE: [f64; 3] = [10_000.0, 20_000.0, 3_000.0];
 
 /// The one ball: its billboard, the splat sheet, the lighting, the sampled field.
 struct Ball {
-    billboards: Vec<cloudscape::render::shade::Billboard>,
+    billboards: Vec<cloudscape_core::render::shade::Billboard>,
     sheet: SplatSheet,
     lighting: Lighting,
     volume: Volume,
@@ -134,7 +134,7 @@ fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
     // ray marcher integrates it; before, a ball around the eye was skipped or drawn as
     // its whole chord over the screen: a uniform frame.
     let sun = Sun::new(90.0, 30.0).unwrap();
-    let extinction = 4.0 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
+    let extinction = 4.0 / (R * 0.998_942 / cloudscape_core::density::metaballs::wyvill_volume_integral());
     let ball = single_ball(extinction, sun);
     let (w, h) = (32, 20);
     for (offset, yaw, pitch) in [
@@ -145,7 +145,7 @@ fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
         ([-1.3, -0.6, 0.1], 60.0, 0.0), // beside the ball, which fills part of the view
     ] {
         let eye = [0, 1, 2].map(|i| CENTRE[i] + offset[i] * R);
-        let cam = cloudscape::render::Camera::new(eye, yaw, pitch, 90.0).unwrap();
+        let cam = cloudscape_core::render::Camera::new(eye, yaw, pitch, 90.0).unwrap();
         let view = View::perspective(&cam, w, h);
         let (drawn, marched) = draw_both(&ball, &view);
         let mut max_err = 0.0f64;
@@ -167,7 +167,7 @@ fn from_inside_a_ball_the_compositor_sees_the_fog_in_front_of_the_eye() {
 fn compositor_and_ray_marcher_agree_on_an_isolated_metaball() {
     // A thin ball (centre optical depth ≈ 0.5) lit from the side.
     let sun = Sun::new(90.0, 30.0).unwrap();
-    let extinction = 0.5 / (R * 0.998_942 / cloudscape::density::metaballs::wyvill_volume_integral());
+    let extinction = 0.5 / (R * 0.998_942 / cloudscape_core::density::metaballs::wyvill_volume_integral());
     let (mut drawn, marched, tau, ground) = single_ball_scene(extinction, sun);
     for (c, &a) in drawn.rgb.iter_mut().zip(&drawn.alpha) {
         for ch in 0..3 {

@@ -3,7 +3,7 @@
 
 use std::process::Command;
 
-use cloudscape::world::DEFAULT_CONFIG;
+use cloudscape_core::world::DEFAULT_CONFIG;
 
 /// The default config plus a one-layer world, so a test render computes one tile.
 fn config_file(dir: &std::path::Path) -> String {
@@ -87,7 +87,7 @@ fn render_writes_a_png_deterministically() {
     }
     assert_eq!(outputs[0], outputs[1], "thread count changed the image");
     assert_eq!(outputs[2], outputs[3], "thread count changed the path-traced image");
-    let noise = cloudscape::render::image::png_noise(&outputs[2]).expect("the PNG states its noise");
+    let noise = cloudscape_core::render::image::png_noise(&outputs[2]).expect("the PNG states its noise");
     assert!(noise.samples == 32 && noise.std_error.is_finite());
     assert_ne!(
         outputs[3], outputs[4],

@@ -2,11 +2,11 @@
 //! ordinary tools, match their documented shape, hold only finite values, round-trip,
 //! and do not depend on the thread count.
 
-use cloudscape::density::Grid;
-use cloudscape::products::{atlas, billboards, coverage, shadow, splats};
-use cloudscape::render::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_density, tile_halo};
-use cloudscape::render::{Phase, Quality, ShadingParams, Sun};
-use cloudscape::world::{Config, Layer};
+use cloudscape_core::density::Grid;
+use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
+use cloudscape_core::render::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_density, tile_halo};
+use cloudscape_core::render::{Phase, Quality, ShadingParams, Sun};
+use cloudscape_core::world::{Config, Layer};
 
 /// Blob centres in tile columns (x, y) and their radius in columns.
 const BLOBS: [(f64, f64, f64); 3] = [(60.0, 60.0, 12.0), (180.0, 90.0, 18.0), (120.0, 200.0, 8.0)];

@@ -3,9 +3,9 @@
 //! consecutive steps stays small, and an epoch boundary flips no more than an
 //! ordinary step.
 
-use cloudscape::automaton::{LayerSim, Rect};
-use cloudscape::density::exact::frame_cells;
-use cloudscape::world::Config;
+use cloudscape_core::automaton::{LayerSim, Rect};
+use cloudscape_core::density::exact::frame_cells;
+use cloudscape_core::world::Config;
 
 fn changed(a: &[Vec<u8>], b: &[Vec<u8>]) -> f64 {
     let (mut diff, mut total) = (0usize, 0usize);
@@ -78,7 +78,7 @@ fn correlation(a: &[f32], b: &[f32]) -> f64 {
 
 #[test]
 fn cloud_masses_travel_with_the_wind_at_their_height() {
-    use cloudscape::density::{Region, density};
+    use cloudscape_core::density::{Region, density};
     let world = Config::embedded().world("default").unwrap();
     let layer = &world.layers[0];
     let (t0, dt) = (5000.0, 200.0);
@@ -102,7 +102,7 @@ fn cloud_masses_travel_with_the_wind_at_their_height() {
         };
         let after_moved = density(&world, 0, 0, moved, t0 + dt).unwrap();
         let after_still = density(&world, 0, 0, a, t0 + dt).unwrap();
-        let plane = |g: &cloudscape::density::Grid<f32>| g.data[k * 128 * 128..(k + 1) * 128 * 128].to_vec();
+        let plane = |g: &cloudscape_core::density::Grid<f32>| g.data[k * 128 * 128..(k + 1) * 128 * 128].to_vec();
         let followed = correlation(&plane(&before), &plane(&after_moved));
         let stayed = correlation(&plane(&before), &plane(&after_still));
         println!(

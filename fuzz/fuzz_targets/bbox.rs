@@ -1,9 +1,9 @@
 //! `bbox=X0,Y0,X1,Y1` at any level: parsing, then the columns it covers.
 #![no_main]
 
-use cloudscape::density::Region;
-use cloudscape::service::params::parse_list;
-use cloudscape::world::Config;
+use cloudscape_core::density::Region;
+use cloudscape_server::params::parse_list;
+use cloudscape_core::world::Config;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

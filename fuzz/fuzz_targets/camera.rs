@@ -2,9 +2,9 @@
 //! choice and the limits, everything before the expensive work).
 #![no_main]
 
-use cloudscape::render::scene::{RenderRequest, parse_size, plan};
-use cloudscape::render::{Camera, Quality, ShadingParams, Sun};
-use cloudscape::world::Config;
+use cloudscape_core::render::scene::{RenderRequest, parse_size, plan};
+use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
+use cloudscape_core::world::Config;
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

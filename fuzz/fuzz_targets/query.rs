@@ -2,9 +2,9 @@
 //! parameter parser the handlers use. None may panic.
 #![no_main]
 
-use cloudscape::render::scene::parse_size;
-use cloudscape::render::{Camera, Quality, Sun};
-use cloudscape::service::params::{Params, parse_level, parse_tile_coordinate};
+use cloudscape_core::render::scene::parse_size;
+use cloudscape_core::render::{Camera, Quality, Sun};
+use cloudscape_server::params::{Params, parse_level, parse_tile_coordinate};
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {

@@ -1,4 +1,4 @@
-//! `cloudscape bench`: runs the measurements of `crate::bench` and writes their
+//! `cloudscape bench`: runs the measurements of `cloudscape_tools::bench` and writes their
 //! sections into BENCHMARKS.md (between generated-section markers) and the plots.
 
 use std::path::{Path, PathBuf};
@@ -6,7 +6,7 @@ use std::time::Instant;
 
 use clap::Args;
 
-use crate::bench::{self, Effort};
+use cloudscape_tools::bench::{self, Effort};
 
 #[derive(Args)]
 pub struct BenchArgs {

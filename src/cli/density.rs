@@ -2,8 +2,8 @@
 
 use clap::Args;
 
-use crate::density::{self, FieldKind, Region, check_time};
-use crate::products::grid::{GridFormat, encode_cells, encode_density};
+use cloudscape_core::density::{self, FieldKind, Region, check_time};
+use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
 
 #[derive(Args)]
 pub struct DensityArgs {

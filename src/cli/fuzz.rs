@@ -1,5 +1,5 @@
-//! `cloudscape fuzz`: a hostile-input soak against a running server (see `crate::fuzz`),
-//! or with `--scenario attack` the compute and memory attacks of `crate::fuzz::attack`.
+//! `cloudscape fuzz`: a hostile-input soak against a running server (see `cloudscape_tools::soak`),
+//! or with `--scenario attack` the compute and memory attacks of `cloudscape_tools::soak::attack`.
 //! Exits non-zero when an answer breaks the contract, the server is unhealthy after,
 //! or (attack) the server did not hold.
 
@@ -7,8 +7,8 @@ use std::time::Duration;
 
 use clap::Args;
 
-use crate::fuzz::attack::{self, AttackOptions};
-use crate::fuzz::{SoakOptions, soak};
+use cloudscape_tools::soak::attack::{self, AttackOptions};
+use cloudscape_tools::soak::{SoakOptions, soak};
 
 /// What `cloudscape fuzz` runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]

@@ -4,8 +4,8 @@
 
 use clap::Args;
 
-use crate::bench::gallery::{QUALITIES, VIEWS, render_gallery};
-use crate::render::scene::parse_size;
+use cloudscape_core::render::scene::parse_size;
+use cloudscape_tools::bench::gallery::{QUALITIES, VIEWS, render_gallery};
 
 #[derive(Args)]
 pub struct GalleryArgs {
@@ -19,7 +19,7 @@ pub struct GalleryArgs {
     #[arg(long)]
     quick: bool,
     /// Samples per pixel of the reference (the path tracer).
-    #[arg(long, default_value_t = crate::render::pathtrace::DEFAULT_SAMPLES)]
+    #[arg(long, default_value_t = cloudscape_core::render::pathtrace::DEFAULT_SAMPLES)]
     samples: u32,
     /// Config file (default: the embedded config); the views look at its `default` world.
     #[arg(long)]

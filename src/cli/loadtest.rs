@@ -1,5 +1,5 @@
 //! `cloudscape loadtest`: simulated MMO players and game servers against a running
-//! server (the generator is `crate::loadtest`); prints a summary, optionally writes
+//! server (the generator is `cloudscape_tools::loadtest`); prints a summary, optionally writes
 //! the report as JSON and a latency plot.
 
 use std::time::Duration;
@@ -7,7 +7,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::loadtest::{self, LoadSpec, Scenario};
+use cloudscape_tools::loadtest::{self, LoadSpec, Scenario};
 
 #[derive(Args)]
 pub struct LoadtestArgs {

@@ -15,7 +15,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use crate::world::Config;
+use cloudscape_core::world::Config;
 
 pub(crate) use out::write_out;
 
@@ -84,12 +84,16 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// Loads `--config FILE` or the embedded default.
+/// Loads `--config FILE` or the embedded default. The `[server]` section is checked
+/// too, so a file that `serve` would refuse is refused by every command.
 pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
-    match path {
-        Some(p) => Config::from_file(p).map_err(|e| e.to_string()),
-        None => Ok(Config::embedded()),
-    }
+    let Some(p) = path else {
+        return Ok(Config::embedded());
+    };
+    let config = Config::from_file(p).map_err(|e| e.to_string())?;
+    let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?;
+    cloudscape_server::ServerConfig::parse(&text).map_err(|e| e.to_string())?;
+    Ok(config)
 }
 
 /// Parses `N,N,...` into exactly `n` finite numbers.

@@ -4,10 +4,10 @@
 
 use clap::Args;
 
-use crate::client::TileClient;
-use crate::render::pathtrace::DEFAULT_SAMPLES;
-use crate::render::scene::{RenderRequest, parse_size, render};
-use crate::render::{Camera, Phase, Quality, ShadingParams, Sun};
+use cloudscape_client::TileClient;
+use cloudscape_core::render::pathtrace::DEFAULT_SAMPLES;
+use cloudscape_core::render::scene::{RenderRequest, parse_size, render};
+use cloudscape_core::render::{Camera, Phase, Quality, ShadingParams, Sun};
 
 #[derive(Args)]
 pub struct RenderArgs {

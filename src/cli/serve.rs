@@ -8,8 +8,8 @@
 
 use clap::Args;
 
-use crate::service::Server;
-use crate::world::{Config, DEFAULT_CONFIG};
+use cloudscape_core::world::{Config, DEFAULT_CONFIG};
+use cloudscape_server::{Server, ServerConfig};
 
 /// Sections whose keys the environment may override.
 const ENV_SECTIONS: [&str; 2] = ["server", "limits"];
@@ -32,7 +32,7 @@ pub(crate) fn effective_config(
     file: Option<&str>,
     listen: Option<&str>,
     vars: impl IntoIterator<Item = (String, String)>,
-) -> Result<Config, String> {
+) -> Result<(Config, ServerConfig), String> {
     let text = match file {
         Some(p) => std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?,
         None => DEFAULT_CONFIG.to_string(),
@@ -73,13 +73,15 @@ pub(crate) fn effective_config(
         set("server", "listen", toml::Value::String(l.to_string()))?;
     }
     let merged = toml::to_string(&doc).map_err(|e| format!("cannot merge config overrides: {e}"))?;
-    Config::parse(&merged).map_err(|e| e.to_string())
+    let config = Config::parse(&merged).map_err(|e| e.to_string())?;
+    let server = ServerConfig::parse(&merged).map_err(|e| e.to_string())?;
+    Ok((config, server))
 }
 
 /// The effective configuration as TOML that `Config::parse` reads back to the same config.
-pub(crate) fn config_to_toml(config: &Config) -> Result<String, String> {
+pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<String, String> {
     let mut doc = toml::Table::new();
-    doc.insert("server".into(), value(&config.server)?);
+    doc.insert("server".into(), value(server)?);
     doc.insert("limits".into(), value(&config.limits)?);
     doc.insert("sun".into(), value(&config.sun)?);
     doc.insert("presets".into(), value(&config.presets)?);
@@ -112,9 +114,9 @@ fn value<T: serde::Serialize>(v: &T) -> Result<toml::Value, String> {
 
 pub fn run(a: ServeArgs) -> Result<(), String> {
     let file = a.config.or_else(|| std::env::var("CLOUDSCAPE_CONFIG").ok());
-    let config = effective_config(file.as_deref(), a.listen.as_deref(), std::env::vars())?;
+    let (config, settings) = effective_config(file.as_deref(), a.listen.as_deref(), std::env::vars())?;
     if a.print_config {
-        print!("{}", config_to_toml(&config)?);
+        print!("{}", config_to_toml(&config, &settings)?);
         return Ok(());
     }
     let _ = tracing_subscriber::fmt()
@@ -129,8 +131,8 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         .build()
         .map_err(|e| format!("cannot start the async runtime: {e}"))?;
     runtime.block_on(async move {
-        let listen = config.server.listen.clone();
-        let server = Server::bind(config).await.map_err(|e| match e.kind() {
+        let listen = settings.listen.clone();
+        let server = Server::bind(config, settings).await.map_err(|e| match e.kind() {
             std::io::ErrorKind::InvalidInput => e.to_string(),
             _ => format!("cannot listen on {listen}: {e}"),
         })?;
@@ -176,9 +178,10 @@ mod tests {
 
     #[test]
     fn printed_config_reads_back_equal() {
-        let c = Config::embedded();
-        let text = config_to_toml(&c).unwrap();
+        let (c, s) = (Config::embedded(), ServerConfig::embedded());
+        let text = config_to_toml(&c, &s).unwrap();
         assert_eq!(Config::parse(&text).unwrap(), c);
+        assert_eq!(ServerConfig::parse(&text).unwrap(), s);
     }
 
     #[test]
@@ -189,19 +192,19 @@ mod tests {
             ("CLOUDSCAPE_LIMITS_MAX_LEVEL".to_string(), "7".to_string()),
             ("UNRELATED".to_string(), "x".to_string()),
         ];
-        let c = effective_config(None, None, vars.clone()).unwrap();
-        assert_eq!(c.server.listen, "0.0.0.0:9000");
-        assert_eq!(c.server.cache_bytes, 1234);
+        let (c, s) = effective_config(None, None, vars.clone()).unwrap();
+        assert_eq!(s.listen, "0.0.0.0:9000");
+        assert_eq!(s.cache_bytes, 1234);
         assert_eq!(c.limits.max_level, 7);
-        let c = effective_config(None, Some("127.0.0.1:1"), vars).unwrap();
-        assert_eq!(c.server.listen, "127.0.0.1:1");
+        let (_, s) = effective_config(None, Some("127.0.0.1:1"), vars).unwrap();
+        assert_eq!(s.listen, "127.0.0.1:1");
         let redis = vec![(
             "CLOUDSCAPE_SERVER_REDIS_URL".to_string(),
             "redis://10.0.0.5:6379/2".to_string(),
         )];
-        let c = effective_config(None, None, redis).unwrap();
-        assert_eq!(c.server.redis_url, "redis://10.0.0.5:6379/2");
-        assert_eq!(Config::embedded().server.redis_url, "", "no Redis unless configured");
+        let (_, s) = effective_config(None, None, redis).unwrap();
+        assert_eq!(s.redis_url, "redis://10.0.0.5:6379/2");
+        assert_eq!(ServerConfig::embedded().redis_url, "", "no Redis unless configured");
     }
 
     #[test]

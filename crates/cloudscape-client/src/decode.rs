@@ -1,0 +1,356 @@
+//! Decoders of the served products and the plan of a remote render: everything the
+//! client does except networking, so the blocking and async fetchers share it and a
+//! caller with its own HTTP stack can use it alone.
+
+use std::io::Cursor;
+
+use serde::Deserialize;
+
+use cloudscape_core::products::billboards::{BinBillboards, decode_bin};
+use cloudscape_core::render::camera::View;
+use cloudscape_core::render::composite::composite;
+use cloudscape_core::render::light::Lighting;
+use cloudscape_core::render::scene::{LayerBand, background, mean_shadow, plan_bands};
+use cloudscape_core::render::shade::Billboard;
+use cloudscape_core::render::splats::SplatSheet;
+use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_shift};
+use cloudscape_core::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
+
+use crate::ClientError;
+
+/// One layer of a remote world, as discovery (`/v1/worlds/{world}`) describes it.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RemoteLayer {
+    pub name: String,
+    pub base: f64,
+    pub top: f64,
+    pub cell_size: f64,
+}
+
+/// The parts of a remote world's discovery document the client uses.
+#[derive(Clone, Debug, Deserialize)]
+pub struct RemoteWorld {
+    pub name: String,
+    pub maxzoom: u32,
+    pub layers: Vec<RemoteLayer>,
+}
+
+#[derive(Deserialize)]
+struct SplatManifest {
+    count: usize,
+    size: usize,
+    columns: usize,
+}
+
+/// A tile's ground shadow map, decoded from `shadow.png`.
+struct ShadowMap {
+    origin: [f64; 2],
+    column: f64,
+    /// Added to a ground point before the lookup (`render::tile::shadow_shift`).
+    shift: [f64; 2],
+    /// Transmittance, 256×256, row 0 = south.
+    values: Vec<f32>,
+}
+
+impl ShadowMap {
+    /// Bilinear lookup, 1 outside the tile (as `ShadedTile::shadow_at`).
+    fn at(&self, x: f64, y: f64) -> f64 {
+        let n = TILE_COLUMNS;
+        let (x, y) = (x + self.shift[0], y + self.shift[1]);
+        let u = (x - self.origin[0]) / self.column - 0.5;
+        let v = (y - self.origin[1]) / self.column - 0.5;
+        if !(u > -0.5 && v > -0.5 && u < n as f64 - 0.5 && v < n as f64 - 0.5) {
+            return 1.0;
+        }
+        let (u, v) = (u.clamp(0.0, (n - 1) as f64), v.clamp(0.0, (n - 1) as f64));
+        let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
+        let (fu, fv) = (u - u0 as f64, v - v0 as f64);
+        let at = |c: usize, r: usize| self.values[r * n + c] as f64;
+        let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
+        let b = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
+        a * (1.0 - fv) + b * fv
+    }
+}
+
+/// Percent-encodes a path segment or query value (RFC 3986 unreserved kept).
+pub fn encode(s: &str) -> String {
+    s.bytes()
+        .map(|b| match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' => (b as char).to_string(),
+            _ => format!("%{b:02X}"),
+        })
+        .collect()
+}
+
+/// Decodes an 8-bit PNG into (width, height, channels, samples).
+fn decode_png(bytes: &[u8]) -> Result<(usize, usize, usize, Vec<u8>), String> {
+    let mut reader = png::Decoder::new(Cursor::new(bytes))
+        .read_info()
+        .map_err(|e| e.to_string())?;
+    let mut buf = vec![0; reader.output_buffer_size().ok_or("PNG too large")?];
+    let info = reader.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    if info.bit_depth != png::BitDepth::Eight {
+        return Err(format!("expected an 8-bit PNG, got {:?}", info.bit_depth));
+    }
+    buf.truncate(info.buffer_size());
+    Ok((
+        info.width as usize,
+        info.height as usize,
+        info.color_type.samples(),
+        buf,
+    ))
+}
+
+/// Decodes a splat sheet from its manifest (`/v1/splats.json`) and PNG (`/v1/splats.png`).
+pub fn decode_splat_sheet(manifest: &[u8], png: &[u8]) -> Result<SplatSheet, String> {
+    let manifest: SplatManifest = serde_json::from_slice(manifest).map_err(|e| e.to_string())?;
+    let (width, height, channels, samples) = decode_png(png)?;
+    let (n, s, cols) = (manifest.count, manifest.size, manifest.columns.max(1));
+    if channels != 2 || width < cols * s || height < n.div_ceil(cols) * s {
+        return Err(format!(
+            "a {width}×{height} sheet with {channels} channels cannot hold {n} splats of {s}×{s} in {cols} columns"
+        ));
+    }
+    let mut alpha = Vec::with_capacity(n * s * s);
+    for k in 0..n {
+        let (gx, gy) = ((k % cols) * s, (k / cols) * s);
+        for v in 0..s {
+            for u in 0..s {
+                alpha.push(samples[((gy + v) * width + gx + u) * 2 + 1] as f32 / 255.0);
+            }
+        }
+    }
+    Ok(SplatSheet {
+        count: n,
+        size: s,
+        alpha,
+    })
+}
+
+/// Decodes a tile's `shadow.png` for the billboard tile it belongs to.
+fn decode_shadow_map(png: &[u8], tile: &BinBillboards, base: f64) -> Result<ShadowMap, String> {
+    let n = TILE_COLUMNS;
+    let (width, height, channels, samples) = decode_png(png)?;
+    if (width, height, channels) != (n, n, 1) {
+        return Err(format!(
+            "expected a {n}×{n} greyscale shadow map, got {width}×{height}×{channels}"
+        ));
+    }
+    // PNG row 0 is north; the map's row 0 is south.
+    let mut values = Vec::with_capacity(n * n);
+    for row in (0..n).rev() {
+        values.extend(samples[row * n..(row + 1) * n].iter().map(|&v| v as f32 / 255.0));
+    }
+    let sun = Sun::new(tile.sun_azimuth_deg as f64, tile.sun_elevation_deg as f64).unwrap_or(Sun {
+        azimuth_deg: 0.0,
+        elevation_deg: 90.0,
+    });
+    Ok(ShadowMap {
+        origin: tile.origin,
+        column: tile.size as f64 / n as f64,
+        shift: shadow_shift(sun, base),
+        values,
+    })
+}
+
+/// The path of a world's discovery document.
+pub fn world_path(world: &str) -> String {
+    format!("/v1/worlds/{}", encode(world))
+}
+
+/// Refuses a request a remote render cannot serve, before anything is fetched:
+/// billboard presets only (`reference` marches the density volume, which the server
+/// does not serve as billboards).
+pub fn check_remote(req: &RenderRequest) -> Result<(), ClientError> {
+    if req.quality.is_volumetric() {
+        return Err(RenderError::BadRequest(format!(
+            "quality `{}` renders the density locally; a remote render draws billboards (fast, balanced, accurate)",
+            req.quality.as_str()
+        ))
+        .into());
+    }
+    Ok(())
+}
+
+/// A remote render once the world's discovery document is known: the paths to fetch
+/// ([`RemoteRender::paths`]) and how their bodies become a picture
+/// ([`RemoteRender::compose`]).
+pub struct RemoteRender {
+    world: String,
+    req: RenderRequest,
+    info: RemoteWorld,
+    bands: Vec<LayerBand>,
+    tiles: Vec<(usize, TileId)>,
+    query: String,
+}
+
+impl RemoteRender {
+    /// Plans `req` against `world`'s discovery document: the same level choice as a
+    /// local `cloudscape render`.
+    pub fn plan(world: &str, info: RemoteWorld, req: &RenderRequest) -> Result<RemoteRender, ClientError> {
+        check_remote(req)?;
+        let bands: Vec<LayerBand> = info
+            .layers
+            .iter()
+            .map(|l| LayerBand {
+                base: l.base,
+                top: l.top,
+                cell_size: l.cell_size,
+            })
+            .collect();
+        let tiles = plan_bands(&bands, info.maxzoom, req)?;
+        let mut query = format!("t={}&quality={}", req.t, req.quality.as_str());
+        if let Some(sun) = req.sun {
+            query.push_str(&format!("&sun={},{}", sun.azimuth_deg, sun.elevation_deg));
+        }
+        Ok(RemoteRender {
+            world: world.to_string(),
+            req: *req,
+            info,
+            bands,
+            tiles,
+            query,
+        })
+    }
+
+    fn tile_path(&self, tile: TileId, product: &str, layer: &str) -> String {
+        format!(
+            "/v1/worlds/{}/tiles/{}/{}/{}/{product}?{}&layer={}",
+            encode(&self.world),
+            tile.z,
+            tile.x,
+            tile.y,
+            self.query,
+            encode(layer)
+        )
+    }
+
+    /// What to fetch, in the order [`RemoteRender::compose`] takes the bodies: the
+    /// splat manifest and sheet, then each tile's `billboards.bin` and `shadow.png`.
+    pub fn paths(&self) -> Vec<String> {
+        let mut paths = splat_paths(self.req.quality).to_vec();
+        for &(layer, tile) in &self.tiles {
+            let name = &self.info.layers[layer].name;
+            paths.push(self.tile_path(tile, "billboards.bin", name));
+            paths.push(self.tile_path(tile, "shadow.png", name));
+        }
+        paths
+    }
+
+    /// Composites the fetched bodies (in [`RemoteRender::paths`] order; `base` names
+    /// the server in errors).
+    pub fn compose(self, base: &str, bodies: &[Vec<u8>]) -> Result<Rendered, ClientError> {
+        let paths = self.paths();
+        if bodies.len() != paths.len() {
+            return Err(ClientError::Decode {
+                url: base.to_string(),
+                message: format!("{} bodies for {} paths", bodies.len(), paths.len()),
+            });
+        }
+        let decode_error = |i: usize| {
+            let url = format!("{base}{}", paths[i]);
+            move |message: String| ClientError::Decode { url, message }
+        };
+        let sheet = decode_splat_sheet(&bodies[0], &bodies[1]).map_err(decode_error(1))?;
+        let mut billboards = Vec::new();
+        let mut shadows = Vec::new();
+        let mut served_sun = None;
+        for (k, &(layer, _)) in self.tiles.iter().enumerate() {
+            let (bin, shadow) = (2 + 2 * k, 3 + 2 * k);
+            let decoded = decode_bin(&bodies[bin]).map_err(decode_error(bin))?;
+            served_sun.get_or_insert((decoded.sun_azimuth_deg, decoded.sun_elevation_deg));
+            billboards.extend(decoded.records.iter().map(|r| Billboard {
+                centre: [
+                    decoded.origin[0] + r.offset[0] as f64,
+                    decoded.origin[1] + r.offset[1] as f64,
+                    r.offset[2] as f64,
+                ],
+                radius: r.radius,
+                density: 0.0,
+                tau: 0.0,
+                splat: r.splat,
+                opacity: r.opacity as f32 / 255.0,
+                tau_sun: r.tau_sun,
+                sun_transmittance: r.sun_transmittance as f32 / 255.0,
+                colour: r.colour,
+            }));
+            shadows.push(
+                decode_shadow_map(&bodies[shadow], &decoded, self.bands[layer].base).map_err(decode_error(shadow))?,
+            );
+        }
+        // Every tile is shaded for the centre of the request's sun bucket, which the
+        // tiles report; the sky and ground use the same.
+        let req = &self.req;
+        let sun = match (served_sun, req.sun) {
+            (Some((az, el)), _) => Sun::new(az as f64, el as f64).ok_or_else(|| ClientError::Decode {
+                url: base.to_string(),
+                message: format!("tiles report an impossible sun {az},{el}"),
+            })?,
+            (None, Some(sun)) => sun,
+            (None, None) => {
+                return Err(RenderError::BadRequest(
+                    "the view holds no cloud tiles, so the server's sun is unknown; pass --sun AZ,EL".into(),
+                )
+                .into());
+            }
+        };
+        let view = View::perspective(&req.camera, req.width, req.height);
+        let lighting = Lighting::new(sun.bucket().centre(), req.params);
+        let far = mean_shadow(self.tiles.iter().zip(&shadows).map(|(&(layer, _), s)| {
+            (
+                layer,
+                s.values.iter().map(|&v| v as f64).sum::<f64>() / s.values.len().max(1) as f64,
+            )
+        }));
+        let mut image = background(&view, &lighting, far, |x, y| {
+            shadows.iter().map(|s| s.at(x, y)).product()
+        });
+        composite(&mut image, &billboards, &sheet, &lighting, &view);
+        Ok(Rendered {
+            image,
+            tiles: self.tiles,
+            billboards: billboards.len(),
+            sun,
+            noise: None,
+        })
+    }
+}
+
+/// The quality named in a splat path, for callers that fetch the sheet alone.
+pub fn splat_paths(quality: Quality) -> [String; 2] {
+    let q = quality.as_str();
+    [
+        format!("/v1/splats.json?quality={q}"),
+        format!("/v1/splats.png?quality={q}"),
+    ]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_are_encoded() {
+        assert_eq!(encode("a b/c"), "a%20b%2Fc");
+        assert_eq!(encode("stratocumulus"), "stratocumulus");
+    }
+
+    #[test]
+    fn shadow_lookup_matches_the_tile_rule() {
+        let n = TILE_COLUMNS;
+        let mut values = vec![1.0f32; n * n];
+        values[0] = 0.0; // south-west column
+        let map = ShadowMap {
+            origin: [1000.0, 2000.0],
+            column: 100.0,
+            shift: [0.0, 0.0],
+            values,
+        };
+        assert_eq!(map.at(1050.0, 2050.0), 0.0);
+        assert_eq!(map.at(900.0, 2050.0), 1.0, "outside the tile");
+        assert!(
+            (map.at(1100.0, 2050.0) - 0.5).abs() < 1e-9,
+            "halfway to the next column"
+        );
+    }
+}

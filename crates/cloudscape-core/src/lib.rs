@@ -1,0 +1,16 @@
+//! cloudscape-core: noise-driven Dobashi cloud simulation for large game worlds, with
+//! no networking.
+//!
+//! The pipeline runs one way, one module per stage:
+//! world spec → probability fields → automaton → density → metaballs →
+//! shading → encoding ([`products`]). A stage depends only on the stages before it.
+//! The HTTP service is `cloudscape-server`; the tile client is `cloudscape-client`.
+
+pub mod automaton;
+pub mod cancel;
+pub mod cost;
+pub mod density;
+pub mod fields;
+pub mod products;
+pub mod render;
+pub mod world;

@@ -1,0 +1,469 @@
+//! The TOML configuration: parsing, validation and world lookup.
+
+use std::collections::BTreeMap;
+
+use serde::Deserialize;
+
+use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, Preset, World};
+
+/// The embedded default configuration, the text of `config/default.toml`: the one
+/// place it is compiled in (the binary, benches, examples and tests all read this).
+pub const DEFAULT_CONFIG: &str = include_str!("../../../../config/default.toml");
+
+/// A configuration that could not be used. The message names the offending key.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config file {path}: {source}")]
+    Read { path: String, source: std::io::Error },
+    #[error("invalid config: {0}")]
+    Parse(String),
+    #[error("invalid config: {key}: {message}")]
+    Invalid { key: String, message: String },
+}
+
+impl ConfigError {
+    /// A value that parsed but is not allowed: `key` is its dotted path.
+    pub fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
+        ConfigError::Invalid {
+            key: key.into(),
+            message: message.into(),
+        }
+    }
+}
+
+fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
+    ConfigError::invalid(key, message)
+}
+
+/// Request limits, checked before any work starts.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Limits {
+    /// Largest region side in columns.
+    pub max_columns: u64,
+    /// Largest number of cells (columns × depth) one request may produce.
+    pub max_cells: u64,
+    /// Highest level.
+    pub max_level: u32,
+    /// Largest estimated working memory of one request, bytes (grids, metaballs,
+    /// images it will allocate); a request over it is refused with 413.
+    #[serde(default = "default_max_request_bytes")]
+    pub max_request_bytes: u64,
+    /// Largest response body, bytes; a request whose answer is larger gets 413
+    /// (billboards.json points to billboards.bin).
+    #[serde(default = "default_max_response_bytes")]
+    pub max_response_bytes: u64,
+    /// Largest samples per pixel × pixels of one `reference` (path-traced) render.
+    #[serde(default = "default_max_path_samples")]
+    pub max_path_samples: u64,
+}
+
+fn default_max_request_bytes() -> u64 {
+    2 << 30
+}
+
+fn default_max_response_bytes() -> u64 {
+    64 << 20
+}
+
+/// 640×360 pixels at 64 samples, and a little more: about a minute on two cores.
+fn default_max_path_samples() -> u64 {
+    1 << 24
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_columns: 2048,
+            max_cells: 8 << 20,
+            max_level: 16,
+            max_request_bytes: default_max_request_bytes(),
+            max_response_bytes: default_max_response_bytes(),
+            max_path_samples: default_max_path_samples(),
+        }
+    }
+}
+
+/// Where the sun is when a request does not say.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct SunConfig {
+    pub latitude: f64,
+    pub day_of_year: u32,
+}
+
+impl Default for SunConfig {
+    fn default() -> Self {
+        SunConfig {
+            latitude: 45.0,
+            day_of_year: 172,
+        }
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    /// `[server]` belongs to cloudscape-server (`cloudscape_server::ServerConfig`
+    /// parses and validates it from the same text); here it is only allowed.
+    #[serde(default, rename = "server")]
+    _server: serde::de::IgnoredAny,
+    #[serde(default)]
+    limits: Limits,
+    #[serde(default)]
+    sun: SunConfig,
+    presets: BTreeMap<String, Preset>,
+    worlds: BTreeMap<String, RawWorld>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawWorld {
+    seed: u64,
+    layers: Vec<RawLayer>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawLayer {
+    name: String,
+    preset: String,
+    base: f64,
+    cell_size: f64,
+    cell_height: f64,
+    depth: u32,
+    dt: f64,
+    #[serde(default)]
+    wind: [f64; 2],
+    #[serde(default)]
+    shear: [f64; 2],
+    #[serde(default)]
+    epoch: EpochSpec,
+    #[serde(default)]
+    extent: Option<[f64; 4]>,
+    #[serde(default)]
+    ellipsoids: Vec<Ellipsoid>,
+}
+
+/// The whole, validated configuration.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Config {
+    pub limits: Limits,
+    pub sun: SunConfig,
+    pub presets: BTreeMap<String, Preset>,
+    /// Named worlds; `default` is always present.
+    pub worlds: BTreeMap<String, World>,
+}
+
+impl Config {
+    /// The embedded default configuration.
+    pub fn embedded() -> Config {
+        Config::parse(DEFAULT_CONFIG).expect("the embedded default config is valid")
+    }
+
+    /// Reads and validates a config file.
+    pub fn from_file(path: &str) -> Result<Config, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_string(),
+            source,
+        })?;
+        Config::parse(&text)
+    }
+
+    /// Parses and validates TOML text.
+    pub fn parse(text: &str) -> Result<Config, ConfigError> {
+        let raw: RawConfig = toml::from_str(text).map_err(|e| {
+            // toml's message already names the key ("unknown field `x`", with its path).
+            ConfigError::Parse(e.to_string().trim().replace('\n', " "))
+        })?;
+        for (name, preset) in &raw.presets {
+            validate_preset(&format!("presets.{name}"), preset)?;
+        }
+        let limits = raw.limits;
+        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
+            return Err(invalid(
+                "limits",
+                "max_columns, max_cells and max_path_samples must be positive",
+            ));
+        }
+        if limits.max_request_bytes < 1 << 20 || limits.max_response_bytes < 1 << 10 {
+            return Err(invalid(
+                "limits",
+                "max_request_bytes must be at least 1 MiB and max_response_bytes at least 1 KiB",
+            ));
+        }
+        if limits.max_level > 40 {
+            return Err(invalid("limits.max_level", "must be at most 40"));
+        }
+        if !(-90.0..=90.0).contains(&raw.sun.latitude) {
+            return Err(invalid("sun.latitude", "must be within [-90, 90]"));
+        }
+        if !(1..=366).contains(&raw.sun.day_of_year) {
+            return Err(invalid("sun.day_of_year", "must be within [1, 366]"));
+        }
+        let mut worlds = BTreeMap::new();
+        for (wname, rw) in raw.worlds {
+            if wname.is_empty() || wname.bytes().all(|b| b.is_ascii_digit()) {
+                return Err(invalid(
+                    format!("worlds.{wname}"),
+                    "world names must not be decimal numbers (those mean seeds)",
+                ));
+            }
+            if rw.layers.is_empty() {
+                return Err(invalid(
+                    format!("worlds.{wname}.layers"),
+                    "a world needs at least one layer",
+                ));
+            }
+            let mut layers = Vec::new();
+            for (i, rl) in rw.layers.into_iter().enumerate() {
+                let key = format!("worlds.{wname}.layers[{i}]");
+                let preset = raw
+                    .presets
+                    .get(&rl.preset)
+                    .ok_or_else(|| invalid(format!("{key}.preset"), format!("unknown preset `{}`", rl.preset)))?
+                    .clone();
+                if layers.iter().any(|l: &Layer| l.name == rl.name) {
+                    return Err(invalid(
+                        format!("{key}.name"),
+                        format!("duplicate layer name `{}`", rl.name),
+                    ));
+                }
+                let layer = Layer {
+                    name: rl.name,
+                    preset_name: rl.preset,
+                    preset,
+                    base: rl.base,
+                    cell_size: rl.cell_size,
+                    cell_height: rl.cell_height,
+                    depth: rl.depth,
+                    dt: rl.dt,
+                    wind: rl.wind,
+                    shear: rl.shear,
+                    epoch: rl.epoch,
+                    extent: rl.extent,
+                    ellipsoids: rl.ellipsoids,
+                };
+                validate_layer(&key, &layer)?;
+                layers.push(layer);
+            }
+            worlds.insert(
+                wname.clone(),
+                World {
+                    name: wname,
+                    seed: rw.seed,
+                    layers,
+                },
+            );
+        }
+        if !worlds.contains_key("default") {
+            return Err(invalid("worlds.default", "the `default` world must be defined"));
+        }
+        Ok(Config {
+            limits,
+            sun: raw.sun,
+            presets: raw.presets,
+            worlds,
+        })
+    }
+
+    /// Resolves a world name: a configured name, or a decimal `u64` meaning that
+    /// seed with the default world's climate.
+    pub fn world(&self, name: &str) -> Option<World> {
+        if let Some(w) = self.worlds.get(name) {
+            return Some(w.clone());
+        }
+        if !name.is_empty() && name.len() <= 20 && name.bytes().all(|b| b.is_ascii_digit()) {
+            let seed: u64 = name.parse().ok()?;
+            let mut w = self.worlds["default"].clone();
+            w.name = name.to_string();
+            w.seed = seed;
+            return Some(w);
+        }
+        None
+    }
+}
+
+fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
+    if v.is_finite() {
+        Ok(())
+    } else {
+        Err(invalid(key, "must be a finite number"))
+    }
+}
+
+fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
+    if !(f.frequency.is_finite() && f.frequency > 0.0 && f.frequency <= 1e4) {
+        return Err(invalid(format!("{key}.frequency"), "must be in (0, 1e4] cycles per km"));
+    }
+    if f.octaves == 0 || f.octaves > 16 {
+        return Err(invalid(format!("{key}.octaves"), "must be within [1, 16]"));
+    }
+    if !(f.lacunarity.is_finite() && (1.0..=8.0).contains(&f.lacunarity)) {
+        return Err(invalid(format!("{key}.lacunarity"), "must be within [1, 8]"));
+    }
+    if !(f.gain.is_finite() && f.gain > 0.0 && f.gain <= 1.0) {
+        return Err(invalid(format!("{key}.gain"), "must be in (0, 1]"));
+    }
+    for v in f.offset {
+        finite(&format!("{key}.offset"), v)?;
+        if v.abs() > 1e9 {
+            return Err(invalid(format!("{key}.offset"), "must be within ±1e9"));
+        }
+    }
+    let [lo, hi] = f.cutoff;
+    if !(lo.is_finite() && hi.is_finite() && (0.0..=1.0).contains(&lo) && (0.0..=1.0).contains(&hi) && lo < hi) {
+        return Err(invalid(
+            format!("{key}.cutoff"),
+            "must be [low, high] with 0 <= low < high <= 1",
+        ));
+    }
+    for p in f.range {
+        if !(p.is_finite() && (0.0..=1.0).contains(&p)) {
+            return Err(invalid(format!("{key}.range"), "probabilities must be within [0, 1]"));
+        }
+    }
+    if let Some(fe) = &f.feather {
+        if !(fe.start.is_finite() && fe.depth.is_finite() && fe.start >= 0.0 && fe.depth > fe.start) {
+            return Err(invalid(format!("{key}.feather"), "needs 0 <= start < depth (metres)"));
+        }
+        if !(fe.falloff.is_finite() && (0.0..=1.0).contains(&fe.falloff)) {
+            return Err(invalid(format!("{key}.feather.falloff"), "must be within [0, 1]"));
+        }
+    }
+    Ok(())
+}
+
+fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
+    validate_field(&format!("{key}.humidity"), &p.humidity)?;
+    validate_field(&format!("{key}.activation"), &p.activation)?;
+    validate_field(&format!("{key}.extinction"), &p.extinction)?;
+    if !(p.top_narrowing.is_finite() && (0.0..1.0).contains(&p.top_narrowing)) {
+        return Err(invalid(format!("{key}.top_narrowing"), "must be within [0, 1)"));
+    }
+    if !(p.evolve.is_finite() && p.evolve >= 0.0) {
+        return Err(invalid(format!("{key}.evolve"), "must be >= 0 seconds"));
+    }
+    if p.rosa_iterations == 0 || p.rosa_iterations > 256 {
+        return Err(invalid(format!("{key}.rosa_iterations"), "must be within [1, 256]"));
+    }
+    for v in p.rosa_thresholds {
+        if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
+            return Err(invalid(format!("{key}.rosa_thresholds"), "must be within [0, 1]"));
+        }
+    }
+    Ok(())
+}
+
+fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
+    if l.name.is_empty()
+        || !l
+            .name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
+        return Err(invalid(
+            format!("{key}.name"),
+            "must be non-empty ASCII letters, digits, '-' or '_'",
+        ));
+    }
+    if !(l.base.is_finite() && (-1e4..=1e5).contains(&l.base)) {
+        return Err(invalid(format!("{key}.base"), "must be within [-1e4, 1e5] metres"));
+    }
+    if !(l.cell_size.is_finite() && (1.0..=1e4).contains(&l.cell_size)) {
+        return Err(invalid(format!("{key}.cell_size"), "must be within [1, 10000] metres"));
+    }
+    if !(l.cell_height.is_finite() && (1.0..=1e4).contains(&l.cell_height)) {
+        return Err(invalid(
+            format!("{key}.cell_height"),
+            "must be within [1, 10000] metres",
+        ));
+    }
+    if l.depth == 0 || l.depth > 64 {
+        return Err(invalid(format!("{key}.depth"), "must be within [1, 64] cells"));
+    }
+    if !(l.dt.is_finite() && (0.01..=86400.0).contains(&l.dt)) {
+        return Err(invalid(format!("{key}.dt"), "must be within [0.01, 86400] seconds"));
+    }
+    for (name, v) in [("wind", l.wind), ("shear", l.shear)] {
+        for c in v {
+            finite(&format!("{key}.{name}"), c)?;
+        }
+    }
+    for k in 0..l.depth {
+        let w = l.wind_at_level(k);
+        if w[0].abs() > 300.0 || w[1].abs() > 300.0 {
+            return Err(invalid(
+                format!("{key}.wind"),
+                "wind (with shear) must stay within ±300 m/s",
+            ));
+        }
+    }
+    let e = l.epoch;
+    if e.length == 0 || e.length > 4096 || e.warmup > 4096 || e.fade > e.length {
+        return Err(invalid(
+            format!("{key}.epoch"),
+            "needs 1 <= length <= 4096, warmup <= 4096 and fade <= length",
+        ));
+    }
+    if let Some(x) = l.extent
+        && !(x.iter().all(|v| v.is_finite()) && x[0] < x[2] && x[1] < x[3])
+    {
+        return Err(invalid(
+            format!("{key}.extent"),
+            "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+        ));
+    }
+    for (i, el) in l.ellipsoids.iter().enumerate() {
+        if !(el.centre.iter().all(|v| v.is_finite()) && el.radii.iter().all(|r| r.is_finite() && *r > 0.0)) {
+            return Err(invalid(
+                format!("{key}.ellipsoids[{i}]"),
+                "needs a finite centre and positive radii",
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_config_has_default_world_with_three_layers() {
+        let c = Config::embedded();
+        let w = c.world("default").unwrap();
+        assert_eq!(w.seed, 1);
+        assert!(w.layers.len() >= 3);
+        for p in ["stratus", "stratocumulus", "altocumulus", "cumulus", "cirrus"] {
+            assert!(c.presets.contains_key(p), "preset {p}");
+        }
+    }
+
+    #[test]
+    fn numeric_world_is_seed_with_default_climate() {
+        let c = Config::embedded();
+        let w = c.world("12345").unwrap();
+        assert_eq!(w.seed, 12345);
+        assert_eq!(w.layers, c.world("default").unwrap().layers);
+        assert!(c.world("99999999999999999999999").is_none());
+        assert!(c.world("nope").is_none());
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let text = DEFAULT_CONFIG.replace("[limits]", "[limits]\nbogus_key = 3");
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("bogus_key"), "{e}");
+    }
+
+    #[test]
+    fn invalid_value_is_named() {
+        let text = DEFAULT_CONFIG.replacen("depth = 10", "depth = 0", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("depth"), "{e}");
+        let text = DEFAULT_CONFIG.replacen("dt = 20.0", "dt = nan", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("dt"), "{e}");
+    }
+}

@@ -1,0 +1,226 @@
+//! Worlds, layers and presets: the configuration everything downstream reads.
+//!
+//! A [`World`] is a seed plus a climate (its [`Layer`]s). The configuration is
+//! TOML; the default one is embedded in the binary ([`DEFAULT_CONFIG`], the text of
+//! `config/default.toml`).
+//! Parsing rejects unknown keys and invalid values with a message that names
+//! the key, before anything else runs.
+
+mod config;
+
+pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, SunConfig};
+
+use serde::Deserialize;
+
+/// Bumped whenever any change alters output bytes. Baked into cache keys and ETags.
+/// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
+/// 3: one random key per word, salted per event.
+/// 4: ARS-5 (AES-round) 16-bit draws, compared in full (no high-byte ties).
+/// 5: pictures judged against physics (issue 20): a path-traced `reference`, a
+///    physical sky and aerial perspective, scattering octaves and sky light through
+///    the cloud in the billboards (records of 36 bytes), per-pixel splats with detail
+///    erosion, fog around the eye, far levels without haze where no cloud can form,
+///    and a fair-weather `default` world.
+/// 6: sun buckets 1° wide near the horizon; scattering octaves and sky-light
+///    attenuation fitted to the path tracer (b = ¾, sky scale 2); detail erosion by
+///    the mean of each billboard's own noise.
+pub const ALGORITHM_VERSION: u32 = 6;
+
+/// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
+pub const MAX_TIME: f64 = 1e12;
+
+/// How a layer's automaton runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Dobashi et al. 2000: stochastic formation/extinction, state carried over steps.
+    Dobashi,
+    /// Rosa 2013, eq. 3.5–3.9: noise textures are the randomness, probabilities are
+    /// thresholds; a fixed number of iterations from an empty grid for each frame.
+    Rosa,
+}
+
+/// One noise-driven field (Rosa's Noise Maker, per field): fBm of simplex noise,
+/// then move/increment, feather and cutoff, then a linear map to a probability.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FieldSpec {
+    /// Base frequency in cycles per kilometre (Rosa's "increment").
+    pub frequency: f64,
+    /// Octaves of fBm before clamping to what the output resolution can show.
+    #[serde(default = "default_octaves")]
+    pub octaves: u32,
+    #[serde(default = "default_lacunarity")]
+    pub lacunarity: f64,
+    #[serde(default = "default_gain")]
+    pub gain: f64,
+    /// Rosa's "move": a shift of the pattern, in noise units (cycles).
+    #[serde(default)]
+    pub offset: [f64; 2],
+    /// Rosa's cutoff: brightness below `low` maps to 0, above `high` to 1.
+    #[serde(default = "default_cutoff")]
+    pub cutoff: [f64; 2],
+    /// Rosa's feather at the edges of the layer's `extent` (inactive without one).
+    #[serde(default)]
+    pub feather: Option<Feather>,
+    /// Probability at brightness 0 and at brightness 1 (may decrease, e.g. extinction).
+    #[serde(default = "default_range")]
+    pub range: [f64; 2],
+}
+
+/// Rosa 2013 §4.1.2 feather: zero brightness within `start` metres of the extent's
+/// edge, fading in until `depth` metres; `falloff` in [0,1] shapes the fade
+/// (0 linear, 1 smoothstep-like steepening near the edge).
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Feather {
+    pub start: f64,
+    pub depth: f64,
+    #[serde(default)]
+    pub falloff: f64,
+}
+
+fn default_octaves() -> u32 {
+    4
+}
+fn default_lacunarity() -> f64 {
+    2.0
+}
+fn default_gain() -> f64 {
+    0.5
+}
+fn default_cutoff() -> [f64; 2] {
+    [0.0, 1.0]
+}
+fn default_range() -> [f64; 2] {
+    [0.0, 1.0]
+}
+
+/// A Dobashi ellipsoid: formation is only likely inside it. Positioned in the
+/// layer's wind frame, so it drifts with the base wind.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ellipsoid {
+    /// Centre, world metres at t = 0 (x, y, altitude).
+    pub centre: [f64; 3],
+    /// Semi-axes in metres.
+    pub radii: [f64; 3],
+}
+
+/// A cloud type: everything about a layer except where it is and how the air moves.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Preset {
+    pub mode: Mode,
+    /// Height profile: at the top of the layer the brightness needed for
+    /// humidity/activation rises by this much, so bases are wider than tops.
+    #[serde(default)]
+    pub top_narrowing: f64,
+    pub humidity: FieldSpec,
+    pub activation: FieldSpec,
+    pub extinction: FieldSpec,
+    /// Seconds per unit of noise time: the fields evolve slowly (0 = frozen).
+    #[serde(default = "default_evolve")]
+    pub evolve: f64,
+    /// Rosa mode: iterations from an empty grid per frame.
+    #[serde(default = "default_rosa_iterations")]
+    pub rosa_iterations: u32,
+    /// Rosa mode: thresholds p_hum, p_act, p_ext against the textures.
+    #[serde(default = "default_rosa_thresholds")]
+    pub rosa_thresholds: [f64; 3],
+}
+
+fn default_evolve() -> f64 {
+    7200.0
+}
+fn default_rosa_iterations() -> u32 {
+    12
+}
+fn default_rosa_thresholds() -> [f64; 3] {
+    [0.5, 0.5, 0.5]
+}
+
+/// Epoch structure of the bounded history (see `automaton::epoch`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EpochSpec {
+    /// Steps per epoch.
+    pub length: u32,
+    /// Warm-up steps run from an empty grid before the epoch starts.
+    pub warmup: u32,
+    /// Cells switch from one epoch's run to the next over the first `fade` steps
+    /// of an epoch, each at its own step (must be <= length).
+    pub fade: u32,
+}
+
+impl Default for EpochSpec {
+    fn default() -> Self {
+        EpochSpec {
+            length: 16,
+            warmup: 24,
+            fade: 16,
+        }
+    }
+}
+
+/// A resolved cloud layer: a preset placed in an altitude band with wind.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Layer {
+    pub name: String,
+    pub preset_name: String,
+    pub preset: Preset,
+    /// Altitude of the layer's bottom, metres.
+    pub base: f64,
+    /// Horizontal cell size, metres.
+    pub cell_size: f64,
+    /// Vertical cell size, metres.
+    pub cell_height: f64,
+    /// Depth in cells.
+    pub depth: u32,
+    /// Seconds per automaton step.
+    pub dt: f64,
+    /// Wind at the layer base, m/s (x east, y north).
+    pub wind: [f64; 2],
+    /// Change of wind with height, (m/s) per metre.
+    pub shear: [f64; 2],
+    pub epoch: EpochSpec,
+    /// Optional bounded extent (world metres) used by the feather effect.
+    pub extent: Option<[f64; 4]>,
+    pub ellipsoids: Vec<Ellipsoid>,
+}
+
+impl Layer {
+    /// Wind (m/s) at the centre of vertical level `k`.
+    pub fn wind_at_level(&self, k: u32) -> [f64; 2] {
+        let h = (k as f64 + 0.5) * self.cell_height;
+        [self.wind[0] + self.shear[0] * h, self.wind[1] + self.shear[1] * h]
+    }
+
+    /// Altitude of the centre of vertical level `k`, metres.
+    pub fn level_altitude(&self, k: u32) -> f64 {
+        self.base + (k as f64 + 0.5) * self.cell_height
+    }
+
+    /// Altitude of the layer's top, metres.
+    pub fn top(&self) -> f64 {
+        self.base + self.depth as f64 * self.cell_height
+    }
+}
+
+/// A world: a seed and a climate.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct World {
+    pub name: String,
+    pub seed: u64,
+    pub layers: Vec<Layer>,
+}
+
+impl World {
+    /// The layer named `name`, or the first layer when `name` is `None`.
+    pub fn layer(&self, name: Option<&str>) -> Option<(usize, &Layer)> {
+        match name {
+            None => self.layers.first().map(|l| (0, l)),
+            Some(n) => self.layers.iter().enumerate().find(|(_, l)| l.name == n),
+        }
+    }
+}

@@ -1,0 +1,383 @@
+//! The response cache and the bounded compute queue behind it.
+//!
+//! A miss runs its computation on rayon, but only if one of the queue's slots is free:
+//! a full queue sheds the request (503 + `Retry-After`) instead of growing a backlog.
+//! Concurrent misses on one key join one computation (moka's `try_get_with`). Every
+//! computation has a [`Cancel`] token that fires once no request waits for it any
+//! more (the last one's time budget ran out, or its client went away): the job
+//! then stops at its next check and gives its queue slot and memory back at once,
+//! instead of finishing work nobody will read.
+//!
+//! `Retry-After` on a shed answer is the real wait: jobs queued × their recent
+//! mean time / compute threads.
+//!
+//! With a [`SharedCache`] (Redis) configured, the one computation of a key first asks
+//! it, and stores what it computed there afterwards without waiting.
+
+use std::collections::HashMap;
+use std::panic::AssertUnwindSafe;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Weak};
+use std::time::{Duration, Instant};
+
+use axum::body::Bytes;
+use moka::future::Cache;
+use tokio::sync::{Semaphore, oneshot};
+
+use super::error::ApiError;
+use super::key::CacheKey;
+use super::metrics::Metrics;
+use super::shared::{Lookup, SharedCache};
+use cloudscape_core::cancel::Cancel;
+use cloudscape_core::cost::Work;
+
+/// Mean job time the queue assumes before it has measured any, seconds.
+const INITIAL_MEAN_JOB_S: f64 = 0.05;
+/// `mean_job_s` before the first job ends (no `f64` has these bits: a NaN payload).
+const NO_JOB_YET: u64 = u64::MAX;
+/// Weight of the newest job in the running mean of job times.
+const MEAN_JOB_WEIGHT: f64 = 0.25;
+/// How often a job waiting for a running place looks at its cancellation token.
+const CANCEL_POLL: Duration = Duration::from_millis(50);
+/// `Retry-After` bounds, seconds.
+const RETRY_AFTER_S: (u32, u32) = (1, 60);
+
+/// Bounded CPU work: at most `capacity` jobs running or waiting for a rayon thread,
+/// holding at most `memory_mib` MiB of estimated working memory between them.
+pub struct ComputeQueue {
+    slots: Arc<Semaphore>,
+    capacity: usize,
+    /// Working memory of the admitted jobs, in MiB permits (their [`Work::bytes`]).
+    memory: Arc<Semaphore>,
+    memory_mib: u32,
+    /// Running mean of job times (seconds, as `f64` bits), for `Retry-After`.
+    mean_job_s: Arc<AtomicU64>,
+    /// Places for jobs on the rayon pool, one per thread. Without them every queued
+    /// job starts at once (a rayon thread waiting inside one job's `join` picks up
+    /// the next job) and they all crawl to the end of their budget together; with
+    /// them the oldest jobs run at full speed and finish, FIFO.
+    running: Arc<Semaphore>,
+}
+
+impl ComputeQueue {
+    pub fn new(capacity: usize, memory_bytes: u64) -> ComputeQueue {
+        let memory_mib = (memory_bytes >> 20).clamp(1, Semaphore::MAX_PERMITS as u64 >> 1) as u32;
+        ComputeQueue {
+            slots: Arc::new(Semaphore::new(capacity)),
+            capacity,
+            memory: Arc::new(Semaphore::new(memory_mib as usize)),
+            memory_mib,
+            mean_job_s: Arc::new(AtomicU64::new(NO_JOB_YET)),
+            running: Arc::new(Semaphore::new(rayon::current_num_threads().max(1))),
+        }
+    }
+
+    /// Jobs running or queued.
+    pub fn depth(&self) -> usize {
+        self.capacity - self.slots.available_permits()
+    }
+
+    /// How long a client should wait before it retries: the work queued ahead of it
+    /// (jobs × their recent mean time) spread over the compute threads, in whole
+    /// seconds within [1, 60].
+    pub fn retry_after(&self) -> u32 {
+        let mean = match self.mean_job_s.load(Ordering::Relaxed) {
+            NO_JOB_YET => INITIAL_MEAN_JOB_S,
+            m => f64::from_bits(m),
+        };
+        let threads = rayon::current_num_threads().max(1) as f64;
+        let s = (self.depth().max(1) as f64 * mean / threads).ceil();
+        s.clamp(RETRY_AFTER_S.0 as f64, RETRY_AFTER_S.1 as f64) as u32
+    }
+
+    /// Runs `job` on the rayon pool if a slot and the memory `work` needs are free,
+    /// or sheds it. The job gets `cancel` to look at; once it has fired the result
+    /// is discarded as [`ApiError::Cancelled`] (and a job whose token fired before it
+    /// started is not run). A panicking job is a bug: it becomes `Internal`, the
+    /// server keeps running.
+    pub async fn run<T: Send + 'static>(
+        &self,
+        metrics: &Metrics,
+        kind: &str,
+        work: Work,
+        cancel: Cancel,
+        job: impl FnOnce(&Cancel) -> Result<T, ApiError> + Send + 'static,
+    ) -> Result<T, ApiError> {
+        let Ok(permit) = self.slots.clone().try_acquire_owned() else {
+            metrics.shed.with_label_values(&[kind]).inc();
+            return Err(ApiError::Overloaded(self.retry_after()));
+        };
+        let mib = (work.bytes.div_ceil(1 << 20)).clamp(1, self.memory_mib as u64) as u32;
+        let Ok(memory) = self.memory.clone().try_acquire_many_owned(mib) else {
+            metrics.shed.with_label_values(&[kind]).inc();
+            return Err(ApiError::Overloaded(self.retry_after()));
+        };
+        metrics.queue_depth.set(self.depth() as i64);
+        // Wait (in order) for one of the `threads` running places, or until nobody
+        // waits for this job any more.
+        let running = loop {
+            tokio::select! {
+                p = self.running.clone().acquire_owned() => break p.ok(),
+                _ = tokio::time::sleep(CANCEL_POLL) => {
+                    if cancel.is_fired() {
+                        metrics.cancelled.with_label_values(&[kind]).inc();
+                        metrics.queue_depth.set(self.depth() as i64 - 1);
+                        return Err(ApiError::Cancelled);
+                    }
+                }
+            }
+        };
+        metrics.computations.with_label_values(&[kind]).inc();
+        let timer = metrics.observe_compute(kind);
+        let (tx, rx) = oneshot::channel();
+        let mean = Arc::clone(&self.mean_job_s);
+        let job_cancel = cancel.clone();
+        rayon::spawn(move || {
+            let started = Instant::now();
+            let result = if job_cancel.is_fired() {
+                Ok(Err(ApiError::Cancelled))
+            } else {
+                std::panic::catch_unwind(AssertUnwindSafe(|| job(&job_cancel)))
+            };
+            let took = started.elapsed().as_secs_f64();
+            timer.observe(took);
+            let _ = mean.fetch_update(Ordering::Relaxed, Ordering::Relaxed, |m| {
+                // The first measured job replaces the assumed mean outright.
+                let m = if m == NO_JOB_YET { took } else { f64::from_bits(m) };
+                Some((m + MEAN_JOB_WEIGHT * (took - m)).to_bits())
+            });
+            drop(running);
+            drop(memory);
+            drop(permit);
+            let _ = tx.send(result);
+        });
+        let result = rx.await;
+        metrics.queue_depth.set(self.depth() as i64);
+        let result = match result {
+            Ok(Ok(r)) => r,
+            Ok(Err(panic)) => {
+                let what = panic
+                    .downcast_ref::<&str>()
+                    .map(|s| s.to_string())
+                    .or_else(|| panic.downcast_ref::<String>().cloned())
+                    .unwrap_or_else(|| "a computation panicked".to_string());
+                Err(ApiError::Internal(what))
+            }
+            Err(_) => Err(ApiError::Internal("a computation was lost".to_string())),
+        };
+        // A fired token means the loops may have skipped work: never keep the result.
+        if cancel.is_fired() {
+            metrics.cancelled.with_label_values(&[kind]).inc();
+            return Err(ApiError::Cancelled);
+        }
+        result
+    }
+}
+
+/// The requests waiting for one computation. Each waiting request holds an `Arc`;
+/// when the last one lets go (its budget ran out, it was answered, or its client went
+/// away and the handler was dropped) the computation's token fires.
+struct Flight {
+    cancel: Cancel,
+}
+
+impl Drop for Flight {
+    fn drop(&mut self) {
+        self.cancel.fire();
+    }
+}
+
+/// The computations that requests are waiting for, by key (concurrent misses on one
+/// key join one computation, so they share one [`Flight`]).
+#[derive(Default)]
+struct Flights(Mutex<HashMap<CacheKey, Weak<Flight>>>);
+
+impl Flights {
+    /// Joins the flight of `key`, or starts one.
+    fn join(&self, key: &CacheKey) -> Arc<Flight> {
+        let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(f) = map.get(key).and_then(Weak::upgrade) {
+            return f;
+        }
+        if map.len() > 1024 {
+            map.retain(|_, f| f.strong_count() > 0);
+        }
+        let f = Arc::new(Flight { cancel: Cancel::new() });
+        map.insert(key.clone(), Arc::downgrade(&f));
+        f
+    }
+}
+
+/// Encoded response bytes under a byte budget, plus the queue that fills it.
+pub struct ResponseCache {
+    cache: Cache<CacheKey, Bytes>,
+    /// Largest entry kept, bytes: a fraction of the budget, so that one entry never
+    /// pushes out most of the others. Larger answers are served but not kept.
+    max_entry: usize,
+    queue: ComputeQueue,
+    /// Computations that requests wait for, to stop the ones nobody waits for.
+    flights: Flights,
+    /// Time budget of one request.
+    budget: Duration,
+    /// The second-level cache shared by replicas, if configured.
+    shared: Option<Arc<SharedCache>>,
+}
+
+/// The share of the cache budget one entry may take at most.
+pub const MAX_ENTRY_FRACTION: u64 = 4;
+
+impl ResponseCache {
+    pub fn new(max_bytes: u64, queue: ComputeQueue, budget: Duration, shared: Option<SharedCache>) -> ResponseCache {
+        let max_entry = (max_bytes / MAX_ENTRY_FRACTION).min(u32::MAX as u64) as usize;
+        let cache = Cache::builder()
+            // An entry over `max_entry` weighs more than the whole cache, so moka does
+            // not admit it; `keep` below also drops it at once in case it was.
+            .weigher(move |k: &CacheKey, v: &Bytes| {
+                if v.len() > max_entry {
+                    u32::MAX
+                } else {
+                    (k.weight() + v.len()).try_into().unwrap_or(u32::MAX)
+                }
+            })
+            .max_capacity(max_bytes)
+            .build();
+        ResponseCache {
+            cache,
+            max_entry,
+            queue,
+            flights: Flights::default(),
+            budget,
+            shared: shared.map(Arc::new),
+        }
+    }
+
+    pub fn weighted_size(&self) -> u64 {
+        self.cache.weighted_size()
+    }
+
+    /// The `Retry-After` (seconds) of an answer shed for load right now.
+    pub fn retry_after(&self) -> u32 {
+        self.queue.retry_after()
+    }
+
+    /// The bytes of `key`, from the cache or computed by `job` (once for all concurrent
+    /// callers), within the request's time budget. `work` is the job's estimate (its
+    /// working memory is reserved while it runs).
+    pub async fn get_or_compute(
+        self: &Arc<Self>,
+        metrics: &Arc<Metrics>,
+        kind: &'static str,
+        key: CacheKey,
+        work: Work,
+        job: impl FnOnce(&Cancel) -> Result<Bytes, ApiError> + Send + 'static,
+    ) -> Result<Bytes, ApiError> {
+        self.get_or_compute_with_siblings(metrics, kind, key, work, move |c: &Cancel| {
+            job(c).map(|b| (b, Vec::new()))
+        })
+        .await
+    }
+
+    /// Like [`get_or_compute`](Self::get_or_compute) for a job that also produces the
+    /// bytes of other keys from the same work (the products of one shaded tile): those
+    /// are cached too.
+    ///
+    /// When the budget runs out the request answers 503 `timeout`; when no other
+    /// request waits for the same computation any more, the computation is stopped
+    /// (its token fires) and gives its queue slot back.
+    pub async fn get_or_compute_with_siblings(
+        self: &Arc<Self>,
+        metrics: &Arc<Metrics>,
+        kind: &'static str,
+        key: CacheKey,
+        work: Work,
+        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
+    ) -> Result<Bytes, ApiError> {
+        if let Some(bytes) = self.cache.get(&key).await {
+            metrics.cache_hits.with_label_values(&[kind]).inc();
+            return Ok(bytes);
+        }
+        metrics.cache_misses.with_label_values(&[kind]).inc();
+        // Held until this request is answered, times out, or is dropped with its client.
+        let flight = self.flights.join(&key);
+        let cancel = flight.cancel.clone();
+        let this = Arc::clone(self);
+        let m = Arc::clone(metrics);
+        let task = tokio::spawn(async move {
+            let cache = this.cache.clone();
+            let shared = this.shared.clone();
+            let max_entry = this.max_entry;
+            let init = async {
+                if let Some(shared) = &shared
+                    && let Lookup::Hit(bytes) = shared.get(&m, kind, &key).await
+                {
+                    return Ok(bytes);
+                }
+                let (bytes, siblings) = this.queue.run(&m, kind, work, cancel, job).await?;
+                for (k, b) in &siblings {
+                    if b.len() <= max_entry {
+                        cache.insert(k.clone(), b.clone()).await;
+                    }
+                }
+                if let Some(shared) = &shared {
+                    let mut entries = siblings;
+                    entries.push((key.clone(), bytes.clone()));
+                    shared.put(&m, entries);
+                }
+                Ok::<_, ApiError>(bytes)
+            };
+            let result = this
+                .cache
+                .try_get_with(key.clone(), init)
+                .await
+                .map_err(|e| (*e).clone());
+            if let Ok(bytes) = &result
+                && bytes.len() > max_entry
+            {
+                this.cache.invalidate(&key).await;
+            }
+            result
+        });
+        let result = match tokio::time::timeout(self.budget, task).await {
+            Ok(Ok(result)) => result,
+            Ok(Err(join)) => Err(ApiError::Internal(format!("compute task failed: {join}"))),
+            Err(_) => {
+                metrics.timeouts.with_label_values(&[kind]).inc();
+                Err(ApiError::Timeout {
+                    budget_ms: self.budget.as_millis() as u64,
+                    retry_after: self.retry_after(),
+                })
+            }
+        };
+        drop(flight);
+        match result {
+            Err(ApiError::Cancelled) => Err(ApiError::Overloaded(self.retry_after())),
+            other => other,
+        }
+    }
+
+    /// Runs `job` through the queue with no time budget and no caching (start-up work).
+    pub async fn run_unbudgeted<T: Send + 'static>(
+        &self,
+        metrics: &Metrics,
+        kind: &'static str,
+        job: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
+    ) -> Result<T, ApiError> {
+        self.queue
+            .run(metrics, kind, Work::default(), Cancel::never(), move |_| job())
+            .await
+    }
+}
+
+impl ResponseCache {
+    /// Puts bytes computed outside a request (start-up work) in the cache.
+    pub async fn insert(&self, key: CacheKey, bytes: Bytes) {
+        if bytes.len() <= self.max_entry {
+            self.cache.insert(key, bytes).await;
+        }
+    }
+
+    /// Compute jobs running or queued.
+    pub fn queue_depth(&self) -> usize {
+        self.queue.depth()
+    }
+}

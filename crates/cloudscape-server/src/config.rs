@@ -1,0 +1,188 @@
+//! The `[server]` section of the configuration: HTTP settings, read from the same TOML
+//! text as the worlds (`cloudscape_core::world::Config` allows the section and leaves
+//! it to this crate).
+
+use serde::Deserialize;
+
+use cloudscape_core::world::ConfigError;
+
+fn invalid(key: &str, message: &str) -> ConfigError {
+    ConfigError::invalid(key, message)
+}
+
+/// HTTP server settings (`[server]`), read by this crate. Every key has a default.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ServerConfig {
+    /// Address to listen on.
+    pub listen: String,
+    /// Byte budget of the in-memory cache of encoded responses.
+    pub cache_bytes: u64,
+    /// Compute jobs that may be running or queued at once; 0 means 4 × cores.
+    /// A request that finds the queue full is shed with 503.
+    pub compute_queue: u32,
+    /// Time budget of one request, milliseconds.
+    pub request_timeout_ms: u64,
+    /// Canonical frames per automaton step: `t` is snapped to a grid of `dt / frames_per_step`.
+    pub frames_per_step: u32,
+    /// `Cache-Control` of responses whose `t` is already a canonical frame time.
+    pub cache_control: String,
+    /// `Cache-Control` of everything else (non-canonical `t`, discovery).
+    pub cache_control_other: String,
+    /// After SIGTERM, how long `/readyz` says 503 while requests are still served.
+    pub drain_ms: u64,
+    /// How long in-flight requests may take to finish once listening stops.
+    pub shutdown_timeout_ms: u64,
+    /// Once listening stops, how long connections not running a handler (idle,
+    /// half-sent headers, slow readers) may stay before they are closed, ms.
+    pub shutdown_grace_ms: u64,
+    /// Longest time to receive a whole request head (start line and headers), ms,
+    /// from when the server waits for it: bounds slowloris clients.
+    pub header_read_timeout_ms: u64,
+    /// A kept-alive connection with no request and no byte moving for this long is
+    /// closed, ms. (The header-read timeout also runs while a connection waits for
+    /// its next request: the shorter one applies.) Proxies in front should drop idle
+    /// upstream connections sooner (nginx `keepalive_timeout` in the upstream block).
+    pub idle_timeout_ms: u64,
+    /// A connection whose client takes no byte of its response for this long is
+    /// closed and the response freed, ms.
+    pub write_timeout_ms: u64,
+    /// Connections served at once; past it a new connection gets 503 with
+    /// `Retry-After` and is closed. 0 means what the open-file limit leaves after a
+    /// reserve (at most 4096).
+    pub max_connections: u32,
+    /// Largest request head (start line and headers) in bytes, the connection's read
+    /// buffer: a larger one gets 431. Within [8192, 1048576]. The default, 96 KiB, has
+    /// room for the longest target the URI parser accepts (64 KiB, else 414) and
+    /// 32 KiB of headers.
+    pub max_header_bytes: u32,
+    /// Most time points one `/series` request may ask for.
+    pub max_series: u32,
+    /// URL of an optional Redis shared by replicas as a second-level cache
+    /// (`redis://HOST:PORT/DB`, `redis+unix:///PATH`); empty means none.
+    pub redis_url: String,
+    /// Longest a Redis lookup or write may take (connecting included) before the
+    /// request goes on without it, milliseconds.
+    pub redis_timeout_ms: u64,
+    /// After a Redis failure, how long requests skip Redis before trying it again, ms.
+    pub redis_retry_ms: u64,
+    /// Expiry of the entries written to Redis, seconds; 0 means none (rely on Redis's
+    /// `maxmemory-policy`).
+    pub redis_ttl_s: u64,
+    /// Estimated working memory that the running compute jobs may hold together,
+    /// bytes; a job that does not fit is shed with 503.
+    pub compute_memory_bytes: u64,
+    /// Bytes that replies still being sent may hold together; past it a request is
+    /// answered 503 with `Retry-After` instead of another large body.
+    pub reply_bytes: u64,
+}
+
+/// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
+const REDIS_SCHEMES: [&str; 3] = ["redis://", "redis+unix://", "unix://"];
+
+fn default_listen() -> String {
+    "127.0.0.1:8080".to_string()
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            listen: default_listen(),
+            cache_bytes: 256 << 20,
+            compute_queue: 0,
+            request_timeout_ms: 10_000,
+            frames_per_step: 4,
+            cache_control: "public, max-age=31536000, immutable".to_string(),
+            cache_control_other: "public, max-age=60".to_string(),
+            drain_ms: 1000,
+            shutdown_timeout_ms: 30_000,
+            shutdown_grace_ms: 1000,
+            header_read_timeout_ms: 10_000,
+            idle_timeout_ms: 5_000,
+            write_timeout_ms: 15_000,
+            max_connections: 0,
+            max_header_bytes: 96 << 10,
+            max_series: 256,
+            redis_url: String::new(),
+            redis_timeout_ms: 100,
+            redis_retry_ms: 1000,
+            redis_ttl_s: 86_400,
+            compute_memory_bytes: 2 << 30,
+            reply_bytes: 256 << 20,
+        }
+    }
+}
+
+impl ServerConfig {
+    /// Checks the values that serde cannot (ranges, header syntax, URL schemes).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if !(1..=64).contains(&self.frames_per_step) {
+            return Err(invalid("server.frames_per_step", "must be within [1, 64]"));
+        }
+        for (key, v) in [
+            ("server.request_timeout_ms", self.request_timeout_ms),
+            ("server.header_read_timeout_ms", self.header_read_timeout_ms),
+            ("server.idle_timeout_ms", self.idle_timeout_ms),
+            ("server.write_timeout_ms", self.write_timeout_ms),
+        ] {
+            if v == 0 {
+                return Err(invalid(key, "must be positive"));
+            }
+        }
+        if self.shutdown_grace_ms > self.shutdown_timeout_ms {
+            return Err(invalid(
+                "server.shutdown_grace_ms",
+                "must be at most server.shutdown_timeout_ms",
+            ));
+        }
+        if !(8192..=1 << 20).contains(&self.max_header_bytes) {
+            return Err(invalid("server.max_header_bytes", "must be within [8192, 1048576]"));
+        }
+        for (key, v) in [
+            ("server.cache_control", &self.cache_control),
+            ("server.cache_control_other", &self.cache_control_other),
+        ] {
+            if !v.bytes().all(|b| (0x20..0x7f).contains(&b)) {
+                return Err(invalid(key, "must be printable ASCII (it is an HTTP header value)"));
+            }
+        }
+        if !self.redis_url.is_empty() && !REDIS_SCHEMES.iter().any(|s| self.redis_url.starts_with(s)) {
+            return Err(invalid(
+                "server.redis_url",
+                "must start with redis:// or redis+unix:// (or be empty for no Redis)",
+            ));
+        }
+        if self.compute_memory_bytes < 1 << 20 {
+            return Err(invalid("server.compute_memory_bytes", "must be at least 1 MiB"));
+        }
+        if self.reply_bytes < 1 << 20 {
+            return Err(invalid("server.reply_bytes", "must be at least 1 MiB"));
+        }
+        if !self.redis_url.is_empty() && self.redis_timeout_ms == 0 {
+            return Err(invalid("server.redis_timeout_ms", "must be positive"));
+        }
+        Ok(())
+    }
+}
+
+#[derive(Deserialize)]
+struct RawServerSection {
+    #[serde(default)]
+    server: ServerConfig,
+}
+
+impl ServerConfig {
+    /// Parses and validates the `[server]` section of a configuration's TOML text;
+    /// every other section is left to `Config::parse`.
+    pub fn parse(text: &str) -> Result<ServerConfig, ConfigError> {
+        let raw: RawServerSection =
+            toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string().trim().replace('\n', " ")))?;
+        raw.server.validate()?;
+        Ok(raw.server)
+    }
+
+    /// The `[server]` section of the embedded default configuration.
+    pub fn embedded() -> ServerConfig {
+        ServerConfig::parse(cloudscape_core::world::DEFAULT_CONFIG).expect("the embedded default config is valid")
+    }
+}

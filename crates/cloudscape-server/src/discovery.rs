@@ -1,0 +1,197 @@
+//! Discovery: `/v1/worlds` and `/v1/worlds/{world}` (TileJSON-like).
+
+use std::sync::Arc;
+
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, State};
+use axum::http::HeaderMap;
+use axum::response::Response;
+use serde::Serialize;
+
+use cloudscape_core::world::{ALGORITHM_VERSION, MAX_TIME};
+
+use super::error::ApiError;
+use super::key::stable_hash_hex;
+use super::tiles::{Product, TILE_SIZE, path_error};
+use super::{AppState, Representation};
+
+/// One configured world in the list.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct WorldSummary {
+    pub name: String,
+    pub seed: u64,
+    pub layers: Vec<String>,
+    /// Path of the world's discovery document.
+    pub url: String,
+}
+
+/// `/v1/worlds`.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct WorldList {
+    pub algorithm_version: u32,
+    /// Configured worlds. Any decimal u64 also names a world: that seed with the
+    /// `default` world's climate.
+    pub worlds: Vec<WorldSummary>,
+}
+
+/// One layer of a world, as clients need it to place tiles in space and time.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct LayerInfo {
+    pub name: String,
+    pub preset: String,
+    /// Automaton mode: dobashi or rosa.
+    pub mode: String,
+    /// Altitude of the layer's bottom and top, metres.
+    pub base: f64,
+    pub top: f64,
+    /// Level-0 cell size, metres (horizontal, vertical).
+    pub cell_size: f64,
+    pub cell_height: f64,
+    /// Depth in cells: the first axis of density grids.
+    pub depth: u32,
+    /// Seconds per automaton step.
+    pub dt: f64,
+    /// Seconds between canonical frames (`dt / frames_per_step`): `t` is snapped to these.
+    pub frame_seconds: f64,
+    /// Wind at the base, m/s, and its change with height, (m/s)/m.
+    pub wind: [f64; 2],
+    pub shear: [f64; 2],
+}
+
+/// `/v1/worlds/{world}`: everything a client needs to fetch tiles.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct WorldInfo {
+    pub name: String,
+    pub seed: u64,
+    pub algorithm_version: u32,
+    /// Columns per tile side.
+    pub tile_size: i64,
+    pub minzoom: u32,
+    pub maxzoom: u32,
+    /// Largest accepted `t`, seconds.
+    pub max_time: f64,
+    pub frames_per_step: u32,
+    pub layers: Vec<LayerInfo>,
+    /// Tile products served, by URL name.
+    pub products: Vec<String>,
+    /// URL templates (paths) for tiles and queries; `{z}`, `{x}`, `{y}`, `{t}`, … are placeholders.
+    pub tiles: Vec<String>,
+    pub sample: String,
+    pub region: String,
+    pub series: String,
+    pub render: String,
+    pub splats: Vec<String>,
+}
+
+fn json_response(headers: &HeaderMap, cache_control: &str, value: &impl Serialize) -> Result<Response, ApiError> {
+    let body = serde_json::to_vec(value).map_err(|e| ApiError::Internal(e.to_string()))?;
+    let repr = Representation {
+        etag: format!("\"{}\"", stable_hash_hex(&body)),
+        cache_control,
+        frame: None,
+    };
+    Ok(repr
+        .not_modified(headers)
+        .unwrap_or_else(|| repr.ok_small("application/json", body.into())))
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds",
+    tag = "discovery",
+    responses((status = 200, body = WorldList, description = "Configured worlds"), (status = 304, description = "If-None-Match matched"))
+)]
+pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<Response, ApiError> {
+    let worlds = s
+        .worlds
+        .config()
+        .worlds
+        .values()
+        .map(|w| WorldSummary {
+            name: w.name.clone(),
+            seed: w.seed,
+            layers: w.layers.iter().map(|l| l.name.clone()).collect(),
+            url: format!("/v1/worlds/{}", w.name),
+        })
+        .collect();
+    json_response(
+        &headers,
+        &s.settings.cache_control_other,
+        &WorldList {
+            algorithm_version: ALGORITHM_VERSION,
+            worlds,
+        },
+    )
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}",
+    tag = "discovery",
+    params(("world" = String, Path, description = "Configured world name, or a decimal u64 seed (default climate)", example = "default")),
+    responses(
+        (status = 200, body = WorldInfo, description = "Layers, cell sizes, tile size, levels, dt, algorithm version, URL templates"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Malformed path"),
+        (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
+    )
+)]
+pub async fn world(
+    State(s): State<Arc<AppState>>,
+    path: Result<Path<String>, PathRejection>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(name) = path.map_err(path_error)?;
+    let w = s.worlds.resolve(&name)?.world;
+    let fps = s.settings.frames_per_step;
+    let base = format!("/v1/worlds/{}", w.name);
+    let info = WorldInfo {
+        seed: w.seed,
+        algorithm_version: ALGORITHM_VERSION,
+        tile_size: TILE_SIZE,
+        minzoom: 0,
+        maxzoom: s.worlds.config().limits.max_level,
+        max_time: MAX_TIME,
+        frames_per_step: fps,
+        layers: w
+            .layers
+            .iter()
+            .map(|l| LayerInfo {
+                name: l.name.clone(),
+                preset: l.preset_name.clone(),
+                mode: format!("{:?}", l.preset.mode).to_lowercase(),
+                base: l.base,
+                top: l.top(),
+                cell_size: l.cell_size,
+                cell_height: l.cell_height,
+                depth: l.depth,
+                dt: l.dt,
+                frame_seconds: l.dt / fps as f64,
+                wind: l.wind,
+                shear: l.shear,
+            })
+            .collect(),
+        products: Product::ALL.iter().map(|p| p.name().to_string()).collect(),
+        tiles: Product::ALL
+            .iter()
+            .map(|p| {
+                format!(
+                    "{base}/tiles/{{z}}/{{x}}/{{y}}/{}?t={{t}}&layer={{layer}}&quality={{quality}}&sun={{az}},{{el}}",
+                    p.name()
+                )
+            })
+            .collect(),
+        sample: format!("{base}/sample?x={{x}}&y={{y}}&z={{z}}&t={{t}}"),
+        region: format!("{base}/region?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t={{t}}&layer={{layer}}&level={{level}}"),
+        series: format!("{base}/series?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t0={{t0}}&t1={{t1}}&dt={{dt}}&layer={{layer}}"),
+        render: format!(
+            "{base}/render.png?camera={{x}},{{y}},{{z}},{{yaw}},{{pitch}},{{fov}}&t={{t}}&size={{w}}x{{h}}&quality={{quality}}&sun={{az}},{{el}}"
+        ),
+        splats: vec![
+            "/v1/splats.png?quality={quality}".to_string(),
+            "/v1/splats.json?quality={quality}".to_string(),
+        ],
+        name: w.name,
+    };
+    json_response(&headers, &s.settings.cache_control_other, &info)
+}

@@ -1,0 +1,187 @@
+//! The service's one error type and the one place where errors become HTTP.
+//!
+//! Every failure a client can cause maps to a status and a stable machine code in a
+//! JSON body `{"error": code, "message": sentence}`. Nothing a client sends produces a
+//! 500: a 500 means a bug (a panicking job), and is logged as one.
+
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+
+use cloudscape_core::density::SimError;
+use cloudscape_core::render::RenderError;
+
+/// A request the service refuses or could not answer.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ApiError {
+    /// A parameter that should be a number is not one (`t=abc`, `x=1e`).
+    #[error("parameter `{name}` is not a valid number: `{value}`")]
+    InvalidNumber { name: String, value: String },
+    /// A number that parsed but is NaN or infinite.
+    #[error("parameter `{name}` must be a finite number, got `{value}`")]
+    NotFinite { name: String, value: String },
+    #[error("missing parameter `{0}`")]
+    MissingParameter(String),
+    /// A parameter with a value outside its vocabulary (`quality=ultra`, `sun=1`).
+    #[error("parameter `{name}`: {message}")]
+    InvalidParameter { name: String, message: String },
+    #[error("t must be within [0, 1e12] seconds, got {0}")]
+    TimeOutOfRange(f64),
+    #[error("bbox must be X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1")]
+    InvalidBbox,
+    #[error("the bbox holds no column centre at this level")]
+    EmptyRegion,
+    #[error("{0}")]
+    RegionTooLarge(String),
+    /// Well-formed but more work than the render limits allow (pixels, tiles in view).
+    #[error("{0}")]
+    TooMuchWork(String),
+    #[error("the series has {points} time points; the limit is {max}")]
+    SeriesTooLong { points: u64, max: u32 },
+    #[error("level {level} is out of range (0..={max})")]
+    LevelOutOfRange { level: String, max: u32 },
+    #[error("coordinates out of range: {0}")]
+    CoordinatesOutOfRange(String),
+    #[error("unknown world `{0}`: use a configured name (see /v1/worlds) or a decimal u64 seed")]
+    UnknownWorld(String),
+    #[error("unknown layer `{layer}` in world `{world}`")]
+    UnknownLayer { world: String, layer: String },
+    #[error("unknown product `{0}` (see the world's `products` in /v1/worlds/{{world}})")]
+    UnknownProduct(String),
+    #[error("no route for {0}")]
+    NotFound(String),
+    #[error("method not allowed")]
+    MethodNotAllowed,
+    /// The compute queue (or its memory) is full: shed rather than grow a backlog.
+    /// Carries the `Retry-After`, seconds.
+    #[error("the server is busy; retry in {0} s")]
+    Overloaded(u32),
+    /// The request's time budget ran out; its computation was stopped unless another
+    /// request still waits for it.
+    #[error("the request did not finish within its time budget of {budget_ms} ms; retry in {retry_after} s")]
+    Timeout { budget_ms: u64, retry_after: u32 },
+    /// A computation stopped because nobody waited for it any more (internal: the
+    /// cache turns it into `Overloaded` for a request that joined it late).
+    #[error("the computation was stopped: nobody was waiting for it any more")]
+    Cancelled,
+    /// The answer would be larger than the per-response limit.
+    #[error("{0}")]
+    ResponseTooLarge(String),
+    /// The bytes held by replies still being sent are at their budget.
+    #[error(
+        "the server holds {held_mib} MiB of replies still being sent (server.reply_bytes is {budget_mib} MiB); retry in {retry_after} s"
+    )]
+    ReplyMemoryFull {
+        held_mib: u64,
+        budget_mib: u64,
+        retry_after: u32,
+    },
+    /// The server is shutting down.
+    #[error("the server is shutting down")]
+    Draining,
+    #[error("internal error: {0}")]
+    Internal(String),
+}
+
+/// The JSON body of every error response.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct ErrorBody {
+    /// Stable machine-readable code, e.g. `invalid_number`, `unknown_world`, `overloaded`.
+    pub error: &'static str,
+    /// One sentence a person can act on.
+    pub message: String,
+}
+
+impl ApiError {
+    /// Status and stable code. The only place where an error gets its status.
+    pub fn status_and_code(&self) -> (StatusCode, &'static str) {
+        use ApiError::*;
+        match self {
+            InvalidNumber { .. } => (StatusCode::BAD_REQUEST, "invalid_number"),
+            NotFinite { .. } => (StatusCode::BAD_REQUEST, "not_finite"),
+            MissingParameter(_) => (StatusCode::BAD_REQUEST, "missing_parameter"),
+            InvalidParameter { .. } => (StatusCode::BAD_REQUEST, "invalid_parameter"),
+            InvalidBbox => (StatusCode::BAD_REQUEST, "invalid_bbox"),
+            TimeOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "time_out_of_range"),
+            EmptyRegion => (StatusCode::UNPROCESSABLE_ENTITY, "empty_region"),
+            LevelOutOfRange { .. } => (StatusCode::UNPROCESSABLE_ENTITY, "level_out_of_range"),
+            CoordinatesOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "coordinates_out_of_range"),
+            RegionTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "region_too_large"),
+            SeriesTooLong { .. } => (StatusCode::PAYLOAD_TOO_LARGE, "series_too_long"),
+            TooMuchWork(_) => (StatusCode::PAYLOAD_TOO_LARGE, "too_much_work"),
+            ResponseTooLarge(_) => (StatusCode::PAYLOAD_TOO_LARGE, "response_too_large"),
+            UnknownWorld(_) => (StatusCode::NOT_FOUND, "unknown_world"),
+            UnknownLayer { .. } => (StatusCode::NOT_FOUND, "unknown_layer"),
+            UnknownProduct(_) => (StatusCode::NOT_FOUND, "unknown_product"),
+            NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
+            MethodNotAllowed => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
+            Overloaded(_) | Cancelled => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
+            Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
+            ReplyMemoryFull { .. } => (StatusCode::SERVICE_UNAVAILABLE, "reply_memory_full"),
+            Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
+            Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+        }
+    }
+}
+
+impl ApiError {
+    /// Seconds a client should wait before retrying a 503 (1 when nothing better is
+    /// known: draining, a cancelled join).
+    pub fn retry_after(&self) -> u32 {
+        match self {
+            ApiError::Overloaded(s) | ApiError::Timeout { retry_after: s, .. } => *s,
+            ApiError::ReplyMemoryFull { retry_after, .. } => *retry_after,
+            _ => 1,
+        }
+    }
+}
+
+impl From<SimError> for ApiError {
+    fn from(e: SimError) -> ApiError {
+        match e {
+            SimError::BadTime(t) => ApiError::TimeOutOfRange(t),
+            SimError::BadBbox => ApiError::InvalidBbox,
+            SimError::EmptyRegion => ApiError::EmptyRegion,
+            SimError::RegionTooWide { .. } | SimError::TooManyCells { .. } => ApiError::RegionTooLarge(e.to_string()),
+            SimError::BadLevel { level, max } => ApiError::LevelOutOfRange {
+                level: level.to_string(),
+                max,
+            },
+            SimError::OutOfRange(m) => ApiError::CoordinatesOutOfRange(m),
+            SimError::Cancelled(_) => ApiError::Cancelled,
+        }
+    }
+}
+
+impl From<RenderError> for ApiError {
+    fn from(e: RenderError) -> ApiError {
+        match e {
+            RenderError::Sim(e) => e.into(),
+            RenderError::BadRequest(m) => ApiError::InvalidParameter {
+                name: "request".to_string(),
+                message: m,
+            },
+            RenderError::TooMuchWork(m) => ApiError::TooMuchWork(m),
+        }
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let (status, code) = self.status_and_code();
+        if status.is_server_error() && status != StatusCode::SERVICE_UNAVAILABLE {
+            tracing::error!(error = %self, "request failed");
+        }
+        let body = ErrorBody {
+            error: code,
+            message: self.to_string(),
+        };
+        let mut response = (status, axum::Json(body)).into_response();
+        let headers = response.headers_mut();
+        headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+        if status == StatusCode::SERVICE_UNAVAILABLE {
+            headers.insert(header::RETRY_AFTER, HeaderValue::from(self.retry_after()));
+        }
+        response
+    }
+}

@@ -1,0 +1,188 @@
+//! Query and path parameters, parsed by hand so that every bad input gets its own
+//! error code instead of a framework's plain-text rejection.
+
+use super::error::ApiError;
+
+/// The query string of one request as `(name, value)` pairs; the last of repeated
+/// names wins, unknown names are ignored (cache busters, tracking).
+pub struct Params(pub Vec<(String, String)>);
+
+impl Params {
+    pub fn get(&self, name: &str) -> Option<&str> {
+        self.0.iter().rev().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
+    }
+
+    pub fn required(&self, name: &str) -> Result<&str, ApiError> {
+        self.get(name)
+            .ok_or_else(|| ApiError::MissingParameter(name.to_string()))
+    }
+
+    /// A finite `f64` if present.
+    pub fn f64(&self, name: &str) -> Result<Option<f64>, ApiError> {
+        self.get(name).map(|v| parse_f64(name, v)).transpose()
+    }
+
+    pub fn required_f64(&self, name: &str) -> Result<f64, ApiError> {
+        parse_f64(name, self.required(name)?)
+    }
+
+    /// A world time `t` (finite, within [0, 1e12]).
+    pub fn time(&self, name: &str) -> Result<f64, ApiError> {
+        check_time(self.required_f64(name)?)
+    }
+
+    /// An optional level `0..=max`.
+    pub fn level(&self, max: u32) -> Result<u32, ApiError> {
+        match self.get("level") {
+            None => Ok(0),
+            Some(v) => parse_level(v, max),
+        }
+    }
+
+    /// `bbox=X0,Y0,X1,Y1` with X0 < X1 and Y0 < Y1, all finite.
+    pub fn bbox(&self) -> Result<[f64; 4], ApiError> {
+        let b = parse_list("bbox", self.required("bbox")?, 4)?;
+        if !(b[0] < b[2] && b[1] < b[3]) {
+            return Err(ApiError::InvalidBbox);
+        }
+        Ok([b[0], b[1], b[2], b[3]])
+    }
+}
+
+/// Checks a world time against the contract's range.
+pub fn check_time(t: f64) -> Result<f64, ApiError> {
+    cloudscape_core::density::check_time(t).map_err(ApiError::from)
+}
+
+/// A finite decimal number. `nan`, `inf` are recognised as numbers and refused as such.
+pub fn parse_f64(name: &str, value: &str) -> Result<f64, ApiError> {
+    let v: f64 = value.trim().parse().map_err(|_| ApiError::InvalidNumber {
+        name: name.to_string(),
+        value: value.to_string(),
+    })?;
+    if !v.is_finite() {
+        return Err(ApiError::NotFinite {
+            name: name.to_string(),
+            value: value.to_string(),
+        });
+    }
+    Ok(v)
+}
+
+/// Exactly `n` comma-separated finite numbers.
+pub fn parse_list(name: &str, value: &str, n: usize) -> Result<Vec<f64>, ApiError> {
+    let parts: Vec<&str> = value.split(',').collect();
+    if parts.len() != n {
+        return Err(ApiError::InvalidParameter {
+            name: name.to_string(),
+            message: format!("needs {n} comma-separated numbers, got `{value}`"),
+        });
+    }
+    parts.iter().map(|p| parse_f64(name, p)).collect()
+}
+
+/// True for `-?[0-9]+`: a well-formed integer, whatever its size.
+fn is_integer_syntax(s: &str) -> bool {
+    let digits = s.strip_prefix('-').unwrap_or(s);
+    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// A tile or LOD level. A well-formed integer outside `0..=max` (negative, or too big
+/// for any integer type) is out of range (422); anything else is malformed (400).
+pub fn parse_level(value: &str, max: u32) -> Result<u32, ApiError> {
+    if !is_integer_syntax(value) {
+        return Err(ApiError::InvalidNumber {
+            name: "z".to_string(),
+            value: value.to_string(),
+        });
+    }
+    match value.parse::<u32>() {
+        Ok(z) if z <= max => Ok(z),
+        _ => Err(ApiError::LevelOutOfRange {
+            level: value.to_string(),
+            max,
+        }),
+    }
+}
+
+/// A tile coordinate: any `i64`; larger well-formed integers are out of range (422).
+pub fn parse_tile_coordinate(name: &str, value: &str) -> Result<i64, ApiError> {
+    if !is_integer_syntax(value) {
+        return Err(ApiError::InvalidNumber {
+            name: name.to_string(),
+            value: value.to_string(),
+        });
+    }
+    value
+        .parse::<i64>()
+        .map_err(|_| ApiError::CoordinatesOutOfRange(format!("{name} = {value} does not fit in 64 bits")))
+}
+
+impl Params {
+    /// The query of `uri`, percent-decoded, as the handlers see it (also the entry point
+    /// of the `query` fuzz target).
+    pub fn from_uri(uri: &axum::http::Uri) -> Result<Params, ApiError> {
+        let axum::extract::Query(pairs) =
+            axum::extract::Query::<Vec<(String, String)>>::try_from_uri(uri).map_err(|e| {
+                ApiError::InvalidParameter {
+                    name: "query".to_string(),
+                    message: e.body_text(),
+                }
+            })?;
+        Ok(Params(pairs))
+    }
+}
+
+impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Params {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut axum::http::request::Parts, _state: &S) -> Result<Self, ApiError> {
+        Params::from_uri(&parts.uri)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_classified() {
+        assert_eq!(parse_f64("t", " 12.5").unwrap(), 12.5);
+        assert!(matches!(parse_f64("t", "abc"), Err(ApiError::InvalidNumber { .. })));
+        assert!(matches!(parse_f64("t", ""), Err(ApiError::InvalidNumber { .. })));
+        assert!(matches!(parse_f64("t", "NaN"), Err(ApiError::NotFinite { .. })));
+        assert!(matches!(parse_f64("t", "-inf"), Err(ApiError::NotFinite { .. })));
+        assert!(matches!(parse_f64("t", "1e999"), Err(ApiError::NotFinite { .. })));
+    }
+
+    #[test]
+    fn levels_and_coordinates_are_range_checked() {
+        assert_eq!(parse_level("3", 16).unwrap(), 3);
+        assert!(matches!(parse_level("17", 16), Err(ApiError::LevelOutOfRange { .. })));
+        assert!(matches!(parse_level("-1", 16), Err(ApiError::LevelOutOfRange { .. })));
+        assert!(matches!(
+            parse_level("99999999999999999999", 16),
+            Err(ApiError::LevelOutOfRange { .. })
+        ));
+        assert!(matches!(parse_level("1.5", 16), Err(ApiError::InvalidNumber { .. })));
+        assert_eq!(parse_tile_coordinate("x", "-9223372036854775808").unwrap(), i64::MIN);
+        assert!(matches!(
+            parse_tile_coordinate("x", "9223372036854775808"),
+            Err(ApiError::CoordinatesOutOfRange(_))
+        ));
+        assert!(matches!(
+            parse_tile_coordinate("x", "0x10"),
+            Err(ApiError::InvalidNumber { .. })
+        ));
+    }
+
+    #[test]
+    fn bbox_must_be_ordered() {
+        let p = Params(vec![("bbox".into(), "0,0,10,10".into())]);
+        assert_eq!(p.bbox().unwrap(), [0.0, 0.0, 10.0, 10.0]);
+        let p = Params(vec![("bbox".into(), "10,0,0,10".into())]);
+        assert_eq!(p.bbox(), Err(ApiError::InvalidBbox));
+        let p = Params(vec![("bbox".into(), "0,0,10".into())]);
+        assert!(matches!(p.bbox(), Err(ApiError::InvalidParameter { .. })));
+    }
+}

@@ -1,0 +1,448 @@
+//! REST queries by region and time: `/sample`, `/region`, `/series`.
+//!
+//! They read the same density the tiles serve (same function, same canonical frames),
+//! so a region's answer equals what is computed from the tiles it spans.
+
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, State};
+use axum::http::HeaderMap;
+use axum::response::Response;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use cloudscape_core::cost::{self, Work};
+use cloudscape_core::density::{self, MAX_CELL_INDEX, Region};
+use cloudscape_core::world::{Layer, World};
+
+use super::error::ApiError;
+use super::key::{CacheKey, SnappedTime};
+use super::params::Params;
+use super::stats::{RegionStats, region_stats};
+use super::tiles::path_error;
+use super::{AppState, Representation};
+
+/// The layer named `name`, or the world's first layer.
+pub fn layer<'w>(world: &'w World, name: Option<&str>) -> Result<(usize, &'w Layer), ApiError> {
+    world.layer(name).ok_or_else(|| ApiError::UnknownLayer {
+        world: world.name.clone(),
+        layer: name.unwrap_or("").chars().take(64).collect(),
+    })
+}
+
+fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
+    serde_json::to_vec(value)
+        .map(Bytes::from)
+        .map_err(|e| ApiError::Internal(e.to_string()))
+}
+
+/// The columns of a region, in the region's level.
+#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
+pub struct Columns {
+    /// First column (east index) at the level.
+    pub x0: i64,
+    /// First row (north index) at the level.
+    pub y0: i64,
+    pub cols: usize,
+    pub rows: usize,
+}
+
+impl From<Region> for Columns {
+    fn from(r: Region) -> Columns {
+        Columns {
+            x0: r.x0,
+            y0: r.y0,
+            cols: r.cols,
+            rows: r.rows,
+        }
+    }
+}
+
+/// `/sample`: the density and cloud flag at a point.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct SampleAnswer {
+    pub world: String,
+    /// The layer the point lies in; `null` when no layer spans the altitude `z`.
+    pub layer: Option<String>,
+    /// The canonical frame time the answer was computed for, seconds.
+    pub t: f64,
+    pub frame: u64,
+    /// Level-0 cell holding the point: [column, row, vertical level]; `null` outside every layer.
+    pub cell: Option<[i64; 3]>,
+    /// Density in [0, 1] of that cell (0 outside every layer).
+    pub density: f32,
+    /// The automaton's cloud bit of that cell.
+    pub cloud: bool,
+}
+
+/// `/region`: statistics of a region at one time.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct RegionAnswer {
+    pub world: String,
+    pub layer: String,
+    pub level: u32,
+    /// The canonical frame time the answer was computed for, seconds.
+    pub t: f64,
+    pub frame: u64,
+    /// The columns whose centres lie inside the bbox.
+    pub columns: Columns,
+    #[serde(flatten)]
+    pub stats: RegionStats,
+}
+
+/// One time point of a `/series`.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct SeriesPoint {
+    /// The requested time.
+    pub t: f64,
+    /// The canonical frame time computed for it.
+    pub frame_t: f64,
+    pub frame: u64,
+    #[serde(flatten)]
+    pub stats: RegionStats,
+}
+
+/// `/series`: region statistics over time.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct SeriesAnswer {
+    pub world: String,
+    pub layer: String,
+    pub level: u32,
+    pub columns: Columns,
+    pub points: Vec<SeriesPoint>,
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}/sample",
+    tag = "queries",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("x" = f64, Query, description = "East, metres", example = 150),
+        ("y" = f64, Query, description = "North, metres", example = 150),
+        ("z" = f64, Query, description = "Altitude above sea level, metres", example = 1050),
+        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the layer's frame grid)", example = 0),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the layer whose altitude band holds z)"),
+    ),
+    responses(
+        (status = 200, body = SampleAnswer, description = "Density and cloud flag of the level-0 cell holding the point"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
+        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = super::error::ErrorBody, description = "Over the configured limits"),
+        (status = 422, body = super::error::ErrorBody, description = "t or coordinates out of range"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn sample(
+    State(s): State<Arc<AppState>>,
+    path: Result<Path<String>, PathRejection>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(world) = path.map_err(path_error)?;
+    let resolved = s.worlds.resolve(&world)?;
+    let (x, y, z) = (
+        params.required_f64("x")?,
+        params.required_f64("y")?,
+        params.required_f64("z")?,
+    );
+    let t = params.time("t")?;
+    let chosen = match params.get("layer") {
+        Some(name) => Some(layer(&resolved.world, Some(name))?),
+        None => resolved
+            .world
+            .layers
+            .iter()
+            .enumerate()
+            .find(|(_, l)| l.base <= z && z < l.top()),
+    };
+    let Some((layer_index, layer)) = chosen else {
+        // No layer spans this altitude: clear sky, nothing to compute.
+        let frame = SnappedTime::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
+        let answer = SampleAnswer {
+            world: resolved.world.name.clone(),
+            layer: None,
+            t: frame.t,
+            frame: frame.index,
+            cell: None,
+            density: 0.0,
+            cloud: false,
+        };
+        let repr = Representation {
+            etag: format!(
+                "\"{}\"",
+                super::key::stable_hash_hex(&serde_json::to_vec(&answer).unwrap_or_default())
+            ),
+            cache_control: s.cache_control(frame, t),
+            frame: Some(frame),
+        };
+        return Ok(repr
+            .not_modified(&headers)
+            .unwrap_or_else(|| repr.ok_small("application/json", json_bytes(&answer).unwrap_or_default())));
+    };
+    let cell_index = |v: f64, name: &str| {
+        let c = (v / layer.cell_size).floor();
+        if c.abs() >= MAX_CELL_INDEX as f64 {
+            return Err(ApiError::CoordinatesOutOfRange(format!(
+                "{name} = {v} m is beyond ±{MAX_CELL_INDEX} cells"
+            )));
+        }
+        Ok(c as i64)
+    };
+    let (col, row) = (cell_index(x, "x")?, cell_index(y, "y")?);
+    let k = ((z - layer.base) / layer.cell_height)
+        .floor()
+        .clamp(0.0, (layer.depth - 1) as f64) as usize;
+    let region = Region {
+        x0: col,
+        y0: row,
+        cols: 1,
+        rows: 1,
+    };
+    let limits = &s.worlds.config().limits;
+    region.check(0, layer.depth, limits)?;
+    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
+    let key = CacheKey::new("sample", &resolved, layer_index)
+        .with("c", col)
+        .with("r", row)
+        .with("k", k)
+        .with("f", frame.index);
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control: s.cache_control(frame, t),
+        frame: Some(frame),
+    };
+    if let Some(not_modified) = repr.not_modified(&headers) {
+        return Ok(not_modified);
+    }
+    let world = resolved.world;
+    let work = s.admit("sample", cost::density(&world, layer_index, 0, region, frame.t)?)?;
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, "sample", key, work, move |cancel| {
+            let d = density::density_cancellable(&world, layer_index, 0, region, frame.t, cancel)?;
+            let c = density::cloud_cells(&world, layer_index, region, frame.t)?;
+            json_bytes(&SampleAnswer {
+                layer: Some(world.layers[layer_index].name.clone()),
+                world: world.name,
+                t: frame.t,
+                frame: frame.index,
+                cell: Some([col, row, k as i64]),
+                density: d.get(k, 0, 0),
+                cloud: c.get(k, 0, 0) != 0,
+            })
+        })
+        .await?;
+    repr.ok(&s, "application/json", bytes)
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}/region",
+    tag = "queries",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; columns whose centres lie inside", example = "0,0,1000,1000"),
+        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the layer's frame grid)", example = 0),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
+        ("level" = Option<u32>, Query, description = "Level of the columns (default 0); matches the tiles of that level"),
+    ),
+    responses(
+        (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter or inverted bbox"),
+        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = super::error::ErrorBody, description = "bbox over the configured limits (use a higher level)"),
+        (status = 422, body = super::error::ErrorBody, description = "t, level or coordinates out of range; empty region"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn region(
+    State(s): State<Arc<AppState>>,
+    path: Result<Path<String>, PathRejection>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(world) = path.map_err(path_error)?;
+    let resolved = s.worlds.resolve(&world)?;
+    let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
+    let limits = &s.worlds.config().limits;
+    let bbox = params.bbox()?;
+    let t = params.time("t")?;
+    let level = params.level(limits.max_level)?;
+    let region = Region::from_bbox(layer, level, bbox, limits)?;
+    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
+    let key = CacheKey::new("region", &resolved, layer_index)
+        .with("z", level)
+        .with(
+            "r",
+            format!("{},{},{},{}", region.x0, region.y0, region.cols, region.rows),
+        )
+        .with("f", frame.index);
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control: s.cache_control(frame, t),
+        frame: Some(frame),
+    };
+    if let Some(not_modified) = repr.not_modified(&headers) {
+        return Ok(not_modified);
+    }
+    let world = resolved.world;
+    let work = s.admit("region", cost::density(&world, layer_index, level, region, frame.t)?)?;
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, "region", key, work, move |cancel| {
+            let grid = density::density_cancellable(&world, layer_index, level, region, frame.t, cancel)?;
+            let layer = &world.layers[layer_index];
+            json_bytes(&RegionAnswer {
+                world: world.name.clone(),
+                layer: layer.name.clone(),
+                level,
+                t: frame.t,
+                frame: frame.index,
+                columns: region.into(),
+                stats: region_stats(&grid, layer),
+            })
+        })
+        .await?;
+    repr.ok(&s, "application/json", bytes)
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}/series",
+    tag = "queries",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1", example = "0,0,1000,1000"),
+        ("t0" = f64, Query, description = "First time, seconds", example = 0),
+        ("t1" = f64, Query, description = "Last time (inclusive when on the step grid), seconds, t1 >= t0", example = 20),
+        ("dt" = Option<f64>, Query, description = "Step between points, seconds, > 0 (default: the layer's dt)"),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
+        ("level" = Option<u32>, Query, description = "Level of the columns (default 0)"),
+    ),
+    responses(
+        (status = 200, body = SeriesAnswer, description = "The /region statistics at t0, t0+dt, … <= t1"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 < t0"),
+        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = super::error::ErrorBody, description = "bbox or number of points over the configured limits"),
+        (status = 422, body = super::error::ErrorBody, description = "Times, level or coordinates out of range"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn series(
+    State(s): State<Arc<AppState>>,
+    path: Result<Path<String>, PathRejection>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(world) = path.map_err(path_error)?;
+    let resolved = s.worlds.resolve(&world)?;
+    let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
+    let limits = &s.worlds.config().limits;
+    let bbox = params.bbox()?;
+    let (t0, t1) = (params.time("t0")?, params.time("t1")?);
+    let step = params.f64("dt")?.unwrap_or(layer.dt);
+    if t1 < t0 {
+        return Err(ApiError::InvalidParameter {
+            name: "t1".into(),
+            message: "must be >= t0".into(),
+        });
+    }
+    if step <= 0.0 {
+        return Err(ApiError::InvalidParameter {
+            name: "dt".into(),
+            message: "must be > 0 seconds".into(),
+        });
+    }
+    let points = ((t1 - t0) / step).floor() + 1.0;
+    if points > s.settings.max_series as f64 {
+        return Err(ApiError::SeriesTooLong {
+            points: points.min(u64::MAX as f64) as u64,
+            max: s.settings.max_series,
+        });
+    }
+    let level = params.level(limits.max_level)?;
+    let region = Region::from_bbox(layer, level, bbox, limits)?;
+    let fps = s.settings.frames_per_step;
+    let times: Vec<f64> = (0..points as u64).map(|i| (t0 + i as f64 * step).min(t1)).collect();
+    let frames: Vec<SnappedTime> = times.iter().map(|&t| SnappedTime::snap(t, layer, fps)).collect();
+    let frame_list = frames.iter().map(|f| f.index.to_string()).collect::<Vec<_>>().join(",");
+    let key = CacheKey::new("series", &resolved, layer_index)
+        .with("z", level)
+        .with(
+            "r",
+            format!("{},{},{},{}", region.x0, region.y0, region.cols, region.rows),
+        )
+        .with("t", times.iter().map(f64::to_string).collect::<Vec<_>>().join(","))
+        .with("f", frame_list);
+    let all_exact = frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t));
+    let cache_control = if all_exact {
+        s.settings.cache_control.as_str()
+    } else {
+        s.settings.cache_control_other.as_str()
+    };
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control,
+        frame: None,
+    };
+    if let Some(not_modified) = repr.not_modified(&headers) {
+        return Ok(not_modified);
+    }
+    let world = resolved.world;
+    // Each distinct frame once; consecutive points often share one.
+    let mut distinct: Vec<SnappedTime> = frames.clone();
+    distinct.dedup_by_key(|f| f.index);
+    let mut work = Work::default();
+    for f in &distinct {
+        let w = cost::density(&world, layer_index, level, region, f.t)?;
+        // CPU adds up; memory does not: a frame's grid is dropped once its statistics
+        // are taken, so at most one grid per compute thread is alive at once.
+        work.cpu_s += w.cpu_s;
+        work.bytes = work.bytes.max(w.bytes);
+    }
+    work.bytes = work
+        .bytes
+        .saturating_mul(distinct.len().min(rayon::current_num_threads().max(1)) as u64);
+    let work = s.admit("series", work)?;
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, "series", key, work, move |cancel| {
+            let layer = &world.layers[layer_index];
+            let stats: Vec<(u64, RegionStats)> = distinct
+                .par_iter()
+                .map(|f| {
+                    let grid = density::density_cancellable(&world, layer_index, level, region, f.t, cancel)?;
+                    Ok((f.index, region_stats(&grid, layer)))
+                })
+                .collect::<Result<_, ApiError>>()?;
+            let points = times
+                .iter()
+                .zip(&frames)
+                .map(|(&t, f)| SeriesPoint {
+                    t,
+                    frame_t: f.t,
+                    frame: f.index,
+                    stats: stats
+                        .iter()
+                        .find(|(i, _)| *i == f.index)
+                        .map(|(_, s)| s.clone())
+                        .expect("every frame computed"),
+                })
+                .collect();
+            json_bytes(&SeriesAnswer {
+                world: world.name.clone(),
+                layer: layer.name.clone(),
+                level,
+                columns: region.into(),
+                points,
+            })
+        })
+        .await?;
+    repr.ok(&s, "application/json", bytes)
+}

@@ -1,0 +1,303 @@
+//! `GET /v1/worlds/{world}/render.png` (what a client would see) and the splat sheets
+//! `GET /v1/splats.png`, `GET /v1/splats.json`, and the clear sky of a sun
+//! `GET /v1/sky.json`.
+
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::rejection::PathRejection;
+use axum::extract::{Path, State};
+use axum::http::{HeaderMap, HeaderName, HeaderValue};
+use axum::response::Response;
+
+use cloudscape_core::cost::{self, Work};
+use cloudscape_core::products::{sky, splats};
+use cloudscape_core::render::image::png_noise;
+use cloudscape_core::render::light::Lighting;
+use cloudscape_core::render::pathtrace::DEFAULT_SAMPLES;
+use cloudscape_core::render::scene::{RenderRequest, parse_size, render_cancellable};
+use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
+
+use super::error::ApiError;
+use super::key::{CacheKey, SnappedTime};
+use super::params::Params;
+use super::tiles::{parse_quality, parse_sun, path_error};
+use super::{AppState, Representation};
+
+/// Image size when a request gives none.
+const DEFAULT_SIZE: &str = "640x360";
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}/render.png",
+    tag = "render",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("camera" = String, Query, description = "X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the horizon; horizontal field of view; degrees", example = "0,0,1200,0,10,60"),
+        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the first layer's frame grid)", example = 0),
+        ("size" = Option<String>, Query, description = "WxH pixels (default 640x360)", example = "64x36"),
+        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate (billboards) | reference (volumetric path tracer: every order of scattering, sky light occluded by the cloud; its noise in X-Cloudscape-Noise) | reference-single (single-scattering ray marcher)"),
+        ("samples" = Option<u32>, Query, description = "Samples per pixel of quality=reference, at least 2 (default 32); samples × pixels is limited by [limits] max_path_samples (413 beyond). Refused with other qualities.", example = 32),
+        ("sun" = Option<String>, Query, description = "AZ,EL degrees (default: the world clock's sun at t); bucketed to ~8 degrees"),
+    ),
+    responses(
+        (status = 200, description = "The rendered view. For quality=reference, X-Cloudscape-Samples (samples per pixel) and X-Cloudscape-Noise (the path tracer's stated noise: mean over pixels of the standard error of linear luminance, radiance units; the same values are in the PNG's tEXt chunks cloudscape:samples, cloudscape:noise, cloudscape:mean-luminance).", content_type = "image/png", body = Vec<u8>),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
+        (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
+        (status = 413, body = super::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
+        (status = 422, body = super::error::ErrorBody, description = "t out of range"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
+    )
+)]
+pub async fn render_png(
+    State(s): State<Arc<AppState>>,
+    path: Result<Path<String>, PathRejection>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let Path(world) = path.map_err(path_error)?;
+    let resolved = s.worlds.resolve(&world)?;
+    let camera_text = params.required("camera")?;
+    let camera = Camera::parse(camera_text).map_err(|m| ApiError::InvalidParameter {
+        name: "camera".to_string(),
+        message: m,
+    })?;
+    let t = params.time("t")?;
+    let (width, height) =
+        parse_size(params.get("size").unwrap_or(DEFAULT_SIZE)).map_err(|m| ApiError::InvalidParameter {
+            name: "size".to_string(),
+            message: m,
+        })?;
+    let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
+    let samples = parse_samples(&params, quality)?;
+    let config = s.worlds.config();
+    // Every layer of a view is rendered at one time: the first layer's frame.
+    let frame = SnappedTime::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
+    let sun = parse_sun(&params)?.unwrap_or_else(|| Sun::from_clock(frame.t, &config.sun));
+    let request = RenderRequest {
+        camera,
+        width,
+        height,
+        t: frame.t,
+        quality,
+        sun: Some(sun),
+        params: ShadingParams::default(),
+        samples,
+    };
+    // The render limits (pixels, tiles in view, samples) and the estimated work (CPU
+    // within the time budget, memory) are checked here, before any work.
+    let work = s.admit("render", cost::render(&resolved.world, config, &request)?)?;
+    let p = camera.position;
+    let key = CacheKey::new("render", &resolved, 0)
+        .with(
+            "cam",
+            format!(
+                "{},{},{},{},{},{}",
+                p[0], p[1], p[2], camera.yaw_deg, camera.pitch_deg, camera.fov_deg
+            ),
+        )
+        .with("size", format!("{width}x{height}"))
+        .with("f", frame.index)
+        .with("q", quality.as_str())
+        .with("s", sun.bucket().id())
+        .with("maxz", config.limits.max_level);
+    let key = if quality == Quality::Reference {
+        key.with("n", samples)
+    } else {
+        key
+    };
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control: s.cache_control(frame, t),
+        frame: Some(frame),
+    };
+    if let Some(not_modified) = repr.not_modified(&headers) {
+        return Ok(not_modified);
+    }
+    let world = resolved.world;
+    let config = config.clone();
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, "render", key, work, move |cancel| {
+            let rendered = render_cancellable(&world, &config, &request, cancel)?;
+            Ok(Bytes::from(match rendered.noise {
+                Some(noise) => rendered.image.to_png_with_noise(&noise),
+                None => rendered.image.to_png(),
+            }))
+        })
+        .await?;
+    // The noise travels in the PNG itself, so a cached image states it too.
+    let noise = png_noise(&bytes);
+    let mut response = repr.ok(&s, "image/png", bytes)?;
+    if let Some(noise) = noise {
+        let h = response.headers_mut();
+        h.insert(
+            HeaderName::from_static("x-cloudscape-samples"),
+            HeaderValue::from(noise.samples),
+        );
+        if let Ok(v) = HeaderValue::from_str(&format!("{:e}", noise.std_error)) {
+            h.insert(HeaderName::from_static("x-cloudscape-noise"), v);
+        }
+    }
+    Ok(response)
+}
+
+/// `samples=` of `quality=reference`: an integer (default [`DEFAULT_SAMPLES`]); its
+/// range and the samples × pixels budget are checked with the other render limits.
+fn parse_samples(params: &Params, quality: Quality) -> Result<u32, ApiError> {
+    let Some(v) = params.get("samples") else {
+        return Ok(DEFAULT_SAMPLES);
+    };
+    if quality != Quality::Reference {
+        return Err(ApiError::InvalidParameter {
+            name: "samples".to_string(),
+            message: format!(
+                "applies to quality=reference (the path tracer) only, not `{}`",
+                quality.as_str()
+            ),
+        });
+    }
+    let n: u64 = v.trim().parse().map_err(|_| ApiError::InvalidNumber {
+        name: "samples".to_string(),
+        value: v.to_string(),
+    })?;
+    Ok(u32::try_from(n).unwrap_or(u32::MAX))
+}
+
+/// The cache key of a splat sheet.
+pub fn splats_key(quality: Quality, json: bool) -> CacheKey {
+    CacheKey::global("splats")
+        .with("q", quality.as_str())
+        .with("fmt", if json { "json" } else { "png" })
+}
+
+/// Encodes a splat sheet.
+pub fn splats_bytes(quality: Quality, json: bool) -> Bytes {
+    Bytes::from(if json {
+        splats::encode_json_sheet(quality)
+    } else {
+        splats::encode_png_sheet(quality)
+    })
+}
+
+async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool) -> Result<Response, ApiError> {
+    let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
+    let content_type = if json { "application/json" } else { "image/png" };
+    serve_global(
+        s,
+        &headers,
+        "splats",
+        splats_key(quality, json),
+        content_type,
+        move || splats_bytes(quality, json),
+    )
+    .await
+}
+
+/// A product that depends on no world (splat sheets, the sky): its ETag from `key`,
+/// 304 on a match, else the cached or computed bytes.
+async fn serve_global(
+    s: Arc<AppState>,
+    headers: &HeaderMap,
+    kind: &'static str,
+    key: CacheKey,
+    content_type: &'static str,
+    compute: impl FnOnce() -> Bytes + Send + 'static,
+) -> Result<Response, ApiError> {
+    let repr = Representation {
+        etag: key.etag(),
+        cache_control: &s.settings.cache_control,
+        frame: None,
+    };
+    if let Some(not_modified) = repr.not_modified(headers) {
+        return Ok(not_modified);
+    }
+    let bytes = s
+        .cache
+        .get_or_compute(&s.metrics, kind, key, Work::default(), move |_| Ok(compute()))
+        .await?;
+    repr.ok(&s, content_type, bytes)
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/splats.png",
+    tag = "render",
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    responses(
+        (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Unknown quality"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn splats_png(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    splats(s, params, headers, false).await
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/splats.json",
+    tag = "render",
+    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    responses(
+        (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Unknown quality"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn splats_json(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    splats(s, params, headers, true).await
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/sky.json",
+    tag = "render",
+    params(
+        ("sun" = Option<String>, Query, description = "AZ,EL degrees; bucketed to ~8 degrees like every shaded product (the sky is for the bucket's centre)", example = "180,45"),
+        ("t" = Option<f64>, Query, description = "World time, seconds, 0 <= t <= 1e12: the world clock's sun (when no sun is given)", example = 43200),
+    ),
+    responses(
+        (status = 200, description = "The clear sky of the sun: radiance table over view elevation x azimuth from the sun, sun colour, sky ambients, ground albedo and the aerial-perspective constants and tables (src/products/sky.rs)", content_type = "application/json", body = Object),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = super::error::ErrorBody, description = "Neither sun nor t, or a malformed one"),
+        (status = 422, body = super::error::ErrorBody, description = "t out of range"),
+        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn sky_json(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let sun = match parse_sun(&params)? {
+        Some(sun) => sun,
+        None => {
+            if params.get("t").is_none() {
+                return Err(ApiError::InvalidParameter {
+                    name: "sun".to_string(),
+                    message: "give the sun as sun=AZ,EL or a world time t for the clock's sun".to_string(),
+                });
+            }
+            Sun::from_clock(params.time("t")?, &s.worlds.config().sun)
+        }
+    };
+    let bucket = sun.bucket();
+    let key = CacheKey::global("sky").with("s", bucket.id());
+    serve_global(s, &headers, "sky", key, "application/json", move || {
+        let lighting = Lighting::new(bucket.centre(), ShadingParams::default());
+        Bytes::from(sky::encode_json(bucket, &lighting))
+    })
+    .await
+}

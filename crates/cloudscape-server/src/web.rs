@@ -1,0 +1,106 @@
+//! The viewer: `GET /` and its static files, embedded in the binary (`web/`).
+//!
+//! The files are compiled in with `include_str!`, so the binary serves the viewer
+//! offline and a deployed replica cannot drift from its own API. Each has a strong
+//! ETag (a hash of its bytes) and `Cache-Control: no-cache`, so browsers revalidate
+//! and get 304s.
+
+use std::sync::Arc;
+
+use axum::Router;
+use axum::body::Bytes;
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+
+use super::AppState;
+use super::key::{if_none_match, stable_hash_hex};
+
+/// One embedded file.
+struct Asset {
+    path: &'static str,
+    content_type: &'static str,
+    body: &'static str,
+}
+
+/// Every file of the viewer, by URL path.
+const ASSETS: [Asset; 3] = [
+    Asset {
+        path: "/",
+        content_type: "text/html; charset=utf-8",
+        body: include_str!("../../../web/index.html"),
+    },
+    Asset {
+        path: "/viewer.js",
+        content_type: "text/javascript; charset=utf-8",
+        body: include_str!("../../../web/viewer.js"),
+    },
+    Asset {
+        path: "/viewer.css",
+        content_type: "text/css; charset=utf-8",
+        body: include_str!("../../../web/viewer.css"),
+    },
+];
+
+fn serve(asset: &'static Asset, request: &HeaderMap) -> Response {
+    let etag = format!("\"{}\"", stable_hash_hex(asset.body.as_bytes()));
+    let mut headers = HeaderMap::new();
+    if let Ok(v) = HeaderValue::from_str(&etag) {
+        headers.insert(header::ETAG, v);
+    }
+    headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-cache"));
+    let matched = request
+        .get(header::IF_NONE_MATCH)
+        .and_then(|v| v.to_str().ok())
+        .is_some_and(|inm| if_none_match(inm, &etag));
+    if matched {
+        return (StatusCode::NOT_MODIFIED, headers).into_response();
+    }
+    headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(asset.content_type));
+    (StatusCode::OK, headers, Bytes::from_static(asset.body.as_bytes())).into_response()
+}
+
+/// The viewer's routes, to merge into the service router.
+pub fn routes() -> Router<Arc<AppState>> {
+    ASSETS.iter().fold(Router::new(), |router, asset| {
+        router.route(
+            asset.path,
+            get(move |headers: HeaderMap| async move { serve(asset, &headers) }),
+        )
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn assets_carry_etags_and_revalidate() {
+        let index = &ASSETS[0];
+        let first = serve(index, &HeaderMap::new());
+        assert_eq!(first.status(), StatusCode::OK);
+        let etag = first.headers()[header::ETAG].clone();
+        let mut again = HeaderMap::new();
+        again.insert(header::IF_NONE_MATCH, etag);
+        assert_eq!(serve(index, &again).status(), StatusCode::NOT_MODIFIED);
+        let mut other = HeaderMap::new();
+        other.insert(header::IF_NONE_MATCH, HeaderValue::from_static("\"nope\""));
+        assert_eq!(serve(index, &other).status(), StatusCode::OK);
+    }
+
+    #[test]
+    fn the_page_loads_only_embedded_files() {
+        let html = ASSETS[0].body;
+        for src in ["/viewer.js", "/viewer.css"] {
+            assert!(html.contains(src), "index.html does not reference {src}");
+            assert!(ASSETS.iter().any(|a| a.path == src));
+        }
+        for a in &ASSETS {
+            assert!(
+                !a.body.contains("http://") && !a.body.contains("https://"),
+                "{} names a remote URL",
+                a.path
+            );
+        }
+    }
+}

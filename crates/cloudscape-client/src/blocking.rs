@@ -1,115 +1,59 @@
-//! The blocking fetcher (feature `blocking`).
-
-use std::time::Duration;
+//! The blocking fetcher (feature `blocking`): the async one driven by a runtime of its
+//! own, as reqwest's blocking client is built, so both share one fetch loop. Not to be
+//! called from inside an async runtime (use `AsyncTileClient` there).
 
 use cloudscape_core::render::splats::SplatSheet;
 use cloudscape_core::render::{Quality, RenderRequest, Rendered};
-use serde::Deserialize;
 
-use crate::decode::{RemoteRender, RemoteWorld, check_remote, decode_splat_sheet, splat_paths, world_path};
-use crate::store::{Head, Store, check_base};
-use crate::{ClientError, FetchStats};
+use crate::decode::RemoteWorld;
+use crate::{AsyncTileClient, ClientError, FetchStats};
 
 /// A blocking HTTP client of one server that keeps every body it fetched with its
 /// ETag and revalidates it (`If-None-Match`) instead of downloading it again.
 pub struct TileClient {
-    base: String,
-    http: reqwest::blocking::Client,
-    store: Store,
+    inner: AsyncTileClient,
+    runtime: tokio::runtime::Runtime,
 }
 
 impl TileClient {
     /// A client of the server at `base` (`http://host:port`, no path).
     pub fn new(base: &str) -> Result<TileClient, ClientError> {
-        let base = check_base(base)?;
-        let http = reqwest::blocking::Client::builder()
-            .no_proxy()
-            .timeout(Duration::from_secs(600))
+        let inner = AsyncTileClient::new(base)?;
+        let runtime = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
             .build()
             .map_err(|e| ClientError::Transport {
-                url: base.clone(),
-                message: e.to_string(),
+                url: base.to_string(),
+                message: format!("cannot start the client's runtime: {e}"),
             })?;
-        Ok(TileClient {
-            base,
-            http,
-            store: Store::default(),
-        })
+        Ok(TileClient { inner, runtime })
     }
 
+    /// Requests, bodies and revalidations so far.
     pub fn stats(&self) -> FetchStats {
-        self.store.stats
+        self.inner.stats()
     }
 
     /// GETs `path` (with its query), revalidating a stored copy; retries 503s after
     /// their `Retry-After`.
     pub fn get(&mut self, path: &str) -> Result<Vec<u8>, ClientError> {
-        let url = format!("{}{path}", self.base);
-        let transport = |e: reqwest::Error| ClientError::Transport {
-            url: url.clone(),
-            message: e.to_string(),
-        };
-        let mut attempt = 0;
-        loop {
-            let mut request = self.http.get(&url);
-            if let Some(etag) = self.store.begin(path) {
-                request = request.header(reqwest::header::IF_NONE_MATCH, etag);
-            }
-            let response = request.send().map_err(transport)?;
-            let status = response.status().as_u16();
-            let header = |name| response.headers().get(name).and_then(|v| v.to_str().ok());
-            match self
-                .store
-                .head(path, status, header(reqwest::header::RETRY_AFTER), attempt)
-            {
-                Head::Stored(body) => return Ok(body),
-                Head::Retry(after) => {
-                    std::thread::sleep(after);
-                    attempt += 1;
-                }
-                Head::ReadBody => {
-                    let etag = header(reqwest::header::ETAG).map(str::to_string);
-                    let body = response.bytes().map_err(transport)?.to_vec();
-                    return self.store.finish(url, path, status, etag, body);
-                }
-            }
-        }
-    }
-
-    fn get_json<T: for<'de> Deserialize<'de>>(&mut self, path: &str) -> Result<T, ClientError> {
-        let body = self.get(path)?;
-        serde_json::from_slice(&body).map_err(|e| ClientError::Decode {
-            url: format!("{}{path}", self.base),
-            message: e.to_string(),
-        })
+        self.runtime.block_on(self.inner.get(path))
     }
 
     /// The discovery document of `world`.
     pub fn world(&mut self, world: &str) -> Result<RemoteWorld, ClientError> {
-        self.get_json(&world_path(world))
+        self.runtime.block_on(self.inner.world(world))
     }
 
     /// The splat sheet of `quality`, from `/v1/splats.png` and `/v1/splats.json`.
     pub fn splat_sheet(&mut self, quality: Quality) -> Result<SplatSheet, ClientError> {
-        let [manifest, png] = splat_paths(quality);
-        let (m, p) = (self.get(&manifest)?, self.get(&png)?);
-        decode_splat_sheet(&m, &p).map_err(|message| ClientError::Decode {
-            url: format!("{}{png}", self.base),
-            message,
-        })
+        self.runtime.block_on(self.inner.splat_sheet(quality))
     }
 
     /// Renders `req` from the tiles the server at this client's base serves for
     /// `world`: the same level choice, compositor and background as a local
     /// `cloudscape render`. Billboard presets only.
     pub fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
-        check_remote(req)?;
-        let plan = RemoteRender::plan(world, self.world(world)?, req)?;
-        let bodies = plan
-            .paths()
-            .iter()
-            .map(|p| self.get(p))
-            .collect::<Result<Vec<_>, _>>()?;
-        plan.compose(&self.base, &bodies)
+        self.runtime.block_on(self.inner.render(world, req))
     }
 }

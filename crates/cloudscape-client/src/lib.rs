@@ -9,12 +9,13 @@
 //! depends on the server's code. The parts:
 //! - [`decode`]: the decoders of served products and the plan of a remote render,
 //!   with no networking (always built);
-//! - `TileClient` (feature `blocking`, default): a blocking fetcher over reqwest;
-//! - `AsyncTileClient` (feature `async`): the same over reqwest's async client, for
-//!   a tokio runtime the caller brings.
+//! - `AsyncTileClient` (feature `async`): a fetcher over reqwest's async client, for
+//!   a tokio runtime the caller brings;
+//! - `TileClient` (feature `blocking`, default): the same, blocking, on a runtime of
+//!   its own.
 
 pub mod decode;
-#[cfg(any(feature = "blocking", feature = "async"))]
+#[cfg(feature = "async")]
 mod store;
 
 #[cfg(feature = "blocking")]

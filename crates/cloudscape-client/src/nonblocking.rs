@@ -1,5 +1,5 @@
-//! The async fetcher (feature `async`): the blocking one's behaviour over reqwest's async
-//! client, for a tokio runtime the caller brings.
+//! The async fetcher (feature `async`), for a tokio runtime the caller brings; the
+//! blocking one drives it.
 
 use std::time::Duration;
 
@@ -38,6 +38,7 @@ impl AsyncTileClient {
         })
     }
 
+    /// Requests, bodies and revalidations so far.
     pub fn stats(&self) -> FetchStats {
         self.store.stats
     }

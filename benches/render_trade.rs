@@ -11,15 +11,14 @@
 
 use std::time::Instant;
 
-use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::atlas;
 use cloudscape_core::render::image::{Image, encode_png, rmse, ssim};
 use cloudscape_core::render::scene::{self, RenderRequest};
-use cloudscape_core::render::tile::{ShadedTile, shade_density, tile_halo};
+use cloudscape_core::render::tile::ShadedTile;
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
-use cloudscape_tools::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene};
+use cloudscape_tools::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene, scene_density, shade_grids};
 
 const SIZE: usize = 512;
 const CONVERGENCE_SIZE: usize = 192;
@@ -61,43 +60,9 @@ fn request(s: &Scene, q: Quality, size: usize) -> RenderRequest {
 /// billboard compositor, or the path tracer for `Reference`), timing each stage.
 fn measure(world: &World, config: &Config, req: &RenderRequest) -> Measured {
     let sun = req.sun.unwrap();
-    let plan = scene::plan(world, config, req).unwrap();
-    let t0 = Instant::now();
-    let grids: Vec<_> = plan
-        .iter()
-        .map(|&(li, tile)| {
-            let l = &world.layers[li];
-            let halo = tile_halo(l, tile.z, req.quality, sun);
-            let r = tile.region().unwrap();
-            let h = halo as i64;
-            let region = Region {
-                x0: r.x0 - h,
-                y0: r.y0 - h,
-                cols: r.cols + 2 * halo,
-                rows: r.rows + 2 * halo,
-            };
-            (density::density(world, li, tile.z, region, req.t).unwrap(), halo)
-        })
-        .collect();
-    let density_s = t0.elapsed().as_secs_f64();
+    let (density_s, grids, plan) = scene_density(world, config, req).unwrap();
     let t1 = Instant::now();
-    let tiles: Vec<ShadedTile> = plan
-        .iter()
-        .zip(grids)
-        .map(|(&(li, tile), (g, halo))| {
-            shade_density(
-                li,
-                &world.layers[li],
-                tile,
-                req.t,
-                req.quality,
-                sun,
-                &req.params,
-                g,
-                halo,
-            )
-        })
-        .collect();
+    let tiles: Vec<ShadedTile> = shade_grids(world, req, &plan, grids).unwrap();
     let billboards_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
     let (image, noise) = scene::draw(&tiles, req, sun);

@@ -13,7 +13,7 @@ use cloudscape_core::render::light::Lighting;
 use cloudscape_core::render::scene::{LayerBand, background, mean_shadow, plan_bands};
 use cloudscape_core::render::shade::Billboard;
 use cloudscape_core::render::splats::SplatSheet;
-use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_shift};
+use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_lookup, shadow_shift};
 use cloudscape_core::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
 
 use crate::ClientError;
@@ -33,6 +33,20 @@ pub struct RemoteWorld {
     pub name: String,
     pub maxzoom: u32,
     pub layers: Vec<RemoteLayer>,
+}
+
+impl RemoteWorld {
+    /// The layers' height bands and cell sizes, as the level choice reads them.
+    pub fn bands(&self) -> Vec<LayerBand> {
+        self.layers
+            .iter()
+            .map(|l| LayerBand {
+                base: l.base,
+                top: l.top,
+                cell_size: l.cell_size,
+            })
+            .collect()
+    }
 }
 
 #[derive(Deserialize)]
@@ -55,20 +69,13 @@ struct ShadowMap {
 impl ShadowMap {
     /// Bilinear lookup, 1 outside the tile (as `ShadedTile::shadow_at`).
     fn at(&self, x: f64, y: f64) -> f64 {
-        let n = TILE_COLUMNS;
-        let (x, y) = (x + self.shift[0], y + self.shift[1]);
-        let u = (x - self.origin[0]) / self.column - 0.5;
-        let v = (y - self.origin[1]) / self.column - 0.5;
-        if !(u > -0.5 && v > -0.5 && u < n as f64 - 0.5 && v < n as f64 - 0.5) {
-            return 1.0;
-        }
-        let (u, v) = (u.clamp(0.0, (n - 1) as f64), v.clamp(0.0, (n - 1) as f64));
-        let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
-        let (fu, fv) = (u - u0 as f64, v - v0 as f64);
-        let at = |c: usize, r: usize| self.values[r * n + c] as f64;
-        let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
-        let b = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
-        a * (1.0 - fv) + b * fv
+        shadow_lookup(
+            &self.values,
+            self.origin,
+            self.column,
+            x + self.shift[0],
+            y + self.shift[1],
+        )
     }
 }
 
@@ -189,15 +196,7 @@ impl RemoteRender {
     /// local `cloudscape render`.
     pub fn plan(world: &str, info: RemoteWorld, req: &RenderRequest) -> Result<RemoteRender, ClientError> {
         check_remote(req)?;
-        let bands: Vec<LayerBand> = info
-            .layers
-            .iter()
-            .map(|l| LayerBand {
-                base: l.base,
-                top: l.top,
-                cell_size: l.cell_size,
-            })
-            .collect();
+        let bands = info.bands();
         let tiles = plan_bands(&bands, info.maxzoom, req)?;
         let mut query = format!("t={}&quality={}", req.t, req.quality.as_str());
         if let Some(sun) = req.sun {

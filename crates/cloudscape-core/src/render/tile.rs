@@ -131,6 +131,27 @@ pub fn shade_tile_cancellable(
     limits: &Limits,
     cancel: &Cancel,
 ) -> Result<ShadedTile, RenderError> {
+    let (grid, halo) = tile_density(world, layer, tile, t, quality, sun, limits, cancel)?;
+    let l = &world.layers[layer];
+    let shaded = shade_density(layer, l, tile, t, quality, sun, params, grid, halo);
+    cancel.check().map_err(SimError::from)?;
+    Ok(shaded)
+}
+
+/// The density [`shade_tile`] shades: the tile plus the halo its billboards and
+/// shadows reach into (`(grid, halo)`, the grid `256 + 2·halo` columns square),
+/// checked against `limits` first.
+#[allow(clippy::too_many_arguments)]
+pub fn tile_density(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    quality: Quality,
+    sun: Sun,
+    limits: &Limits,
+    cancel: &Cancel,
+) -> Result<(Grid<f32>, usize), RenderError> {
     check_time(t)?;
     let l = world
         .layers
@@ -147,9 +168,7 @@ pub fn shade_tile_cancellable(
         rows: TILE_COLUMNS + 2 * halo,
     };
     let grid = density::density_cancellable(world, layer, tile.z, halo_region, t, cancel)?;
-    let shaded = shade_density(layer, l, tile, t, quality, sun, params, grid, halo);
-    cancel.check().map_err(SimError::from)?;
-    Ok(shaded)
+    Ok((grid, halo))
 }
 
 /// [`shade_tile`] on a density grid already computed: `grid` covers the tile plus
@@ -246,19 +265,26 @@ impl ShadedTile {
     /// lookup; 1 outside the tile.
     pub fn shadow_at(&self, x: f64, y: f64) -> f64 {
         let shift = shadow_shift(self.sun, self.place.base);
-        let (x, y) = (x + shift[0], y + shift[1]);
-        let n = TILE_COLUMNS;
-        let u = (x - self.origin[0]) / self.column - 0.5;
-        let v = (y - self.origin[1]) / self.column - 0.5;
-        if !(u > -0.5 && v > -0.5 && u < n as f64 - 0.5 && v < n as f64 - 0.5) {
-            return 1.0;
-        }
-        let (u, v) = (u.clamp(0.0, (n - 1) as f64), v.clamp(0.0, (n - 1) as f64));
-        let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
-        let (fu, fv) = (u - u0 as f64, v - v0 as f64);
-        let at = |c: usize, r: usize| self.shadow[r * n + c] as f64;
-        let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
-        let b = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
-        a * (1.0 - fv) + b * fv
+        shadow_lookup(&self.shadow, self.origin, self.column, x + shift[0], y + shift[1])
     }
+}
+
+/// Bilinear lookup of a tile's `TILE_COLUMNS`² shadow map (row 0 south, texel centres
+/// at column centres) at (x, y), already shifted along the sun ray; 1 outside the tile.
+/// The served `shadow.png` is read back through this too, so a remote render and a
+/// local one look shadows up alike.
+pub fn shadow_lookup(map: &[f32], origin: [f64; 2], column: f64, x: f64, y: f64) -> f64 {
+    let n = TILE_COLUMNS;
+    let u = (x - origin[0]) / column - 0.5;
+    let v = (y - origin[1]) / column - 0.5;
+    if !(u > -0.5 && v > -0.5 && u < n as f64 - 0.5 && v < n as f64 - 0.5) {
+        return 1.0;
+    }
+    let (u, v) = (u.clamp(0.0, (n - 1) as f64), v.clamp(0.0, (n - 1) as f64));
+    let (u0, v0) = ((u.floor() as usize).min(n - 2), (v.floor() as usize).min(n - 2));
+    let (fu, fv) = (u - u0 as f64, v - v0 as f64);
+    let at = |c: usize, r: usize| map[r * n + c] as f64;
+    let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
+    let b = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
+    a * (1.0 - fv) + b * fv
 }

@@ -5,6 +5,7 @@ use std::hint::black_box;
 use std::time::Instant;
 
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
+use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::metaballs::{GridPlacement, Lattice};
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_density};
@@ -15,7 +16,7 @@ use cloudscape_core::render::light::Lighting;
 use cloudscape_core::render::scene::background;
 use cloudscape_core::render::shade::shade;
 use cloudscape_core::render::splats::SplatSheet;
-use cloudscape_core::render::tile::{MIN_BALL_DENSITY, shade_density, tile_halo};
+use cloudscape_core::render::tile::{MIN_BALL_DENSITY, shade_density, tile_density};
 use cloudscape_core::render::{Camera, Quality, ShadedTile, ShadingParams, Sun, TileId, shade_tile};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
@@ -52,16 +53,8 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         let cold = time(effort, || {
             t += 977.0;
             let d0 = Instant::now();
-            let halo = tile_halo(layer, tile.z, q, sun);
-            let r = tile.region().expect("a valid tile");
-            let h = halo as i64;
-            let region = Region {
-                x0: r.x0 - h,
-                y0: r.y0 - h,
-                cols: r.cols + 2 * halo,
-                rows: r.rows + 2 * halo,
-            };
-            let grid = density::density(&world, 0, tile.z, region, t).expect("a valid tile");
+            let (grid, halo) =
+                tile_density(&world, 0, tile, t, q, sun, &config.limits, &Cancel::never()).expect("a valid tile");
             density_s.push(d0.elapsed().as_secs_f64());
             let shaded = shade_density(0, layer, tile, t, q, sun, &params, grid, halo);
             black_box(billboards::encode_bin(&shaded));

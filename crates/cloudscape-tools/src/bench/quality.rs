@@ -22,13 +22,13 @@ use std::time::Instant;
 
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 use cloudscape_core::cancel::Cancel;
-use cloudscape_core::density::{self, Region};
+use cloudscape_core::density;
 use cloudscape_core::render::camera::View;
 use cloudscape_core::render::image::{Image, rmse, ssim};
 use cloudscape_core::render::march;
 use cloudscape_core::render::pathtrace::PathParams;
 use cloudscape_core::render::scene::{self, RenderRequest};
-use cloudscape_core::render::tile::{ShadedTile, shade_density, tile_halo};
+use cloudscape_core::render::tile::{ShadedTile, shade_density, tile_density};
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
@@ -341,20 +341,19 @@ pub fn scene_density(
     let t0 = Instant::now();
     let mut grids = Vec::new();
     for &(li, tile) in &plan {
-        let l = &world.layers[li];
-        let halo = tile_halo(l, tile.z, req.quality, sun);
-        let r = tile.region().map_err(|e| e.to_string())?;
-        let h = halo as i64;
-        let region = Region {
-            x0: r.x0 - h,
-            y0: r.y0 - h,
-            cols: r.cols + 2 * halo,
-            rows: r.rows + 2 * halo,
-        };
-        grids.push((
-            density::density(world, li, tile.z, region, req.t).map_err(|e| e.to_string())?,
-            halo,
-        ));
+        grids.push(
+            tile_density(
+                world,
+                li,
+                tile,
+                req.t,
+                req.quality,
+                sun,
+                &config.limits,
+                &Cancel::never(),
+            )
+            .map_err(|e| e.to_string())?,
+        );
     }
     Ok((t0.elapsed().as_secs_f64(), grids, plan))
 }

@@ -123,15 +123,7 @@ impl WorldView {
             name: world.name.clone(),
             maxzoom: world.maxzoom,
             layers: world.layers.iter().map(|l| l.name.clone()).collect(),
-            bands: world
-                .layers
-                .iter()
-                .map(|l| LayerBand {
-                    base: l.base,
-                    top: l.top,
-                    cell_size: l.cell_size,
-                })
-                .collect(),
+            bands: world.bands(),
             t0,
             clock,
         }

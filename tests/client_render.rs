@@ -1,7 +1,8 @@
 //! The Rust client against a real server: a remote render (`client::TileClient`,
 //! `cloudscape render --server URL`) gives the same image as a local render of the same
 //! scene, within the 8-bit quantisation of the served products; a second render
-//! revalidates every tile with a 304 instead of downloading it.
+//! revalidates every tile with a 304 instead of downloading it; the async client
+//! (`client::AsyncTileClient`) draws the same pixels as the blocking one.
 //!
 //! Tolerance: the served products quantise sun transmittance, shadow maps and splat
 //! opacities to 8 bits (≤ 1/510 each), so display values may differ by a few 1/255
@@ -12,7 +13,7 @@ use std::net::SocketAddr;
 use std::process::Command;
 use std::sync::mpsc;
 
-use cloudscape_client::{ClientError, TileClient};
+use cloudscape_client::{AsyncTileClient, ClientError, TileClient};
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render};
 use cloudscape_core::world::Config;
 use cloudscape_server::{Server, ServerConfig, ShutdownHandle};
@@ -173,6 +174,51 @@ fn a_remote_render_matches_a_local_one_and_revalidates() {
         mean <= MEAN_TOLERANCE && max <= MAX_TOLERANCE,
         "CLI remote vs local: mean |Δ| {mean:.5}, max |Δ| {max:.5}"
     );
+}
+
+#[test]
+fn the_async_client_draws_the_blocking_clients_pixels_and_revalidates() {
+    let server = start_server();
+    let req = RenderRequest {
+        camera: Camera::parse("12800,6000,7000,0,-50,70").unwrap(),
+        width: 96,
+        height: 54,
+        t: 43200.0,
+        quality: Quality::Fast,
+        sun: None,
+        params: ShadingParams::default(),
+        samples: 32,
+    };
+    let mut blocking = TileClient::new(&server.base).unwrap();
+    let expected = blocking.render("default", &req).expect("blocking render");
+
+    // The blocking client may not run inside a runtime, so the async one gets its own.
+    let runtime = tokio::runtime::Runtime::new().expect("tokio runtime");
+    let (first, first_stats, again, second_stats) = runtime.block_on(async {
+        let mut client = AsyncTileClient::new(&server.base).unwrap();
+        let first = client.render("default", &req).await.expect("async render");
+        let first_stats = client.stats();
+        let again = client.render("default", &req).await.expect("second async render");
+        (first, first_stats, again, client.stats())
+    });
+
+    assert!(expected.billboards > 0, "the scene has clouds");
+    assert_eq!(first.tiles, expected.tiles, "the same level choice");
+    assert_eq!(first.billboards, expected.billboards);
+    assert_eq!(first.sun, expected.sun);
+    assert_eq!(first.image.display(), expected.image.display(), "identical pixels");
+    assert_eq!(first_stats.fetched, blocking.stats().fetched, "the same bodies");
+    assert_eq!(first_stats.body_bytes, blocking.stats().body_bytes);
+    assert_eq!(first_stats.revalidated, 0);
+
+    // The same view again: every body is revalidated with a 304, none downloaded.
+    assert_eq!(second_stats.fetched, first_stats.fetched, "nothing downloaded again");
+    assert_eq!(second_stats.body_bytes, first_stats.body_bytes);
+    assert_eq!(
+        second_stats.revalidated, first_stats.fetched,
+        "every body revalidated with a 304"
+    );
+    assert_eq!(again.image.display(), expected.image.display());
 }
 
 #[test]

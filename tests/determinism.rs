@@ -9,7 +9,8 @@
 //! correctness the seam, determinism and reference tests elsewhere justify (a region
 //! equals its tiles, any tiling and thread count gives the same bits). What this test
 //! adds is that the bytes do not drift silently. When a change alters output on
-//! purpose, bump `ALGORITHM_VERSION` (src/world/mod.rs) and regenerate the table:
+//! purpose, bump `ALGORITHM_VERSION` (crates/cloudscape-core/src/world/mod.rs) and
+//! regenerate the table:
 //!
 //!     CLOUDSCAPE_REGENERATE_HASHES=1 cargo test --release --test determinism
 
@@ -199,7 +200,7 @@ fn table_text(hashes: &BTreeMap<String, String>) -> String {
         "# The determinism contract: hashes (two FNV-1a 64) of product bytes for fixed keys.\n\
          # Pins today's output; correctness is argued by the seam and determinism tests.\n\
          # Written by `CLOUDSCAPE_REGENERATE_HASHES=1 cargo test --release --test determinism`;\n\
-         # bump ALGORITHM_VERSION (src/world/mod.rs) first whenever these change.\n",
+         # bump ALGORITHM_VERSION (crates/cloudscape-core/src/world/mod.rs) first whenever these change.\n",
     );
     writeln!(s, "algorithm_version = {ALGORITHM_VERSION}\n\n[hashes]").unwrap();
     for (k, v) in hashes {
@@ -252,7 +253,7 @@ fn product_bytes_match_the_committed_table_on_any_thread_count() {
     assert!(
         changed.is_empty(),
         "the bytes of {} pinned products changed under ALGORITHM_VERSION {ALGORITHM_VERSION}, \
-         e.g. {:?}.\nIf intended: bump ALGORITHM_VERSION in src/world/mod.rs and regenerate with {REGENERATE}.\n\
+         e.g. {:?}.\nIf intended: bump ALGORITHM_VERSION in crates/cloudscape-core/src/world/mod.rs and regenerate with {REGENERATE}.\n\
          If not: the change broke the determinism contract (README \"Determinism contract\").",
         changed.len(),
         &changed[..changed.len().min(8)]

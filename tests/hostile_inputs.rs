@@ -21,50 +21,23 @@ use proptest::test_runner::{Config as ProptestConfig, TestCaseError, TestRunner}
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 
-/// Tiny layers, small limits: any request is cheap.
-const CONFIG: &str = r#"
-[server]
-cache_bytes = 33554432
-compute_queue = 2
-request_timeout_ms = 5000
-drain_ms = 0
-max_series = 4
-
-[limits]
-max_columns = 300
-max_cells = 300000
-max_level = 20
-
-[presets.puffy]
-mode = "dobashi"
-humidity   = { frequency = 0.5, octaves = 2, cutoff = [0.2, 0.7], range = [0.0, 0.4] }
-activation = { frequency = 0.8, octaves = 2, cutoff = [0.3, 0.8], range = [0.0, 0.05] }
-extinction = { frequency = 0.5, octaves = 1, cutoff = [0.0, 1.0], range = [0.1, 0.03] }
-
-[worlds.default]
-seed = 1
-
-[[worlds.default.layers]]
-name = "low"
-preset = "puffy"
-base = 1000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 1
-dt = 10.0
-wind = [5.0, 1.0]
-epoch = { length = 2, warmup = 2, fade = 1 }
-
-[[worlds.default.layers]]
-name = "high"
-preset = "puffy"
-base = 5000.0
-cell_size = 200.0
-cell_height = 200.0
-depth = 1
-dt = 20.0
-epoch = { length = 2, warmup = 2, fade = 1 }
-"#;
+/// The test world made cheaper still, with small limits, so any request is cheap and
+/// the limits bite: one cell deep, short epochs, a queue of 2, series of 4 frames,
+/// regions of at most 300 columns and 300 000 cells, a 32 MiB cache.
+fn test_world() -> String {
+    const SHORT_EPOCH: &str = "{ length = 2, warmup = 2, fade = 1 }";
+    common::test_config(&[
+        ("server.cache_bytes", "33554432"),
+        ("server.compute_queue", "2"),
+        ("server.request_timeout_ms", "5000"),
+        ("server.max_series", "4"),
+        ("limits.max_columns", "300"),
+        ("limits.max_cells", "300000"),
+        ("worlds.default.layers.0.depth", "1"),
+        ("worlds.default.layers.0.epoch", SHORT_EPOCH),
+        ("worlds.default.layers.1.epoch", SHORT_EPOCH),
+    ])
+}
 
 /// Memory the server may use at most over this whole file, kB (its cache is 32 MiB).
 const MAX_RSS_KB: u64 = 768 * 1024;
@@ -238,9 +211,32 @@ fn product_type(p: &str) -> &'static str {
 fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("config.toml");
-    std::fs::write(&config, CONFIG).unwrap();
+    std::fs::write(&config, test_world()).unwrap();
     let server = ServeProcess::start(&["--config", config.to_str().unwrap()], &[("RUST_LOG", "error")]);
     let pid = server.child.id();
+
+    // The small limits are in force, so the values drawn below reach them: 400 columns
+    // and 7 frames are within the test world's and the defaults' limits, not these.
+    for (target, status, code) in [
+        ("/v1/worlds/default/region?bbox=0,0,20000,100&t=0", 200, None),
+        (
+            "/v1/worlds/default/region?bbox=0,0,40000,100&t=0",
+            413,
+            Some("region_too_large"),
+        ),
+        (
+            "/v1/worlds/default/series?bbox=0,0,1000,1000&t0=0&t1=60&dt=10",
+            413,
+            Some("series_too_long"),
+        ),
+    ] {
+        let a = get(&server, target);
+        assert_eq!(a.status, status, "{target}");
+        if let Some(code) = code {
+            let body: serde_json::Value = serde_json::from_slice(&a.body).expect("a JSON error");
+            assert_eq!(body["error"], code, "{target}");
+        }
+    }
 
     // Tiles: every path segment and query parameter.
     let world = || text(&["default", "default", "7", "18446744073709551616", "mars", "%FF", ".."]);
@@ -476,7 +472,7 @@ fn arg(v: Vec<u8>) -> String {
 fn every_cli_argument_gets_a_product_or_one_clear_error() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("config.toml");
-    std::fs::write(&config, CONFIG).unwrap();
+    std::fs::write(&config, test_world()).unwrap();
     let config = config.to_str().unwrap().to_string();
     let out = dir.path().join("out.bin");
     let out_s = out.to_str().unwrap().to_string();

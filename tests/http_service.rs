@@ -12,69 +12,24 @@ use cloudscape_server::{Server, ServerConfig, ShutdownHandle};
 use reqwest::StatusCode;
 use reqwest::header::{HeaderMap, HeaderValue};
 
-/// A small world: two thin layers so tiles are cheap.
-const TEST_CONFIG: &str = r#"
-[server]
-listen = "127.0.0.1:0"
-cache_bytes = 67108864
-compute_queue = 8
-request_timeout_ms = 60000
-drain_ms = 0
-max_series = 8
+/// A second world beside the test world's `default`, so routes can tell worlds apart.
+const OTHER_WORLD: &str = r#"{ seed = 99, layers = [
+    { name = "only", preset = "puffy", base = 2000.0, cell_size = 100.0, cell_height = 100.0,
+      depth = 1, dt = 10.0, epoch = { length = 4, warmup = 4, fade = 2 } },
+] }"#;
 
-[limits]
-max_columns = 512
-max_cells = 1048576
-max_level = 20
-
-[sun]
-latitude = 45.0
-day_of_year = 172
-
-[presets.puffy]
-mode = "dobashi"
-top_narrowing = 0.3
-humidity   = { frequency = 0.5, octaves = 2, cutoff = [0.2, 0.7], range = [0.0, 0.4] }
-activation = { frequency = 0.8, octaves = 2, cutoff = [0.3, 0.8], range = [0.0, 0.05] }
-extinction = { frequency = 0.5, octaves = 1, cutoff = [0.0, 1.0], range = [0.1, 0.03] }
-
-[worlds.default]
-seed = 1
-
-[[worlds.default.layers]]
-name = "low"
-preset = "puffy"
-base = 1000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 2
-dt = 10.0
-wind = [5.0, 1.0]
-epoch = { length = 4, warmup = 4, fade = 2 }
-
-[[worlds.default.layers]]
-name = "high"
-preset = "puffy"
-base = 5000.0
-cell_size = 200.0
-cell_height = 200.0
-depth = 1
-dt = 20.0
-epoch = { length = 4, warmup = 4, fade = 2 }
-
-[worlds.other]
-seed = 99
-
-[[worlds.other.layers]]
-name = "only"
-preset = "puffy"
-base = 2000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 1
-dt = 10.0
-epoch = { length = 4, warmup = 4, fade = 2 }
-"#;
+/// The test world as this file serves it: a second world, a fixed sun, a queue of 8 and
+/// series of at most 8 frames, then `overrides` (as [`common::test_config`]'s).
+fn test_config(overrides: &[(&str, &str)]) -> String {
+    let mut all = vec![
+        ("server.compute_queue", "8"),
+        ("server.max_series", "8"),
+        ("sun", "{ latitude = 45.0, day_of_year = 172 }"),
+        ("worlds.other", OTHER_WORLD),
+    ];
+    all.extend_from_slice(overrides);
+    common::test_config(&all)
+}
 
 const TILE_ROUTE: &str = "/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}";
 
@@ -85,19 +40,9 @@ struct TestServer {
     task: tokio::task::JoinHandle<std::io::Result<()>>,
 }
 
-/// The test config with `[server]` keys replaced.
-fn config_with(server_overrides: &[(&str, &str)]) -> (Config, ServerConfig) {
-    let mut text = TEST_CONFIG.to_string();
-    for (k, v) in server_overrides {
-        let line = text
-            .lines()
-            .find(|l| l.starts_with(&format!("{k} =")))
-            .map(str::to_string);
-        match line {
-            Some(l) => text = text.replacen(&l, &format!("{k} = {v}"), 1),
-            None => text = text.replacen("[server]\n", &format!("[server]\n{k} = {v}\n"), 1),
-        }
-    }
+/// The test config with `overrides`, parsed.
+fn config_with(overrides: &[(&str, &str)]) -> (Config, ServerConfig) {
+    let text = test_config(overrides);
     (
         Config::parse(&text).expect("test config is valid"),
         ServerConfig::parse(&text).expect("test config is valid"),
@@ -667,7 +612,7 @@ where
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn overload_sheds_with_503_and_never_500() {
-    let s = start(config_with(&[("compute_queue", "1")])).await;
+    let s = start(config_with(&[("server.compute_queue", "1")])).await;
     let mut shed = 0;
     for round in 0..5 {
         let requests = (0..24).map(|i| {
@@ -707,7 +652,7 @@ async fn overload_sheds_with_503_and_never_500() {
 async fn a_request_that_cannot_finish_in_its_time_budget_is_refused_before_any_work() {
     // A 1 ms budget: no computation fits in it on any number of threads. (That a
     // request over its budget is stopped and frees its slot is in tests/attacks.rs.)
-    let s = start(config_with(&[("request_timeout_ms", "1")])).await;
+    let s = start(config_with(&[("server.request_timeout_ms", "1")])).await;
     let path = "/v1/worlds/default/region?bbox=0,0,51200,51200&t=0";
     let r = s.get(path).await;
     assert_eq!(r.status(), StatusCode::PAYLOAD_TOO_LARGE);
@@ -797,7 +742,7 @@ async fn operator_routes_health_readiness_metrics_openapi() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn graceful_shutdown_drains_and_finishes_in_flight_requests() {
-    let s = start(config_with(&[("drain_ms", "1500")])).await;
+    let s = start(config_with(&[("server.drain_ms", "1500")])).await;
     // A large region is slow enough to be in flight while shutdown starts; if it
     // finishes before it is seen in flight, try another (cold) time.
     let mut observed = false;
@@ -847,7 +792,8 @@ fn serve_command_prints_config_and_stops_on_sigterm() {
     let exe = env!("CARGO_BIN_EXE_cloudscape");
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("test.toml");
-    std::fs::write(&config, TEST_CONFIG).unwrap();
+    let test_config = test_config(&[]);
+    std::fs::write(&config, &test_config).unwrap();
 
     let out = Command::new(exe)
         .args(["serve", "--print-config", "--config", config.to_str().unwrap()])
@@ -858,7 +804,7 @@ fn serve_command_prints_config_and_stops_on_sigterm() {
     let text = String::from_utf8(out.stdout).unwrap();
     let printed = Config::parse(&text).expect("printed config parses");
     assert_eq!(ServerConfig::parse(&text).unwrap().cache_bytes, 12345);
-    assert_eq!(printed.worlds, Config::parse(TEST_CONFIG).unwrap().worlds);
+    assert_eq!(printed.worlds, Config::parse(&test_config).unwrap().worlds);
 
     let out = Command::new(exe).args(["serve", "--print-config"]).output().unwrap();
     let printed = ServerConfig::parse(&String::from_utf8(out.stdout).unwrap()).unwrap();

@@ -18,32 +18,10 @@ use std::time::{Duration, Instant};
 use cloudscape_tools::soak::process_memory_kb;
 use common::ServeProcess;
 
-const CONFIG: &str = r#"
-[server]
-cache_bytes = 16777216
-compute_queue = 2
-request_timeout_ms = 60000
-drain_ms = 0
-
-[presets.puffy]
-mode = "dobashi"
-humidity   = { frequency = 0.5, octaves = 2, cutoff = [0.2, 0.7], range = [0.0, 0.4] }
-activation = { frequency = 0.8, octaves = 2, cutoff = [0.3, 0.8], range = [0.0, 0.05] }
-extinction = { frequency = 0.5, octaves = 1, cutoff = [0.0, 1.0], range = [0.1, 0.03] }
-
-[worlds.default]
-seed = 1
-
-[[worlds.default.layers]]
-name = "low"
-preset = "puffy"
-base = 1000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 2
-dt = 10.0
-epoch = { length = 4, warmup = 4, fade = 2 }
-"#;
+/// The test world (a cold tile costs milliseconds) behind a queue of 2 and a 16 MiB cache.
+fn test_world() -> String {
+    common::test_config(&[("server.cache_bytes", "16777216"), ("server.compute_queue", "2")])
+}
 
 /// One answer: status, whether a 503 carried Retry-After and a JSON `overloaded` or
 /// `timeout` error, and the latency.
@@ -93,7 +71,7 @@ fn cold_tile(base: &str, i: u64) -> String {
 async fn excess_is_shed_with_503_memory_stays_bounded_and_service_recovers() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("config.toml");
-    std::fs::write(&config, CONFIG).unwrap();
+    std::fs::write(&config, test_world()).unwrap();
     let server = ServeProcess::start(&["--config", config.to_str().unwrap()], &[("RUST_LOG", "error")]);
     let pid = server.child.id();
     let c = client();

@@ -1,8 +1,9 @@
-// Viewer screenshots of the gallery's views (the table VIEWS in src/bench/gallery.rs:
-// same cameras, suns and time, in the default world), saved as
-// OUT_DIR/gallery-<view>.png beside the server-side gallery. Called by
-// viewer.test.mjs with its browser and check(); a unit test in src/bench/gallery.rs
-// checks that every camera and sun of the Rust table appears here.
+// Viewer screenshots of the gallery's views (the table VIEWS in
+// crates/cloudscape-tools/src/bench/gallery.rs: same cameras, suns and time, in the
+// default world), saved as OUT_DIR/gallery-<view>.png beside the server-side gallery.
+// Called by viewer.test.mjs with its browser and check(); a unit test in
+// crates/cloudscape-tools/src/bench/gallery.rs checks that every camera and sun of the
+// Rust table appears here.
 
 import { join } from 'node:path';
 

@@ -1,9 +1,52 @@
-//! Shared by the integration tests that need a real `cloudscape serve` process: start it
-//! on a free loopback port, wait until `/readyz` answers 200, stop it when dropped.
+//! Shared by the integration tests: the one test world (tests/data/small.toml) with
+//! per-test overrides, and a real `cloudscape serve` process started on a free loopback
+//! port, ready once `/readyz` answers 200, stopped when dropped.
 #![allow(dead_code)]
 
 use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
+
+/// The test world every server test starts from: two thin layers, so a cold tile costs
+/// milliseconds.
+pub const TEST_WORLD: &str = include_str!("../data/small.toml");
+
+/// [`TEST_WORLD`] with `overrides` applied, as TOML text. Each override is a dotted path
+/// (table keys, or an index into an array such as `worlds.default.layers.0`) and a TOML
+/// value that replaces or adds the entry there:
+/// `test_config(&[("server.compute_queue", "2"), ("worlds.default.layers.0.depth", "1")])`.
+/// Panics on an index past an array's end or a value that is not TOML; a misspelt key
+/// is added as given and refused by the config parsers, which deny unknown keys.
+pub fn test_config(overrides: &[(&str, &str)]) -> String {
+    let mut world: toml::Value = toml::Value::Table(TEST_WORLD.parse().expect("tests/data/small.toml is TOML"));
+    for &(path, value) in overrides {
+        let value = format!("value = {value}")
+            .parse::<toml::Table>()
+            .unwrap_or_else(|e| panic!("override {path} = {value} is not a TOML value: {e}"))
+            .remove("value")
+            .unwrap();
+        let mut node = &mut world;
+        for key in path.split('.') {
+            node = child(node, key, path);
+        }
+        *node = value;
+    }
+    toml::to_string(&world).expect("a TOML table serializes")
+}
+
+/// The entry `key` of a table (an empty table if it is new) or element `key` of an array.
+fn child<'a>(node: &'a mut toml::Value, key: &str, path: &str) -> &'a mut toml::Value {
+    match node {
+        toml::Value::Table(t) => t.entry(key).or_insert_with(|| toml::Value::Table(toml::Table::new())),
+        toml::Value::Array(a) => {
+            let i: usize = key
+                .parse()
+                .unwrap_or_else(|_| panic!("override {path}: {key} is not an array index"));
+            a.get_mut(i)
+                .unwrap_or_else(|| panic!("override {path}: there is no element {i}"))
+        }
+        _ => panic!("override {path}: {key} would be under a plain value"),
+    }
+}
 
 /// A `cloudscape serve` child process on 127.0.0.1; killed when dropped.
 pub struct ServeProcess {

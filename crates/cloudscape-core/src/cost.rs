@@ -8,10 +8,10 @@
 //! tiles a view plans, its pixels) and turn them into seconds and bytes with the
 //! constants below.
 //!
-//! Calibration: `cargo test --release --lib cost::tests::calibrate -- --ignored
-//! --nocapture` runs each kind of work on the default world, prints its units, its
-//! measured CPU time (user + system of the process, from `/proc/self/stat`) and peak
-//! RSS growth, and the estimate. The constants were fitted from that run on the
+//! Calibration: `cargo test --release -p cloudscape-core --lib cost::tests::calibrate
+//! -- --ignored --nocapture` runs each kind of work on the default world, prints its
+//! units, its measured CPU time (user + system of the process, from `/proc/self/stat`)
+//! and peak RSS growth, and the estimate. The constants were fitted from that run on the
 //! 2-core development machine (AMD EPYC, loaded by other work, so on the slow side)
 //! and rounded up (the fitted values are beside each constant).
 

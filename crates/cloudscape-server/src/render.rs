@@ -61,13 +61,13 @@ pub async fn render_png(
     let camera_text = params.required("camera")?;
     let camera = Camera::parse(camera_text).map_err(|m| ApiError::InvalidParameter {
         name: "camera".to_string(),
-        message: m,
+        message: m.to_string(),
     })?;
     let t = params.time("t")?;
     let (width, height) =
         parse_size(params.get("size").unwrap_or(DEFAULT_SIZE)).map_err(|m| ApiError::InvalidParameter {
             name: "size".to_string(),
-            message: m,
+            message: m.to_string(),
         })?;
     let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
     let samples = parse_samples(&params, quality)?;

@@ -1,5 +1,6 @@
 //! Cameras and views: where rays start and where billboards land on screen.
 
+use super::ParseError;
 use super::light::dot;
 use super::shade::cross;
 
@@ -20,7 +21,7 @@ pub const MAX_CAMERA_COORD: f64 = 1e12;
 impl Camera {
     /// Parses `X,Y,Z,YAW,PITCH,FOV`. Pitch must lie in [-90, 90], FOV in [1, 170],
     /// the position within ±1e12 m.
-    pub fn parse(s: &str) -> Result<Camera, String> {
+    pub fn parse(s: &str) -> Result<Camera, ParseError> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         let nums: Vec<f64> = parts
             .iter()
@@ -28,30 +29,24 @@ impl Camera {
             .filter(|v| v.is_finite())
             .collect();
         if parts.len() != 6 || nums.len() != 6 {
-            return Err(format!(
-                "camera must be six finite numbers X,Y,Z,YAW,PITCH,FOV, got `{s}`"
-            ));
+            return Err(ParseError::CameraSyntax(s.to_string()));
         }
         Camera::new([nums[0], nums[1], nums[2]], nums[3], nums[4], nums[5])
     }
 
     /// A checked camera.
-    pub fn new(position: [f64; 3], yaw_deg: f64, pitch_deg: f64, fov_deg: f64) -> Result<Camera, String> {
+    pub fn new(position: [f64; 3], yaw_deg: f64, pitch_deg: f64, fov_deg: f64) -> Result<Camera, ParseError> {
         if !position.iter().all(|v| v.is_finite() && v.abs() <= MAX_CAMERA_COORD) {
-            return Err("camera position must be finite and within ±1e12 metres".into());
+            return Err(ParseError::CameraPosition);
         }
         if !(pitch_deg.is_finite() && (-90.0..=90.0).contains(&pitch_deg)) {
-            return Err(format!(
-                "camera pitch must be within [-90, 90] degrees, got {pitch_deg}"
-            ));
+            return Err(ParseError::CameraPitch(pitch_deg));
         }
         if !(fov_deg.is_finite() && (1.0..=170.0).contains(&fov_deg)) {
-            return Err(format!(
-                "camera field of view must be within [1, 170] degrees, got {fov_deg}"
-            ));
+            return Err(ParseError::CameraFov(fov_deg));
         }
         if !yaw_deg.is_finite() {
-            return Err("camera yaw must be finite".into());
+            return Err(ParseError::CameraYaw);
         }
         Ok(Camera {
             position,
@@ -229,10 +224,25 @@ mod tests {
 
     #[test]
     fn bad_cameras_are_refused() {
-        assert!(Camera::parse("0,0,0,0,91,60").is_err());
-        assert!(Camera::parse("0,0,0,0,0,0").is_err());
-        assert!(Camera::parse("0,0,0,0,0").is_err());
-        assert!(Camera::parse("0,0,inf,0,0,60").is_err());
+        assert_eq!(Camera::parse("0,0,0,0,91,60"), Err(ParseError::CameraPitch(91.0)));
+        assert_eq!(Camera::parse("0,0,0,0,0,0"), Err(ParseError::CameraFov(0.0)));
+        assert_eq!(
+            Camera::parse("0,0,0,0,0"),
+            Err(ParseError::CameraSyntax("0,0,0,0,0".into()))
+        );
+        assert!(matches!(
+            Camera::parse("0,0,inf,0,0,60"),
+            Err(ParseError::CameraSyntax(_))
+        ));
+        assert_eq!(
+            Camera::new([2e12, 0.0, 0.0], 0.0, 0.0, 60.0),
+            Err(ParseError::CameraPosition)
+        );
+        assert_eq!(Camera::new([0.0; 3], f64::NAN, 0.0, 60.0), Err(ParseError::CameraYaw));
+        assert_eq!(
+            ParseError::CameraPitch(91.0).to_string(),
+            "camera pitch must be within [-90, 90] degrees, got 91"
+        );
         assert!(Camera::parse("0,0,0,0,90,60").is_ok());
     }
 }

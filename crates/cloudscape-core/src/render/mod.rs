@@ -6,7 +6,7 @@
 //!
 //! ```text
 //! Quality::parse("fast" | "balanced" | "accurate" | "reference" | "reference-single") -> Option<Quality>;  q.as_str()
-//! Sun::parse("AZ,EL") -> Result<Sun, String>;  Sun::from_clock(t, &config.sun) -> Sun
+//! Sun::parse("AZ,EL") -> Result<Sun, ParseError>;  Sun::from_clock(t, &config.sun) -> Sun
 //! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets, 1° near the horizon)
 //! TileId { z, x, y }
 //!
@@ -23,13 +23,15 @@
 //! products::splats::encode_png_sheet(quality) / encode_json_sheet(quality) -> Vec<u8>  // /v1/splats.*
 //!
 //! // `cloudscape render` and GET /render.png:
-//! scene::parse_size("WxH") -> Result<(usize, usize), String>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
+//! scene::parse_size("WxH") -> Result<(usize, usize), ParseError>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
 //! scene::render(&world, &config, &RenderRequest { camera, width, height, t, quality, sun: Option<Sun>,
 //!     params: ShadingParams::default(), samples: u32 }) -> Result<Rendered, RenderError>;
 //! rendered.image.to_png();  rendered.noise: Option<pathtrace::Noise>   // `reference` only
 //! ```
 //!
-//! Errors: [`RenderError::BadRequest`] and [`RenderError::Sim`] are the caller's input
+//! Errors: [`ParseError`] is a camera, size or sun the parsers refuse (its message names
+//! the syntax and repeats the input, for a 400 or a CLI flag's error);
+//! [`RenderError::BadRequest`] and [`RenderError::Sim`] are the caller's input
 //! (400, or 422 for `SimError` limits such as `RegionTooWide`), [`RenderError::TooMuchWork`]
 //! is over the render limits (413/422).
 //!
@@ -71,6 +73,37 @@ pub enum RenderError {
     /// Well-formed but over the configured limits.
     #[error("{0}")]
     TooMuchWork(String),
+}
+
+/// A camera, image size or sun that [`Camera::parse`], [`Camera::new`],
+/// [`scene::parse_size`] or [`Sun::parse`] refuses. The messages go to users as they
+/// are (HTTP 400 messages, CLI errors), so each names the expected form or range.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ParseError {
+    /// Not six comma-separated finite numbers.
+    #[error("camera must be six finite numbers X,Y,Z,YAW,PITCH,FOV, got `{0}`")]
+    CameraSyntax(String),
+    /// A coordinate beyond ±[`camera::MAX_CAMERA_COORD`] (or not finite).
+    #[error("camera position must be finite and within ±1e12 metres")]
+    CameraPosition,
+    /// Pitch outside [-90, 90] degrees.
+    #[error("camera pitch must be within [-90, 90] degrees, got {0}")]
+    CameraPitch(f64),
+    /// Field of view outside [1, 170] degrees.
+    #[error("camera field of view must be within [1, 170] degrees, got {0}")]
+    CameraFov(f64),
+    /// A yaw that is not finite.
+    #[error("camera yaw must be finite")]
+    CameraYaw,
+    /// Not `WxH` with two positive integers.
+    #[error("size must be WxH with positive integers, got `{0}`")]
+    Size(String),
+    /// Not two comma-separated numbers.
+    #[error("sun must be AZ,EL in degrees, got `{0}`")]
+    SunSyntax(String),
+    /// An azimuth that is not finite or an elevation outside [-90, 90] degrees.
+    #[error("sun must have a finite azimuth and an elevation within [-90, 90], got `{0}`")]
+    SunRange(String),
 }
 
 /// Quality presets: how finely clouds are sampled and shaded. `Reference` renders with

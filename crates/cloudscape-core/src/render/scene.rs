@@ -25,7 +25,7 @@ use super::march::{self, MarchParams, Volume};
 use super::pathtrace::{self, Environment, Noise, PathParams};
 use super::sun::Sun;
 use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile_cancellable};
-use super::{Quality, RenderError};
+use super::{ParseError, Quality, RenderError};
 
 /// Clouds farther than this (horizontally, metres) from the camera are not drawn.
 pub const VIEW_DISTANCE: f64 = 30_000.0;
@@ -67,11 +67,11 @@ pub struct Rendered {
 }
 
 /// Parses `WxH`.
-pub fn parse_size(s: &str) -> Result<(usize, usize), String> {
+pub fn parse_size(s: &str) -> Result<(usize, usize), ParseError> {
     let parts: Vec<&str> = s.split(['x', 'X']).collect();
     let nums: Vec<usize> = parts.iter().filter_map(|p| p.trim().parse::<usize>().ok()).collect();
     if parts.len() != 2 || nums.len() != 2 || nums[0] == 0 || nums[1] == 0 {
-        return Err(format!("size must be WxH with positive integers, got `{s}`"));
+        return Err(ParseError::Size(s.to_string()));
     }
     Ok((nums[0], nums[1]))
 }
@@ -543,8 +543,12 @@ mod tests {
     #[test]
     fn size_parses() {
         assert_eq!(parse_size("512x256").unwrap(), (512, 256));
-        assert!(parse_size("0x5").is_err());
+        assert_eq!(parse_size("0x5"), Err(ParseError::Size("0x5".into())));
         assert!(parse_size("5").is_err());
         assert!(parse_size("-5x5").is_err());
+        assert_eq!(
+            ParseError::Size("5".into()).to_string(),
+            "size must be WxH with positive integers, got `5`"
+        );
     }
 }

@@ -1,6 +1,7 @@
 //! Where the sun is: parsed from `AZ,EL`, derived from the world clock, and
 //! bucketed so pre-shaded products can be cached per sun direction.
 
+use super::ParseError;
 use crate::world::SunConfig;
 
 /// Width of a sun-direction bucket away from the horizon, degrees of arc (elevation
@@ -71,14 +72,13 @@ impl Sun {
     }
 
     /// Parses `AZ,EL` (degrees).
-    pub fn parse(s: &str) -> Result<Sun, String> {
+    pub fn parse(s: &str) -> Result<Sun, ParseError> {
         let parts: Vec<&str> = s.split(',').map(str::trim).collect();
         let nums: Vec<f64> = parts.iter().filter_map(|p| p.parse::<f64>().ok()).collect();
         if parts.len() != 2 || nums.len() != 2 {
-            return Err(format!("sun must be AZ,EL in degrees, got `{s}`"));
+            return Err(ParseError::SunSyntax(s.to_string()));
         }
-        Sun::new(nums[0], nums[1])
-            .ok_or_else(|| format!("sun must have a finite azimuth and an elevation within [-90, 90], got `{s}`"))
+        Sun::new(nums[0], nums[1]).ok_or_else(|| ParseError::SunRange(s.to_string()))
     }
 
     /// The sun of the world clock: time of day `t mod 86400` s taken as local solar
@@ -164,9 +164,9 @@ mod tests {
     fn parse_wraps_azimuth_and_rejects_bad_elevation() {
         let s = Sun::parse("370, 30").unwrap();
         assert!((s.azimuth_deg - 10.0).abs() < 1e-9 && s.elevation_deg == 30.0);
-        assert!(Sun::parse("10,91").is_err());
-        assert!(Sun::parse("10").is_err());
-        assert!(Sun::parse("nan,10").is_err());
+        assert_eq!(Sun::parse("10,91"), Err(ParseError::SunRange("10,91".into())));
+        assert_eq!(Sun::parse("10"), Err(ParseError::SunSyntax("10".into())));
+        assert_eq!(Sun::parse("nan,10"), Err(ParseError::SunRange("nan,10".into())));
         assert!(Sun::parse("-90,-90").is_ok());
     }
 

@@ -154,7 +154,7 @@ pub fn render_gallery(
         for &q in QUALITIES.iter().rev() {
             progress(v, q);
             let req = RenderRequest {
-                camera: Camera::parse(v.camera)?,
+                camera: Camera::parse(v.camera).map_err(|e| e.to_string())?,
                 width,
                 height,
                 t: v.t,

@@ -217,7 +217,8 @@ fn rosa_row(w: usize, l: usize, d: u32, size: (usize, usize)) -> Result<[f64; 3]
         0.0,
         -30.0,
         70.0,
-    )?;
+    )
+    .map_err(|e| e.to_string())?;
     let view = View::perspective(&camera, size.0, size.1);
     let mut image = background(&view, &lighting, 1.0, |x, y| {
         buffer.transmittance_at([x, y, 0.0]).clamp(0.0, 1.0)

@@ -285,7 +285,7 @@ struct Measured {
 /// The request of scene `s` for preset `q` at `size` × `size` pixels.
 pub fn request(s: &Scene, q: Quality, size: usize) -> Result<RenderRequest, String> {
     Ok(RenderRequest {
-        camera: Camera::parse(s.camera)?,
+        camera: Camera::parse(s.camera).map_err(|e| e.to_string())?,
         width: size,
         height: size,
         t: 1800.0,

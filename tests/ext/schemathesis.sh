@@ -2,7 +2,7 @@
 # OpenAPI conformance: schemathesis (PyPI package `schemathesis`) generates requests
 # from /openapi.json and checks every response against the document: no 5xx, only
 # documented status codes and content types, bodies that match their schemas, and
-# invalid input rejected. Runs against `cloudscape serve` on a small config so each
+# invalid input rejected. Runs against `cloudscape serve` on the tests' small world so each
 # request is cheap, bounded in examples and in time. Installs nothing: fails with a
 # message when schemathesis is missing (./scripts/test provisions it).
 set -euo pipefail
@@ -34,40 +34,15 @@ cleanup() {
 }
 trap cleanup EXIT
 
-cat > "$work/config.toml" <<'TOML'
-[server]
-drain_ms = 0
-request_timeout_ms = 20000
-max_series = 4
-
-[limits]
-max_columns = 300
-max_cells = 200000
-max_level = 20
-
-[presets.puffy]
-mode = "dobashi"
-humidity   = { frequency = 0.5, octaves = 2, cutoff = [0.2, 0.7], range = [0.0, 0.4] }
-activation = { frequency = 0.8, octaves = 2, cutoff = [0.3, 0.8], range = [0.0, 0.05] }
-extinction = { frequency = 0.5, octaves = 1, cutoff = [0.0, 1.0], range = [0.1, 0.03] }
-
-[worlds.default]
-seed = 1
-
-[[worlds.default.layers]]
-name = "low"
-preset = "puffy"
-base = 1000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 1
-dt = 10.0
-epoch = { length = 2, warmup = 2, fade = 1 }
-TOML
 
 port=$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 base="http://127.0.0.1:$port"
-RUST_LOG=warn "$bin" serve --config "$work/config.toml" --listen "127.0.0.1:$port" 2>"$work/server.log" &
+# The tests' one world (tests/data/small.toml), with tighter limits so every generated
+# request stays cheap.
+RUST_LOG=warn \
+  CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS=20000 CLOUDSCAPE_SERVER_MAX_SERIES=4 \
+  CLOUDSCAPE_LIMITS_MAX_COLUMNS=300 CLOUDSCAPE_LIMITS_MAX_CELLS=200000 \
+  "$bin" serve --config tests/data/small.toml --listen "127.0.0.1:$port" 2>"$work/server.log" &
 server_pid=$!
 
 ready=0

@@ -1380,6 +1380,14 @@ function settled() {
 // ---------------------------------------------------------------------------
 
 let lastFrame = performance.now();
+/**
+ * What the last drawn frame showed: the state, the canvas size, the tiles and whether
+ * the textures had arrived. A frame that would show the same is not drawn again, so an
+ * idle viewer costs no GPU (or, under software GL, no CPU the tile server needs).
+ * `continuous` draws every frame regardless (frame-time measurements).
+ */
+let lastDrawn = '';
+let continuous = false;
 let lastPlan = 0;
 let lastPlanCamera = '';
 let lastUrlSync = 0;
@@ -1406,7 +1414,20 @@ function frame(now) {
     const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
     setTime(snapTime(state.t) + period);
   }
-  if (splatTexture && skyInfo) draw();
+  const shown = [
+    JSON.stringify(state),
+    canvas.clientWidth,
+    canvas.clientHeight,
+    window.devicePixelRatio,
+    wanted.join(';'),
+    wanted.filter((k) => tiles.get(k)?.state === 'ready').length,
+    instancesDirty,
+    skyUrlLoaded,
+  ].join('|');
+  if (splatTexture && skyInfo && (continuous || shown !== lastDrawn)) {
+    draw();
+    lastDrawn = shown;
+  }
   const cpu = performance.now() - started;
   stats.frameMs = stats.frameMs ? stats.frameMs * 0.9 + cpu * 0.1 : cpu;
   stats.frameInterval = stats.frameInterval ? stats.frameInterval * 0.9 + dt * 100 : dt * 1000;
@@ -1477,6 +1498,10 @@ window.cloudscape = {
   tiles: () => drawnTiles().map((t) => ({ layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count, gen: t.gen })),
   wanted: () => wanted.slice(),
   tileUrl: (tile, product) => tileUrl(tile, product, generation()),
+  /** Draw every frame (true) or only frames that show something new (false, default). */
+  setContinuous: (on) => {
+    continuous = Boolean(on);
+  },
 };
 
 start().catch((e) => {

@@ -14,9 +14,8 @@ use cloudscape_core::automaton::kernel::Rect;
 use cloudscape_core::automaton::naive;
 use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
 use cloudscape_core::density::{self, Region, exact};
-use cloudscape_core::fields::noise::{Backend, Fbm};
-use cloudscape_core::fields::probability::Which;
-use cloudscape_core::world::{Config, World};
+use cloudscape_core::fields::noise::{Fbm, NoiseBackend};
+use cloudscape_core::world::{Config, Event, World};
 use cloudscape_tools::bench::core::{Grids, packed_steps, scene, step_grids, to_naive};
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
@@ -152,7 +151,7 @@ fn tiles(c: &mut Criterion) {
         y0: -512,
         y1: -512 + 256,
     };
-    for &backend in Backend::available() {
+    for &backend in NoiseBackend::available() {
         g.throughput(Throughput::Elements(256 * 256));
         g.bench_function(BenchmarkId::new("switch hashes 256x256", format!("{backend:?}")), |b| {
             b.iter(|| black_box(exact::switch_hashes_on(backend, 1, 0, window)))
@@ -215,9 +214,9 @@ fn accuracy() {
     let exact = lf.window(0, 0, 256, 256, [1; 3], None, (0, 0));
     let coarse = lf.window(0, 0, 256, 256, sp, None, (0, 0));
     for (i, name) in [
-        (Which::Humidity, "humidity"),
-        (Which::Activation, "activation"),
-        (Which::Extinction, "extinction"),
+        (Event::Humidity, "humidity"),
+        (Event::Activation, "activation"),
+        (Event::Extinction, "extinction"),
     ] {
         let i = i as usize;
         let max = exact.b[i]

@@ -9,6 +9,7 @@
 pub mod automaton;
 pub mod cancel;
 pub mod cost;
+pub mod cpu;
 pub mod density;
 pub mod fields;
 pub mod products;

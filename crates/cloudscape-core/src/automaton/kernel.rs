@@ -22,7 +22,7 @@
 
 use std::ops::Range;
 
-use super::random::{Backend, StepKeys, StochasticDrives, below_portable};
+use super::random::{DrawBackend, StepKeys, StochasticDrives, below_portable};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -159,12 +159,12 @@ pub struct StepContext<'a> {
 /// Advances level `k` from `old` (all levels at step n) into `out` (level k at
 /// step n + 1, same geometry as `old[k]`), computing the words covering `window`.
 pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, window: Rect, out: &mut Level) {
-    step_level_on(Backend::detect(), old, k, drives, ctx, window, out)
+    step_level_on(DrawBackend::detect(), old, k, drives, ctx, window, out)
 }
 
-/// [`step_level`] with the draws made by `backend` (one of [`Backend::available`]).
+/// [`step_level`] with the draws made by `backend` (one of [`DrawBackend::available`]).
 pub fn step_level_on(
-    backend: Backend,
+    backend: DrawBackend,
     old: &[Level],
     k: usize,
     drives: &Drives,
@@ -182,9 +182,9 @@ pub fn step_level_on(
             let keys = StepKeys::new(ctx.stream, k as u32, ctx.n);
             match backend {
                 #[cfg(target_arch = "x86_64")]
-                Backend::Avx512 => {
+                DrawBackend::Avx512 => {
                     assert!(
-                        Backend::available().contains(&Backend::Avx512),
+                        DrawBackend::available().contains(&DrawBackend::Avx512),
                         "AVX-512 draws on a CPU without them"
                     );
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).

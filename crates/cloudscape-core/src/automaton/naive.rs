@@ -2,7 +2,8 @@
 //! the same counter-based draws. It exists to check the packed kernel bit for bit.
 
 use super::kernel::Rules;
-use super::random::{Draw, StepKeys, fires};
+use super::random::{StepKeys, fires};
+use crate::world::Event;
 
 /// One level, one byte per cell, over `w × h` frame cells from (`x0`, `y0`).
 #[derive(Clone, Debug, PartialEq)]
@@ -86,11 +87,11 @@ pub fn step(
                     } => {
                         let keys = StepKeys::new(stream, k as u32, n);
                         let (wx, bit) = (x.div_euclid(64), x.rem_euclid(64) as u32);
-                        let fire = |d: Draw, q: u32| fires(&keys, y, wx, d, bit, q);
+                        let fire = |d: Event, q: u32| fires(&keys, y, wx, d, bit, q);
                         (
-                            fire(Draw::Humidity, qh[i]),
-                            fire(Draw::Activation, qa[i]),
-                            !fire(Draw::Extinction, qe[i]),
+                            fire(Event::Humidity, qh[i]),
+                            fire(Event::Activation, qa[i]),
+                            !fire(Event::Extinction, qe[i]),
                         )
                     }
                     NaiveDrives::Threshold {

@@ -15,7 +15,7 @@ use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::StochasticDrives;
 use crate::cancel::Cancel;
-use crate::fields::noise::Backend;
+use crate::fields::noise::NoiseBackend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::LevelMapping;
 use crate::fields::{FieldWindow, LayerFields, quantize};
@@ -115,12 +115,12 @@ impl LayerSim {
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
     pub fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
-        self.drives_on(levels, reference_step, Backend::detect())
+        self.drives_on(levels, reference_step, NoiseBackend::detect())
     }
 
     /// [`LayerSim::drives`] converting on one backend (one of
-    /// [`Backend::available`]); every backend gives the same drives.
-    fn drives_on(&self, levels: &[Level], reference_step: i64, backend: Backend) -> Vec<Drives> {
+    /// [`NoiseBackend::available`]); every backend gives the same drives.
+    fn drives_on(&self, levels: &[Level], reference_step: i64, backend: NoiseBackend) -> Vec<Drives> {
         let f = &self.fields;
         let layer = &f.layer;
         let r_off = self.frames.reference_offset(reference_step);
@@ -323,16 +323,16 @@ fn lanes_above(lanes: &[f32; 64], threshold: f32) -> u64 {
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds
 /// and appended ([`StochasticDrives::push`]), on `backend` (one of
-/// [`Backend::available`]).
-fn stochastic(conv: &Conversion, backend: Backend) -> StochasticDrives {
+/// [`NoiseBackend::available`]).
+fn stochastic(conv: &Conversion, backend: NoiseBackend) -> StochasticDrives {
     assert!(
-        Backend::available().contains(&backend),
+        NoiseBackend::available().contains(&backend),
         "{backend:?} conversion on a CPU without it"
     );
     match backend {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX-512 F (asserted above).
-        Backend::Avx512 => unsafe { stochastic_avx512(conv) },
+        NoiseBackend::Avx512 => unsafe { stochastic_avx512(conv) },
         _ => stochastic_with(conv, |d, q| d.push_baseline(q)),
     }
 }
@@ -398,8 +398,8 @@ mod tests {
             })
             .collect();
         for step in [0, 7, 64] {
-            let base = sim.drives_on(&levels, step, Backend::Scalar);
-            for &backend in Backend::available() {
+            let base = sim.drives_on(&levels, step, NoiseBackend::Scalar);
+            for &backend in NoiseBackend::available() {
                 let got = sim.drives_on(&levels, step, backend);
                 for (k, (b, g)) in base.iter().zip(&got).enumerate() {
                     match (b, g) {

@@ -11,16 +11,8 @@
 
 use rayon::prelude::*;
 
-use super::noise::{Backend, Coord, Fbm, FbmGrid, Octave, mix64, sample_table};
-use crate::world::{FieldSpec, Layer, Mode, World};
-
-/// Which of a layer's three fields.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Which {
-    Humidity = 0,
-    Activation = 1,
-    Extinction = 2,
-}
+use super::noise::{Coord, Fbm, FbmGrid, NoiseBackend, Octave, mix64, sample_table};
+use crate::world::{Event, FieldSpec, Layer, Mode, World};
 
 /// The noise fields of one layer of one world.
 #[derive(Clone, Debug)]
@@ -52,7 +44,7 @@ pub struct FieldWindow {
 
 impl FieldWindow {
     #[inline]
-    pub fn get(&self, which: Which, x: i64, y: i64) -> f32 {
+    pub fn get(&self, which: Event, x: i64, y: i64) -> f32 {
         let (dx, dy) = (x - self.x0, y - self.y0);
         if dx < 0 || dy < 0 || dx >= self.w as i64 || dy >= self.h as i64 {
             return 0.0;
@@ -118,7 +110,7 @@ impl LayerFields {
     }
 
     /// Octaves of field `which` worth evaluating when samples are `sample` cells apart.
-    pub fn octaves(&self, which: Which, sample: f64) -> u32 {
+    pub fn octaves(&self, which: Event, sample: f64) -> u32 {
         self.fbm[which as usize].octaves_for(sample)
     }
 
@@ -127,7 +119,7 @@ impl LayerFields {
     /// the feather at the extent's edges).
     pub fn brightness(
         &self,
-        which: Which,
+        which: Event,
         x: (i64, f64),
         y: (i64, f64),
         octaves: u32,
@@ -140,7 +132,7 @@ impl LayerFields {
 
     /// [`LayerFields::brightness`] from the field's fBm value `n` at that position.
     #[inline]
-    fn brightness_of(&self, which: Which, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
+    fn brightness_of(&self, which: Event, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
         let spec = &self.specs[which as usize];
         let mut v = (n + 1.0) * 0.5;
         if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
@@ -161,7 +153,7 @@ impl LayerFields {
     #[allow(clippy::too_many_arguments)]
     pub fn brightness_grid(
         &self,
-        which: Which,
+        which: Event,
         octaves: u32,
         xs: &[(i64, f64)],
         ys: &[(i64, f64)],
@@ -170,7 +162,7 @@ impl LayerFields {
         out: &mut [f32],
     ) {
         assert_eq!(out.len(), xs.len() * ys.len(), "one output per grid point");
-        let grid = FbmGrid::new(&self.tables[which as usize], octaves, xs, Backend::detect());
+        let grid = FbmGrid::new(&self.tables[which as usize], octaves, xs, NoiseBackend::detect());
         out.par_chunks_mut(xs.len().max(1)).zip(ys).for_each_init(
             || vec![0.0; xs.len()],
             |n, (row, &y)| {
@@ -198,7 +190,7 @@ impl LayerFields {
         world_shift: (i64, i64),
     ) -> FieldWindow {
         let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
-        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        let which = Event::ALL;
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
         for (f, out) in b.iter_mut().enumerate() {
             if spacing[f] <= 1 {
@@ -519,7 +511,7 @@ mod tests {
     fn window_has_the_bits_of_brightness_per_sample() {
         let f = fields();
         let (x0, y0, w, h, shift) = (-37, 101, 45, 23, (5, -3));
-        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        let which = Event::ALL;
         for tau in [None, f.tau(1234.5)] {
             for spacing in [[1; 3], [2, 4, 16]] {
                 let win = f.window(x0, y0, w, h, spacing, tau, shift);
@@ -562,7 +554,7 @@ mod tests {
             .map(|r| ((1 << 40) - r * 4, 1.0 - 0.2 * r as f64 - 1e-12))
             .collect();
         for tau in [None, f.tau(1234.5), f.tau(-3e9)] {
-            for which in [Which::Humidity, Which::Activation, Which::Extinction] {
+            for which in Event::ALL {
                 let octaves = f.octaves(which, 4.0);
                 let mut out = vec![0f32; xs.len() * ys.len()];
                 f.brightness_grid(which, octaves, &xs, &ys, tau, (7, -9), &mut out);
@@ -589,8 +581,8 @@ mod tests {
         for r in 0..10 {
             for c in 0..20 {
                 assert_eq!(
-                    a.get(Which::Activation, 13 + c, 7 + r),
-                    b.get(Which::Activation, 13 + c, 7 + r)
+                    a.get(Event::Activation, 13 + c, 7 + r),
+                    b.get(Event::Activation, 13 + c, 7 + r)
                 );
             }
         }

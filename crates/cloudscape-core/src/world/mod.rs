@@ -29,6 +29,25 @@ pub const ALGORITHM_VERSION: u32 = 6;
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;
 
+/// Dobashi's three stochastic events, each with its own probability field:
+/// humidity (vapour appears, p_hum), activation (vapour may turn to cloud, p_act)
+/// and extinction (cloud vanishes, p_ext). The value indexes a layer's three
+/// fields and a word's three drives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Event {
+    /// Vapour appears in a cell (p_hum).
+    Humidity = 0,
+    /// A humid cell may become cloud (p_act).
+    Activation = 1,
+    /// A cloud cell vanishes (p_ext).
+    Extinction = 2,
+}
+
+impl Event {
+    /// The three events in index order.
+    pub const ALL: [Event; 3] = [Event::Humidity, Event::Activation, Event::Extinction];
+}
+
 /// How a layer's automaton runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

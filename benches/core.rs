@@ -36,7 +36,8 @@ fn automaton(c: &mut Criterion) {
     g.throughput(Throughput::Elements(cells * 8));
     // `grids reused`: the two grids are copied right before each timed run and
     // outside it, as a run allocates them once (not once per 8 steps) and steps
-    // warm state. The old id times the copies as well (the only form before 7d8f677).
+    // warm state. The id without it times the copies as well, and stays so that
+    // its figures compare with the ones already in BENCHMARKS.md.
     g.bench_function("packed 512x512x10, grids reused, 8 steps", |b| {
         b.iter_batched_ref(
             || Grids::of(&levels),

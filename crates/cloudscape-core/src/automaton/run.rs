@@ -24,8 +24,11 @@ use crate::world::{Mode, World};
 /// A layer ready to simulate: its fields, frames and random stream.
 #[derive(Clone, Debug)]
 pub struct LayerSim {
+    /// The layer's probability fields.
     pub fields: LayerFields,
+    /// The layer's wind frames, per level.
     pub frames: Frames,
+    /// The layer's random stream: the key of every draw (from the world seed and layer index).
     pub stream: u64,
     /// Fired when nobody waits for this simulation any more: [`LayerSim::run`]
     /// then skips its remaining steps (the caller discards the result).
@@ -48,11 +51,14 @@ pub struct RunSpec {
 /// The state of every level at one step.
 #[derive(Clone, Debug)]
 pub struct Snapshot {
+    /// The step the levels are at.
     pub step: i64,
+    /// Every level's state, indexed by level.
     pub levels: Vec<Level>,
 }
 
 impl LayerSim {
+    /// The simulation of layer `layer_index` of `world`.
     pub fn new(world: &World, layer_index: usize) -> LayerSim {
         let fields = LayerFields::new(world, layer_index);
         let frames = Frames::new(&fields.layer);
@@ -65,10 +71,12 @@ impl LayerSim {
         }
     }
 
+    /// The number of vertical levels.
     pub fn depth(&self) -> usize {
         self.fields.layer.depth as usize
     }
 
+    /// The rules of the layer's mode.
     pub fn rules(&self) -> Rules {
         match self.fields.layer.preset.mode {
             Mode::Dobashi => Rules::Dobashi,

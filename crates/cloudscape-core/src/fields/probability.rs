@@ -17,6 +17,7 @@ use crate::world::{Event, FieldSpec, Layer, Mode, World};
 /// The noise fields of one layer of one world.
 #[derive(Clone, Debug)]
 pub struct LayerFields {
+    /// The layer the fields belong to.
     pub layer: Layer,
     fbm: [Fbm; 3],
     tables: [Vec<Octave>; 3],
@@ -26,8 +27,11 @@ pub struct LayerFields {
 /// Probabilities at one cell (or Rosa textures, for mode `rosa`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Probabilities {
+    /// Humidity probability p_hum, in [0, 1].
     pub hum: f32,
+    /// Activation probability p_act, in [0, 1].
     pub act: f32,
+    /// Extinction probability p_ext, in [0, 1].
     pub ext: f32,
 }
 
@@ -35,14 +39,20 @@ pub struct Probabilities {
 /// three fields over a window of wind-frame cells. Row-major, `w × h`.
 #[derive(Clone, Debug)]
 pub struct FieldWindow {
+    /// Wind-frame x of column 0.
     pub x0: i64,
+    /// Wind-frame y of row 0.
     pub y0: i64,
+    /// Columns.
     pub w: usize,
+    /// Rows.
     pub h: usize,
+    /// Each field's brightness in [0, 1], indexed by [`Event`].
     pub b: [Vec<f32>; 3],
 }
 
 impl FieldWindow {
+    /// Field `which`'s brightness at wind-frame cell (`x`, `y`); 0 outside the window.
     #[inline]
     pub fn get(&self, which: Event, x: i64, y: i64) -> f32 {
         let (dx, dy) = (x - self.x0, y - self.y0);
@@ -74,6 +84,7 @@ pub fn quantize(p: f32) -> u32 {
 }
 
 impl LayerFields {
+    /// The fields of layer `layer_index` of `world`, seeded from the world seed.
     pub fn new(world: &World, layer_index: usize) -> LayerFields {
         let layer = world.layers[layer_index].clone();
         let base_seed = mix64(world.seed ^ mix64(0x6c61_7965_7200_0000 ^ layer_index as u64));

@@ -90,7 +90,9 @@ pub struct Footprint {
     pub dist: f64,
     /// Centre on screen and radius, pixels.
     pub x: f64,
+    /// Centre y on screen, pixels.
     pub y: f64,
+    /// Radius on screen, pixels.
     pub r_px: f64,
     /// Radiance for this view (pre-shaded colour plus the phase correction).
     pub colour: [f64; 3],

@@ -142,6 +142,7 @@ pub enum Sky {
 pub struct Environment<'a> {
     /// Sun direction and colour, extinction, albedo, phase, and the ground model.
     pub lighting: &'a Lighting,
+    /// The sky seen behind the clouds and lighting them.
     pub sky: Sky,
     /// Whether the ground at altitude 0 is there (no ground: paths going down see the sky).
     pub ground: bool,
@@ -194,6 +195,7 @@ impl Noise {
 pub struct Traced {
     /// Mean radiance per pixel; opaque (the sky or ground is behind every pixel).
     pub image: Image,
+    /// The noise the image is stated to have.
     pub noise: Noise,
 }
 

@@ -69,8 +69,10 @@ pub struct FieldSpec {
     /// Octaves of fBm before clamping to what the output resolution can show.
     #[serde(default = "default_octaves")]
     pub octaves: u32,
+    /// Frequency ratio between successive octaves.
     #[serde(default = "default_lacunarity")]
     pub lacunarity: f64,
+    /// Amplitude ratio between successive octaves.
     #[serde(default = "default_gain")]
     pub gain: f64,
     /// Rosa's "move": a shift of the pattern, in noise units (cycles).
@@ -93,8 +95,11 @@ pub struct FieldSpec {
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Feather {
+    /// Metres from the extent's edge within which the brightness is zero.
     pub start: f64,
+    /// Metres from the edge at which the fade is complete.
     pub depth: f64,
+    /// Shape of the fade in [0, 1]: 0 linear, 1 steepest near the edge.
     #[serde(default)]
     pub falloff: f64,
 }
@@ -130,13 +135,17 @@ pub struct Ellipsoid {
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Preset {
+    /// How the automaton runs (Dobashi or Rosa).
     pub mode: Mode,
     /// Height profile: at the top of the layer the brightness needed for
     /// humidity/activation rises by this much, so bases are wider than tops.
     #[serde(default)]
     pub top_narrowing: f64,
+    /// The humidity field (p_hum).
     pub humidity: FieldSpec,
+    /// The activation field (p_act).
     pub activation: FieldSpec,
+    /// The extinction field (p_ext).
     pub extinction: FieldSpec,
     /// Seconds per unit of noise time: the fields evolve slowly (0 = frozen).
     #[serde(default = "default_evolve")]
@@ -185,8 +194,11 @@ impl Default for EpochSpec {
 /// A resolved cloud layer: a preset placed in an altitude band with wind.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Layer {
+    /// The layer's name, unique in its world.
     pub name: String,
+    /// The name of the preset it places.
     pub preset_name: String,
+    /// The preset it places.
     pub preset: Preset,
     /// Altitude of the layer's bottom, metres.
     pub base: f64,
@@ -202,9 +214,11 @@ pub struct Layer {
     pub wind: [f64; 2],
     /// Change of wind with height, (m/s) per metre.
     pub shear: [f64; 2],
+    /// How the bounded history is cut into epochs.
     pub epoch: EpochSpec,
     /// Optional bounded extent (world metres) used by the feather effect.
     pub extent: Option<[f64; 4]>,
+    /// Dobashi ellipsoids that shape humidity and activation.
     pub ellipsoids: Vec<Ellipsoid>,
 }
 
@@ -229,8 +243,11 @@ impl Layer {
 /// A world: a seed and a climate.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct World {
+    /// The world's name in the configuration.
     pub name: String,
+    /// The seed every field and draw of the world derives from.
     pub seed: u64,
+    /// The cloud layers, in configuration order.
     pub layers: Vec<Layer>,
 }
 

@@ -15,10 +15,12 @@ pub const ROUNDS: usize = 5;
 /// constants (per 64-bit half).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StepKeys {
+    /// `k[0]` whitens the counter; `k[1..]` are the five rounds' keys.
     pub k: [[u64; 2]; ROUNDS + 1],
 }
 
 impl StepKeys {
+    /// The keys of `step` of level `level` in the layer stream `stream`.
     pub fn new(stream: u64, level: u32, step: i64) -> StepKeys {
         let a = mix64(stream ^ ((level as u64) << 48));
         let lo = mix64(a ^ (step as u64).wrapping_mul(0xc2b2_ae3d_27d4_eb4f));

@@ -13,6 +13,7 @@ use crate::cpu::Features;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(C, align(64))]
 pub struct Thresholds {
+    /// Lane b's mantissa: its threshold is `m[b] << (8 − shift)`.
     pub m: [u8; 64],
 }
 
@@ -23,9 +24,13 @@ pub struct Thresholds {
 /// this is one word of them on its own.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct WordDrive {
+    /// Each event's mantissas.
     pub t: [Thresholds; 3],
+    /// Each event's lanes whose threshold is 65536 (they always fire).
     pub always: [u64; 3],
+    /// Each event's lanes whose mantissa is not 0.
     pub live: [u64; 3],
+    /// Each event's shift (see [`Thresholds`]).
     pub shift: [u8; 3],
 }
 
@@ -52,6 +57,7 @@ impl WordDrive {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[repr(C, align(32))]
 pub struct Head {
+    /// Each event's shift (see [`Thresholds`]).
     pub shift: [u8; 3],
     /// The word's entry in the `always` side table: 0, the shared entry of no
     /// masks, unless some lane of the word always fires.
@@ -87,6 +93,7 @@ impl Default for StochasticDrives {
 }
 
 impl StochasticDrives {
+    /// Empty drives with room for `words` words.
     pub fn with_capacity(words: usize) -> StochasticDrives {
         StochasticDrives {
             mantissas: Vec::with_capacity(words),
@@ -97,10 +104,12 @@ impl StochasticDrives {
         }
     }
 
+    /// The number of words.
     pub fn len(&self) -> usize {
         self.heads.len()
     }
 
+    /// Whether there is no word.
     pub fn is_empty(&self) -> bool {
         self.heads.is_empty()
     }
@@ -184,7 +193,7 @@ impl StochasticDrives {
     /// the forms of [`event_thresholds`]). The mantissas are written where the
     /// kernel will read them: built on the stack, their narrow stores would be
     /// read back at once by the wide loads of the copy, which the CPU cannot
-    /// forward (perf: that load took over half of the conversion's samples).
+    /// forward (a store-forwarding stall on every word).
     #[inline(always)]
     fn push_with(&mut self, q: [&[u32; 64]; 3], form: impl Fn(&[u32; 64], &mut [u8; 64]) -> (u8, u64, u64)) {
         self.mantissas.push([Thresholds { m: [0; 64] }; 3]);

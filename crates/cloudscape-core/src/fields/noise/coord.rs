@@ -4,7 +4,9 @@
 /// A coordinate on the noise lattice: `int + frac`, with `frac` in [0, 1).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Coord {
+    /// The lattice index.
     pub int: i64,
+    /// The fraction within the lattice cell, in [0, 1).
     pub frac: f64,
 }
 

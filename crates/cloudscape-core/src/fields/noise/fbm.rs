@@ -9,11 +9,15 @@ use super::simplex::{simplex2, simplex3};
 /// Fractal Brownian motion over simplex noise.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Fbm {
+    /// Seed of the first octave; each octave hashes with its own seed derived from it.
     pub seed: u64,
     /// Lattice units per cell at the first octave (cycles per cell).
     pub scale: f64,
+    /// Number of octaves.
     pub octaves: u32,
+    /// Frequency ratio between successive octaves.
     pub lacunarity: f64,
+    /// Amplitude ratio between successive octaves.
     pub gain: f64,
     /// Rosa's "move", in lattice units of the first octave.
     pub offset: [f64; 2],
@@ -72,9 +76,13 @@ impl Fbm {
 /// One octave of an fBm: its hash seed, lattice units per cell, amplitude and shift.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Octave {
+    /// The octave's hash seed.
     pub seed: u64,
+    /// Lattice units per cell.
     pub scale: f64,
+    /// Amplitude (the first octave's is 1).
     pub amp: f64,
+    /// Shift in lattice units along x, y and noise time.
     pub shift: [f64; 3],
 }
 

@@ -20,12 +20,19 @@
 //! assert_eq!(sun.bucket().centre().bucket(), sun.bucket());
 //! assert!(Sun::parse("135,95").is_err());
 //! let _id: String = sun.bucket().id();
+//!
+//! // Without a sun in the request, the world clock's: solar time at the
+//! // configured latitude and day.
+//! let config = cloudscape_core::world::Config::embedded();
+//! assert!(Sun::from_clock(12.0 * 3600.0, &config.sun).elevation_deg > 0.0);
+//! assert!(Sun::from_clock(0.0, &config.sun).elevation_deg < 0.0);
 //! ```
 //!
 //! A tile product shades a tile's density and metaballs once
-//! ([`shade_tile`]); every product of that tile encodes the same [`ShadedTile`]:
+//! ([`shade_tile`]); every product of that tile encodes the same [`ShadedTile`]
+//! (not run here: a tile takes seconds in a debug build):
 //!
-//! ```rust
+//! ```rust,no_run
 //! use cloudscape_core::products::billboards;
 //! use cloudscape_core::render::{Quality, ShadingParams, Sun, TileId, shade_tile};
 //! use cloudscape_core::world::Config;
@@ -41,7 +48,8 @@
 //! ```
 //!
 //! `cloudscape render` and `GET /render.png` render a camera view with
-//! [`render`]:
+//! [`render`]. From above every layer, looking up, the view holds no tile and
+//! only the sky is drawn:
 //!
 //! ```rust
 //! use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render, scene};
@@ -51,7 +59,7 @@
 //! let world = config.world("default").unwrap();
 //! let (width, height) = scene::parse_size("32x18").unwrap();
 //! let req = RenderRequest {
-//!     camera: Camera::parse("0,0,1500,0,10,60").unwrap(),
+//!     camera: Camera::parse("0,0,30000,0,89,60").unwrap(),
 //!     width,
 //!     height,
 //!     t: 0.0,
@@ -62,6 +70,7 @@
 //! };
 //! let rendered = render(&world, &config, &req).unwrap();
 //! assert_eq!((rendered.image.width, rendered.image.height), (32, 18));
+//! assert!(rendered.tiles.is_empty() && rendered.billboards == 0);
 //! assert!(rendered.noise.is_none()); // only `reference` estimates its noise
 //! let _png: Vec<u8> = rendered.image.to_png();
 //! ```

@@ -3,7 +3,7 @@
 //! Density at a world cell and time t = (n + f)·dt: each level's frame has moved
 //! by the continuous wind displacement c(t); the cell centre falls at frame
 //! position X − c. The cloud bits of steps n and n+1 (each a blend of the runs
-//! its epoch plan names) are smoothed with a 3×3 tent ([1,2,1]/4 per axis),
+//! its epoch plan names) are smoothed with a 3×3 tent (`[1, 2, 1] / 4` per axis),
 //! sampled bilinearly at that position, and interpolated linearly in f. The
 //! result is a pure function of (world, layer, cell, t).
 
@@ -199,7 +199,7 @@ fn switch_hashes(stream: u64, k: usize, w: Rect) -> Vec<u16> {
     switch_hashes_on(NoiseBackend::detect(), stream, k, w)
 }
 
-/// [`switch_hashes`] on one backend (one of [`NoiseBackend::available`]); every
+/// `switch_hashes` on one backend (one of [`NoiseBackend::available`]); every
 /// backend gives the same bits. Public for the benchmark that compares them.
 pub fn switch_hashes_on(backend: NoiseBackend, stream: u64, k: usize, w: Rect) -> Vec<u16> {
     let base = stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40);

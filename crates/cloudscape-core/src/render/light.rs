@@ -307,7 +307,7 @@ pub struct Lighting {
     pub sky_ambient_below: [f64; 3],
     /// Mean radiance over the whole sphere around an unoccluded point, the average of
     /// the two above: the ambient an isotropic scatterer sees, added unoccluded by
-    /// [`Lighting::cloud_source`].
+    /// [`Lighting::source_with_phase`].
     pub ambient_rgb: [f64; 3],
     /// The cloud's optical properties.
     pub params: ShadingParams,

@@ -36,7 +36,7 @@
 //!   for estimating attenuation in participating media", §3: the product of (1 − σ/σ̄)
 //!   over the tentative collisions so far, with Russian roulette below 0.1), and T̂_sun
 //!   a ratio-tracking estimate toward the sun (as in the marcher, the sun ray sees
-//!   cloud only); shadow rays of weight below [`NEE_WEIGHT`] are taken by Russian
+//!   cloud only); shadow rays of weight below `NEE_WEIGHT` are taken by Russian
 //!   roulette. Against one shadow ray at the collision, the sun term is gathered along
 //!   the whole segment, so thin cloud is not a coin toss between "hit" and "missed" (the
 //!   majorant is at least 1 / brick size: about one tentative collision per non-empty

@@ -90,7 +90,7 @@ pub struct FieldSpec {
 }
 
 /// Rosa 2013 §4.1.2 feather: zero brightness within `start` metres of the extent's
-/// edge, fading in until `depth` metres; `falloff` in [0,1] shapes the fade
+/// edge, fading in until `depth` metres; `falloff` in \[0, 1\] shapes the fade
 /// (0 linear, 1 smoothstep-like steepening near the edge).
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]

@@ -227,7 +227,7 @@ pub(super) fn event_thresholds(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64
     }
 }
 
-/// The plain form of [`event_thresholds`]: one lane at a time.
+/// The plain form of `event_thresholds`: one lane at a time.
 pub fn event_thresholds_scalar(q: &[u32; 64], m: &mut [u8; 64]) -> (u8, u64, u64) {
     let max = q.iter().map(|&v| if v < 65536 { v } else { 0 }).fold(0, u32::max);
     // The largest shift (most low bits kept) whose mantissas still fit in a byte.

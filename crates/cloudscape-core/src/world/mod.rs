@@ -13,7 +13,7 @@ pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, SunConfig};
 use serde::Deserialize;
 
 /// Bumped whenever any change alters output bytes. Baked into cache keys and ETags.
-/// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
+/// 2: byte-wise Bernoulli draws with per-word floating thresholds (`automaton::random`).
 /// 3: one random key per word, salted per event.
 /// 4: ARS-5 (AES-round) 16-bit draws, compared in full (no high-byte ties).
 /// 5: pictures judged against physics (issue 20): a path-traced `reference`, a

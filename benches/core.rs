@@ -14,9 +14,8 @@ use cloudscape_core::automaton::kernel::Rect;
 use cloudscape_core::automaton::naive;
 use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
 use cloudscape_core::density::{self, Region, exact};
-use cloudscape_core::fields::noise::{Backend, Fbm};
-use cloudscape_core::fields::probability::Which;
-use cloudscape_core::world::{Config, World};
+use cloudscape_core::fields::noise::{Fbm, NoiseBackend};
+use cloudscape_core::world::{Config, Event, World};
 use cloudscape_tools::bench::core::{Grids, packed_steps, scene, step_grids, to_naive};
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
@@ -37,7 +36,8 @@ fn automaton(c: &mut Criterion) {
     g.throughput(Throughput::Elements(cells * 8));
     // `grids reused`: the two grids are copied right before each timed run and
     // outside it, as a run allocates them once (not once per 8 steps) and steps
-    // warm state. The old id times the copies as well (the only form before 7d8f677).
+    // warm state. The id without it times the copies as well, and stays so that
+    // its figures compare with the ones already in BENCHMARKS.md.
     g.bench_function("packed 512x512x10, grids reused, 8 steps", |b| {
         b.iter_batched_ref(
             || Grids::of(&levels),
@@ -152,7 +152,7 @@ fn tiles(c: &mut Criterion) {
         y0: -512,
         y1: -512 + 256,
     };
-    for &backend in Backend::available() {
+    for &backend in NoiseBackend::available() {
         g.throughput(Throughput::Elements(256 * 256));
         g.bench_function(BenchmarkId::new("switch hashes 256x256", format!("{backend:?}")), |b| {
             b.iter(|| black_box(exact::switch_hashes_on(backend, 1, 0, window)))
@@ -215,9 +215,9 @@ fn accuracy() {
     let exact = lf.window(0, 0, 256, 256, [1; 3], None, (0, 0));
     let coarse = lf.window(0, 0, 256, 256, sp, None, (0, 0));
     for (i, name) in [
-        (Which::Humidity, "humidity"),
-        (Which::Activation, "activation"),
-        (Which::Extinction, "extinction"),
+        (Event::Humidity, "humidity"),
+        (Event::Activation, "activation"),
+        (Event::Extinction, "extinction"),
     ] {
         let i = i as usize;
         let max = exact.b[i]

@@ -6,11 +6,15 @@
 //! shading → encoding ([`products`]). A stage depends only on the stages before it.
 //! The HTTP service is `cloudscape-server`; the tile client is `cloudscape-client`.
 
+#![warn(missing_docs)]
+
 pub mod automaton;
 pub mod cancel;
 pub mod cost;
+pub mod cpu;
 pub mod density;
 pub mod fields;
+#[allow(missing_docs)]
 pub mod products;
 pub mod render;
 pub mod world;

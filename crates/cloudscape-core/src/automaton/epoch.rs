@@ -20,19 +20,23 @@ use crate::world::{Layer, Mode};
 /// One run: fields aligned at `reference`, empty grid at `start`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub struct RunId {
+    /// Step the run's probability fields are aligned at (its epoch's reference).
     pub reference: i64,
+    /// Step at which the run starts from an empty grid.
     pub start: i64,
 }
 
 /// How to obtain the state at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepPlan {
+    /// The step whose state this plan gives.
     pub step: i64,
     /// The old run and, while cells are still switching, the new one.
     pub runs: Vec<RunId>,
     /// With two runs: a cell whose switch phase φ (in [0, fade)) is <= `phase`
     /// has switched to `runs[1]`.
     pub phase: i64,
+    /// Steps a switch from the old run to the new one takes (the range of φ).
     pub fade: u32,
 }
 

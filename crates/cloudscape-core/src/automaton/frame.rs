@@ -20,6 +20,7 @@ pub struct Frames {
 }
 
 impl Frames {
+    /// The frames of `layer`: each level's wind in cells per step, from its wind in m/s, `dt` and cell size.
     pub fn new(layer: &Layer) -> Frames {
         let to_cells = |w: [f64; 2]| [w[0] * layer.dt / layer.cell_size, w[1] * layer.dt / layer.cell_size];
         Frames {

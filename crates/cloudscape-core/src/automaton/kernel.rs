@@ -22,18 +22,23 @@
 
 use std::ops::Range;
 
-use super::random::{Backend, StepKeys, StochasticDrives, below_portable};
+use super::random::{DrawBackend, StepKeys, StochasticDrives, below_portable};
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct Rect {
+    /// First column (inclusive).
     pub x0: i64,
+    /// Column past the last (exclusive).
     pub x1: i64,
+    /// First row (inclusive).
     pub y0: i64,
+    /// Row past the last (exclusive).
     pub y1: i64,
 }
 
 impl Rect {
+    /// Whether the rectangle holds no cell.
     pub fn is_empty(&self) -> bool {
         self.x1 <= self.x0 || self.y1 <= self.y0
     }
@@ -54,6 +59,7 @@ impl Rect {
         }
     }
 
+    /// The rectangle grown by `d` cells on every side (an empty one stays empty).
     pub fn expand(&self, d: i64) -> Rect {
         if self.is_empty() {
             return *self;
@@ -66,6 +72,7 @@ impl Rect {
         }
     }
 
+    /// The rectangle moved by (`dx`, `dy`) cells (an empty one stays empty).
     pub fn shift(&self, dx: i64, dy: i64) -> Rect {
         if self.is_empty() {
             return *self;
@@ -86,11 +93,17 @@ pub struct Level {
     /// Frame x of the first bit; a multiple of 64, so words line up with the
     /// global word grid the random keys use.
     pub x0: i64,
+    /// Frame y of row 0.
     pub y0: i64,
+    /// Words per row.
     pub wpr: usize,
+    /// Rows.
     pub rows: usize,
+    /// Humidity bits, `wpr` words a row.
     pub hum: Vec<u64>,
+    /// Activation bits, `wpr` words a row.
     pub act: Vec<u64>,
+    /// Cloud bits, `wpr` words a row.
     pub cld: Vec<u64>,
 }
 
@@ -130,8 +143,11 @@ pub enum Drives {
     Stochastic(StochasticDrives),
     /// Rosa: per word, `tex_hum > p_hum`, `tex_act > p_act`, and `tex_cld > p_ext` (keep).
     Threshold {
+        /// Cells where `tex_hum > p_hum`: humidity appears.
         hum: Vec<u64>,
+        /// Cells where `tex_act > p_act`: activation appears.
         act: Vec<u64>,
+        /// Cells where `tex_cld > p_ext`: cloud is kept.
         keep: Vec<u64>,
     },
 }
@@ -147,6 +163,7 @@ pub enum Rules {
 
 /// Everything a step of one level needs besides the grids.
 pub struct StepContext<'a> {
+    /// The rule set of the layer's mode.
     pub rules: Rules,
     /// The layer's random stream (seed and layer).
     pub stream: u64,
@@ -159,12 +176,12 @@ pub struct StepContext<'a> {
 /// Advances level `k` from `old` (all levels at step n) into `out` (level k at
 /// step n + 1, same geometry as `old[k]`), computing the words covering `window`.
 pub fn step_level(old: &[Level], k: usize, drives: &Drives, ctx: &StepContext, window: Rect, out: &mut Level) {
-    step_level_on(Backend::detect(), old, k, drives, ctx, window, out)
+    step_level_on(DrawBackend::detect(), old, k, drives, ctx, window, out)
 }
 
-/// [`step_level`] with the draws made by `backend` (one of [`Backend::available`]).
+/// [`step_level`] with the draws made by `backend` (one of [`DrawBackend::available`]).
 pub fn step_level_on(
-    backend: Backend,
+    backend: DrawBackend,
     old: &[Level],
     k: usize,
     drives: &Drives,
@@ -182,9 +199,9 @@ pub fn step_level_on(
             let keys = StepKeys::new(ctx.stream, k as u32, ctx.n);
             match backend {
                 #[cfg(target_arch = "x86_64")]
-                Backend::Avx512 => {
+                DrawBackend::Avx512 => {
                     assert!(
-                        Backend::available().contains(&Backend::Avx512),
+                        DrawBackend::available().contains(&DrawBackend::Avx512),
                         "AVX-512 draws on a CPU without them"
                     );
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
@@ -237,9 +254,9 @@ struct ZRow {
 /// the rules' deterministic part for the 8 words in vectors, then the draws word
 /// by word, which add (hum, act) or remove (cld) the lanes their events fire in.
 /// `ALWAYS`: whether some word of the level has lanes that always fire. Most
-/// levels have none (only probabilities that quantize to 1 make them), and
-/// reading no `always` masks at all took about 5 % off the step on the AMD EPYC
-/// machine (paired in one process; BENCHMARKS.md "Automaton").
+/// levels have none (only probabilities that quantize to 1 make them), so on
+/// those the kernel skips a load per word and the branch that waits on it
+/// (BENCHMARKS.md "Automaton").
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512bw,vaes")]
 unsafe fn step_avx512<const ALWAYS: bool>(
@@ -377,8 +394,8 @@ unsafe fn step_avx512<const ALWAYS: bool>(
             for l in 0..n {
                 let (wl, i) = (w + l, base + w + l);
                 // The mantissas are the large stream the kernel reads (192 bytes a
-                // word; the heads' 32 come in order, and prefetching them measured no
-                // gain): fetch a few words ahead. A prefetch past the end is harmless.
+                // word; the heads' 32 come in order, which the hardware prefetcher
+                // follows on its own): fetch a few words ahead. A prefetch past the end is harmless.
                 let ahead = mantissas.as_ptr().wrapping_add(i + 6).cast::<i8>();
                 for line in 0..3 {
                     _mm_prefetch::<_MM_HINT_T0>(ahead.wrapping_add(64 * line));

@@ -2,31 +2,47 @@
 //! the same counter-based draws. It exists to check the packed kernel bit for bit.
 
 use super::kernel::Rules;
-use super::random::{Draw, StepKeys, fires};
+use super::random::{StepKeys, fires};
+use crate::world::Event;
 
 /// One level, one byte per cell, over `w × h` frame cells from (`x0`, `y0`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct NaiveLevel {
+    /// Frame x of column 0.
     pub x0: i64,
+    /// Frame y of row 0.
     pub y0: i64,
+    /// Columns.
     pub w: usize,
+    /// Rows.
     pub h: usize,
+    /// Humidity per cell (0 or 1), row-major.
     pub hum: Vec<u8>,
+    /// Activation per cell (0 or 1), row-major.
     pub act: Vec<u8>,
+    /// Cloud per cell (0 or 1), row-major.
     pub cld: Vec<u8>,
 }
 
 /// Per-cell drives: thresholds q (0..=65536) for Dobashi, or Rosa's booleans.
 #[derive(Clone, Debug)]
 pub enum NaiveDrives {
+    /// Dobashi: each event's threshold per cell.
     Stochastic {
+        /// Humidity thresholds.
         hum: Vec<u32>,
+        /// Activation thresholds.
         act: Vec<u32>,
+        /// Extinction thresholds.
         ext: Vec<u32>,
     },
+    /// Rosa: each rule's texture comparison per cell (0 or 1).
     Threshold {
+        /// `tex_hum > p_hum`.
         hum: Vec<u8>,
+        /// `tex_act > p_act`.
         act: Vec<u8>,
+        /// `tex_cld > p_ext` (the cloud is kept).
         keep: Vec<u8>,
     },
 }
@@ -86,11 +102,11 @@ pub fn step(
                     } => {
                         let keys = StepKeys::new(stream, k as u32, n);
                         let (wx, bit) = (x.div_euclid(64), x.rem_euclid(64) as u32);
-                        let fire = |d: Draw, q: u32| fires(&keys, y, wx, d, bit, q);
+                        let fire = |d: Event, q: u32| fires(&keys, y, wx, d, bit, q);
                         (
-                            fire(Draw::Humidity, qh[i]),
-                            fire(Draw::Activation, qa[i]),
-                            !fire(Draw::Extinction, qe[i]),
+                            fire(Event::Humidity, qh[i]),
+                            fire(Event::Activation, qa[i]),
+                            !fire(Event::Extinction, qe[i]),
                         )
                     }
                     NaiveDrives::Threshold {

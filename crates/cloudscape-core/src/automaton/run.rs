@@ -15,7 +15,7 @@ use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::StochasticDrives;
 use crate::cancel::Cancel;
-use crate::fields::noise::Backend;
+use crate::fields::noise::NoiseBackend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::LevelMapping;
 use crate::fields::{FieldWindow, LayerFields, quantize};
@@ -24,8 +24,11 @@ use crate::world::{Mode, World};
 /// A layer ready to simulate: its fields, frames and random stream.
 #[derive(Clone, Debug)]
 pub struct LayerSim {
+    /// The layer's probability fields.
     pub fields: LayerFields,
+    /// The layer's wind frames, per level.
     pub frames: Frames,
+    /// The layer's random stream: the key of every draw (from the world seed and layer index).
     pub stream: u64,
     /// Fired when nobody waits for this simulation any more: [`LayerSim::run`]
     /// then skips its remaining steps (the caller discards the result).
@@ -48,11 +51,14 @@ pub struct RunSpec {
 /// The state of every level at one step.
 #[derive(Clone, Debug)]
 pub struct Snapshot {
+    /// The step the levels are at.
     pub step: i64,
+    /// Every level's state, indexed by level.
     pub levels: Vec<Level>,
 }
 
 impl LayerSim {
+    /// The simulation of layer `layer_index` of `world`.
     pub fn new(world: &World, layer_index: usize) -> LayerSim {
         let fields = LayerFields::new(world, layer_index);
         let frames = Frames::new(&fields.layer);
@@ -65,10 +71,12 @@ impl LayerSim {
         }
     }
 
+    /// The number of vertical levels.
     pub fn depth(&self) -> usize {
         self.fields.layer.depth as usize
     }
 
+    /// The rules of the layer's mode.
     pub fn rules(&self) -> Rules {
         match self.fields.layer.preset.mode {
             Mode::Dobashi => Rules::Dobashi,
@@ -115,12 +123,12 @@ impl LayerSim {
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
     pub fn drives(&self, levels: &[Level], reference_step: i64) -> Vec<Drives> {
-        self.drives_on(levels, reference_step, Backend::detect())
+        self.drives_on(levels, reference_step, NoiseBackend::detect())
     }
 
     /// [`LayerSim::drives`] converting on one backend (one of
-    /// [`Backend::available`]); every backend gives the same drives.
-    fn drives_on(&self, levels: &[Level], reference_step: i64, backend: Backend) -> Vec<Drives> {
+    /// [`NoiseBackend::available`]); every backend gives the same drives.
+    fn drives_on(&self, levels: &[Level], reference_step: i64, backend: NoiseBackend) -> Vec<Drives> {
         let f = &self.fields;
         let layer = &f.layer;
         let r_off = self.frames.reference_offset(reference_step);
@@ -323,16 +331,16 @@ fn lanes_above(lanes: &[f32; 64], threshold: f32) -> u64 {
 
 /// A Dobashi level's drives: per word, the probabilities quantized to thresholds
 /// and appended ([`StochasticDrives::push`]), on `backend` (one of
-/// [`Backend::available`]).
-fn stochastic(conv: &Conversion, backend: Backend) -> StochasticDrives {
+/// [`NoiseBackend::available`]).
+fn stochastic(conv: &Conversion, backend: NoiseBackend) -> StochasticDrives {
     assert!(
-        Backend::available().contains(&backend),
+        NoiseBackend::available().contains(&backend),
         "{backend:?} conversion on a CPU without it"
     );
     match backend {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX-512 F (asserted above).
-        Backend::Avx512 => unsafe { stochastic_avx512(conv) },
+        NoiseBackend::Avx512 => unsafe { stochastic_avx512(conv) },
         _ => stochastic_with(conv, |d, q| d.push_baseline(q)),
     }
 }
@@ -398,8 +406,8 @@ mod tests {
             })
             .collect();
         for step in [0, 7, 64] {
-            let base = sim.drives_on(&levels, step, Backend::Scalar);
-            for &backend in Backend::available() {
+            let base = sim.drives_on(&levels, step, NoiseBackend::Scalar);
+            for &backend in NoiseBackend::available() {
                 let got = sim.drives_on(&levels, step, backend);
                 for (k, (b, g)) in base.iter().zip(&got).enumerate() {
                     match (b, g) {

@@ -6,7 +6,7 @@ use proptest::prelude::*;
 
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level, step_level_on};
 use super::naive::{NaiveDrives, NaiveLevel, step};
-use super::random::{Backend, StochasticDrives};
+use super::random::{DrawBackend, StochasticDrives};
 use crate::fields::noise::mix64;
 
 /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext), 64 cells per word.
@@ -134,12 +134,12 @@ proptest! {
             let ctx = StepContext { rules: sc.rules, stream, n, offsets };
             // Every backend this CPU has (the default one first) makes the same step.
             let mut results: Vec<Vec<Level>> = Vec::new();
-            for backend in std::iter::once(Backend::detect()).chain(Backend::available().iter().copied()) {
+            for backend in std::iter::once(DrawBackend::detect()).chain(DrawBackend::available().iter().copied()) {
                 let mut next = packed.clone();
                 for k in 0..depth {
                     let lv = &packed[k];
                     let all = Rect { x0: lv.x0, x1: lv.x0 + 64 * lv.wpr as i64, y0: lv.y0, y1: lv.y0 + lv.rows as i64 };
-                    if backend == Backend::detect() {
+                    if backend == DrawBackend::detect() {
                         step_level(&packed, k, &pdrives[k], &ctx, all, &mut next[k]);
                     } else {
                         step_level_on(backend, &packed, k, &pdrives[k], &ctx, all, &mut next[k]);
@@ -154,7 +154,7 @@ proptest! {
             // or reaches past it: every backend computes exactly the words covering it,
             // the same as the full step, and leaves every other word as it was.
             const UNTOUCHED: u64 = 0xa5a5_5a5a_0ff0_f00f;
-            for &backend in Backend::available() {
+            for &backend in DrawBackend::available() {
                 let mut t = s ^ i as u64;
                 for k in 0..depth {
                     let lv = &packed[k];

@@ -3,7 +3,7 @@
 //! Density at a world cell and time t = (n + f)·dt: each level's frame has moved
 //! by the continuous wind displacement c(t); the cell centre falls at frame
 //! position X − c. The cloud bits of steps n and n+1 (each a blend of the runs
-//! its epoch plan names) are smoothed with a 3×3 tent ([1,2,1]/4 per axis),
+//! its epoch plan names) are smoothed with a 3×3 tent (`[1, 2, 1] / 4` per axis),
 //! sampled bilinearly at that position, and interpolated linearly in f. The
 //! result is a pure function of (world, layer, cell, t).
 
@@ -15,7 +15,7 @@ use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
 use crate::automaton::run::millis;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
-use crate::fields::noise::{Backend, Coord, MIX_MUL, mix64};
+use crate::fields::noise::{Coord, MIX_MUL, NoiseBackend, mix64};
 
 /// The epoch plans of `steps` and the snapshots of every run they name, each run
 /// made once over the given per-level windows (one run serves every step that
@@ -196,12 +196,12 @@ fn cld_row(lv: &Level, y: i64, x0: i64, out: &mut [u8], bytes: &mut Vec<u8>) {
 /// the cell switches runs: a hash of (stream, level, x, y), with the row's
 /// `mix64` worked out once per row.
 fn switch_hashes(stream: u64, k: usize, w: Rect) -> Vec<u16> {
-    switch_hashes_on(Backend::detect(), stream, k, w)
+    switch_hashes_on(NoiseBackend::detect(), stream, k, w)
 }
 
-/// [`switch_hashes`] on one backend (one of [`Backend::available`]); every
+/// `switch_hashes` on one backend (one of [`NoiseBackend::available`]); every
 /// backend gives the same bits. Public for the benchmark that compares them.
-pub fn switch_hashes_on(backend: Backend, stream: u64, k: usize, w: Rect) -> Vec<u16> {
+pub fn switch_hashes_on(backend: NoiseBackend, stream: u64, k: usize, w: Rect) -> Vec<u16> {
     let base = stream ^ 0x6469_7468_6572 ^ ((k as u64) << 40);
     let cols = (w.x1 - w.x0).max(0) as usize;
     let rows = (w.y1 - w.y0).max(0) as usize;
@@ -210,14 +210,14 @@ pub fn switch_hashes_on(backend: Backend, stream: u64, k: usize, w: Rect) -> Vec
         return out;
     }
     assert!(
-        Backend::available().contains(&backend),
+        NoiseBackend::available().contains(&backend),
         "{backend:?} hashes on a CPU without them"
     );
     for (r, row) in out.chunks_exact_mut(cols).enumerate() {
         let my = mix64((w.y0 + r as i64) as u64);
         match backend {
             #[cfg(target_arch = "x86_64")]
-            Backend::Avx512 => {
+            NoiseBackend::Avx512 => {
                 // SAFETY: the CPU has AVX-512 F and DQ (asserted above).
                 unsafe { switch_row_avx512(base, my, w.x0, row) }
             }
@@ -681,7 +681,7 @@ mod tests {
             let want: Vec<u16> = (w.y0..w.y1)
                 .flat_map(|y| (w.x0..w.x1).map(move |x| switch_hash(s, k, x, y) as u16))
                 .collect();
-            for &backend in Backend::available() {
+            for &backend in NoiseBackend::available() {
                 assert_eq!(switch_hashes_on(backend, s, k, w), want, "{backend:?}");
             }
         }

@@ -30,7 +30,7 @@ use super::exact::split_time;
 use super::{Grid, Region};
 use crate::automaton::{LayerSim, plan_step};
 use crate::fields::noise::Coord;
-use crate::fields::probability::Which;
+use crate::world::Event;
 use crate::world::Mode;
 
 /// Lookup-table resolution per axis; axes are in sqrt(p) so small probabilities
@@ -148,12 +148,12 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     } else {
         vec![1.0]
     };
-    let octaves = [Which::Humidity, Which::Activation, Which::Extinction].map(|w| f.octaves(w, span as f64));
+    let octaves = Event::ALL.map(|w| f.octaves(w, span as f64));
     let (dx, dy) = sim.frames.displacement(0, n, frac);
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
     // Brightness of each run's fields at every column centre (level 0's frame).
-    let which = [Which::Humidity, Which::Activation, Which::Extinction];
+    let which = Event::ALL;
     let brightness: Vec<[Vec<f32>; 3]> = plan
         .runs
         .iter()

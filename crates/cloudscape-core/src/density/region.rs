@@ -5,18 +5,42 @@ use crate::world::{Layer, Limits, MAX_TIME};
 /// A request the simulation refuses, before any work starts.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SimError {
+    /// The world time (seconds) is not finite or outside [0, [`MAX_TIME`]].
     #[error("t must be a finite number of seconds within [0, 1e12], got {0}")]
     BadTime(f64),
+    /// The bounding box is malformed or has no area.
     #[error("bbox must be four finite numbers X0,Y0,X1,Y1 with X0 < X1 and Y0 < Y1")]
     BadBbox,
+    /// The bounding box covers no cell centre.
     #[error("the region holds no cell centre")]
     EmptyRegion,
+    /// The region is wider or taller than the limit allows.
     #[error("the region is {cols}×{rows} columns; the limit is {max} columns per side")]
-    RegionTooWide { cols: u64, rows: u64, max: u64 },
+    RegionTooWide {
+        /// Columns asked for.
+        cols: u64,
+        /// Rows asked for.
+        rows: u64,
+        /// Columns allowed per side.
+        max: u64,
+    },
+    /// The request would simulate more cells than the limit allows.
     #[error("the request needs {cells} cells; the limit is {max}")]
-    TooManyCells { cells: u64, max: u64 },
+    TooManyCells {
+        /// Cells the request needs.
+        cells: u64,
+        /// Cells allowed.
+        max: u64,
+    },
+    /// The level is above the deepest the layer has.
     #[error("level {level} is out of range (0..={max})")]
-    BadLevel { level: u32, max: u32 },
+    BadLevel {
+        /// Level asked for.
+        level: u32,
+        /// Deepest level.
+        max: u32,
+    },
+    /// A coordinate is beyond [`MAX_CELL_INDEX`] (the message says which).
     #[error("coordinates out of range: {0}")]
     OutOfRange(String),
     /// The computation was stopped (its [`crate::cancel::Cancel`] fired).
@@ -28,9 +52,13 @@ pub enum SimError {
 /// is (`x0`, `y0`). A level-`z` column spans `2^z` level-0 cells per side.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Region {
+    /// Column x of the first column, at the region's level.
     pub x0: i64,
+    /// Column y of the first column, at the region's level.
     pub y0: i64,
+    /// Columns along x.
     pub cols: usize,
+    /// Columns along y.
     pub rows: usize,
 }
 
@@ -143,13 +171,18 @@ pub fn check_time(t: f64) -> Result<f64, SimError> {
 /// depth = altitude level from the layer's base.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Grid<T> {
+    /// Altitude levels.
     pub depth: usize,
+    /// Rows (y, north).
     pub rows: usize,
+    /// Columns (x, east).
     pub cols: usize,
+    /// The values, `depth × rows × cols`, in C order.
     pub data: Vec<T>,
 }
 
 impl<T: Copy + Default> Grid<T> {
+    /// A grid of the shape filled with `T::default()`.
     pub fn new(depth: usize, rows: usize, cols: usize) -> Grid<T> {
         Grid {
             depth,
@@ -159,11 +192,13 @@ impl<T: Copy + Default> Grid<T> {
         }
     }
 
+    /// The index into `data` of (`k`, `row`, `col`).
     #[inline]
     pub fn index(&self, k: usize, row: usize, col: usize) -> usize {
         (k * self.rows + row) * self.cols + col
     }
 
+    /// The value at (`k`, `row`, `col`).
     #[inline]
     pub fn get(&self, k: usize, row: usize, col: usize) -> T {
         self.data[self.index(k, row, col)]

@@ -11,20 +11,13 @@
 
 use rayon::prelude::*;
 
-use super::noise::{Backend, Coord, Fbm, FbmGrid, Octave, mix64, sample_table};
-use crate::world::{FieldSpec, Layer, Mode, World};
-
-/// Which of a layer's three fields.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Which {
-    Humidity = 0,
-    Activation = 1,
-    Extinction = 2,
-}
+use super::noise::{Coord, Fbm, FbmGrid, NoiseBackend, Octave, mix64, sample_table};
+use crate::world::{Event, FieldSpec, Layer, Mode, World};
 
 /// The noise fields of one layer of one world.
 #[derive(Clone, Debug)]
 pub struct LayerFields {
+    /// The layer the fields belong to.
     pub layer: Layer,
     fbm: [Fbm; 3],
     tables: [Vec<Octave>; 3],
@@ -34,8 +27,11 @@ pub struct LayerFields {
 /// Probabilities at one cell (or Rosa textures, for mode `rosa`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Probabilities {
+    /// Humidity probability p_hum, in [0, 1].
     pub hum: f32,
+    /// Activation probability p_act, in [0, 1].
     pub act: f32,
+    /// Extinction probability p_ext, in [0, 1].
     pub ext: f32,
 }
 
@@ -43,16 +39,22 @@ pub struct Probabilities {
 /// three fields over a window of wind-frame cells. Row-major, `w × h`.
 #[derive(Clone, Debug)]
 pub struct FieldWindow {
+    /// Wind-frame x of column 0.
     pub x0: i64,
+    /// Wind-frame y of row 0.
     pub y0: i64,
+    /// Columns.
     pub w: usize,
+    /// Rows.
     pub h: usize,
+    /// Each field's brightness in [0, 1], indexed by [`Event`].
     pub b: [Vec<f32>; 3],
 }
 
 impl FieldWindow {
+    /// Field `which`'s brightness at wind-frame cell (`x`, `y`); 0 outside the window.
     #[inline]
-    pub fn get(&self, which: Which, x: i64, y: i64) -> f32 {
+    pub fn get(&self, which: Event, x: i64, y: i64) -> f32 {
         let (dx, dy) = (x - self.x0, y - self.y0);
         if dx < 0 || dy < 0 || dx >= self.w as i64 || dy >= self.h as i64 {
             return 0.0;
@@ -82,6 +84,7 @@ pub fn quantize(p: f32) -> u32 {
 }
 
 impl LayerFields {
+    /// The fields of layer `layer_index` of `world`, seeded from the world seed.
     pub fn new(world: &World, layer_index: usize) -> LayerFields {
         let layer = world.layers[layer_index].clone();
         let base_seed = mix64(world.seed ^ mix64(0x6c61_7965_7200_0000 ^ layer_index as u64));
@@ -118,7 +121,7 @@ impl LayerFields {
     }
 
     /// Octaves of field `which` worth evaluating when samples are `sample` cells apart.
-    pub fn octaves(&self, which: Which, sample: f64) -> u32 {
+    pub fn octaves(&self, which: Event, sample: f64) -> u32 {
         self.fbm[which as usize].octaves_for(sample)
     }
 
@@ -127,7 +130,7 @@ impl LayerFields {
     /// the feather at the extent's edges).
     pub fn brightness(
         &self,
-        which: Which,
+        which: Event,
         x: (i64, f64),
         y: (i64, f64),
         octaves: u32,
@@ -140,7 +143,7 @@ impl LayerFields {
 
     /// [`LayerFields::brightness`] from the field's fBm value `n` at that position.
     #[inline]
-    fn brightness_of(&self, which: Which, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
+    fn brightness_of(&self, which: Event, n: f64, x: (i64, f64), y: (i64, f64), world_shift: (i64, i64)) -> f32 {
         let spec = &self.specs[which as usize];
         let mut v = (n + 1.0) * 0.5;
         if let (Some(f), Some(ext)) = (&spec.feather, &self.layer.extent) {
@@ -161,7 +164,7 @@ impl LayerFields {
     #[allow(clippy::too_many_arguments)]
     pub fn brightness_grid(
         &self,
-        which: Which,
+        which: Event,
         octaves: u32,
         xs: &[(i64, f64)],
         ys: &[(i64, f64)],
@@ -170,7 +173,7 @@ impl LayerFields {
         out: &mut [f32],
     ) {
         assert_eq!(out.len(), xs.len() * ys.len(), "one output per grid point");
-        let grid = FbmGrid::new(&self.tables[which as usize], octaves, xs, Backend::detect());
+        let grid = FbmGrid::new(&self.tables[which as usize], octaves, xs, NoiseBackend::detect());
         out.par_chunks_mut(xs.len().max(1)).zip(ys).for_each_init(
             || vec![0.0; xs.len()],
             |n, (row, &y)| {
@@ -198,7 +201,7 @@ impl LayerFields {
         world_shift: (i64, i64),
     ) -> FieldWindow {
         let octs = [0, 1, 2].map(|i| self.fbm[i].octaves_for(1.0));
-        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        let which = Event::ALL;
         let mut b: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
         for (f, out) in b.iter_mut().enumerate() {
             if spacing[f] <= 1 {
@@ -519,7 +522,7 @@ mod tests {
     fn window_has_the_bits_of_brightness_per_sample() {
         let f = fields();
         let (x0, y0, w, h, shift) = (-37, 101, 45, 23, (5, -3));
-        let which = [Which::Humidity, Which::Activation, Which::Extinction];
+        let which = Event::ALL;
         for tau in [None, f.tau(1234.5)] {
             for spacing in [[1; 3], [2, 4, 16]] {
                 let win = f.window(x0, y0, w, h, spacing, tau, shift);
@@ -562,7 +565,7 @@ mod tests {
             .map(|r| ((1 << 40) - r * 4, 1.0 - 0.2 * r as f64 - 1e-12))
             .collect();
         for tau in [None, f.tau(1234.5), f.tau(-3e9)] {
-            for which in [Which::Humidity, Which::Activation, Which::Extinction] {
+            for which in Event::ALL {
                 let octaves = f.octaves(which, 4.0);
                 let mut out = vec![0f32; xs.len() * ys.len()];
                 f.brightness_grid(which, octaves, &xs, &ys, tau, (7, -9), &mut out);
@@ -589,8 +592,8 @@ mod tests {
         for r in 0..10 {
             for c in 0..20 {
                 assert_eq!(
-                    a.get(Which::Activation, 13 + c, 7 + r),
-                    b.get(Which::Activation, 13 + c, 7 + r)
+                    a.get(Event::Activation, 13 + c, 7 + r),
+                    b.get(Event::Activation, 13 + c, 7 + r)
                 );
             }
         }

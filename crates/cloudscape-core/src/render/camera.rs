@@ -9,9 +9,13 @@ use super::shade::cross;
 /// horizontal field of view in degrees.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Camera {
+    /// Eye position, world metres (x east, y north, z up).
     pub position: [f64; 3],
+    /// Heading, degrees clockwise from north.
     pub yaw_deg: f64,
+    /// Degrees above the horizon.
     pub pitch_deg: f64,
+    /// Horizontal field of view, degrees.
     pub fov_deg: f64,
 }
 
@@ -70,22 +74,35 @@ impl Camera {
 /// (impostors, tests).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct View {
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
     /// Eye (perspective) or image centre (orthographic), world metres.
     pub origin: [f64; 3],
+    /// Unit vector along the view axis.
     pub forward: [f64; 3],
+    /// Unit vector toward the image's right.
     pub right: [f64; 3],
+    /// Unit vector toward the image's top.
     pub up: [f64; 3],
+    /// Perspective or orthographic projection.
     pub kind: ViewKind,
 }
 
+/// How a [`View`] projects.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ViewKind {
-    /// Focal length in pixels.
-    Perspective { focal: f64 },
-    /// Metres per pixel.
-    Orthographic { metres_per_pixel: f64 },
+    /// A pinhole at the view's origin.
+    Perspective {
+        /// Focal length in pixels.
+        focal: f64,
+    },
+    /// Parallel rays through the image plane.
+    Orthographic {
+        /// Metres per pixel.
+        metres_per_pixel: f64,
+    },
 }
 
 /// Where a point lands on screen.
@@ -93,6 +110,7 @@ pub enum ViewKind {
 pub struct Projected {
     /// Pixel coordinates (x right, y down; pixel centres at i + 0.5).
     pub x: f64,
+    /// Pixel y (down).
     pub y: f64,
     /// Distance along the forward axis, metres.
     pub depth: f64,
@@ -101,6 +119,7 @@ pub struct Projected {
 }
 
 impl View {
+    /// The view of `camera` on a `width × height` image.
     pub fn perspective(camera: &Camera, width: usize, height: usize) -> View {
         let (forward, right, up) = camera.basis();
         let focal = width as f64 / 2.0 / (camera.fov_deg.to_radians() / 2.0).tan();

@@ -42,7 +42,7 @@
 //! perspective, `c · T_air + L_in`, [`Lighting::hazed`]; not in orthographic views,
 //! the impostors, which a client hazes by their own distance).
 //!
-//! A ball within [`AROUND_EYE_RADII`] of the eye is not a quad: its field is integrated
+//! A ball within `AROUND_EYE_RADII` of the eye is not a quad: its field is integrated
 //! along each pixel's ray over the part of the chord in front of the eye (closed form,
 //! [`line_integral_beyond`]), and shaded for that ray's direction. Inside a cloud layer
 //! that is fog, thicker toward nearby ball centres, with the same opacity as the ray
@@ -90,7 +90,9 @@ pub struct Footprint {
     pub dist: f64,
     /// Centre on screen and radius, pixels.
     pub x: f64,
+    /// Centre y on screen, pixels.
     pub y: f64,
+    /// Radius on screen, pixels.
     pub r_px: f64,
     /// Radiance for this view (pre-shaded colour plus the phase correction).
     pub colour: [f64; 3],

@@ -10,14 +10,18 @@ const NOISE_KEYS: [&str; 3] = ["cloudscape:samples", "cloudscape:noise", "clouds
 /// A linear-RGB image with coverage alpha, premultiplied: `rgb` already includes alpha.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Width, pixels.
     pub width: usize,
+    /// Height, pixels.
     pub height: usize,
     /// Row-major, row 0 at the top.
     pub rgb: Vec<[f32; 3]>,
+    /// Coverage per pixel in [0, 1], row-major.
     pub alpha: Vec<f32>,
 }
 
 impl Image {
+    /// A transparent black image.
     pub fn new(width: usize, height: usize) -> Image {
         Image {
             width,

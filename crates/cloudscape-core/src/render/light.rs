@@ -220,6 +220,7 @@ pub struct ShadingParams {
     pub extinction: f64,
     /// Single-scattering albedo in [0, 1].
     pub albedo: f64,
+    /// The phase function of the cloud droplets.
     pub phase: Phase,
     /// Sun radiance above the atmosphere, in units where a white surface facing it
     /// reads this (~1; the air takes ~10 % of it at a zenith sun).
@@ -306,8 +307,9 @@ pub struct Lighting {
     pub sky_ambient_below: [f64; 3],
     /// Mean radiance over the whole sphere around an unoccluded point, the average of
     /// the two above: the ambient an isotropic scatterer sees, added unoccluded by
-    /// [`Lighting::cloud_source`].
+    /// [`Lighting::source_with_phase`].
     pub ambient_rgb: [f64; 3],
+    /// The cloud's optical properties.
     pub params: ShadingParams,
     /// Global horizontal illuminance (sun + sky on an upward surface at the ground)
     /// relative to the sun above the atmosphere, in [0, 1]: 0 at night, ~0.9 at noon.

@@ -55,8 +55,11 @@ impl MarchParams {
 /// (a halo), so interpolation is seamless across neighbouring volumes.
 #[derive(Clone, Debug)]
 pub struct Volume {
+    /// The density, cells of the layer's level.
     pub grid: Grid<f32>,
+    /// Where the grid's cells lie in the world.
     pub place: GridPlacement,
+    /// The box this volume answers for: [x0, y0, z0, x1, y1, z1], world metres.
     pub bounds: [f64; 6],
     bricks: Vec<f32>,
     brick_dims: [usize; 3],
@@ -65,6 +68,7 @@ pub struct Volume {
 }
 
 impl Volume {
+    /// A volume of `grid` placed by `place`, answering for `bounds` (world metres).
     pub fn new(grid: Grid<f32>, place: GridPlacement, bounds: [f64; 6]) -> Volume {
         let dims = [
             grid.cols.div_ceil(BRICK),

@@ -2,31 +2,77 @@
 //! billboard compositor a client would use, the reference path tracer, and the
 //! single-scattering ray marcher.
 //!
-//! # API summary (what the HTTP service calls)
+//! # What the HTTP service calls
 //!
-//! ```text
-//! Quality::parse("fast" | "balanced" | "accurate" | "reference" | "reference-single") -> Option<Quality>;  q.as_str()
-//! Sun::parse("AZ,EL") -> Result<Sun, ParseError>;  Sun::from_clock(t, &config.sun) -> Sun
-//! sun.bucket() -> SunBucket;  bucket.id() -> String          (cache-key part, ~8° buckets, 1° near the horizon)
-//! TileId { z, x, y }
+//! Presets and suns parse from their query strings. Every sun in one bucket
+//! (about 8° wide, 1° near the horizon) is shaded as the bucket's centre, so the
+//! bucket's id is the cache-key part:
 //!
-//! // Density + metaballs + shading of one tile, once; every tile product encodes it.
-//! tile::shade_tile(&world, layer, TileId, t, quality, sun, &ShadingParams::default(), &config.limits)
-//!     -> Result<ShadedTile, RenderError>
-//! products::billboards::encode_json(&ShadedTile) -> Vec<u8>          // billboards.json
-//! products::billboards::encode_bin(&ShadedTile) -> Vec<u8>           // billboards.bin
-//! products::billboards::decode_bin(&[u8]) -> Result<BinBillboards, String>
-//! products::shadow::encode_png_map(&ShadedTile) -> Vec<u8>           // shadow.png
-//! products::atlas::build(&ShadedTile) -> Atlas { png, manifest, impostors }  // atlas.png / atlas.json
-//! products::coverage::encode_png_for_tile(&world, layer, TileId, t, &config.limits)
-//!     -> Result<Vec<u8>, RenderError>                               // coverage.png (no sun, no quality)
-//! products::splats::encode_png_sheet(quality) / encode_json_sheet(quality) -> Vec<u8>  // /v1/splats.*
+//! ```rust
+//! use cloudscape_core::render::{Quality, Sun};
 //!
-//! // `cloudscape render` and GET /render.png:
-//! scene::parse_size("WxH") -> Result<(usize, usize), ParseError>;  Camera::parse("X,Y,Z,YAW,PITCH,FOV")
-//! scene::render(&world, &config, &RenderRequest { camera, width, height, t, quality, sun: Option<Sun>,
-//!     params: ShadingParams::default(), samples: u32 }) -> Result<Rendered, RenderError>;
-//! rendered.image.to_png();  rendered.noise: Option<pathtrace::Noise>   // `reference` only
+//! let q = Quality::parse("balanced").unwrap();
+//! assert_eq!(q.as_str(), "balanced");
+//! assert!(Quality::parse("reference").unwrap().is_volumetric());
+//!
+//! let sun = Sun::parse("135,40").unwrap();
+//! assert_eq!(sun.bucket(), Sun::parse("135.2,40.2").unwrap().bucket());
+//! assert_eq!(sun.bucket().centre().bucket(), sun.bucket());
+//! assert!(Sun::parse("135,95").is_err());
+//! let _id: String = sun.bucket().id();
+//!
+//! // Without a sun in the request, the world clock's: solar time at the
+//! // configured latitude and day.
+//! let config = cloudscape_core::world::Config::embedded();
+//! assert!(Sun::from_clock(12.0 * 3600.0, &config.sun).elevation_deg > 0.0);
+//! assert!(Sun::from_clock(0.0, &config.sun).elevation_deg < 0.0);
+//! ```
+//!
+//! A tile product shades a tile's density and metaballs once
+//! ([`shade_tile`]); every product of that tile encodes the same [`ShadedTile`]
+//! (not run here: a tile takes seconds in a debug build):
+//!
+//! ```rust,no_run
+//! use cloudscape_core::products::billboards;
+//! use cloudscape_core::render::{Quality, ShadingParams, Sun, TileId, shade_tile};
+//! use cloudscape_core::world::Config;
+//!
+//! let config = Config::embedded();
+//! let world = config.world("default").unwrap();
+//! let tile = TileId { z: 0, x: 0, y: 0 };
+//! let sun = Sun::parse("135,40").unwrap();
+//! let shaded = shade_tile(&world, 0, tile, 0.0, Quality::Fast, sun, &ShadingParams::default(), &config.limits).unwrap();
+//! let bytes = billboards::encode_bin(&shaded); // billboards.bin
+//! let decoded = billboards::decode_bin(&bytes).unwrap();
+//! assert_eq!(decoded.records.len(), shaded.billboards.len());
+//! ```
+//!
+//! `cloudscape render` and `GET /render.png` render a camera view with
+//! [`render`]. From above every layer, looking up, the view holds no tile and
+//! only the sky is drawn:
+//!
+//! ```rust
+//! use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render, scene};
+//! use cloudscape_core::world::Config;
+//!
+//! let config = Config::embedded();
+//! let world = config.world("default").unwrap();
+//! let (width, height) = scene::parse_size("32x18").unwrap();
+//! let req = RenderRequest {
+//!     camera: Camera::parse("0,0,30000,0,89,60").unwrap(),
+//!     width,
+//!     height,
+//!     t: 0.0,
+//!     quality: Quality::Fast,
+//!     sun: None, // the world clock's sun at `t`
+//!     params: ShadingParams::default(),
+//!     samples: 1,
+//! };
+//! let rendered = render(&world, &config, &req).unwrap();
+//! assert_eq!((rendered.image.width, rendered.image.height), (32, 18));
+//! assert!(rendered.tiles.is_empty() && rendered.billboards == 0);
+//! assert!(rendered.noise.is_none()); // only `reference` estimates its noise
+//! let _png: Vec<u8> = rendered.image.to_png();
 //! ```
 //!
 //! Errors: [`ParseError`] is a camera, size or sun the parsers refuse (its message names
@@ -112,10 +158,15 @@ pub enum ParseError {
 /// those of `Accurate`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Quality {
+    /// Coarse metaballs and small splats: the quickest preset.
     Fast,
+    /// Twice the metaball density of `fast`.
     Balanced,
+    /// One metaball per column and the largest splats.
     Accurate,
+    /// The path tracer (every order of scattering); billboards as `accurate`.
     Reference,
+    /// The single-scattering ray marcher; billboards as `accurate`.
     ReferenceSingle,
 }
 
@@ -128,6 +179,7 @@ pub struct QualitySettings {
     pub radius_factor: f64,
     /// Number of splats in the sheet and their side in texels.
     pub splat_count: usize,
+    /// Side of one splat sprite, texels.
     pub splat_size: usize,
     /// Light-buffer texel, in metaball radii (finer = sharper self-shadowing).
     pub light_texel: f64,
@@ -139,6 +191,7 @@ pub struct QualitySettings {
 }
 
 impl Quality {
+    /// Every preset, fastest first.
     pub const ALL: [Quality; 5] = [
         Quality::Fast,
         Quality::Balanced,
@@ -153,6 +206,7 @@ impl Quality {
         matches!(self, Quality::Reference | Quality::ReferenceSingle)
     }
 
+    /// The preset named `s` (its query-string name), if any.
     pub fn parse(s: &str) -> Option<Quality> {
         match s {
             "fast" => Some(Quality::Fast),
@@ -164,6 +218,7 @@ impl Quality {
         }
     }
 
+    /// The preset's query-string name.
     pub fn as_str(&self) -> &'static str {
         match self {
             Quality::Fast => "fast",
@@ -174,6 +229,7 @@ impl Quality {
         }
     }
 
+    /// What the preset selects.
     pub fn settings(&self) -> QualitySettings {
         match self {
             Quality::Fast => QualitySettings {

@@ -36,7 +36,7 @@
 //!   for estimating attenuation in participating media", §3: the product of (1 − σ/σ̄)
 //!   over the tentative collisions so far, with Russian roulette below 0.1), and T̂_sun
 //!   a ratio-tracking estimate toward the sun (as in the marcher, the sun ray sees
-//!   cloud only); shadow rays of weight below [`NEE_WEIGHT`] are taken by Russian
+//!   cloud only); shadow rays of weight below `NEE_WEIGHT` are taken by Russian
 //!   roulette. Against one shadow ray at the collision, the sun term is gathered along
 //!   the whole segment, so thin cloud is not a coin toss between "hit" and "missed" (the
 //!   majorant is at least 1 / brick size: about one tentative collision per non-empty
@@ -142,6 +142,7 @@ pub enum Sky {
 pub struct Environment<'a> {
     /// Sun direction and colour, extinction, albedo, phase, and the ground model.
     pub lighting: &'a Lighting,
+    /// The sky seen behind the clouds and lighting them.
     pub sky: Sky,
     /// Whether the ground at altitude 0 is there (no ground: paths going down see the sky).
     pub ground: bool,
@@ -194,6 +195,7 @@ impl Noise {
 pub struct Traced {
     /// Mean radiance per pixel; opaque (the sky or ground is behind every pixel).
     pub image: Image,
+    /// The noise the image is stated to have.
     pub noise: Noise,
 }
 

@@ -39,14 +39,19 @@ pub const MAX_REFERENCE_PIXELS: usize = 1024 * 1024;
 /// What to draw.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RenderRequest {
+    /// Where the eye is and where it looks.
     pub camera: Camera,
+    /// Image width, pixels.
     pub width: usize,
+    /// Image height, pixels.
     pub height: usize,
     /// World-clock seconds.
     pub t: f64,
+    /// The quality preset.
     pub quality: Quality,
     /// The sun; `None` follows the world clock.
     pub sun: Option<Sun>,
+    /// The cloud's optical properties.
     pub params: ShadingParams,
     /// Samples per pixel of the path tracer (`reference`; other presets ignore it).
     pub samples: u32,
@@ -55,6 +60,7 @@ pub struct RenderRequest {
 /// A rendered view and what went into it.
 #[derive(Clone, Debug)]
 pub struct Rendered {
+    /// The picture, linear RGB.
     pub image: Image,
     /// (layer, tile) of every tile drawn.
     pub tiles: Vec<(usize, TileId)>,
@@ -136,6 +142,7 @@ fn check_samples(req: &RenderRequest, max_path_samples: u64) -> Result<(), Rende
 pub struct LayerBand {
     /// Altitude of the layer's bottom and top, metres.
     pub base: f64,
+    /// Altitude of the layer's top, metres.
     pub top: f64,
     /// Level-0 column width, metres.
     pub cell_size: f64,

@@ -57,6 +57,7 @@ pub const RAYLEIGH_SCATTERING: [f64; 3] = [5.802e-6, 13.558e-6, 33.1e-6];
 pub const RAYLEIGH_SCALE_HEIGHT: f64 = 8_000.0;
 /// Mie scattering and extinction at sea level per metre.
 pub const MIE_SCATTERING: f64 = 3.996e-6;
+/// Mie extinction at sea level per metre (scattering plus absorption).
 pub const MIE_EXTINCTION: f64 = 4.40e-6;
 /// Mie density scale height, metres.
 pub const MIE_SCALE_HEIGHT: f64 = 1_200.0;
@@ -82,6 +83,7 @@ pub const SUN_REFERENCE_ALTITUDE: f64 = 2_000.0;
 
 /// Sky table: rows over view elevation, columns over azimuth relative to the sun.
 pub const SKY_ROWS: usize = 48;
+/// Columns of the sky table (azimuth relative to the sun).
 pub const SKY_COLUMNS: usize = 48;
 /// Altitudes of the multiple-scattering table, metres (0 to 60 km, denser low).
 const MS_ALTITUDES: usize = 12;
@@ -96,6 +98,7 @@ const MS_DIRECTIONS: usize = 64;
 /// The sun transmittance by altitude that aerial perspective reads: every
 /// [`SUN_TABLE_STEP`] metres from 0 to `(SUN_TABLE_LEN − 1) · SUN_TABLE_STEP`.
 pub const SUN_TABLE_LEN: usize = 41;
+/// Metres between entries of the sun transmittance table.
 pub const SUN_TABLE_STEP: f64 = 500.0;
 
 /// Rayleigh phase function normalised over the sphere: `3/(16π) (1 + μ²)`.

@@ -72,6 +72,7 @@ pub fn centre_line_integral() -> f64 {
 /// A sprite sheet of splat opacities: `count` sprites of `size × size` texels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SplatSheet {
+    /// Number of sprites.
     pub count: usize,
     /// Side of one sprite in texels (odd, so there is a centre texel).
     pub size: usize,

@@ -224,7 +224,7 @@ mod tests {
         }
         assert_eq!(Sun::new(0.0, 90.0).unwrap().bucket().elevation_band, 17);
         assert_eq!(Sun::new(0.0, -90.0).unwrap().bucket().elevation_band, -15);
-        // A sunset at 1° is lit at 1.5°, not at 4° (the old 8° band's centre).
+        // A sunset at 1° is lit at 1.5°, not at 4° (an 8° band's centre would be).
         assert_eq!(Sun::new(270.0, 1.0).unwrap().bucket().centre().elevation_deg, 1.5);
         // Ids stay two digits per part and distinct per bucket.
         let mut ids = std::collections::HashSet::new();

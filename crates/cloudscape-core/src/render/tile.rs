@@ -24,8 +24,11 @@ pub const MIN_BALL_DENSITY: f32 = 1e-3;
 /// A tile address: level `z`, column-tile `x` (east), row-tile `y` (north).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TileId {
+    /// Level: a column is `2^z` level-0 cells per side.
     pub z: u32,
+    /// Tile column (east), in tiles of [`TILE_COLUMNS`] columns.
     pub x: i64,
+    /// Tile row (north), in tiles of [`TILE_COLUMNS`] columns.
     pub y: i64,
 }
 
@@ -54,18 +57,27 @@ impl TileId {
 /// A tile after density, metaballs and shading: everything the tile products encode.
 #[derive(Clone, Debug)]
 pub struct ShadedTile {
+    /// Index of the layer in its world.
     pub layer: usize,
+    /// Name of the layer.
     pub layer_name: String,
+    /// The tile's address.
     pub tile: TileId,
+    /// World-clock seconds.
     pub t: f64,
+    /// The quality preset it was shaded at.
     pub quality: Quality,
     /// The bucket of the requested sun, and its centre (the sun actually used).
     pub bucket: SunBucket,
+    /// The centre of `bucket`: the sun the tile is shaded with.
     pub sun: Sun,
+    /// Sun, sky and cloud optics the billboards were shaded with.
     pub lighting: Lighting,
+    /// Where the tile's metaballs sit.
     pub lattice: Lattice,
     /// South-west corner of the tile, world metres, and its side, metres.
     pub origin: [f64; 2],
+    /// Side of the tile, metres.
     pub size: f64,
     /// Column width at the tile's level, metres.
     pub column: f64,
@@ -81,7 +93,9 @@ pub struct ShadedTile {
     pub shadow: Vec<f32>,
     /// The density the tile was built from, with `halo` extra columns on each side.
     pub density: Grid<f32>,
+    /// Extra columns of `density` on each side of the tile.
     pub halo: usize,
+    /// Where `density`'s cells lie in the world.
     pub place: GridPlacement,
 }
 

@@ -13,12 +13,25 @@ pub const DEFAULT_CONFIG: &str = include_str!("../../../../config/default.toml")
 /// A configuration that could not be used. The message names the offending key.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
+    /// The config file cannot be read.
     #[error("cannot read config file {path}: {source}")]
-    Read { path: String, source: std::io::Error },
+    Read {
+        /// The file's path.
+        path: String,
+        /// Why it cannot be read.
+        source: std::io::Error,
+    },
+    /// The TOML does not parse (the message says where).
     #[error("invalid config: {0}")]
     Parse(String),
+    /// A value is invalid.
     #[error("invalid config: {key}: {message}")]
-    Invalid { key: String, message: String },
+    Invalid {
+        /// The offending key, dotted (e.g. `sun.day_of_year`).
+        key: String,
+        /// What is wrong with its value.
+        message: String,
+    },
 }
 
 impl ConfigError {
@@ -88,7 +101,9 @@ impl Default for Limits {
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct SunConfig {
+    /// Latitude of the world clock's sun, degrees (north positive).
     pub latitude: f64,
+    /// Day of the year (1..=366) of the world clock's sun.
     pub day_of_year: u32,
 }
 
@@ -148,8 +163,11 @@ struct RawLayer {
 /// The whole, validated configuration.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Config {
+    /// Bounds on the work one request may cause.
     pub limits: Limits,
+    /// The world clock's sun.
     pub sun: SunConfig,
+    /// Cloud types by name.
     pub presets: BTreeMap<String, Preset>,
     /// Named worlds; `default` is always present.
     pub worlds: BTreeMap<String, World>,

@@ -13,7 +13,7 @@ pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, SunConfig};
 use serde::Deserialize;
 
 /// Bumped whenever any change alters output bytes. Baked into cache keys and ETags.
-/// 2: byte-wise Bernoulli draws with per-word floating thresholds (src/automaton/random.rs).
+/// 2: byte-wise Bernoulli draws with per-word floating thresholds (`automaton::random`).
 /// 3: one random key per word, salted per event.
 /// 4: ARS-5 (AES-round) 16-bit draws, compared in full (no high-byte ties).
 /// 5: pictures judged against physics (issue 20): a path-traced `reference`, a
@@ -28,6 +28,25 @@ pub const ALGORITHM_VERSION: u32 = 6;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;
+
+/// Dobashi's three stochastic events, each with its own probability field:
+/// humidity (vapour appears, p_hum), activation (vapour may turn to cloud, p_act)
+/// and extinction (cloud vanishes, p_ext). The value indexes a layer's three
+/// fields and a word's three drives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Event {
+    /// Vapour appears in a cell (p_hum).
+    Humidity = 0,
+    /// A humid cell may become cloud (p_act).
+    Activation = 1,
+    /// A cloud cell vanishes (p_ext).
+    Extinction = 2,
+}
+
+impl Event {
+    /// The three events in index order.
+    pub const ALL: [Event; 3] = [Event::Humidity, Event::Activation, Event::Extinction];
+}
 
 /// How a layer's automaton runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, serde::Serialize)]
@@ -50,8 +69,10 @@ pub struct FieldSpec {
     /// Octaves of fBm before clamping to what the output resolution can show.
     #[serde(default = "default_octaves")]
     pub octaves: u32,
+    /// Frequency ratio between successive octaves.
     #[serde(default = "default_lacunarity")]
     pub lacunarity: f64,
+    /// Amplitude ratio between successive octaves.
     #[serde(default = "default_gain")]
     pub gain: f64,
     /// Rosa's "move": a shift of the pattern, in noise units (cycles).
@@ -69,13 +90,16 @@ pub struct FieldSpec {
 }
 
 /// Rosa 2013 §4.1.2 feather: zero brightness within `start` metres of the extent's
-/// edge, fading in until `depth` metres; `falloff` in [0,1] shapes the fade
+/// edge, fading in until `depth` metres; `falloff` in \[0, 1\] shapes the fade
 /// (0 linear, 1 smoothstep-like steepening near the edge).
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Feather {
+    /// Metres from the extent's edge within which the brightness is zero.
     pub start: f64,
+    /// Metres from the edge at which the fade is complete.
     pub depth: f64,
+    /// Shape of the fade in [0, 1]: 0 linear, 1 steepest near the edge.
     #[serde(default)]
     pub falloff: f64,
 }
@@ -111,13 +135,17 @@ pub struct Ellipsoid {
 #[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
 #[serde(deny_unknown_fields)]
 pub struct Preset {
+    /// How the automaton runs (Dobashi or Rosa).
     pub mode: Mode,
     /// Height profile: at the top of the layer the brightness needed for
     /// humidity/activation rises by this much, so bases are wider than tops.
     #[serde(default)]
     pub top_narrowing: f64,
+    /// The humidity field (p_hum).
     pub humidity: FieldSpec,
+    /// The activation field (p_act).
     pub activation: FieldSpec,
+    /// The extinction field (p_ext).
     pub extinction: FieldSpec,
     /// Seconds per unit of noise time: the fields evolve slowly (0 = frozen).
     #[serde(default = "default_evolve")]
@@ -166,8 +194,11 @@ impl Default for EpochSpec {
 /// A resolved cloud layer: a preset placed in an altitude band with wind.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Layer {
+    /// The layer's name, unique in its world.
     pub name: String,
+    /// The name of the preset it places.
     pub preset_name: String,
+    /// The preset it places.
     pub preset: Preset,
     /// Altitude of the layer's bottom, metres.
     pub base: f64,
@@ -183,9 +214,11 @@ pub struct Layer {
     pub wind: [f64; 2],
     /// Change of wind with height, (m/s) per metre.
     pub shear: [f64; 2],
+    /// How the bounded history is cut into epochs.
     pub epoch: EpochSpec,
     /// Optional bounded extent (world metres) used by the feather effect.
     pub extent: Option<[f64; 4]>,
+    /// Dobashi ellipsoids that shape humidity and activation.
     pub ellipsoids: Vec<Ellipsoid>,
 }
 
@@ -210,8 +243,11 @@ impl Layer {
 /// A world: a seed and a climate.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct World {
+    /// The world's name in the configuration.
     pub name: String,
+    /// The seed every field and draw of the world derives from.
     pub seed: u64,
+    /// The cloud layers, in configuration order.
     pub layers: Vec<Layer>,
 }
 

@@ -113,6 +113,23 @@ pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
     })
 }
 
+/// Fewest bytes one billboard takes in `billboards.json`: its keys and punctuation
+/// (`{"position":[,,],"radius":,"splat":,"colour":[,,],"opacity":,
+/// "sun_transmittance":,"density":},` is 94 bytes) and a digit per number.
+const MIN_JSON_BYTES_PER_BILLBOARD: u64 = 100;
+
+/// [`encode_json`], or no bytes when the document would be over `max` bytes. The
+/// empty body stands for "too large" (a JSON document is never empty), so a cache
+/// can keep the answer and refuse a repeat without shading the tile again; a tile
+/// whose count alone puts it over the limit is not even encoded.
+pub fn encode_json_within(tile: &ShadedTile, max: u64) -> Vec<u8> {
+    if tile.billboards.len() as u64 * MIN_JSON_BYTES_PER_BILLBOARD > max {
+        return Vec::new();
+    }
+    let json = encode_json(tile);
+    if json.len() as u64 > max { Vec::new() } else { json }
+}
+
 /// `billboards.json`: the header above plus
 /// `"billboards": [{"position": [x, y, z], "radius", "splat", "colour": [r, g, b],
 /// "opacity", "sun_transmittance", "tau_sun", "density"}]` and `"count"`.

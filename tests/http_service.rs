@@ -499,7 +499,7 @@ fn coverage_from_tiles(tiles: &HashMap<(i64, i64), Vec<f32>>, bbox: [f64; 4], ce
         for col in cx0..cx1 {
             let tile = &tiles[&(col.div_euclid(256), row.div_euclid(256))];
             let (r, c) = (row.rem_euclid(256) as usize, col.rem_euclid(256) as usize);
-            if (0..depth).any(|k| tile[(k * 256 + r) * 256 + c] >= cloudscape_server::CLOUD_THRESHOLD) {
+            if (0..depth).any(|k| tile[(k * 256 + r) * 256 + c] >= cloudscape_core::density::CLOUD_THRESHOLD) {
                 covered += 1;
             }
         }

@@ -6,6 +6,7 @@ use std::io::Cursor;
 
 use serde::Deserialize;
 
+use cloudscape_core::products::Product;
 use cloudscape_core::products::billboards::{BinBillboards, decode_bin};
 use cloudscape_core::render::camera::View;
 use cloudscape_core::render::composite::composite;
@@ -212,13 +213,14 @@ impl RemoteRender {
         })
     }
 
-    fn tile_path(&self, tile: TileId, product: &str, layer: &str) -> String {
+    fn tile_path(&self, tile: TileId, product: Product, layer: &str) -> String {
         format!(
-            "/v1/worlds/{}/tiles/{}/{}/{}/{product}?{}&layer={}",
+            "/v1/worlds/{}/tiles/{}/{}/{}/{}?{}&layer={}",
             encode(&self.world),
             tile.z,
             tile.x,
             tile.y,
+            product.name(),
             self.query,
             encode(layer)
         )
@@ -230,8 +232,8 @@ impl RemoteRender {
         let mut paths = splat_paths(self.req.quality).to_vec();
         for &(layer, tile) in &self.tiles {
             let name = &self.info.layers[layer].name;
-            paths.push(self.tile_path(tile, "billboards.bin", name));
-            paths.push(self.tile_path(tile, "shadow.png", name));
+            paths.push(self.tile_path(tile, Product::BillboardsBin, name));
+            paths.push(self.tile_path(tile, Product::ShadowPng, name));
         }
         paths
     }

@@ -14,7 +14,6 @@ pub mod cost;
 pub mod cpu;
 pub mod density;
 pub mod fields;
-#[allow(missing_docs)]
 pub mod products;
 pub mod render;
 pub mod world;

@@ -24,10 +24,10 @@ use axum::body::Bytes;
 use moka::future::Cache;
 use tokio::sync::{Semaphore, oneshot};
 
-use super::error::ApiError;
-use super::key::CacheKey;
-use super::metrics::Metrics;
-use super::shared::{Lookup, SharedCache};
+use crate::error::ApiError;
+use crate::key::CacheKey;
+use crate::metrics::Metrics;
+use crate::shared::{Lookup, SharedCache};
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
 
@@ -262,24 +262,9 @@ impl ResponseCache {
 
     /// The bytes of `key`, from the cache or computed by `job` (once for all concurrent
     /// callers), within the request's time budget. `work` is the job's estimate (its
-    /// working memory is reserved while it runs).
-    pub async fn get_or_compute(
-        self: &Arc<Self>,
-        metrics: &Arc<Metrics>,
-        kind: &'static str,
-        key: CacheKey,
-        work: Work,
-        job: impl FnOnce(&Cancel) -> Result<Bytes, ApiError> + Send + 'static,
-    ) -> Result<Bytes, ApiError> {
-        self.get_or_compute_with_siblings(metrics, kind, key, work, move |c: &Cancel| {
-            job(c).map(|b| (b, Vec::new()))
-        })
-        .await
-    }
-
-    /// Like [`get_or_compute`](Self::get_or_compute) for a job that also produces the
-    /// bytes of other keys from the same work (the products of one shaded tile): those
-    /// are cached too.
+    /// working memory is reserved while it runs). A job may also produce the bytes of
+    /// other keys from the same work (the products of one shaded tile): those are
+    /// cached too.
     ///
     /// When the budget runs out the request answers 503 `timeout`; when no other
     /// request waits for the same computation any more, the computation is stopped

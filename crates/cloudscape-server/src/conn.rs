@@ -40,8 +40,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 use tower::Service;
 
-use super::metrics::{CloseReason, Metrics};
-use crate::ServerConfig;
+use crate::config::ServerConfig;
+use crate::metrics::{CloseReason, Metrics};
 
 /// The connection limits, resolved from `[server]` and the process's file limit.
 #[derive(Clone, Debug, PartialEq, Eq)]

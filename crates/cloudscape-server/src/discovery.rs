@@ -2,18 +2,20 @@
 
 use std::sync::Arc;
 
-use axum::extract::rejection::PathRejection;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::Response;
 use serde::Serialize;
 
+use cloudscape_core::products::Product;
+use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::world::{ALGORITHM_VERSION, MAX_TIME};
 
-use super::error::ApiError;
-use super::key::stable_hash_hex;
-use super::tiles::{Product, TILE_SIZE, path_error};
-use super::{AppState, Representation};
+use crate::error::ApiError;
+use crate::extract::WorldPath;
+use crate::key::stable_hash_hex;
+use crate::respond::Representation;
+use crate::state::AppState;
 
 /// One configured world in the list.
 #[derive(Serialize, utoipa::ToSchema)]
@@ -132,23 +134,22 @@ pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<
     responses(
         (status = 200, body = WorldInfo, description = "Layers, cell sizes, tile size, levels, dt, algorithm version, URL templates"),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Malformed path"),
-        (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed path"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
     )
 )]
 pub async fn world(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<String>, PathRejection>,
+    WorldPath(resolved): WorldPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(name) = path.map_err(path_error)?;
-    let w = s.worlds.resolve(&name)?.world;
+    let w = resolved.world;
     let fps = s.settings.frames_per_step;
     let base = format!("/v1/worlds/{}", w.name);
     let info = WorldInfo {
         seed: w.seed,
         algorithm_version: ALGORITHM_VERSION,
-        tile_size: TILE_SIZE,
+        tile_size: TILE_COLUMNS as i64,
         minzoom: 0,
         maxzoom: s.worlds.config().limits.max_level,
         max_time: MAX_TIME,

@@ -3,16 +3,15 @@
 //! A key names the world by a fingerprint of everything that shapes its output (seed
 //! and every layer parameter), so two replicas with the same config agree, and a
 //! changed config never serves old bytes under an old ETag. Time enters as a
-//! canonical *frame*: `t` is snapped to the nearest multiple of
-//! `dt / frames_per_step` of the layer (ties away from zero), and the bytes are
-//! computed for that frame's time, which the response reports in `X-Cloudscape-T`.
+//! canonical frame ([`cloudscape_core::world::SnappedTime`]): the bytes are computed
+//! for that frame's time, which the response reports in `X-Cloudscape-T`.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
-use cloudscape_core::world::{ALGORITHM_VERSION, Config, Layer, MAX_TIME, World};
+use cloudscape_core::world::{ALGORITHM_VERSION, Config, World};
 
-use super::error::ApiError;
+use crate::error::ApiError;
 
 /// FNV-1a, 64 bits, from the given offset basis. Stable across builds and machines,
 /// which is what ETags shared by replicas need (std's hasher promises neither).
@@ -102,35 +101,6 @@ impl Worlds {
     }
 }
 
-/// A time snapped to the layer's frame grid.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SnappedTime {
-    /// Frame index: `t_frame = index * dt / frames_per_step`.
-    pub index: u64,
-    /// The time the bytes are computed for.
-    pub t: f64,
-}
-
-impl SnappedTime {
-    /// Snaps a checked `t` (finite, 0..=1e12) to the nearest frame, staying within range.
-    pub fn snap(t: f64, layer: &Layer, frames_per_step: u32) -> SnappedTime {
-        let period = layer.dt / frames_per_step as f64;
-        let mut index = (t / period).round() as u64;
-        if index as f64 * period > MAX_TIME {
-            index = (MAX_TIME / period).floor() as u64;
-        }
-        SnappedTime {
-            index,
-            t: index as f64 * period,
-        }
-    }
-
-    /// True when the request asked for exactly this frame's time.
-    pub fn is_exact(&self, requested: f64) -> bool {
-        self.t == requested
-    }
-}
-
 /// A cache key: a canonical string naming everything the bytes depend on.
 #[derive(Clone, Debug, PartialEq, Eq, Hash)]
 pub struct CacheKey(pub String);
@@ -217,20 +187,6 @@ mod tests {
         );
         assert!(w.resolve("nope").is_err());
         assert!(w.resolve("").is_err());
-    }
-
-    #[test]
-    fn frames_snap_to_the_grid_and_stay_in_range() {
-        let c = Config::embedded();
-        let layer = &c.worlds["default"].layers[0];
-        let period = layer.dt / 4.0;
-        let f = SnappedTime::snap(period * 3.4, layer, 4);
-        assert_eq!(f.index, 3);
-        assert_eq!(f.t, period * 3.0);
-        assert!(!f.is_exact(period * 3.4));
-        assert!(SnappedTime::snap(period * 3.0, layer, 4).is_exact(period * 3.0));
-        assert!(SnappedTime::snap(MAX_TIME, layer, 4).t <= MAX_TIME);
-        assert_eq!(SnappedTime::snap(0.0, layer, 4).index, 0);
     }
 
     #[test]

@@ -12,10 +12,10 @@
 //! `/v1/splats.{png,json}`, `/v1/sky.json`, and the operator routes `/healthz`, `/readyz`,
 //! `/metrics`, `/openapi.json`.
 //!
-//! Caching: every computed response is keyed by a canonical [`key::CacheKey`] (world
-//! fingerprint, layer, tile or region, canonical frame, product, algorithm version);
-//! its strong ETag is a hash of that key, known before any work, so `If-None-Match`
-//! answers 304 without computing. Bytes are deterministic, so a key's ETag never
+//! Caching: every computed response takes one path ([`respond::Cached`]) and is keyed
+//! by a canonical [`key::CacheKey`] (world fingerprint, layer, tile or region,
+//! canonical frame, product, algorithm version); its strong ETag is a hash of that
+//! key, known before any work, so `If-None-Match` answers 304 without computing. Bytes are deterministic, so a key's ETag never
 //! names two different bodies.
 
 mod cache;
@@ -23,6 +23,7 @@ pub mod config;
 mod conn;
 mod discovery;
 mod error;
+mod extract;
 mod key;
 mod metrics;
 mod openapi;
@@ -31,172 +32,38 @@ pub mod params;
 mod queries;
 mod render;
 mod reply;
+mod respond;
 mod shared;
-mod stats;
+mod state;
 mod tiles;
 mod web;
 
 use std::io;
 use std::net::SocketAddr;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU8, AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
 use axum::Router;
-use axum::body::Bytes;
 use axum::extract::{MatchedPath, Request, State};
-use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, header};
+use axum::http::{HeaderName, HeaderValue, header};
 use axum::middleware::{self, Next};
-use axum::response::{IntoResponse, Response};
+use axum::response::Response;
 use axum::routing::get;
 use tokio::net::TcpListener;
 use tokio::sync::watch;
 use tower_http::compression::CompressionLayer;
 use tracing::Instrument;
 
+use cloudscape_core::density::{self, Region};
+use cloudscape_core::render::Quality;
 use cloudscape_core::world::Config;
 
 pub use config::ServerConfig;
 pub use error::ApiError;
-pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
+pub use state::{Lifecycle, Readiness};
 
-use self::cache::{ComputeQueue, ResponseCache};
-use self::key::{SnappedTime, Worlds};
-use self::metrics::Metrics;
-use self::reply::ReplyBudget;
-use self::shared::SharedCache;
-use cloudscape_core::cost::Work;
-
-/// Where the server is in its life, as `/readyz` reports it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[repr(u8)]
-pub enum Lifecycle {
-    /// Start-up work is running; requests are served but the server is not ready.
-    Starting = 0,
-    Ready = 1,
-    /// Start-up work failed: the server stays up (for `/metrics`, logs) but never ready.
-    Failed = 2,
-    /// Shutdown began: still serving while load balancers notice, then stop accepting.
-    Draining = 3,
-}
-
-/// The server's phase, shared by the lifecycle and `/readyz`.
-pub struct Readiness(AtomicU8);
-
-impl Readiness {
-    pub fn get(&self) -> Lifecycle {
-        match self.0.load(Ordering::SeqCst) {
-            0 => Lifecycle::Starting,
-            1 => Lifecycle::Ready,
-            2 => Lifecycle::Failed,
-            _ => Lifecycle::Draining,
-        }
-    }
-
-    /// Moves to `to`, except that draining is final.
-    fn set(&self, to: Lifecycle) {
-        let _ = self.0.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |p| {
-            (p != Lifecycle::Draining as u8).then_some(to as u8)
-        });
-    }
-}
-
-/// Everything the handlers share. Built once per server.
-pub struct AppState {
-    /// The configured worlds and their fingerprints.
-    worlds: Worlds,
-    /// `[server]` settings (cache-control values, frames per step, …).
-    settings: ServerConfig,
-    /// Encoded responses and the bounded compute queue that fills them.
-    cache: Arc<ResponseCache>,
-    /// The bytes that replies being sent may hold (`server.reply_bytes`).
-    replies: ReplyBudget,
-    metrics: Arc<Metrics>,
-    readiness: Readiness,
-    /// Source of request ids: a per-process prefix and a counter.
-    request_ids: (u32, AtomicU64),
-}
-
-impl AppState {
-    fn new(config: Config, settings: ServerConfig) -> Result<AppState, String> {
-        let queue = match settings.compute_queue {
-            0 => 4 * std::thread::available_parallelism().map_or(1, |n| n.get()),
-            n => n as usize,
-        };
-        let cache = ResponseCache::new(
-            settings.cache_bytes,
-            ComputeQueue::new(queue, settings.compute_memory_bytes),
-            Duration::from_millis(settings.request_timeout_ms),
-            SharedCache::new(&settings)?,
-        );
-        let metrics = Arc::new(Metrics::new());
-        let replies = ReplyBudget::new(settings.reply_bytes, metrics.reply_bytes.clone());
-        let prefix = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
-        Ok(AppState {
-            worlds: Worlds::new(config, settings.frames_per_step),
-            settings,
-            cache: Arc::new(cache),
-            replies,
-            metrics,
-            readiness: Readiness(AtomicU8::new(Lifecycle::Starting as u8)),
-            request_ids: (prefix, AtomicU64::new(0)),
-        })
-    }
-
-    fn next_request_id(&self) -> String {
-        format!(
-            "{:08x}-{:x}",
-            self.request_ids.0,
-            self.request_ids.1.fetch_add(1, Ordering::Relaxed)
-        )
-    }
-
-    /// Admission control: refuses (413, naming the limit) a request whose estimated
-    /// work cannot finish inside the time budget on this server's compute threads, or
-    /// whose working memory is over `limits.max_request_bytes`. Checked before the
-    /// cache, so a request over the limits is refused whether or not it was cached.
-    fn admit(&self, kind: &str, work: Work) -> Result<Work, ApiError> {
-        let threads = rayon::current_num_threads().max(1);
-        let budget_s = self.settings.request_timeout_ms as f64 / 1000.0;
-        let max_cpu = budget_s * threads as f64;
-        let max_bytes = self.worlds.config().limits.max_request_bytes;
-        let refused = if work.cpu_s > max_cpu {
-            Some(format!(
-                "this request needs about {:.1} CPU-seconds; the limit is {max_cpu:.1} (the {budget_s} s time \
-                 budget, server.request_timeout_ms, on {threads} compute threads): ask for fewer pixels, a \
-                 lower quality or a smaller region",
-                work.cpu_s
-            ))
-        } else if work.bytes > max_bytes {
-            Some(format!(
-                "this request needs about {} MiB of working memory; the limit is {} MiB \
-                 (limits.max_request_bytes): ask for fewer pixels, a lower quality or a smaller region",
-                work.bytes >> 20,
-                max_bytes >> 20
-            ))
-        } else {
-            None
-        };
-        match refused {
-            Some(message) => {
-                self.metrics.refused.with_label_values(&[kind]).inc();
-                Err(ApiError::TooMuchWork(message))
-            }
-            None => Ok(work),
-        }
-    }
-
-    /// The `Cache-Control` for a response computed for `frame` when `t` was asked.
-    fn cache_control(&self, frame: SnappedTime, requested: f64) -> &str {
-        if frame.is_exact(requested) {
-            &self.settings.cache_control
-        } else {
-            &self.settings.cache_control_other
-        }
-    }
-}
+use self::render::{splats_bytes, splats_key};
+use self::state::AppState;
 
 /// Triggers a graceful shutdown: `/readyz` turns 503, requests are still served for
 /// `drain_ms`, then the listener closes and in-flight requests finish.
@@ -241,7 +108,7 @@ impl Server {
     /// connections are shut down (see [`conn`]).
     pub async fn run(self) -> io::Result<()> {
         let state = self.state;
-        tokio::spawn(ops::start_up(Arc::clone(&state)));
+        tokio::spawn(start_up(Arc::clone(&state)));
         let app = router(Arc::clone(&state));
         let mut stop = self.stop.subscribe();
         let drain = {
@@ -262,6 +129,60 @@ impl Server {
     }
 }
 
+/// Start-up work: one small computation per layer of every configured world, through
+/// the simulation, so that a replica only says it is ready once it can answer (and
+/// its thread pools are warm), then the splat sheets of every quality into the cache.
+/// Ready when it succeeds; never ready if it fails.
+async fn start_up(state: Arc<AppState>) {
+    let worlds: Vec<_> = state.worlds.config().worlds.values().cloned().collect();
+    let result = state
+        .cache
+        .run_unbudgeted(&state.metrics, "startup", move || {
+            for w in &worlds {
+                for i in 0..w.layers.len() {
+                    let r = Region {
+                        x0: 0,
+                        y0: 0,
+                        cols: 1,
+                        rows: 1,
+                    };
+                    density::density(w, i, 0, r, 0.0)
+                        .map_err(|e| ApiError::Internal(format!("world {} layer {i}: {e}", w.name)))?;
+                }
+            }
+            let mut sheets = Vec::new();
+            for q in Quality::ALL {
+                for json in [false, true] {
+                    sheets.push((splats_key(q, json), splats_bytes(q, json)));
+                }
+            }
+            Ok(sheets)
+        })
+        .await;
+    let result = match result {
+        Ok(sheets) => {
+            for (key, bytes) in sheets {
+                state.cache.insert(key, bytes).await;
+            }
+            Ok(())
+        }
+        Err(e) => Err(e),
+    };
+    match result {
+        Ok(()) => {
+            state.readiness.set(Lifecycle::Ready);
+            if state.readiness.get() == Lifecycle::Ready {
+                state.metrics.ready.set(1);
+            }
+            tracing::info!("start-up done: ready");
+        }
+        Err(e) => {
+            state.readiness.set(Lifecycle::Failed);
+            tracing::error!(error = %e, "start-up failed: the server will not become ready");
+        }
+    }
+}
+
 /// The router with every route and the layers every route shares.
 fn router(state: Arc<AppState>) -> Router {
     Router::new()
@@ -278,7 +199,7 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/healthz", get(ops::healthz))
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))
-        .route("/openapi.json", get(ops::openapi))
+        .route("/openapi.json", get(openapi::openapi))
         .merge(web::routes())
         .fallback(|req: Request| async move { ApiError::NotFound(req.uri().path().chars().take(200).collect()) })
         .method_not_allowed_fallback(|| async { ApiError::MethodNotAllowed })
@@ -358,68 +279,4 @@ async fn tag_coding(req: Request, next: Next) -> Response {
         }
     }
     response
-}
-
-/// Headers shared by every computed response.
-struct Representation<'a> {
-    etag: String,
-    cache_control: &'a str,
-    /// The canonical frame the bytes were computed for, if time-dependent.
-    frame: Option<SnappedTime>,
-}
-
-impl Representation<'_> {
-    fn headers(&self) -> HeaderMap {
-        let mut h = HeaderMap::new();
-        if let Ok(v) = HeaderValue::from_str(&self.etag) {
-            h.insert(header::ETAG, v);
-        }
-        if let Ok(v) = HeaderValue::from_str(self.cache_control) {
-            h.insert(header::CACHE_CONTROL, v);
-        }
-        if let Some(f) = self.frame {
-            if let Ok(v) = HeaderValue::from_str(&f.t.to_string()) {
-                h.insert(HeaderName::from_static("x-cloudscape-t"), v);
-            }
-            h.insert(
-                HeaderName::from_static("x-cloudscape-frame"),
-                HeaderValue::from(f.index),
-            );
-        }
-        h
-    }
-
-    /// 304 when `If-None-Match` names this representation: no computation needed.
-    fn not_modified(&self, request: &HeaderMap) -> Option<Response> {
-        let inm = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
-        key::if_none_match(inm, &self.etag).then(|| (StatusCode::NOT_MODIFIED, self.headers()).into_response())
-    }
-
-    /// The 200 answer with `body`, which holds its share of the reply budget
-    /// ([`reply`]) until it is sent; 503 when the budget is spent. A body over
-    /// `limits.max_response_bytes` is refused with 413.
-    fn ok(&self, state: &AppState, content_type: &'static str, body: Bytes) -> Result<Response, ApiError> {
-        let max = state.worlds.config().limits.max_response_bytes;
-        if body.len() as u64 > max {
-            return Err(ApiError::ResponseTooLarge(format!(
-                "the answer is {} MiB; the limit is {} MiB (limits.max_response_bytes)",
-                body.len() >> 20,
-                max >> 20
-            )));
-        }
-        let body = state.replies.body(body, state.cache.retry_after())?;
-        Ok(self.respond(content_type, body))
-    }
-
-    /// The 200 answer for a body known to be small (discovery, a clear-sky sample):
-    /// no limit or budget to check.
-    fn ok_small(&self, content_type: &'static str, body: Bytes) -> Response {
-        self.respond(content_type, body.into())
-    }
-
-    fn respond(&self, content_type: &'static str, body: axum::body::Body) -> Response {
-        let mut h = self.headers();
-        h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
-        (StatusCode::OK, h, body).into_response()
-    }
 }

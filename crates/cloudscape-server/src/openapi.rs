@@ -1,8 +1,13 @@
 //! The OpenAPI document (`/openapi.json`), generated from the handlers' annotations.
 
+use axum::http::{HeaderValue, header};
+use axum::response::{IntoResponse, Response};
+use cloudscape_core::density::RegionStats;
 use utoipa::OpenApi;
 
-use super::{discovery, error, ops, queries, render, stats, tiles};
+use crate::extract::TileProduct;
+use crate::params::QualityName;
+use crate::{discovery, error, ops, queries, render, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -24,13 +29,13 @@ use super::{discovery, error, ops, queries, render, stats, tiles};
         ops::healthz,
         ops::readyz,
         ops::metrics,
-        ops::openapi,
+        openapi,
     ),
     components(schemas(
         TileProduct,
         QualityName,
         error::ErrorBody,
-        stats::RegionStats,
+        RegionStats,
         discovery::WorldList,
         discovery::WorldSummary,
         discovery::WorldInfo,
@@ -45,47 +50,6 @@ use super::{discovery, error, ops, queries, render, stats, tiles};
 )]
 struct ApiDoc;
 
-/// The tile products, as the OpenAPI document lists them (the URL names of
-/// [`tiles::Product::ALL`]; a unit test keeps the two lists equal).
-#[derive(utoipa::ToSchema)]
-#[allow(dead_code)]
-pub enum TileProduct {
-    #[schema(rename = "density.npy")]
-    DensityNpy,
-    #[schema(rename = "density.f32")]
-    DensityF32,
-    #[schema(rename = "density.u8")]
-    DensityU8,
-    #[schema(rename = "coverage.png")]
-    CoveragePng,
-    #[schema(rename = "billboards.json")]
-    BillboardsJson,
-    #[schema(rename = "billboards.bin")]
-    BillboardsBin,
-    #[schema(rename = "atlas.png")]
-    AtlasPng,
-    #[schema(rename = "atlas.json")]
-    AtlasJson,
-    #[schema(rename = "shadow.png")]
-    ShadowPng,
-}
-
-/// The quality presets.
-#[derive(utoipa::ToSchema)]
-#[allow(dead_code)]
-pub enum QualityName {
-    #[schema(rename = "fast")]
-    Fast,
-    #[schema(rename = "balanced")]
-    Balanced,
-    #[schema(rename = "accurate")]
-    Accurate,
-    #[schema(rename = "reference")]
-    Reference,
-    #[schema(rename = "reference-single")]
-    ReferenceSingle,
-}
-
 /// The document as JSON text.
 pub fn document() -> String {
     ApiDoc::openapi()
@@ -93,8 +57,19 @@ pub fn document() -> String {
         .expect("the OpenAPI document serialises")
 }
 
+#[utoipa::path(get, path = "/openapi.json", tag = "operations",
+    responses((status = 200, content_type = "application/json", body = Object, description = "This document")))]
+pub async fn openapi() -> Response {
+    let mut r = document().into_response();
+    r.headers_mut()
+        .insert(header::CONTENT_TYPE, HeaderValue::from_static("application/json"));
+    r
+}
+
 #[cfg(test)]
 mod tests {
+    use cloudscape_core::products::Product;
+
     use super::*;
 
     #[test]
@@ -106,7 +81,7 @@ mod tests {
             .iter()
             .map(|v| v.as_str().unwrap().to_string())
             .collect();
-        let served: Vec<String> = tiles::Product::ALL.iter().map(|p| p.name().to_string()).collect();
+        let served: Vec<String> = Product::ALL.iter().map(|p| p.name().to_string()).collect();
         assert_eq!(listed, served);
     }
 }

@@ -1,7 +1,9 @@
 //! Query and path parameters, parsed by hand so that every bad input gets its own
 //! error code instead of a framework's plain-text rejection.
 
-use super::error::ApiError;
+use cloudscape_core::render::{Quality, Sun};
+
+use crate::error::ApiError;
 
 /// The query string of one request as `(name, value)` pairs; the last of repeated
 /// names wins, unknown names are ignored (cache busters, tracking).
@@ -47,6 +49,47 @@ impl Params {
         }
         Ok([b[0], b[1], b[2], b[3]])
     }
+}
+
+/// `quality=` if given: one of the presets.
+pub fn parse_quality(params: &Params) -> Result<Option<Quality>, ApiError> {
+    params
+        .get("quality")
+        .map(|q| {
+            Quality::parse(q).ok_or_else(|| ApiError::InvalidParameter {
+                name: "quality".to_string(),
+                message: format!("must be one of fast, balanced, accurate, reference, reference-single; got `{q}`"),
+            })
+        })
+        .transpose()
+}
+
+/// `sun=AZ,EL` if given (degrees; elevation within [-90, 90]).
+pub fn parse_sun(params: &Params) -> Result<Option<Sun>, ApiError> {
+    let Some(s) = params.get("sun") else { return Ok(None) };
+    let v = parse_list("sun", s, 2)?;
+    Sun::new(v[0], v[1])
+        .map(Some)
+        .ok_or_else(|| ApiError::InvalidParameter {
+            name: "sun".to_string(),
+            message: "elevation must be within [-90, 90] degrees".to_string(),
+        })
+}
+
+/// The quality presets.
+#[derive(utoipa::ToSchema)]
+#[allow(dead_code)]
+pub enum QualityName {
+    #[schema(rename = "fast")]
+    Fast,
+    #[schema(rename = "balanced")]
+    Balanced,
+    #[schema(rename = "accurate")]
+    Accurate,
+    #[schema(rename = "reference")]
+    Reference,
+    #[schema(rename = "reference-single")]
+    ReferenceSingle,
 }
 
 /// Checks a world time against the contract's range.

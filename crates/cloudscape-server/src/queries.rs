@@ -6,31 +6,23 @@
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::rejection::PathRejection;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::HeaderMap;
 use axum::response::Response;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
-use cloudscape_core::density::{self, MAX_CELL_INDEX, Region};
-use cloudscape_core::world::{Layer, World};
+use cloudscape_core::density::{self, Cell, Region, RegionStats, region_stats};
+use cloudscape_core::world::SnappedTime;
 
-use super::error::ApiError;
-use super::key::{CacheKey, SnappedTime};
-use super::params::Params;
-use super::stats::{RegionStats, region_stats};
-use super::tiles::path_error;
-use super::{AppState, Representation};
-
-/// The layer named `name`, or the world's first layer.
-pub fn layer<'w>(world: &'w World, name: Option<&str>) -> Result<(usize, &'w Layer), ApiError> {
-    world.layer(name).ok_or_else(|| ApiError::UnknownLayer {
-        world: world.name.clone(),
-        layer: name.unwrap_or("").chars().take(64).collect(),
-    })
-}
+use crate::error::ApiError;
+use crate::extract::{WorldPath, layer};
+use crate::key::{CacheKey, stable_hash_hex};
+use crate::params::Params;
+use crate::respond::{Cached, Representation, cache_control};
+use crate::state::AppState;
 
 fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
     serde_json::to_vec(value)
@@ -129,21 +121,19 @@ pub struct SeriesAnswer {
     responses(
         (status = 200, body = SampleAnswer, description = "Density and cloud flag of the level-0 cell holding the point"),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
-        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = super::error::ErrorBody, description = "Over the configured limits"),
-        (status = 422, body = super::error::ErrorBody, description = "t or coordinates out of range"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "Over the configured limits"),
+        (status = 422, body = crate::error::ErrorBody, description = "t or coordinates out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn sample(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<String>, PathRejection>,
     params: Params,
+    WorldPath(resolved): WorldPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(world) = path.map_err(path_error)?;
-    let resolved = s.worlds.resolve(&world)?;
     let (x, y, z) = (
         params.required_f64("x")?,
         params.required_f64("y")?,
@@ -174,69 +164,45 @@ pub async fn sample(
         let repr = Representation {
             etag: format!(
                 "\"{}\"",
-                super::key::stable_hash_hex(&serde_json::to_vec(&answer).unwrap_or_default())
+                stable_hash_hex(&serde_json::to_vec(&answer).unwrap_or_default())
             ),
-            cache_control: s.cache_control(frame, t),
+            cache_control: cache_control(&s, frame.is_exact(t)),
             frame: Some(frame),
         };
         return Ok(repr
             .not_modified(&headers)
             .unwrap_or_else(|| repr.ok_small("application/json", json_bytes(&answer).unwrap_or_default())));
     };
-    let cell_index = |v: f64, name: &str| {
-        let c = (v / layer.cell_size).floor();
-        if c.abs() >= MAX_CELL_INDEX as f64 {
-            return Err(ApiError::CoordinatesOutOfRange(format!(
-                "{name} = {v} m is beyond ±{MAX_CELL_INDEX} cells"
-            )));
-        }
-        Ok(c as i64)
-    };
-    let (col, row) = (cell_index(x, "x")?, cell_index(y, "y")?);
-    let k = ((z - layer.base) / layer.cell_height)
-        .floor()
-        .clamp(0.0, (layer.depth - 1) as f64) as usize;
-    let region = Region {
-        x0: col,
-        y0: row,
-        cols: 1,
-        rows: 1,
-    };
+    let cell = Cell::at(layer, x, y, z)?;
+    let region = cell.region();
     let limits = &s.worlds.config().limits;
     region.check(0, layer.depth, limits)?;
     let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
     let key = CacheKey::new("sample", &resolved, layer_index)
-        .with("c", col)
-        .with("r", row)
-        .with("k", k)
+        .with("c", cell.col)
+        .with("r", cell.row)
+        .with("k", cell.k)
         .with("f", frame.index);
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control: s.cache_control(frame, t),
-        frame: Some(frame),
-    };
-    if let Some(not_modified) = repr.not_modified(&headers) {
-        return Ok(not_modified);
-    }
     let world = resolved.world;
-    let work = s.admit("sample", cost::density(&world, layer_index, 0, region, frame.t)?)?;
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, "sample", key, work, move |cancel| {
-            let d = density::density_cancellable(&world, layer_index, 0, region, frame.t, cancel)?;
-            let c = density::cloud_cells(&world, layer_index, region, frame.t)?;
-            json_bytes(&SampleAnswer {
-                layer: Some(world.layers[layer_index].name.clone()),
-                world: world.name,
-                t: frame.t,
-                frame: frame.index,
-                cell: Some([col, row, k as i64]),
-                density: d.get(k, 0, 0),
-                cloud: c.get(k, 0, 0) != 0,
-            })
+    let cached = Cached::at("sample", key, "application/json", frame, t);
+    cached
+        .respond(&s, &headers, move || {
+            let work = cost::density(&world, layer_index, 0, region, frame.t)?;
+            Ok((work, move |cancel: &Cancel| {
+                let d = density::density_cancellable(&world, layer_index, 0, region, frame.t, cancel)?;
+                let c = density::cloud_cells(&world, layer_index, region, frame.t)?;
+                json_bytes(&SampleAnswer {
+                    layer: Some(world.layers[layer_index].name.clone()),
+                    world: world.name,
+                    t: frame.t,
+                    frame: frame.index,
+                    cell: Some([cell.col, cell.row, cell.k as i64]),
+                    density: d.get(cell.k, 0, 0),
+                    cloud: c.get(cell.k, 0, 0) != 0,
+                })
+            }))
         })
-        .await?;
-    repr.ok(&s, "application/json", bytes)
+        .await
 }
 
 #[utoipa::path(
@@ -253,21 +219,19 @@ pub async fn sample(
     responses(
         (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count"),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter or inverted bbox"),
-        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = super::error::ErrorBody, description = "bbox over the configured limits (use a higher level)"),
-        (status = 422, body = super::error::ErrorBody, description = "t, level or coordinates out of range; empty region"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter or inverted bbox"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "bbox over the configured limits (use a higher level)"),
+        (status = 422, body = crate::error::ErrorBody, description = "t, level or coordinates out of range; empty region"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn region(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<String>, PathRejection>,
     params: Params,
+    WorldPath(resolved): WorldPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(world) = path.map_err(path_error)?;
-    let resolved = s.worlds.resolve(&world)?;
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let limits = &s.worlds.config().limits;
     let bbox = params.bbox()?;
@@ -282,33 +246,26 @@ pub async fn region(
             format!("{},{},{},{}", region.x0, region.y0, region.cols, region.rows),
         )
         .with("f", frame.index);
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control: s.cache_control(frame, t),
-        frame: Some(frame),
-    };
-    if let Some(not_modified) = repr.not_modified(&headers) {
-        return Ok(not_modified);
-    }
     let world = resolved.world;
-    let work = s.admit("region", cost::density(&world, layer_index, level, region, frame.t)?)?;
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, "region", key, work, move |cancel| {
-            let grid = density::density_cancellable(&world, layer_index, level, region, frame.t, cancel)?;
-            let layer = &world.layers[layer_index];
-            json_bytes(&RegionAnswer {
-                world: world.name.clone(),
-                layer: layer.name.clone(),
-                level,
-                t: frame.t,
-                frame: frame.index,
-                columns: region.into(),
-                stats: region_stats(&grid, layer),
-            })
+    let cached = Cached::at("region", key, "application/json", frame, t);
+    cached
+        .respond(&s, &headers, move || {
+            let work = cost::density(&world, layer_index, level, region, frame.t)?;
+            Ok((work, move |cancel: &Cancel| {
+                let grid = density::density_cancellable(&world, layer_index, level, region, frame.t, cancel)?;
+                let layer = &world.layers[layer_index];
+                json_bytes(&RegionAnswer {
+                    world: world.name.clone(),
+                    layer: layer.name.clone(),
+                    level,
+                    t: frame.t,
+                    frame: frame.index,
+                    columns: region.into(),
+                    stats: region_stats(&grid, layer),
+                })
+            }))
         })
-        .await?;
-    repr.ok(&s, "application/json", bytes)
+        .await
 }
 
 #[utoipa::path(
@@ -327,21 +284,19 @@ pub async fn region(
     responses(
         (status = 200, body = SeriesAnswer, description = "The /region statistics at t0, t0+dt, … <= t1"),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 < t0"),
-        (status = 404, body = super::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = super::error::ErrorBody, description = "bbox or number of points over the configured limits"),
-        (status = 422, body = super::error::ErrorBody, description = "Times, level or coordinates out of range"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 < t0"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "bbox or number of points over the configured limits"),
+        (status = 422, body = crate::error::ErrorBody, description = "Times, level or coordinates out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn series(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<String>, PathRejection>,
     params: Params,
+    WorldPath(resolved): WorldPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(world) = path.map_err(path_error)?;
-    let resolved = s.worlds.resolve(&world)?;
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let limits = &s.worlds.config().limits;
     let bbox = params.bbox()?;
@@ -380,69 +335,62 @@ pub async fn series(
         )
         .with("t", times.iter().map(f64::to_string).collect::<Vec<_>>().join(","))
         .with("f", frame_list);
-    let all_exact = frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t));
-    let cache_control = if all_exact {
-        s.settings.cache_control.as_str()
-    } else {
-        s.settings.cache_control_other.as_str()
-    };
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control,
+    let cached = Cached {
+        kind: "series",
+        key,
+        content_type: "application/json",
         frame: None,
+        exact: frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t)),
     };
-    if let Some(not_modified) = repr.not_modified(&headers) {
-        return Ok(not_modified);
-    }
     let world = resolved.world;
-    // Each distinct frame once; consecutive points often share one.
-    let mut distinct: Vec<SnappedTime> = frames.clone();
-    distinct.dedup_by_key(|f| f.index);
-    let mut work = Work::default();
-    for f in &distinct {
-        let w = cost::density(&world, layer_index, level, region, f.t)?;
-        // CPU adds up; memory does not: a frame's grid is dropped once its statistics
-        // are taken, so at most one grid per compute thread is alive at once.
-        work.cpu_s += w.cpu_s;
-        work.bytes = work.bytes.max(w.bytes);
-    }
-    work.bytes = work
-        .bytes
-        .saturating_mul(distinct.len().min(rayon::current_num_threads().max(1)) as u64);
-    let work = s.admit("series", work)?;
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, "series", key, work, move |cancel| {
-            let layer = &world.layers[layer_index];
-            let stats: Vec<(u64, RegionStats)> = distinct
-                .par_iter()
-                .map(|f| {
-                    let grid = density::density_cancellable(&world, layer_index, level, region, f.t, cancel)?;
-                    Ok((f.index, region_stats(&grid, layer)))
+    cached
+        .respond(&s, &headers, move || {
+            // Each distinct frame once; consecutive points often share one.
+            let mut distinct: Vec<SnappedTime> = frames.clone();
+            distinct.dedup_by_key(|f| f.index);
+            let mut work = Work::default();
+            for f in &distinct {
+                let w = cost::density(&world, layer_index, level, region, f.t)?;
+                // CPU adds up; memory does not: a frame's grid is dropped once its
+                // statistics are taken, so at most one grid per compute thread is
+                // alive at once.
+                work.cpu_s += w.cpu_s;
+                work.bytes = work.bytes.max(w.bytes);
+            }
+            work.bytes = work
+                .bytes
+                .saturating_mul(distinct.len().min(rayon::current_num_threads().max(1)) as u64);
+            Ok((work, move |cancel: &Cancel| {
+                let layer = &world.layers[layer_index];
+                let stats: Vec<(u64, RegionStats)> = distinct
+                    .par_iter()
+                    .map(|f| {
+                        let grid = density::density_cancellable(&world, layer_index, level, region, f.t, cancel)?;
+                        Ok((f.index, region_stats(&grid, layer)))
+                    })
+                    .collect::<Result<_, ApiError>>()?;
+                let points = times
+                    .iter()
+                    .zip(&frames)
+                    .map(|(&t, f)| SeriesPoint {
+                        t,
+                        frame_t: f.t,
+                        frame: f.index,
+                        stats: stats
+                            .iter()
+                            .find(|(i, _)| *i == f.index)
+                            .map(|(_, s)| s.clone())
+                            .expect("every frame computed"),
+                    })
+                    .collect();
+                json_bytes(&SeriesAnswer {
+                    world: world.name.clone(),
+                    layer: layer.name.clone(),
+                    level,
+                    columns: region.into(),
+                    points,
                 })
-                .collect::<Result<_, ApiError>>()?;
-            let points = times
-                .iter()
-                .zip(&frames)
-                .map(|(&t, f)| SeriesPoint {
-                    t,
-                    frame_t: f.t,
-                    frame: f.index,
-                    stats: stats
-                        .iter()
-                        .find(|(i, _)| *i == f.index)
-                        .map(|(_, s)| s.clone())
-                        .expect("every frame computed"),
-                })
-                .collect();
-            json_bytes(&SeriesAnswer {
-                world: world.name.clone(),
-                layer: layer.name.clone(),
-                level,
-                columns: region.into(),
-                points,
-            })
+            }))
         })
-        .await?;
-    repr.ok(&s, "application/json", bytes)
+        .await
 }

@@ -5,11 +5,11 @@
 use std::sync::Arc;
 
 use axum::body::Bytes;
-use axum::extract::rejection::PathRejection;
-use axum::extract::{Path, State};
+use axum::extract::State;
 use axum::http::{HeaderMap, HeaderName, HeaderValue};
 use axum::response::Response;
 
+use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::products::{sky, splats};
 use cloudscape_core::render::image::png_noise;
@@ -18,11 +18,14 @@ use cloudscape_core::render::pathtrace::DEFAULT_SAMPLES;
 use cloudscape_core::render::scene::{RenderRequest, parse_size, render_cancellable};
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 
-use super::error::ApiError;
-use super::key::{CacheKey, SnappedTime};
-use super::params::Params;
-use super::tiles::{parse_quality, parse_sun, path_error};
-use super::{AppState, Representation};
+use cloudscape_core::world::SnappedTime;
+
+use crate::error::ApiError;
+use crate::extract::WorldPath;
+use crate::key::CacheKey;
+use crate::params::{Params, parse_quality, parse_sun};
+use crate::respond::Cached;
+use crate::state::AppState;
 
 /// Image size when a request gives none.
 const DEFAULT_SIZE: &str = "640x360";
@@ -36,28 +39,26 @@ const DEFAULT_SIZE: &str = "640x360";
         ("camera" = String, Query, description = "X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the horizon; horizontal field of view; degrees", example = "0,0,1200,0,10,60"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the first layer's frame grid)", example = 0),
         ("size" = Option<String>, Query, description = "WxH pixels (default 640x360)", example = "64x36"),
-        ("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate (billboards) | reference (volumetric path tracer: every order of scattering, sky light occluded by the cloud; its noise in X-Cloudscape-Noise) | reference-single (single-scattering ray marcher)"),
+        ("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate (billboards) | reference (volumetric path tracer: every order of scattering, sky light occluded by the cloud; its noise in X-Cloudscape-Noise) | reference-single (single-scattering ray marcher)"),
         ("samples" = Option<u32>, Query, description = "Samples per pixel of quality=reference, at least 2 (default 32); samples × pixels is limited by [limits] max_path_samples (413 beyond). Refused with other qualities.", example = 32),
         ("sun" = Option<String>, Query, description = "AZ,EL degrees (default: the world clock's sun at t); bucketed to ~8 degrees"),
     ),
     responses(
         (status = 200, description = "The rendered view. For quality=reference, X-Cloudscape-Samples (samples per pixel) and X-Cloudscape-Noise (the path tracer's stated noise: mean over pixels of the standard error of linear luminance, radiance units; the same values are in the PNG's tEXt chunks cloudscape:samples, cloudscape:noise, cloudscape:mean-luminance).", content_type = "image/png", body = Vec<u8>),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Malformed parameter"),
-        (status = 404, body = super::error::ErrorBody, description = "Unknown world"),
-        (status = 413, body = super::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
-        (status = 422, body = super::error::ErrorBody, description = "t out of range"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
+        (status = 413, body = crate::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
+        (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
     )
 )]
 pub async fn render_png(
     State(s): State<Arc<AppState>>,
-    path: Result<Path<String>, PathRejection>,
     params: Params,
+    WorldPath(resolved): WorldPath,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    let Path(world) = path.map_err(path_error)?;
-    let resolved = s.worlds.resolve(&world)?;
     let camera_text = params.required("camera")?;
     let camera = Camera::parse(camera_text).map_err(|m| ApiError::InvalidParameter {
         name: "camera".to_string(),
@@ -107,40 +108,36 @@ pub async fn render_png(
     } else {
         key
     };
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control: s.cache_control(frame, t),
-        frame: Some(frame),
-    };
-    if let Some(not_modified) = repr.not_modified(&headers) {
-        return Ok(not_modified);
-    }
     let world = resolved.world;
     let config = config.clone();
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, "render", key, work, move |cancel| {
+    let cached = Cached::at("render", key, "image/png", frame, t);
+    // Admitted above, before the ETag is compared: a view over the limits is refused
+    // even to a client that holds it. Admitting the same work again passes.
+    let plan = move || {
+        Ok((work, move |cancel: &Cancel| {
             let rendered = render_cancellable(&world, &config, &request, cancel)?;
-            Ok(Bytes::from(match rendered.noise {
+            let png = match rendered.noise {
                 Some(noise) => rendered.image.to_png_with_noise(&noise),
                 None => rendered.image.to_png(),
-            }))
-        })
-        .await?;
+            };
+            Ok((Bytes::from(png), Vec::new()))
+        }))
+    };
     // The noise travels in the PNG itself, so a cached image states it too.
-    let noise = png_noise(&bytes);
-    let mut response = repr.ok(&s, "image/png", bytes)?;
-    if let Some(noise) = noise {
-        let h = response.headers_mut();
-        h.insert(
-            HeaderName::from_static("x-cloudscape-samples"),
-            HeaderValue::from(noise.samples),
-        );
-        if let Ok(v) = HeaderValue::from_str(&format!("{:e}", noise.std_error)) {
-            h.insert(HeaderName::from_static("x-cloudscape-noise"), v);
+    let noise_headers = |bytes: &Bytes| {
+        let mut h = HeaderMap::new();
+        if let Some(noise) = png_noise(bytes) {
+            h.insert(
+                HeaderName::from_static("x-cloudscape-samples"),
+                HeaderValue::from(noise.samples),
+            );
+            if let Ok(v) = HeaderValue::from_str(&format!("{:e}", noise.std_error)) {
+                h.insert(HeaderName::from_static("x-cloudscape-noise"), v);
+            }
         }
-    }
-    Ok(response)
+        Ok(h)
+    };
+    cached.respond_with(&s, &headers, plan, noise_headers).await
 }
 
 /// `samples=` of `quality=reference`: an integer (default [`DEFAULT_SAMPLES`]); its
@@ -184,52 +181,34 @@ pub fn splats_bytes(quality: Quality, json: bool) -> Bytes {
 async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool) -> Result<Response, ApiError> {
     let quality = parse_quality(&params)?.unwrap_or(Quality::Balanced);
     let content_type = if json { "application/json" } else { "image/png" };
-    serve_global(
-        s,
-        &headers,
-        "splats",
-        splats_key(quality, json),
-        content_type,
-        move || splats_bytes(quality, json),
-    )
-    .await
+    let cached = Cached::timeless("splats", splats_key(quality, json), content_type);
+    serve_global(&s, &headers, cached, move || splats_bytes(quality, json)).await
 }
 
-/// A product that depends on no world (splat sheets, the sky): its ETag from `key`,
-/// 304 on a match, else the cached or computed bytes.
+/// A product that depends on no world (splat sheets, the sky): no work to admit.
 async fn serve_global(
-    s: Arc<AppState>,
+    s: &Arc<AppState>,
     headers: &HeaderMap,
-    kind: &'static str,
-    key: CacheKey,
-    content_type: &'static str,
+    cached: Cached,
     compute: impl FnOnce() -> Bytes + Send + 'static,
 ) -> Result<Response, ApiError> {
-    let repr = Representation {
-        etag: key.etag(),
-        cache_control: &s.settings.cache_control,
-        frame: None,
-    };
-    if let Some(not_modified) = repr.not_modified(headers) {
-        return Ok(not_modified);
-    }
-    let bytes = s
-        .cache
-        .get_or_compute(&s.metrics, kind, key, Work::default(), move |_| Ok(compute()))
-        .await?;
-    repr.ok(&s, content_type, bytes)
+    cached
+        .respond(s, headers, move || {
+            Ok((Work::default(), move |_: &Cancel| Ok(compute())))
+        })
+        .await
 }
 
 #[utoipa::path(
     get,
     path = "/v1/splats.png",
     tag = "render",
-    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Unknown quality"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn splats_png(
@@ -244,12 +223,12 @@ pub async fn splats_png(
     get,
     path = "/v1/splats.json",
     tag = "render",
-    params(("quality" = Option<super::openapi::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Unknown quality"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn splats_json(
@@ -271,9 +250,9 @@ pub async fn splats_json(
     responses(
         (status = 200, description = "The clear sky of the sun: radiance table over view elevation x azimuth from the sun, sun colour, sky ambients, ground albedo and the aerial-perspective constants and tables (src/products/sky.rs)", content_type = "application/json", body = Object),
         (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = super::error::ErrorBody, description = "Neither sun nor t, or a malformed one"),
-        (status = 422, body = super::error::ErrorBody, description = "t out of range"),
-        (status = 503, body = super::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        (status = 400, body = crate::error::ErrorBody, description = "Neither sun nor t, or a malformed one"),
+        (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
     )
 )]
 pub async fn sky_json(
@@ -294,8 +273,12 @@ pub async fn sky_json(
         }
     };
     let bucket = sun.bucket();
-    let key = CacheKey::global("sky").with("s", bucket.id());
-    serve_global(s, &headers, "sky", key, "application/json", move || {
+    let cached = Cached::timeless(
+        "sky",
+        CacheKey::global("sky").with("s", bucket.id()),
+        "application/json",
+    );
+    serve_global(&s, &headers, cached, move || {
         let lighting = Lighting::new(bucket.centre(), ShadingParams::default());
         Bytes::from(sky::encode_json(bucket, &lighting))
     })

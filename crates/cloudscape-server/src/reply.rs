@@ -18,7 +18,7 @@ use axum::body::{Body, Bytes, HttpBody};
 use http_body::{Frame, SizeHint};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
-use super::error::ApiError;
+use crate::error::ApiError;
 
 /// Bytes per slice handed to hyper.
 pub const CHUNK: usize = 256 << 10;

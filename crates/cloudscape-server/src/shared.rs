@@ -20,10 +20,10 @@ use std::time::{Duration, Instant};
 use axum::body::Bytes;
 use redis::aio::{ConnectionManager, ConnectionManagerConfig};
 
-use crate::ServerConfig;
+use crate::config::ServerConfig;
 
-use super::key::CacheKey;
-use super::metrics::Metrics;
+use crate::key::CacheKey;
+use crate::metrics::Metrics;
 
 /// A Redis connection (made lazily, remade after failures) with the deadlines and the
 /// back-off that keep it off the request path when it misbehaves.

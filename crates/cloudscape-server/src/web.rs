@@ -13,8 +13,8 @@ use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 
-use super::AppState;
-use super::key::{if_none_match, stable_hash_hex};
+use crate::key::{if_none_match, stable_hash_hex};
+use crate::state::AppState;
 
 /// One embedded file.
 struct Asset {

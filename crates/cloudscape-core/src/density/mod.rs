@@ -5,8 +5,10 @@ pub mod exact;
 mod lod;
 pub mod metaballs;
 mod region;
+pub mod stats;
 
-pub use region::{Grid, MAX_CELL_INDEX, Region, SimError, check_time};
+pub use region::{Cell, Grid, MAX_CELL_INDEX, Region, SimError, check_time};
+pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
 
 use crate::automaton::LayerSim;
 use crate::cancel::Cancel;

@@ -66,6 +66,50 @@ pub struct Region {
 /// cell index, its metres and the halo arithmetic stay exact in i64 and f64.
 pub const MAX_CELL_INDEX: i64 = 1 << 48;
 
+/// The level-0 cell of a layer holding a point: column (east), row (north) and
+/// vertical level `k`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Cell {
+    /// Column index, east (cell `col` spans `[col, col + 1) · cell_size` metres).
+    pub col: i64,
+    /// Row index, north.
+    pub row: i64,
+    /// Vertical level from the layer's base, 0 at the bottom.
+    pub k: usize,
+}
+
+impl Cell {
+    /// The cell of `layer` holding the point (`x`, `y`, `z`) in metres. Altitudes
+    /// outside the layer are clamped to its bottom or top level; horizontal
+    /// positions beyond ±[`MAX_CELL_INDEX`] cells are out of range.
+    pub fn at(layer: &Layer, x: f64, y: f64, z: f64) -> Result<Cell, SimError> {
+        let index = |v: f64, name: &str| {
+            let c = (v / layer.cell_size).floor();
+            if c.abs() >= MAX_CELL_INDEX as f64 {
+                return Err(SimError::OutOfRange(format!(
+                    "{name} = {v} m is beyond ±{MAX_CELL_INDEX} cells"
+                )));
+            }
+            Ok(c as i64)
+        };
+        let (col, row) = (index(x, "x")?, index(y, "y")?);
+        let k = ((z - layer.base) / layer.cell_height)
+            .floor()
+            .clamp(0.0, (layer.depth - 1) as f64) as usize;
+        Ok(Cell { col, row, k })
+    }
+
+    /// The one-column region of the cell.
+    pub fn region(&self) -> Region {
+        Region {
+            x0: self.col,
+            y0: self.row,
+            cols: 1,
+            rows: 1,
+        }
+    }
+}
+
 impl Region {
     /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]
     /// (world metres, half-open on the high side).

@@ -39,12 +39,15 @@ pub const MAX_CLUSTER_SPACINGS: i64 = 16;
 pub const MAX_IMPOSTOR_PIXELS: usize = 256;
 /// Atlas width, pixels (the height grows with the content, up to [`MAX_ATLAS_HEIGHT`]).
 pub const ATLAS_WIDTH: usize = 2048;
+/// Tallest atlas, pixels; impostors that do not fit are left out.
 pub const MAX_ATLAS_HEIGHT: usize = 4096;
 
 /// An encoded atlas.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Atlas {
+    /// `atlas.png`: the impostors, RGBA.
     pub png: Vec<u8>,
+    /// `atlas.json`: where each impostor is in the PNG and in the world.
     pub manifest: Vec<u8>,
     /// Number of impostors.
     pub impostors: usize,

@@ -55,7 +55,9 @@ use crate::world::ALGORITHM_VERSION;
 pub const BIN_MAGIC: [u8; 4] = *b"CSBB";
 /// Version of the binary layout.
 pub const BIN_VERSION: u16 = 1;
+/// Size of the header, bytes.
 pub const BIN_HEADER_BYTES: usize = 64;
+/// Size of one record, bytes.
 pub const BIN_RECORD_BYTES: usize = 36;
 
 /// Rounds an f64 to a value that prints shortly in JSON (f32 precision), never NaN.
@@ -111,6 +113,23 @@ pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
             "tau_max": crate::render::splats::TAU_MAX,
         },
     })
+}
+
+/// Fewest bytes one billboard takes in `billboards.json`: its keys and punctuation
+/// (`{"position":[,,],"radius":,"splat":,"colour":[,,],"opacity":,
+/// "sun_transmittance":,"density":},` is 94 bytes) and a digit per number.
+const MIN_JSON_BYTES_PER_BILLBOARD: u64 = 100;
+
+/// [`encode_json`], or no bytes when the document would be over `max` bytes. The
+/// empty body stands for "too large" (a JSON document is never empty), so a cache
+/// can keep the answer and refuse a repeat without shading the tile again; a tile
+/// whose count alone puts it over the limit is not even encoded.
+pub fn encode_json_within(tile: &ShadedTile, max: u64) -> Vec<u8> {
+    if tile.billboards.len() as u64 * MIN_JSON_BYTES_PER_BILLBOARD > max {
+        return Vec::new();
+    }
+    let json = encode_json(tile);
+    if json.len() as u64 > max { Vec::new() } else { json }
 }
 
 /// `billboards.json`: the header above plus
@@ -202,15 +221,25 @@ pub fn encode_bin(tile: &ShadedTile) -> Vec<u8> {
 /// A decoded `billboards.bin`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BinBillboards {
+    /// Tile level.
     pub z: u32,
+    /// Tile column (east).
     pub x: i64,
+    /// Tile row (north).
     pub y: i64,
+    /// South-west corner of the tile, metres (x east, y north).
     pub origin: [f64; 2],
+    /// Azimuth of the sun the tile was shaded for (its bucket's centre), degrees.
     pub sun_azimuth_deg: f32,
+    /// Elevation of that sun, degrees.
     pub sun_elevation_deg: f32,
+    /// Splats in the sheet the records index.
     pub splat_count: u16,
+    /// Side of one splat, pixels.
     pub splat_size: u16,
+    /// Side of the tile, metres.
     pub size: f32,
+    /// The billboards, in the order the tile lists them.
     pub records: Vec<BinRecord>,
 }
 
@@ -219,10 +248,15 @@ pub struct BinBillboards {
 pub struct BinRecord {
     /// Offset from the tile origin (x, y) and altitude, metres.
     pub offset: [f32; 3],
+    /// Billboard radius, metres.
     pub radius: f32,
+    /// Index of its splat in the sheet.
     pub splat: u16,
+    /// Peak opacity × 255.
     pub opacity: u8,
+    /// Transmittance of the sun ray to its centre × 255.
     pub sun_transmittance: u8,
+    /// Linear RGB, pre-shaded for an isotropic phase (`render::shade::Billboard::colour`).
     pub colour: [f32; 3],
     /// Optical depth of the sun ray.
     pub tau_sun: f32,

@@ -15,14 +15,11 @@
 //!
 //! [`ShadingParams::default`]: crate::render::ShadingParams
 
-use crate::density::{self, Grid, Region, check_time};
+use crate::density::{self, CLOUD_THRESHOLD, Grid, Region, check_time};
 use crate::render::image::{encode_png, to_u8};
 use crate::render::tile::{TILE_COLUMNS, TileId};
 use crate::render::{RenderError, ShadingParams};
 use crate::world::{Layer, Limits, World};
-
-/// Density from which a cell counts as cloud for the base/top channels.
-pub const CLOUD_THRESHOLD: f32 = 0.1;
 
 /// Computes a tile's density and encodes its coverage map.
 pub fn encode_png_for_tile(

@@ -17,6 +17,7 @@ pub enum GridFormat {
 }
 
 impl GridFormat {
+    /// `npy`, `f32` or `u8`.
     pub fn parse(s: &str) -> Option<GridFormat> {
         match s {
             "npy" => Some(GridFormat::Npy),

@@ -33,21 +33,19 @@ pub struct TileId {
 }
 
 impl TileId {
-    /// The tile's columns at its level.
+    /// The tile's columns at its level: the `TILE_COLUMNS`² columns whose first is
+    /// (x·256, y·256). The arithmetic itself (x·256 + 256) must not overflow; whether
+    /// the columns lie within the simulation's range is [`Region::check`]'s question.
     pub fn region(&self) -> Result<Region, RenderError> {
         let n = TILE_COLUMNS as i64;
-        let (x0, y0) = match (self.x.checked_mul(n), self.y.checked_mul(n)) {
-            (Some(a), Some(b)) => (a, b),
-            _ => {
-                return Err(RenderError::BadRequest(format!(
-                    "tile ({}, {}) is out of range",
-                    self.x, self.y
-                )));
-            }
+        let origin = |v: i64, name: &str| {
+            v.checked_mul(n)
+                .filter(|o| o.checked_add(n).is_some())
+                .ok_or_else(|| SimError::OutOfRange(format!("tile {name} = {v} overflows at level {}", self.z)))
         };
         Ok(Region {
-            x0,
-            y0,
+            x0: origin(self.x, "x")?,
+            y0: origin(self.y, "y")?,
             cols: TILE_COLUMNS,
             rows: TILE_COLUMNS,
         })
@@ -301,4 +299,27 @@ pub fn shadow_lookup(map: &[f32], origin: [f64; 2], column: f64, x: f64, y: f64)
     let a = at(u0, v0) * (1.0 - fu) + at(u0 + 1, v0) * fu;
     let b = at(u0, v0 + 1) * (1.0 - fu) + at(u0 + 1, v0 + 1) * fu;
     a * (1.0 - fv) + b * fv
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tile_regions_refuse_overflow() {
+        let region = |z, x, y| TileId { z, x, y }.region();
+        assert_eq!(
+            region(0, -1, 2).unwrap(),
+            Region {
+                x0: -256,
+                y0: 512,
+                cols: 256,
+                rows: 256
+            }
+        );
+        assert!(region(0, i64::MAX, 0).is_err());
+        assert!(region(0, 0, i64::MIN).is_err());
+        assert!(region(0, i64::MAX / 256, 0).is_err());
+        assert!(region(0, i64::MAX / 256 - 1, 0).is_ok());
+    }
 }

@@ -240,6 +240,37 @@ impl Layer {
     }
 }
 
+/// A time snapped to a layer's frame grid: the canonical frames that requests for
+/// nearby times share, so that they share computed bytes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SnappedTime {
+    /// Frame index: `t_frame = index * dt / frames_per_step`.
+    pub index: u64,
+    /// The time the bytes are computed for.
+    pub t: f64,
+}
+
+impl SnappedTime {
+    /// Snaps a checked `t` (finite, 0..=[`MAX_TIME`]) to the nearest multiple of
+    /// `layer.dt / frames_per_step` (ties away from zero), staying within range.
+    pub fn snap(t: f64, layer: &Layer, frames_per_step: u32) -> SnappedTime {
+        let period = layer.dt / frames_per_step as f64;
+        let mut index = (t / period).round() as u64;
+        if index as f64 * period > MAX_TIME {
+            index = (MAX_TIME / period).floor() as u64;
+        }
+        SnappedTime {
+            index,
+            t: index as f64 * period,
+        }
+    }
+
+    /// True when the request asked for exactly this frame's time.
+    pub fn is_exact(&self, requested: f64) -> bool {
+        self.t == requested
+    }
+}
+
 /// A world: a seed and a climate.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct World {
@@ -258,5 +289,24 @@ impl World {
             None => self.layers.first().map(|l| (0, l)),
             Some(n) => self.layers.iter().enumerate().find(|(_, l)| l.name == n),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_snap_to_the_grid_and_stay_in_range() {
+        let c = Config::embedded();
+        let layer = &c.worlds["default"].layers[0];
+        let period = layer.dt / 4.0;
+        let f = SnappedTime::snap(period * 3.4, layer, 4);
+        assert_eq!(f.index, 3);
+        assert_eq!(f.t, period * 3.0);
+        assert!(!f.is_exact(period * 3.4));
+        assert!(SnappedTime::snap(period * 3.0, layer, 4).is_exact(period * 3.0));
+        assert!(SnappedTime::snap(MAX_TIME, layer, 4).t <= MAX_TIME);
+        assert_eq!(SnappedTime::snap(0.0, layer, 4).index, 0);
     }
 }

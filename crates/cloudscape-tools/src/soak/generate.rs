@@ -11,6 +11,8 @@
 //! the protocol level: raw invalid bytes in the request target, huge or numerous
 //! headers, unknown methods; the HTTP layer rejects those before any route sees them.
 
+use cloudscape_core::products::Product;
+
 /// Longest request target the HTTP layer (the `http` crate's `Uri`) accepts; longer
 /// ones are refused with a bare 414 before routing.
 pub const MAX_URI_BYTES: usize = 65_534;
@@ -253,16 +255,9 @@ const WORLDS: &[&str] = &[
     "%C0%AE",
 ];
 
-const PRODUCTS: &[&str] = &[
-    "density.npy",
-    "density.f32",
-    "density.u8",
-    "coverage.png",
-    "billboards.json",
-    "billboards.bin",
-    "atlas.png",
-    "atlas.json",
-    "shadow.png",
+/// Names that look like tile products and are not; the served ones come from
+/// [`Product::ALL`].
+const NOT_PRODUCTS: &[&str] = &[
     "density.gif",
     "density",
     "DENSITY.NPY",
@@ -270,6 +265,15 @@ const PRODUCTS: &[&str] = &[
     "..%2Fdensity.npy",
     "",
 ];
+
+/// Every served product name, then the [`NOT_PRODUCTS`].
+fn product_names() -> Vec<&'static str> {
+    Product::ALL
+        .iter()
+        .map(|p| p.name())
+        .chain(NOT_PRODUCTS.iter().copied())
+        .collect()
+}
 
 const QUALITIES: &[&str] = &[
     "fast",
@@ -551,7 +555,7 @@ fn route_request(d: &mut Draws) -> FuzzRequest {
     };
     let (path, ok_type): (String, Option<&'static str>) = match d.below(20) {
         0..=6 => {
-            let product = d.pick(PRODUCTS);
+            let product = d.pick(&product_names());
             let z = if d.chance(0.7) {
                 format!("{}", d.below(4))
             } else {
@@ -569,12 +573,7 @@ fn route_request(d: &mut Draws) -> FuzzRequest {
             if d.chance(0.3) {
                 params.push(("sun", sun(d)));
             }
-            let ok = match product {
-                "density.npy" | "density.f32" | "density.u8" | "billboards.bin" => Some("application/octet-stream"),
-                "coverage.png" | "atlas.png" | "shadow.png" => Some("image/png"),
-                "billboards.json" | "atlas.json" => Some("application/json"),
-                _ => None,
-            };
+            let ok = Product::parse(product).map(Product::content_type);
             (
                 format!("/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}?{}", query(d, &params)),
                 ok,

@@ -1,6 +1,6 @@
 //! Region statistics over a density grid: what `/region` and `/series` answer.
 //!
-//! Definitions (the test `http_queries` recomputes them from density tiles):
+//! Definitions (the HTTP tests recompute them from density tiles):
 //! - a cell is *cloudy* when its density is at least [`CLOUD_THRESHOLD`];
 //! - a column is *covered* when any of its cells is cloudy; `coverage` is the
 //!   fraction of the region's columns that are covered;
@@ -11,15 +11,17 @@
 
 use serde::Serialize;
 
-use cloudscape_core::density::Grid;
-use cloudscape_core::world::Layer;
+use crate::world::Layer;
 
-/// Density at or above which a cell counts as cloud (the same threshold as the cloud
-/// base/top channels of `coverage.png`).
+use super::Grid;
+
+/// Density at or above which a cell counts as cloud: in region statistics and in the
+/// cloud base/top channels of `coverage.png`.
 pub const CLOUD_THRESHOLD: f32 = 0.1;
 
 /// Statistics of one region at one time.
-#[derive(Clone, Debug, PartialEq, Serialize, utoipa::ToSchema)]
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[cfg_attr(feature = "schema", derive(utoipa::ToSchema))]
 pub struct RegionStats {
     /// Fraction of columns with at least one cloudy cell, in [0, 1].
     pub coverage: f64,
@@ -112,7 +114,7 @@ fn count_clusters(mask: &[bool], rows: usize, cols: usize) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use cloudscape_core::world::Config;
+    use crate::world::Config;
 
     #[test]
     fn stats_of_a_known_grid() {

@@ -1,0 +1,248 @@
+//! The tile products: one table that names each product, gives its content type, says
+//! what it is encoded from and holds its encoder. The server routes, documents, keys
+//! and computes tiles through it; the soak generator and the client name products
+//! through it. Adding a product is its encoder's file, one arm of [`Product::spec`]
+//! and its place in [`Product::ALL`].
+
+use crate::density::Grid;
+use crate::render::ShadedTile;
+use crate::world::Layer;
+
+use super::atlas::{self, Atlas};
+use super::grid::{GridFormat, encode_density};
+use super::{billboards, coverage, shadow};
+
+/// What a tile URL can ask for (`/tiles/{z}/{x}/{y}/{product}`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Product {
+    /// `density.npy`: the density grid as a NumPy array (f32, `(depth, 256, 256)`).
+    DensityNpy,
+    /// `density.f32`: the same grid, raw little-endian f32.
+    DensityF32,
+    /// `density.u8`: the same grid, density × 255 rounded.
+    DensityU8,
+    /// `coverage.png`: cloud cover, base and top per column.
+    CoveragePng,
+    /// `billboards.json`: the shaded billboards as JSON.
+    BillboardsJson,
+    /// `billboards.bin`: the same, in the compact binary layout.
+    BillboardsBin,
+    /// `atlas.png`: the billboards' impostors.
+    AtlasPng,
+    /// `atlas.json`: the atlas manifest.
+    AtlasJson,
+    /// `shadow.png`: ground shadow transmittance.
+    ShadowPng,
+}
+
+/// How a product's bytes are made from a computed tile.
+#[derive(Clone, Copy)]
+pub enum Encoder {
+    /// From the tile's density grid (`(depth, 256, 256)` at the tile's level) and its layer.
+    Grid(fn(&Layer, &Grid<f32>) -> Vec<u8>),
+    /// From the shaded tile, which depends on a quality and a sun bucket. Shading is the
+    /// expensive part, so every shaded product of a tile is encoded at once
+    /// ([`encode_shaded`]).
+    Shaded(fn(&mut ShadedProducts<'_>) -> Vec<u8>),
+}
+
+/// One row of the catalogue.
+#[derive(Clone, Copy)]
+pub struct Spec {
+    /// The URL name, `{stem}.{extension}`.
+    pub name: &'static str,
+    /// The `Content-Type` it is served with.
+    pub content_type: &'static str,
+    /// The family whose work and metrics the product is counted under.
+    pub family: &'static str,
+    /// How its bytes are made.
+    pub encoder: Encoder,
+}
+
+const OCTETS: &str = "application/octet-stream";
+const PNG: &str = "image/png";
+const JSON: &str = "application/json";
+
+impl Product {
+    /// Every tile product, in the order the API lists them.
+    pub const ALL: [Product; 9] = [
+        Product::DensityNpy,
+        Product::DensityF32,
+        Product::DensityU8,
+        Product::CoveragePng,
+        Product::BillboardsJson,
+        Product::BillboardsBin,
+        Product::AtlasPng,
+        Product::AtlasJson,
+        Product::ShadowPng,
+    ];
+
+    /// The product's row of the catalogue.
+    pub fn spec(self) -> Spec {
+        let (name, content_type, family, encoder) = match self {
+            Product::DensityNpy => (
+                "density.npy",
+                OCTETS,
+                "tile_density",
+                Encoder::Grid(|_, g| encode_density(g, GridFormat::Npy)),
+            ),
+            Product::DensityF32 => (
+                "density.f32",
+                OCTETS,
+                "tile_density",
+                Encoder::Grid(|_, g| encode_density(g, GridFormat::F32)),
+            ),
+            Product::DensityU8 => (
+                "density.u8",
+                OCTETS,
+                "tile_density",
+                Encoder::Grid(|_, g| encode_density(g, GridFormat::U8)),
+            ),
+            Product::CoveragePng => (
+                "coverage.png",
+                PNG,
+                "tile_coverage",
+                Encoder::Grid(|l, g| coverage::encode_png_from_grid(l, g, 0)),
+            ),
+            Product::BillboardsJson => (
+                "billboards.json",
+                JSON,
+                "tile_shaded",
+                Encoder::Shaded(|s| billboards::encode_json_within(s.tile, s.max_json_bytes)),
+            ),
+            Product::BillboardsBin => (
+                "billboards.bin",
+                OCTETS,
+                "tile_shaded",
+                Encoder::Shaded(|s| billboards::encode_bin(s.tile)),
+            ),
+            Product::AtlasPng => (
+                "atlas.png",
+                PNG,
+                "tile_shaded",
+                Encoder::Shaded(|s| std::mem::take(&mut s.atlas().png)),
+            ),
+            Product::AtlasJson => (
+                "atlas.json",
+                JSON,
+                "tile_shaded",
+                Encoder::Shaded(|s| std::mem::take(&mut s.atlas().manifest)),
+            ),
+            Product::ShadowPng => (
+                "shadow.png",
+                PNG,
+                "tile_shaded",
+                Encoder::Shaded(|s| shadow::encode_png_map(s.tile)),
+            ),
+        };
+        Spec {
+            name,
+            content_type,
+            family,
+            encoder,
+        }
+    }
+
+    /// The URL name (`density.npy`, …).
+    pub fn name(self) -> &'static str {
+        self.spec().name
+    }
+
+    /// The `Content-Type` it is served with.
+    pub fn content_type(self) -> &'static str {
+        self.spec().content_type
+    }
+
+    /// The family its work and metrics are counted under.
+    pub fn family(self) -> &'static str {
+        self.spec().family
+    }
+
+    /// True when the product is encoded from the shaded tile (so depends on a
+    /// quality and a sun bucket).
+    pub fn needs_shading(self) -> bool {
+        matches!(self.spec().encoder, Encoder::Shaded(_))
+    }
+
+    /// The product whose URL name is `name`.
+    pub fn parse(name: &str) -> Option<Product> {
+        Product::ALL.into_iter().find(|p| p.name() == name)
+    }
+
+    /// The bytes of a product encoded from the density grid, or `None` for a shaded one.
+    pub fn encode_grid(self, layer: &Layer, grid: &Grid<f32>) -> Option<Vec<u8>> {
+        match self.spec().encoder {
+            Encoder::Grid(encode) => Some(encode(layer, grid)),
+            Encoder::Shaded(_) => None,
+        }
+    }
+}
+
+/// A shaded tile being encoded into its products.
+pub struct ShadedProducts<'a> {
+    /// The shaded tile.
+    pub tile: &'a ShadedTile,
+    /// `billboards.json` over this many bytes is encoded as no bytes
+    /// ([`billboards::encode_json_within`]).
+    pub max_json_bytes: u64,
+    /// Built on first use: `atlas.png` and `atlas.json` share it, each taking its part.
+    atlas: Option<Atlas>,
+}
+
+impl ShadedProducts<'_> {
+    fn atlas(&mut self) -> &mut Atlas {
+        let tile = self.tile;
+        self.atlas.get_or_insert_with(|| atlas::build(tile))
+    }
+}
+
+/// Every shaded product of `tile`, in [`Product::ALL`] order.
+pub fn encode_shaded(tile: &ShadedTile, max_json_bytes: u64) -> Vec<(Product, Vec<u8>)> {
+    let mut products = ShadedProducts {
+        tile,
+        max_json_bytes,
+        atlas: None,
+    };
+    Product::ALL
+        .into_iter()
+        .filter_map(|p| match p.spec().encoder {
+            Encoder::Shaded(encode) => Some((p, encode(&mut products))),
+            Encoder::Grid(_) => None,
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn products_round_trip_their_names() {
+        for p in Product::ALL {
+            assert_eq!(Product::parse(p.name()), Some(p));
+        }
+        assert_eq!(Product::parse("density.png"), None);
+        let mut names: Vec<_> = Product::ALL.iter().map(|p| p.name()).collect();
+        names.sort();
+        names.dedup();
+        assert_eq!(names.len(), Product::ALL.len(), "names are unique");
+    }
+
+    #[test]
+    fn shaded_products_are_those_encoded_from_the_shaded_tile() {
+        let shaded: Vec<_> = Product::ALL.into_iter().filter(|p| p.needs_shading()).collect();
+        assert_eq!(
+            shaded,
+            [
+                Product::BillboardsJson,
+                Product::BillboardsBin,
+                Product::AtlasPng,
+                Product::AtlasJson,
+                Product::ShadowPng
+            ]
+        );
+        for p in Product::ALL {
+            assert_eq!(p.needs_shading(), p.family() == "tile_shaded", "{}", p.name());
+        }
+    }
+}

@@ -1,0 +1,115 @@
+//! Typed path extractors, rejected with [`ApiError`] so that a malformed path gets
+//! our error shape rather than the framework's, and the world and layer lookups that
+//! every handler shares.
+
+use std::sync::Arc;
+
+use axum::extract::rejection::PathRejection;
+use axum::extract::{FromRequestParts, Path};
+use axum::http::request::Parts;
+use utoipa::openapi::RefOr;
+use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
+
+use cloudscape_core::products::Product;
+use cloudscape_core::render::TileId;
+use cloudscape_core::world::{Layer, World};
+
+use crate::error::ApiError;
+use crate::key::ResolvedWorld;
+use crate::params::{parse_level, parse_tile_coordinate};
+use crate::state::AppState;
+
+/// A rejected path (bad percent-encoding) in our error shape.
+pub fn path_error(e: PathRejection) -> ApiError {
+    ApiError::InvalidParameter {
+        name: "path".to_string(),
+        message: e.body_text(),
+    }
+}
+
+/// The layer named `name`, or the world's first layer.
+pub fn layer<'w>(world: &'w World, name: Option<&str>) -> Result<(usize, &'w Layer), ApiError> {
+    world.layer(name).ok_or_else(|| ApiError::UnknownLayer {
+        world: world.name.clone(),
+        layer: name.unwrap_or("").chars().take(64).collect(),
+    })
+}
+
+/// `/v1/worlds/{world}…`: the world, resolved.
+pub struct WorldPath(pub ResolvedWorld);
+
+impl FromRequestParts<Arc<AppState>> for WorldPath {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
+        let Path(name) = Path::<String>::from_request_parts(parts, s).await.map_err(path_error)?;
+        Ok(WorldPath(s.worlds.resolve(&name)?))
+    }
+}
+
+/// `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}`, checked in that order. The
+/// segments are taken as text and parsed here, so a malformed one gets its own error
+/// code: a level beyond `limits.max_level` or a coordinate beyond 64 bits is out of
+/// range (422), anything else not a number is malformed (400).
+pub struct TilePath {
+    pub world: ResolvedWorld,
+    pub tile: TileId,
+    pub product: Product,
+}
+
+impl FromRequestParts<Arc<AppState>> for TilePath {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
+        let Path((world, z, x, y, product)) =
+            Path::<(String, String, String, String, String)>::from_request_parts(parts, s)
+                .await
+                .map_err(path_error)?;
+        let world = s.worlds.resolve(&world)?;
+        let product = parse_product(&product)?;
+        let z = parse_level(&z, s.worlds.config().limits.max_level)?;
+        let x = parse_tile_coordinate("x", &x)?;
+        let y = parse_tile_coordinate("y", &y)?;
+        Ok(TilePath {
+            world,
+            tile: TileId { z, x, y },
+            product,
+        })
+    }
+}
+
+/// A tile product by URL name.
+pub fn parse_product(name: &str) -> Result<Product, ApiError> {
+    Product::parse(name).ok_or_else(|| ApiError::UnknownProduct(name.chars().take(64).collect()))
+}
+
+/// The tile products, as the OpenAPI document lists them: the URL names of
+/// [`Product::ALL`].
+pub struct TileProduct;
+
+impl utoipa::PartialSchema for TileProduct {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::String)
+            .description(Some(
+                "The tile products: the URL names of the product catalogue (cloudscape-core's `Product::ALL`).",
+            ))
+            .enum_values(Some(Product::ALL.map(Product::name)))
+            .into()
+    }
+}
+
+impl utoipa::ToSchema for TileProduct {}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_products_are_refused_by_name() {
+        for p in Product::ALL {
+            assert_eq!(parse_product(p.name()).unwrap(), p);
+        }
+        assert!(matches!(parse_product("density.png"), Err(ApiError::UnknownProduct(_))));
+    }
+}

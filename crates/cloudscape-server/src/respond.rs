@@ -1,0 +1,188 @@
+//! The one path of every cached response. Its key, and so its strong ETag, is known
+//! before any work: `If-None-Match` is answered 304 first; then the work is estimated
+//! and admitted ([`AppState::admit`]), and the bytes come from the cache or from one
+//! computation shared by every request for the same key (single flight, with the
+//! sibling keys the same work yields), checked against the response limits and sent
+//! within the reply budget. Handlers parse their parameters, build a [`Cached`] and
+//! supply the estimate and the computation.
+
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::http::{HeaderMap, HeaderName, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+
+use cloudscape_core::cancel::Cancel;
+use cloudscape_core::cost::Work;
+use cloudscape_core::world::SnappedTime;
+
+use crate::error::ApiError;
+use crate::key::{CacheKey, if_none_match};
+use crate::state::AppState;
+
+/// A cached response: what names its bytes and what its headers say.
+pub struct Cached {
+    /// Metrics label of the work and of the cache lookups.
+    pub kind: &'static str,
+    pub key: CacheKey,
+    pub content_type: &'static str,
+    /// The canonical frame the bytes are computed for, when there is one.
+    pub frame: Option<SnappedTime>,
+    /// True when the bytes are for exactly the times asked: such an answer is final
+    /// (`server.cache_control`); one for a snapped time gets `cache_control_other`.
+    pub exact: bool,
+}
+
+/// The bytes of a key and of the sibling keys computed by the same work.
+pub type WithSiblings = (Bytes, Vec<(CacheKey, Bytes)>);
+
+impl Cached {
+    /// A response that depends on no time (splat sheets, the sky).
+    pub fn timeless(kind: &'static str, key: CacheKey, content_type: &'static str) -> Cached {
+        Cached {
+            kind,
+            key,
+            content_type,
+            frame: None,
+            exact: true,
+        }
+    }
+
+    /// A response computed for `frame` when `requested` was asked.
+    pub fn at(
+        kind: &'static str,
+        key: CacheKey,
+        content_type: &'static str,
+        frame: SnappedTime,
+        requested: f64,
+    ) -> Cached {
+        Cached {
+            kind,
+            key,
+            content_type,
+            frame: Some(frame),
+            exact: frame.is_exact(requested),
+        }
+    }
+
+    /// Answers with the bytes of the key. `plan`, called only when the client does
+    /// not hold them already, gives the estimated work and the job that computes them.
+    pub async fn respond<J>(
+        self,
+        s: &Arc<AppState>,
+        headers: &HeaderMap,
+        plan: impl FnOnce() -> Result<(Work, J), ApiError>,
+    ) -> Result<Response, ApiError>
+    where
+        J: FnOnce(&Cancel) -> Result<Bytes, ApiError> + Send + 'static,
+    {
+        let plan = || plan().map(|(work, job)| (work, move |cancel: &Cancel| job(cancel).map(|b| (b, Vec::new()))));
+        self.respond_with(s, headers, plan, |_| Ok(HeaderMap::new())).await
+    }
+
+    /// [`respond`](Self::respond) for a job that also yields sibling keys' bytes,
+    /// with `finish`, which sees the bytes (cached or computed) before they are sent:
+    /// it may refuse them, or name headers to add.
+    pub async fn respond_with<J>(
+        self,
+        s: &Arc<AppState>,
+        headers: &HeaderMap,
+        plan: impl FnOnce() -> Result<(Work, J), ApiError>,
+        finish: impl FnOnce(&Bytes) -> Result<HeaderMap, ApiError>,
+    ) -> Result<Response, ApiError>
+    where
+        J: FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send + 'static,
+    {
+        let repr = Representation {
+            etag: self.key.etag(),
+            cache_control: cache_control(s, self.exact),
+            frame: self.frame,
+        };
+        if let Some(not_modified) = repr.not_modified(headers) {
+            return Ok(not_modified);
+        }
+        let (work, job) = plan()?;
+        let work = s.admit(self.kind, work)?;
+        let bytes = s
+            .cache
+            .get_or_compute_with_siblings(&s.metrics, self.kind, self.key, work, job)
+            .await?;
+        let extra = finish(&bytes)?;
+        let mut response = repr.ok(s, self.content_type, bytes)?;
+        response.headers_mut().extend(extra);
+        Ok(response)
+    }
+}
+
+/// The `Cache-Control` of an answer for exactly the times asked, or for snapped ones.
+pub fn cache_control(s: &AppState, exact: bool) -> &str {
+    if exact {
+        &s.settings.cache_control
+    } else {
+        &s.settings.cache_control_other
+    }
+}
+
+/// Headers shared by every computed response.
+pub struct Representation<'a> {
+    pub etag: String,
+    pub cache_control: &'a str,
+    /// The canonical frame the bytes were computed for, if time-dependent.
+    pub frame: Option<SnappedTime>,
+}
+
+impl Representation<'_> {
+    fn headers(&self) -> HeaderMap {
+        let mut h = HeaderMap::new();
+        if let Ok(v) = HeaderValue::from_str(&self.etag) {
+            h.insert(header::ETAG, v);
+        }
+        if let Ok(v) = HeaderValue::from_str(self.cache_control) {
+            h.insert(header::CACHE_CONTROL, v);
+        }
+        if let Some(f) = self.frame {
+            if let Ok(v) = HeaderValue::from_str(&f.t.to_string()) {
+                h.insert(HeaderName::from_static("x-cloudscape-t"), v);
+            }
+            h.insert(
+                HeaderName::from_static("x-cloudscape-frame"),
+                HeaderValue::from(f.index),
+            );
+        }
+        h
+    }
+
+    /// 304 when `If-None-Match` names this representation: no computation needed.
+    pub fn not_modified(&self, request: &HeaderMap) -> Option<Response> {
+        let inm = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
+        if_none_match(inm, &self.etag).then(|| (StatusCode::NOT_MODIFIED, self.headers()).into_response())
+    }
+
+    /// The 200 answer with `body`, which holds its share of the reply budget
+    /// ([`crate::reply`]) until it is sent; 503 when the budget is spent. A body over
+    /// `limits.max_response_bytes` is refused with 413.
+    pub fn ok(&self, state: &AppState, content_type: &'static str, body: Bytes) -> Result<Response, ApiError> {
+        let max = state.worlds.config().limits.max_response_bytes;
+        if body.len() as u64 > max {
+            return Err(ApiError::ResponseTooLarge(format!(
+                "the answer is {} MiB; the limit is {} MiB (limits.max_response_bytes)",
+                body.len() >> 20,
+                max >> 20
+            )));
+        }
+        let body = state.replies.body(body, state.cache.retry_after())?;
+        Ok(self.respond(content_type, body))
+    }
+
+    /// The 200 answer for a body known to be small (discovery, a clear-sky sample):
+    /// no limit or budget to check.
+    pub fn ok_small(&self, content_type: &'static str, body: Bytes) -> Response {
+        self.respond(content_type, body.into())
+    }
+
+    fn respond(&self, content_type: &'static str, body: axum::body::Body) -> Response {
+        let mut h = self.headers();
+        h.insert(header::CONTENT_TYPE, HeaderValue::from_static(content_type));
+        (StatusCode::OK, h, body).into_response()
+    }
+}

@@ -14,9 +14,9 @@ use cloudscape_core::automaton::kernel::Rect;
 use cloudscape_core::automaton::naive;
 use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
 use cloudscape_core::density::{self, Region, exact};
-use cloudscape_core::fields::noise::{Fbm, NoiseBackend};
+use cloudscape_core::fields::noise::NoiseBackend;
 use cloudscape_core::world::{Config, Event, World};
-use cloudscape_tools::bench::core::{Grids, packed_steps, scene, step_grids, to_naive};
+use cloudscape_tools::bench::core::{FIELDS_FBM, Grids, packed_steps, scene, step_grids, to_naive};
 use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
 
@@ -68,14 +68,7 @@ fn fields(c: &mut Criterion) {
         .warm_up_time(Duration::from_secs(1));
     let n = 64 * 64;
     g.throughput(Throughput::Elements(n));
-    let ours = Fbm {
-        seed: 3,
-        scale: 0.02,
-        octaves: 4,
-        lacunarity: 2.0,
-        gain: 0.5,
-        offset: [0.0, 0.0],
-    };
+    let ours = FIELDS_FBM;
     g.bench_function("ours fbm2 4 octaves", |b| {
         b.iter(|| {
             let mut s = 0.0;

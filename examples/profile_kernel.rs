@@ -18,7 +18,6 @@
 use std::hint::black_box;
 
 use cloudscape_core::automaton::kernel::{Level, Rect, StepContext, step_level};
-use cloudscape_core::automaton::{LayerSim, RunSpec};
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::world::Config;
 
@@ -107,22 +106,9 @@ fn main() {
         );
         return;
     }
-    let sim = LayerSim::new(&world, 0);
+    // The scene `cloudscape bench` and `benches/core.rs` step, so the profile is theirs.
     let size: i64 = std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(192);
-    let window = Rect {
-        x0: 0,
-        x1: size,
-        y0: 0,
-        y1: size,
-    };
-    let spec = RunSpec {
-        reference_step: 64,
-        start: 56,
-        snapshots: vec![64],
-        windows: vec![window; sim.depth()],
-    };
-    let levels = sim.run(&spec).remove(0).levels;
-    let drives = sim.drives(&levels, 64);
+    let (sim, levels, drives) = cloudscape_tools::bench::core::scene(size);
     let mut cur = levels.clone();
     let mut next = levels.clone();
     let (start, cpu) = (std::time::Instant::now(), cpu_ns());

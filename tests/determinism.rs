@@ -17,6 +17,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
 use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
@@ -173,7 +174,18 @@ fn tile_products() -> BTreeMap<String, String> {
                 (Quality::Balanced, Sun::new(250.0, 12.0)),
             ] {
                 let sun = sun.unwrap();
-                let s = shade_tile(&w, li, tile, t, quality, sun, &ShadingParams::default(), &tiny.limits).unwrap();
+                let s = shade_tile(
+                    &w,
+                    li,
+                    tile,
+                    t,
+                    quality,
+                    sun,
+                    &ShadingParams::default(),
+                    &tiny.limits,
+                    &Cancel::never(),
+                )
+                .unwrap();
                 let key = format!("{key}/{}/{}", quality.as_str(), sun.bucket().id());
                 put(format!("billboards.json {key}"), billboards::encode_json(&s));
                 put(format!("billboards.bin {key}"), billboards::encode_bin(&s));

@@ -5,6 +5,7 @@
 //! within its documented range, and the products stay seamless there: a 2L×L region
 //! equals its two L×L halves, bit for bit.
 
+use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Grid, Region};
 use cloudscape_core::products::{atlas, billboards, coverage, shadow};
 use cloudscape_core::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
@@ -285,8 +286,8 @@ fn shaded_tile_products_are_finite_and_in_range_for_every_sun_phase_and_optical_
         let sun = Sun::new(123.0, el).unwrap();
         let tile = TileId { z: 0, x: tx, y: tx };
         let what = format!("world {name}, tile {tx}, sun el {el}, {phase:?}, extinction {extinction:e}");
-        let shaded =
-            shade_tile(&w, 0, tile, t, quality, sun, &params, &limits).unwrap_or_else(|e| panic!("{what}: {e}"));
+        let shaded = shade_tile(&w, 0, tile, t, quality, sun, &params, &limits, &Cancel::never())
+            .unwrap_or_else(|e| panic!("{what}: {e}"));
         let l = &shaded.lighting;
         for v in l.sun_dir.iter().chain(&l.sun_rgb).chain(&l.ambient_rgb) {
             assert!(v.is_finite(), "{what}: lighting {l:?}");

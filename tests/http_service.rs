@@ -105,17 +105,8 @@ impl TestServer {
     /// Sum of every sample of `name` whose labels include all of `labels`.
     async fn metric(&self, name: &str, labels: &[(&str, &str)]) -> f64 {
         let text = self.get("/metrics").await.text().await.unwrap();
-        parse_metric(&text, name, labels)
+        common::parse_metric(&text, name, labels)
     }
-}
-
-fn parse_metric(text: &str, name: &str, labels: &[(&str, &str)]) -> f64 {
-    text.lines()
-        .filter(|l| !l.starts_with('#'))
-        .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))
-        .filter(|l| labels.iter().all(|(k, v)| l.contains(&format!("{k}=\"{v}\""))))
-        .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
-        .sum()
 }
 
 trait JsonBody {

@@ -96,17 +96,7 @@ fn bench_smoke_writes_every_section_between_markers_and_keeps_prose() {
     );
     assert!(text.contains(edit), "the edit made during the run was kept");
     let plots = dir.path().join("plots");
-    for id in [
-        "machine",
-        "automaton",
-        "fields",
-        "tiles",
-        "encoders",
-        "quality",
-        "http",
-        "rosa",
-        "scaling",
-    ] {
+    for id in cloudscape_tools::bench::SECTION_NAMES {
         let (b, e) = (format!("<!-- bench:{id}:begin -->"), format!("<!-- bench:{id}:end -->"));
         let (i, j) = (text.find(&b), text.find(&e));
         assert!(matches!((i, j), (Some(i), Some(j)) if i < j), "section {id} missing");

@@ -99,9 +99,12 @@ async function settle(page) {
   await page.evaluate(() => new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r))));
 }
 
-/** Luminance (0..1) of the canvas, as a flat array, read back in the page. */
-async function canvasLuminance(page) {
-  return page.evaluate(() => {
+/**
+ * The canvas read back in the page: `lum`, its luminance (0..1) as a flat array, or
+ * `rows`, the mean R, G, B (0..1) of each row.
+ */
+async function canvasRead(page, what) {
+  return page.evaluate((what) => {
     const src = document.getElementById('view');
     const c = document.createElement('canvas');
     c.width = src.clientWidth;
@@ -109,31 +112,25 @@ async function canvasLuminance(page) {
     const ctx = c.getContext('2d');
     ctx.drawImage(src, 0, 0, c.width, c.height);
     const d = ctx.getImageData(0, 0, c.width, c.height).data;
+    if (what === 'rows') {
+      const rows = [];
+      for (let y = 0; y < c.height; y++) {
+        const m = [0, 0, 0];
+        for (let x = 0; x < c.width; x++) for (let k = 0; k < 3; k++) m[k] += d[(y * c.width + x) * 4 + k] / 255;
+        rows.push(m.map((v) => v / c.width));
+      }
+      return rows;
+    }
     const lum = [];
     for (let i = 0; i < d.length; i += 4) lum.push((0.2126 * d[i] + 0.7152 * d[i + 1] + 0.0722 * d[i + 2]) / 255);
     return { width: c.width, height: c.height, lum };
-  });
+  }, what);
 }
 
-/** Mean R, G, B (0..1) of each canvas row, read back in the page. */
-async function canvasRows(page) {
-  return page.evaluate(() => {
-    const src = document.getElementById('view');
-    const c = document.createElement('canvas');
-    c.width = src.clientWidth;
-    c.height = src.clientHeight;
-    const ctx = c.getContext('2d');
-    ctx.drawImage(src, 0, 0, c.width, c.height);
-    const d = ctx.getImageData(0, 0, c.width, c.height).data;
-    const rows = [];
-    for (let y = 0; y < c.height; y++) {
-      const m = [0, 0, 0];
-      for (let x = 0; x < c.width; x++) for (let k = 0; k < 3; k++) m[k] += d[(y * c.width + x) * 4 + k] / 255;
-      rows.push(m.map((v) => v / c.width));
-    }
-    return rows;
-  });
-}
+/** Luminance (0..1) of the canvas, as a flat array. */
+const canvasLuminance = (page) => canvasRead(page, 'lum');
+/** Mean R, G, B (0..1) of each canvas row. */
+const canvasRows = (page) => canvasRead(page, 'rows');
 const rowLum = (m) => 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
 /** Mean colour of rows [a, b). */
 const rowsMean = (rows, a, b) => [0, 1, 2].map((k) => rows.slice(a, b).reduce((s, m) => s + m[k], 0) / (b - a));

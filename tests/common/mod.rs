@@ -156,6 +156,12 @@ pub fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64
         .unwrap()
         .text()
         .unwrap();
+    parse_metric(&text, name, labels)
+}
+
+/// Sum of every sample of the metric `name` in a Prometheus text exposition whose
+/// labels include all of `labels`.
+pub fn parse_metric(text: &str, name: &str, labels: &[(&str, &str)]) -> f64 {
     text.lines()
         .filter(|l| !l.starts_with('#'))
         .filter(|l| l.starts_with(name) && l[name.len()..].starts_with(['{', ' ']))

@@ -363,6 +363,7 @@ mod tests {
                     sun,
                     &ShadingParams::default(),
                     &config.limits,
+                    &crate::cancel::Cancel::never(),
                 )
                 .unwrap();
                 crate::products::billboards::encode_json(&s);

@@ -17,7 +17,7 @@ use cloudscape_core::density;
 use cloudscape_core::products::Product;
 use cloudscape_core::products::billboards;
 use cloudscape_core::products::catalogue::encode_shaded;
-use cloudscape_core::render::tile::shade_tile_cancellable;
+use cloudscape_core::render::tile::shade_tile;
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
 use cloudscape_core::world::SnappedTime;
 
@@ -108,7 +108,7 @@ pub async fn tile(
                 Ok((Bytes::from(bytes), Vec::new()))
             }
             Some((q, sun)) => {
-                let shaded = shade_tile_cancellable(
+                let shaded = shade_tile(
                     &world,
                     layer_index,
                     tile,

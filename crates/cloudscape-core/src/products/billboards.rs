@@ -364,6 +364,7 @@ mod tests {
                 Sun::new(120.0, 30.0).unwrap(),
                 &ShadingParams::default(),
                 &config.limits,
+                &crate::cancel::Cancel::never(),
             )
             .unwrap();
             assert!(!s.billboards.is_empty(), "{tile:?} has billboards to encode");

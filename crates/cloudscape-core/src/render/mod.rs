@@ -34,6 +34,7 @@
 //!
 //! ```rust,no_run
 //! use cloudscape_core::products::billboards;
+//! use cloudscape_core::cancel::Cancel;
 //! use cloudscape_core::render::{Quality, ShadingParams, Sun, TileId, shade_tile};
 //! use cloudscape_core::world::Config;
 //!
@@ -41,7 +42,7 @@
 //! let world = config.world("default").unwrap();
 //! let tile = TileId { z: 0, x: 0, y: 0 };
 //! let sun = Sun::parse("135,40").unwrap();
-//! let shaded = shade_tile(&world, 0, tile, 0.0, Quality::Fast, sun, &ShadingParams::default(), &config.limits).unwrap();
+//! let shaded = shade_tile(&world, 0, tile, 0.0, Quality::Fast, sun, &ShadingParams::default(), &config.limits, &Cancel::never()).unwrap();
 //! let bytes = billboards::encode_bin(&shaded); // billboards.bin
 //! let decoded = billboards::decode_bin(&bytes).unwrap();
 //! assert_eq!(decoded.records.len(), shaded.billboards.len());

@@ -24,7 +24,7 @@ use super::light::{Lighting, ShadingParams};
 use super::march::{self, MarchParams, Volume};
 use super::pathtrace::{self, Environment, Noise, PathParams};
 use super::sun::Sun;
-use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile_cancellable};
+use super::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_tile};
 use super::{ParseError, Quality, RenderError};
 
 /// Clouds farther than this (horizontally, metres) from the camera are not drawn.
@@ -280,7 +280,7 @@ pub fn prepare_cancellable(
     tiles
         .par_iter()
         .map(|&(layer, tile)| {
-            shade_tile_cancellable(
+            shade_tile(
                 world,
                 layer,
                 tile,

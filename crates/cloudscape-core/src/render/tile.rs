@@ -115,24 +115,10 @@ pub fn tile_halo(l: &Layer, z: u32, quality: Quality, sun: Sun) -> usize {
 }
 
 /// Computes the density of a tile (with halo), its metaballs, their shading for the
-/// centre of `sun`'s bucket, and the shadow map.
+/// centre of `sun`'s bucket, and the shadow map; stops early once `cancel` fires (then
+/// an error; `Cancel::never()` runs to the end).
 #[allow(clippy::too_many_arguments)]
 pub fn shade_tile(
-    world: &World,
-    layer: usize,
-    tile: TileId,
-    t: f64,
-    quality: Quality,
-    sun: Sun,
-    params: &ShadingParams,
-    limits: &Limits,
-) -> Result<ShadedTile, RenderError> {
-    shade_tile_cancellable(world, layer, tile, t, quality, sun, params, limits, &Cancel::never())
-}
-
-/// [`shade_tile`] that stops early once `cancel` fires (then an error).
-#[allow(clippy::too_many_arguments)]
-pub fn shade_tile_cancellable(
     world: &World,
     layer: usize,
     tile: TileId,

@@ -188,20 +188,24 @@ pub fn automaton(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     Ok(())
 }
 
+/// The fBm both fields benchmarks (here and `benches/core.rs`) time against the `noise`
+/// crate's `Fbm<Simplex>` with the same seed, frequency, octaves, lacunarity and gain.
+pub const FIELDS_FBM: Fbm = Fbm {
+    seed: 3,
+    scale: 0.02,
+    octaves: 4,
+    lacunarity: 2.0,
+    gain: 0.5,
+    offset: [0.0, 0.0],
+};
+
 /// Our fBm against the `noise` crate's, and a layer window exact against the coarse lattice.
 pub fn fields(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let n: i64 = match effort {
         Effort::Smoke => 32 * 32,
         _ => 128 * 128,
     };
-    let ours = Fbm {
-        seed: 3,
-        scale: 0.02,
-        octaves: 4,
-        lacunarity: 2.0,
-        gain: 0.5,
-        offset: [0.0, 0.0],
-    };
+    let ours = FIELDS_FBM;
     let t_ours = time(effort, || {
         let mut s = 0.0;
         for i in 0..n {

@@ -62,8 +62,18 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         density_s.sort_by(f64::total_cmp);
         // The warm runs and the billboard count use one fixed time for every preset
         // (the cold runs' last time depends on how many ran), so runs compare.
-        let shaded =
-            shade_tile(&world, 0, tile, SHOWN_T, q, sun, &params, &config.limits).map_err(|e| e.to_string())?;
+        let shaded = shade_tile(
+            &world,
+            0,
+            tile,
+            SHOWN_T,
+            q,
+            sun,
+            &params,
+            &config.limits,
+            &Cancel::never(),
+        )
+        .map_err(|e| e.to_string())?;
         let warm = time(effort, || {
             let again = shade_density(
                 0,
@@ -111,6 +121,7 @@ pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         sun(),
         &ShadingParams::default(),
         &config.limits,
+        &Cancel::never(),
     )
     .map_err(|e| e.to_string())?;
     let layer = &world.layers[0];

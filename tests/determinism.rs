@@ -29,47 +29,7 @@ const REGENERATE: &str = "CLOUDSCAPE_REGENERATE_HASHES=1 cargo test --release --
 
 /// A small world (thin layers, short epochs) whose full tiles are cheap, with a
 /// Dobashi and a Rosa layer.
-const TINY: &str = r#"
-[presets.puffy]
-mode = "dobashi"
-top_narrowing = 0.3
-humidity   = { frequency = 0.5, octaves = 2, cutoff = [0.2, 0.7], range = [0.0, 0.4] }
-activation = { frequency = 0.8, octaves = 2, cutoff = [0.3, 0.8], range = [0.0, 0.05] }
-extinction = { frequency = 0.5, octaves = 1, cutoff = [0.0, 1.0], range = [0.1, 0.03] }
-
-[presets.wisp]
-mode = "rosa"
-rosa_iterations = 4
-humidity   = { frequency = 0.3, octaves = 3, cutoff = [0.2, 0.9], range = [0.0, 1.0] }
-activation = { frequency = 0.6, octaves = 2, cutoff = [0.3, 0.9], range = [0.0, 1.0] }
-extinction = { frequency = 0.4, octaves = 1, range = [0.0, 1.0] }
-
-[worlds.default]
-seed = 77
-
-[[worlds.default.layers]]
-name = "low"
-preset = "puffy"
-base = 1000.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 2
-dt = 10.0
-wind = [5.0, 1.0]
-shear = [0.01, 0.0]
-epoch = { length = 4, warmup = 4, fade = 2 }
-
-[[worlds.default.layers]]
-name = "high"
-preset = "wisp"
-base = 6000.0
-cell_size = 200.0
-cell_height = 200.0
-depth = 1
-dt = 20.0
-wind = [20.0, -4.0]
-epoch = { length = 4, warmup = 4, fade = 2 }
-"#;
+const TINY: &str = include_str!("data/determinism.toml");
 
 /// FNV-1a 64 from two offset bases: 128 bits, stable across machines and builds.
 fn hash(bytes: &[u8]) -> String {

@@ -3,28 +3,8 @@
 
 use std::process::Command;
 
-use cloudscape_core::world::DEFAULT_CONFIG;
-
-/// The default config plus a one-layer world, so a test render computes one tile.
-fn config_file(dir: &std::path::Path) -> String {
-    let extra = r#"
-[worlds.single]
-seed = 7
-
-[[worlds.single.layers]]
-name = "stratocumulus"
-preset = "stratocumulus"
-base = 1500.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 10
-dt = 20.0
-wind = [8.0, 2.0]
-"#;
-    let path = dir.join("cfg.toml");
-    std::fs::write(&path, format!("{DEFAULT_CONFIG}\n{extra}")).unwrap();
-    path.to_str().unwrap().to_string()
-}
+/// The tests' world: two thin layers, so a test render computes two cheap tiles.
+const CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
 
 fn cloudscape(args: &[&str], threads: usize) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_cloudscape"))
@@ -40,7 +20,6 @@ const CAMERA: &str = "12800,12800,0,0,90,40";
 #[test]
 fn render_writes_a_png_deterministically() {
     let dir = tempfile::tempdir().unwrap();
-    let cfg = config_file(dir.path());
     let mut outputs = Vec::new();
     for (quality, threads) in [
         ("balanced", 1),
@@ -54,9 +33,9 @@ fn render_writes_a_png_deterministically() {
             &[
                 "render",
                 "--config",
-                &cfg,
+                CONFIG,
                 "--world",
-                "single",
+                "default",
                 "--camera",
                 CAMERA,
                 "--t",

@@ -38,43 +38,7 @@ use super::{BenchRun, Effort, Plot, Section};
 pub const REFERENCE_SAMPLES: u32 = 64;
 
 /// One-layer worlds of the scene set (shared with `benches/render_trade.rs`).
-pub const SCENE_WORLDS: &str = r#"
-[worlds.stratus]
-seed = 11
-[[worlds.stratus.layers]]
-name = "stratus"
-preset = "stratus"
-base = 600.0
-cell_size = 100.0
-cell_height = 80.0
-depth = 6
-dt = 20.0
-wind = [5.0, 1.0]
-
-[worlds.cumulus]
-seed = 12
-[[worlds.cumulus.layers]]
-name = "cumulus"
-preset = "cumulus"
-base = 1200.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 12
-dt = 20.0
-wind = [6.0, 0.0]
-
-[worlds.altocumulus]
-seed = 13
-[[worlds.altocumulus.layers]]
-name = "altocumulus"
-preset = "altocumulus"
-base = 4000.0
-cell_size = 80.0
-cell_height = 80.0
-depth = 8
-dt = 20.0
-wind = [12.0, -2.0]
-"#;
+pub const SCENE_WORLDS: &str = include_str!("scene_worlds.toml");
 
 /// A camera over one of [`SCENE_WORLDS`], with the sun (azimuth, elevation in degrees).
 pub struct Scene {

@@ -233,48 +233,24 @@ fn remote_errors_are_one_clear_sentence() {
     let mut client = TileClient::new(&url).unwrap();
     assert!(matches!(client.world("default"), Err(ClientError::Transport { .. })));
 
-    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args([
-            "render",
-            "--world",
-            "default",
-            "--camera",
-            "0,0,900,0,5,60",
-            "--t",
-            "0",
-            "--size",
-            "8x8",
-            "--server",
-        ])
-        .arg(&url)
-        .args(["--out", "/dev/null/never.png"])
-        .output()
-        .unwrap();
+    let out = render_remote(&url, "/dev/null/never.png");
     assert!(!out.status.success());
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(stderr.trim().lines().count(), 1, "{stderr}");
     assert!(stderr.contains(&url), "{stderr}");
 
-    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args([
-            "render",
-            "--world",
-            "default",
-            "--camera",
-            "0,0,900,0,5,60",
-            "--t",
-            "0",
-            "--size",
-            "8x8",
-            "--server",
-            "localhost:1",
-            "--out",
-            "x.png",
-        ])
-        .output()
-        .unwrap();
+    let out = render_remote("localhost:1", "x.png");
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("http://HOST:PORT"));
+}
+
+/// `cloudscape render --server URL` of a small view of the default world.
+fn render_remote(url: &str, out: &str) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["render", "--world", "default", "--camera", "0,0,900,0,5,60"])
+        .args(["--t", "0", "--size", "8x8", "--server", url, "--out", out])
+        .output()
+        .unwrap()
 }
 
 #[test]

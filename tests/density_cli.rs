@@ -302,102 +302,28 @@ fn bad_input_is_one_clear_line_and_leaves_no_file() {
     let d = tmp();
     let out = d.path().join("never.npy");
     let o = out.to_str().unwrap();
-    let cases: Vec<(Vec<&str>, &str)> = vec![
-        (
-            vec!["--world", "default", "--bbox", "0,0,100,100", "--t", "NaN", "--out", o],
-            "t",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,100,100", "--t", "inf", "--out", o],
-            "t",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,100,100", "--t", "-1", "--out", o],
-            "t",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,100,100", "--t", "1e13", "--out", o],
-            "t",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "100,0,0,100", "--t", "0", "--out", o],
-            "bbox",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,1e7,1e7", "--t", "0", "--out", o],
-            "limit",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,nan,100", "--t", "0", "--out", o],
-            "bbox",
-        ),
-        (
-            vec!["--world", "default", "--bbox", "0,0,100", "--t", "0", "--out", o],
-            "bbox",
-        ),
-        (
-            vec!["--world", "nowhere", "--bbox", "0,0,100,100", "--t", "0", "--out", o],
-            "world",
-        ),
-        (
-            vec![
-                "--world",
-                "default",
-                "--layer",
-                "fog",
-                "--bbox",
-                "0,0,100,100",
-                "--t",
-                "0",
-                "--out",
-                o,
-            ],
-            "layer",
-        ),
-        (
-            vec![
-                "--world",
-                "default",
-                "--bbox",
-                "0,0,100,100",
-                "--t",
-                "0",
-                "--level",
-                "99",
-                "--out",
-                o,
-            ],
-            "level",
-        ),
-        (
-            vec![
-                "--world",
-                "default",
-                "--bbox",
-                "0,0,100,100",
-                "--t",
-                "0",
-                "--format",
-                "png",
-                "--out",
-                o,
-            ],
-            "format",
-        ),
-        (
-            vec![
-                "--world",
-                "default",
-                "--bbox",
-                "1e300,0,2e300,100",
-                "--t",
-                "0",
-                "--out",
-                o,
-            ],
-            "range",
-        ),
+    // Each case's flags (split at spaces), then `--out`, and a word the error names.
+    let cases: [(&str, &str); 14] = [
+        ("--world default --bbox 0,0,100,100 --t NaN", "t"),
+        ("--world default --bbox 0,0,100,100 --t inf", "t"),
+        ("--world default --bbox 0,0,100,100 --t -1", "t"),
+        ("--world default --bbox 0,0,100,100 --t 1e13", "t"),
+        ("--world default --bbox 100,0,0,100 --t 0", "bbox"),
+        ("--world default --bbox 0,0,1e7,1e7 --t 0", "limit"),
+        ("--world default --bbox 0,0,nan,100 --t 0", "bbox"),
+        ("--world default --bbox 0,0,100 --t 0", "bbox"),
+        ("--world nowhere --bbox 0,0,100,100 --t 0", "world"),
+        ("--world default --layer fog --bbox 0,0,100,100 --t 0", "layer"),
+        ("--world default --bbox 0,0,100,100 --t 0 --level 99", "level"),
+        ("--world default --bbox 0,0,100,100 --t 0 --format png", "format"),
+        ("--world default --bbox 1e300,0,2e300,100 --t 0", "range"),
+        ("--world default --bbox 0,0,100,100 --t 0 --field nope", "field"),
     ];
+    let cases = cases.map(|(flags, word)| {
+        let mut args: Vec<&str> = flags.split(' ').collect();
+        args.extend(["--out", o]);
+        (args, word)
+    });
     for (args, word) in cases {
         let r = run(&args, &[]);
         assert!(!r.status.success(), "{args:?} should fail");

@@ -144,12 +144,7 @@ fn parse_npy(bytes: &[u8]) -> ((usize, usize, usize), Vec<f32>) {
 async fn discovery_lists_worlds_and_describes_layers() {
     let s = start(config_with(&[])).await;
     let list = s.json("/v1/worlds").await;
-    let names: Vec<&str> = list["worlds"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|w| w["name"].as_str().unwrap())
-        .collect();
+    let names = common::world_names(&list);
     assert_eq!(names, ["default", "other"]);
     assert_eq!(list["algorithm_version"], cloudscape_core::world::ALGORITHM_VERSION);
 

@@ -169,3 +169,13 @@ pub fn parse_metric(text: &str, name: &str, labels: &[(&str, &str)]) -> f64 {
         .filter_map(|l| l.rsplit(' ').next()?.parse::<f64>().ok())
         .sum()
 }
+
+/// The world names of a `/v1/worlds` answer, in its order.
+pub fn world_names(list: &serde_json::Value) -> Vec<String> {
+    list["worlds"]
+        .as_array()
+        .expect("`worlds` is an array")
+        .iter()
+        .map(|w| w["name"].as_str().expect("a world has a name").to_string())
+        .collect()
+}

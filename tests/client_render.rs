@@ -93,16 +93,7 @@ fn a_remote_render_matches_a_local_one_and_revalidates() {
     let world = config.world("default").unwrap();
     // Between the altocumulus top (5 km) and the cirrus base (8 km), looking down and
     // north: the two lower layers, several tiles and levels, sunlit ground.
-    let req = RenderRequest {
-        camera: Camera::parse("12800,6000,7000,0,-50,70").unwrap(),
-        width: 192,
-        height: 108,
-        t: 43200.0,
-        quality: Quality::Fast,
-        sun: None,
-        params: ShadingParams::default(),
-        samples: 32,
-    };
+    let req = looking_down(192, 108);
     let local = render(&world, &config, &req).expect("local render");
     let mut client = TileClient::new(&server.base).unwrap();
     let remote = client.render("default", &req).expect("remote render");
@@ -179,16 +170,7 @@ fn a_remote_render_matches_a_local_one_and_revalidates() {
 #[test]
 fn the_async_client_draws_the_blocking_clients_pixels_and_revalidates() {
     let server = start_server();
-    let req = RenderRequest {
-        camera: Camera::parse("12800,6000,7000,0,-50,70").unwrap(),
-        width: 96,
-        height: 54,
-        t: 43200.0,
-        quality: Quality::Fast,
-        sun: None,
-        params: ShadingParams::default(),
-        samples: 32,
-    };
+    let req = looking_down(96, 54);
     let mut blocking = TileClient::new(&server.base).unwrap();
     let expected = blocking.render("default", &req).expect("blocking render");
 
@@ -263,5 +245,20 @@ fn an_unknown_remote_world_is_the_servers_404() {
             assert!(message.contains("nope"), "{message}");
         }
         other => panic!("expected a 404, got {other:?}", other = other.map(|w| w.name)),
+    }
+}
+
+/// Between the altocumulus top (5 km) and the cirrus base (8 km), looking down and
+/// north at noon, `fast`: the two lower layers, several tiles and levels, sunlit ground.
+fn looking_down(width: usize, height: usize) -> RenderRequest {
+    RenderRequest {
+        camera: Camera::parse("12800,6000,7000,0,-50,70").unwrap(),
+        width,
+        height,
+        t: 43200.0,
+        quality: Quality::Fast,
+        sun: None,
+        params: ShadingParams::default(),
+        samples: 32,
     }
 }

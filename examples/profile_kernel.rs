@@ -17,7 +17,6 @@
 
 use std::hint::black_box;
 
-use cloudscape_core::automaton::kernel::{Level, Rect, StepContext, step_level};
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::world::Config;
 
@@ -109,30 +108,16 @@ fn main() {
     // The scene `cloudscape bench` and `benches/core.rs` step, so the profile is theirs.
     let size: i64 = std::env::var("SIZE").ok().and_then(|s| s.parse().ok()).unwrap_or(192);
     let (sim, levels, drives) = cloudscape_tools::bench::core::scene(size);
-    let mut cur = levels.clone();
-    let mut next = levels.clone();
+    let mut grids = cloudscape_tools::bench::core::Grids::of(&levels);
     let (start, cpu) = (std::time::Instant::now(), cpu_ns());
     let steps: i64 = std::env::var("STEPS").ok().and_then(|s| s.parse().ok()).unwrap_or(8);
-    for n in 0..steps {
-        let offsets = sim.offsets(64 + n);
-        let ctx = StepContext {
-            rules: sim.rules(),
-            stream: sim.stream,
-            n: 64 + n,
-            offsets: &offsets,
-        };
-        for (k, o) in next.iter_mut().enumerate() {
-            let lv: &Level = &cur[k];
-            let all = Rect {
-                x0: lv.x0,
-                x1: lv.x0 + 64 * lv.wpr as i64,
-                y0: lv.y0,
-                y1: lv.y0 + lv.rows as i64,
-            };
-            step_level(&cur, k, &drives[k], &ctx, all, o);
-        }
-        std::mem::swap(&mut cur, &mut next);
-    }
+    // One thread, so callgrind and perf see the kernel without rayon's scheduling.
+    let serial = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .expect("one-thread pool");
+    serial.install(|| cloudscape_tools::bench::core::step_grids(&sim, &drives, &mut grids, steps));
+    let cur = grids.cur;
     let cells: usize = cur.iter().map(|l| l.wpr * 64 * l.rows).sum::<usize>() * steps as usize;
     eprintln!(
         "{cells} cell-steps in {:?} ({:.1} ms of CPU)",

@@ -28,27 +28,20 @@ struct Request<'a> {
 /// `dir/name`, and returns the bytes.
 fn grid(dir: &Path, name: &str, req: &Request, bbox: &str, envs: &[(&str, &str)]) -> Vec<u8> {
     let Request { world, layer, t, field } = *req;
+    grid_of(dir, name, &["--world", world, "--layer", layer], bbox, t, field, envs)
+}
+
+/// Runs `density` with the flags `head` (world, layer or config) over `bbox` at `t`,
+/// writing raw f32 (density) or u8 (cld) to `dir/name`, and returns the bytes.
+fn grid_of(dir: &Path, name: &str, head: &[&str], bbox: &str, t: &str, field: &str, envs: &[(&str, &str)]) -> Vec<u8> {
     let out = dir.join(name);
     let fmt = if field == "cld" { "u8" } else { "f32" };
-    let o = run(
-        &[
-            "--world",
-            world,
-            "--layer",
-            layer,
-            "--bbox",
-            bbox,
-            "--t",
-            t,
-            "--field",
-            field,
-            "--format",
-            fmt,
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        envs,
-    );
+    let mut args = head.to_vec();
+    let out_s = out.to_str().unwrap();
+    args.extend([
+        "--bbox", bbox, "--t", t, "--field", field, "--format", fmt, "--out", out_s,
+    ]);
+    let o = run(&args, envs);
     assert!(
         o.status.success(),
         "density failed: {}",
@@ -214,29 +207,15 @@ fn extreme_config(dir: &Path, hum: [f64; 2], act: [f64; 2], ext: [f64; 2]) -> Pa
 }
 
 fn grid_with_config(dir: &Path, cfg: &Path, bbox: &str, t: &str, field: &str) -> Vec<u8> {
-    let out = dir.join("x");
-    let fmt = if field == "cld" { "u8" } else { "f32" };
-    let o = run(
-        &[
-            "--config",
-            cfg.to_str().unwrap(),
-            "--world",
-            "x",
-            "--bbox",
-            bbox,
-            "--t",
-            t,
-            "--field",
-            field,
-            "--format",
-            fmt,
-            "--out",
-            out.to_str().unwrap(),
-        ],
+    grid_of(
+        dir,
+        "x",
+        &["--config", cfg.to_str().unwrap(), "--world", "x"],
+        bbox,
+        t,
+        field,
         &[],
-    );
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    std::fs::read(out).unwrap()
+    )
 }
 
 #[test]

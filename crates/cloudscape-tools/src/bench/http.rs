@@ -102,6 +102,17 @@ struct Load {
     p99: f64,
 }
 
+/// A Markdown table row of a closed load: run, connections, requests, rate, p50, p99.
+fn load_row(run: &str, connections: usize, l: &Load) -> String {
+    format!(
+        "| {run} | {connections} | {} | {:.0} | {} | {} |\n",
+        l.requests,
+        l.requests as f64 / l.seconds,
+        fmt_s(l.p50),
+        fmt_s(l.p99)
+    )
+}
+
 /// `connections` threads fetching `urls` in rotation for `budget`.
 fn closed_load(
     urls: &[String],
@@ -209,22 +220,10 @@ pub fn http(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     );
     for connections in [1, 8] {
         let l = closed_load(&urls, None, connections, budget, 2)?;
-        md += &format!(
-            "| warm: {tiles} cached tiles in rotation | {connections} | {} | {:.0} | {} | {} |\n",
-            l.requests,
-            l.requests as f64 / l.seconds,
-            fmt_s(l.p50),
-            fmt_s(l.p99)
-        );
+        md += &load_row(&format!("warm: {tiles} cached tiles in rotation"), connections, &l);
     }
     let l = closed_load(&urls, Some(&etags), 8, budget, 2)?;
-    md += &format!(
-        "| revalidation: `If-None-Match` → 304 | 8 | {} | {:.0} | {} | {} |\n",
-        l.requests,
-        l.requests as f64 / l.seconds,
-        fmt_s(l.p50),
-        fmt_s(l.p99)
-    );
+    md += &load_row("revalidation: `If-None-Match` → 304", 8, &l);
     md += "\nClient and server share the machine's cores. For a comparison with nginx serving the same bytes \
            (wrk), see \"HTTP\" above; for a realistic mixed workload, `cloudscape loadtest`.\n";
     out.sections.push(Section {

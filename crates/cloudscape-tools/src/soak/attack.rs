@@ -353,23 +353,48 @@ fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -
     let urls: Vec<String> = (0..o.burst)
         .map(|i| render_url(o, i, "4096x4096", "accurate", 0))
         .collect();
+    let b = burst_and_recover(o, client, &urls);
+    let mut notes = b.notes;
+    if b.answers.iter().any(|a| a.status == Some(200)) {
+        notes.push("a render that cannot finish inside the budget was computed".to_string());
+    }
+    outcome("render_burst_refused", b.statuses, b.figures, notes)
+}
+
+/// Heavy renders within the limits, all at once: whatever is shed or times out,
+/// the queue is free again within 2 × the budget.
+fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
+    let run = salt() % 100_000;
+    let urls: Vec<String> = (0..o.burst)
+        .map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run))
+        .collect();
+    let mut b = burst_and_recover(o, client, &urls);
+    if let Some(ra) = b.answers.iter().filter_map(|a| a.retry_after).max() {
+        b.figures.insert("max_retry_after_s".to_string(), ra as f64);
+    }
+    outcome("render_burst_admitted", b.statuses, b.figures, b.notes)
+}
+
+/// What a burst left behind: its answers, their statuses, the figures (how long the
+/// burst took to be answered, how long until an uncached request succeeded) and what
+/// went wrong.
+struct BurstResult {
+    answers: Vec<Answer>,
+    statuses: BTreeMap<String, u64>,
+    figures: BTreeMap<String, f64>,
+    notes: Vec<String>,
+}
+
+/// Sends `urls` at once, then measures how soon the server serves an uncached
+/// request again (within 2 × the budget, else a note).
+fn burst_and_recover(o: &AttackOptions, client: &reqwest::blocking::Client, urls: &[String]) -> BurstResult {
     let started = Instant::now();
-    let answers = burst(client, &urls);
+    let answers = burst(client, urls);
     let answered_s = started.elapsed().as_secs_f64();
     let mut notes = Vec::new();
     let statuses = tally(&answers, &mut notes);
-    if answers.iter().any(|a| a.status == Some(200)) {
-        notes.push("a render that cannot finish inside the budget was computed".to_string());
-    }
     let limit = Duration::from_secs_f64(6.0 * o.budget_s);
     let rec = recovery(o, client, started, limit);
-    check_recovery(o, rec, &mut notes);
-    let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
-    figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
-    outcome("render_burst_refused", statuses, figures, notes)
-}
-
-fn check_recovery(o: &AttackOptions, rec: Option<f64>, notes: &mut Vec<String>) {
     match rec {
         Some(s) if s <= 2.0 * o.budget_s => {}
         Some(s) => notes.push(format!(
@@ -381,28 +406,16 @@ fn check_recovery(o: &AttackOptions, rec: Option<f64>, notes: &mut Vec<String>) 
             6.0 * o.budget_s
         )),
     }
-}
-
-/// Heavy renders within the limits, all at once: whatever is shed or times out,
-/// the queue is free again within 2 × the budget.
-fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
-    let run = salt() % 100_000;
-    let urls: Vec<String> = (0..o.burst)
-        .map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run))
-        .collect();
-    let started = Instant::now();
-    let answers = burst(client, &urls);
-    let answered_s = started.elapsed().as_secs_f64();
-    let mut notes = Vec::new();
-    let statuses = tally(&answers, &mut notes);
-    let rec = recovery(o, client, started, Duration::from_secs_f64(6.0 * o.budget_s));
-    check_recovery(o, rec, &mut notes);
-    let mut figures = BTreeMap::from([("burst_answered_s".to_string(), answered_s)]);
-    figures.insert("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY));
-    if let Some(ra) = answers.iter().filter_map(|a| a.retry_after).max() {
-        figures.insert("max_retry_after_s".to_string(), ra as f64);
+    let figures = BTreeMap::from([
+        ("burst_answered_s".to_string(), answered_s),
+        ("recovery_s".to_string(), rec.unwrap_or(f64::INFINITY)),
+    ]);
+    BurstResult {
+        answers,
+        statuses,
+        figures,
+        notes,
     }
-    outcome("render_burst_admitted", statuses, figures, notes)
 }
 
 /// The default `limits.max_response_bytes`: no answer of the scenario may be larger.

@@ -22,7 +22,7 @@ use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
 use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
-use cloudscape_core::world::{ALGORITHM_VERSION, Config};
+use cloudscape_core::world::{ALGORITHM_VERSION, Config, Keyframe};
 
 const TABLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/determinism/hashes.toml");
 const REGENERATE: &str = "CLOUDSCAPE_REGENERATE_HASHES=1 cargo test --release --test determinism";
@@ -138,7 +138,7 @@ fn tile_products() -> BTreeMap<String, String> {
                     &w,
                     li,
                     tile,
-                    t,
+                    Keyframe::containing(t, layer, tile.z),
                     quality,
                     sun,
                     &ShadingParams::default(),

@@ -9,7 +9,7 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Grid, Region};
 use cloudscape_core::products::{atlas, billboards, coverage, shadow};
 use cloudscape_core::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
-use cloudscape_core::world::{Config, Limits, World};
+use cloudscape_core::world::{Config, Keyframe, Limits, World};
 
 /// 2^40 cells.
 const FAR: i64 = 1 << 40;
@@ -286,7 +286,10 @@ fn shaded_tile_products_are_finite_and_in_range_for_every_sun_phase_and_optical_
         let sun = Sun::new(123.0, el).unwrap();
         let tile = TileId { z: 0, x: tx, y: tx };
         let what = format!("world {name}, tile {tx}, sun el {el}, {phase:?}, extinction {extinction:e}");
-        let shaded = shade_tile(&w, 0, tile, t, quality, sun, &params, &limits, &Cancel::never())
+        // The last keyframe span before the end of time: both ends shaded.
+        let keyframe = Keyframe::containing(t - 1.0, &w.layers[0], tile.z);
+        assert!(!keyframe.is_instant() && keyframe.t1 == t, "{what}: {keyframe:?}");
+        let shaded = shade_tile(&w, 0, tile, keyframe, quality, sun, &params, &limits, &Cancel::never())
             .unwrap_or_else(|e| panic!("{what}: {e}"));
         let l = &shaded.lighting;
         for v in l.sun_dir.iter().chain(&l.sun_rgb).chain(&l.ambient_rgb) {
@@ -297,8 +300,11 @@ fn shaded_tile_products_are_finite_and_in_range_for_every_sun_phase_and_optical_
             "{what}: {l:?}"
         );
         assert!(unit(l.daylight), "{what}: daylight {}", l.daylight);
-        for b in &shaded.billboards {
+        assert_eq!(shaded.billboards.len(), shaded.end.len(), "{what}");
+        let between = shaded.billboards_at(t - 1.0);
+        for b in shaded.billboards.iter().chain(&shaded.end).chain(&between) {
             assert!(b.centre.iter().all(|v| v.is_finite()), "{what}: {b:?}");
+            assert!(b.splat_tau.is_finite() && b.splat_tau >= 0.0, "{what}: splat_tau {b:?}");
             assert!(b.radius.is_finite() && b.radius > 0.0, "{what}: {b:?}");
             assert!(unit(b.density as f64), "{what}: {b:?}");
             assert!(b.tau.is_finite() && b.tau >= 0.0, "{what}: tau {b:?}");
@@ -313,7 +319,10 @@ fn shaded_tile_products_are_finite_and_in_range_for_every_sun_phase_and_optical_
             );
             assert!((b.splat as usize) < quality.settings().splat_count, "{what}: {b:?}");
         }
-        assert!(shaded.shadow.iter().all(|&v| unit(v as f64)), "{what}: shadow map");
+        assert!(
+            shaded.shadow.iter().chain(&shaded.shadow_end).all(|&v| unit(v as f64)),
+            "{what}: shadow map"
+        );
         if name == "gale_coarse" {
             assert!(!shaded.billboards.is_empty(), "{what}: an overcast tile has billboards");
         }

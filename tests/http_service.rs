@@ -155,6 +155,14 @@ async fn discovery_lists_worlds_and_describes_layers() {
     assert_eq!(w["layers"][0]["cell_size"], 100.0);
     assert_eq!(w["layers"][0]["dt"], 10.0);
     assert_eq!(w["layers"][0]["frame_seconds"], 2.5);
+    // Keyframes: one step at level 0, doubling per level to 16 steps.
+    let spans: Vec<f64> = w["layers"][0]["keyframe_spans"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(spans, [10.0, 20.0, 40.0, 80.0, 160.0]);
     assert_eq!(w["layers"][1]["top"], 5200.0);
     assert!(w["products"].as_array().unwrap().iter().any(|p| p == "density.npy"));
     assert!(
@@ -181,9 +189,12 @@ async fn density_tiles_agree_across_encodings_and_are_deterministic() {
     let path = |p: &str| format!("/v1/worlds/default/tiles/0/-1/2/{p}?t=30");
     let r = s.get(&path("density.npy")).await;
     assert_eq!(r.status(), StatusCode::OK);
+    // Level 0 keyframes are one 10 s step apart: t = 30 is keyframe 3, final.
     assert_eq!(r.headers()["x-cloudscape-t"], "30");
-    assert_eq!(r.headers()["x-cloudscape-frame"], "12");
+    assert_eq!(r.headers()["x-cloudscape-t1"], "40");
+    assert_eq!(r.headers()["x-cloudscape-frame"], "3");
     assert!(r.headers()["cache-control"].to_str().unwrap().contains("immutable"));
+    assert!(r.headers().get("content-location").is_none());
     let etag = r.headers()["etag"].to_str().unwrap().to_string();
     assert!(etag.starts_with('"') && etag.ends_with('"'), "strong ETag: {etag}");
     let npy = r.bytes().await.unwrap();
@@ -205,12 +216,29 @@ async fn density_tiles_agree_across_encodings_and_are_deterministic() {
     assert_eq!(r2.headers()["etag"].to_str().unwrap(), etag);
     assert_eq!(r2.bytes().await.unwrap(), npy);
 
-    // t between frames is snapped: same bytes and ETag as the frame, a shorter Cache-Control.
-    let r3 = s.get("/v1/worlds/default/tiles/0/-1/2/density.npy?t=30.9").await;
+    // A t inside the span answers with the keyframe: same bytes and ETag, kept until
+    // the next keyframe, and the keyframe's own URL as Content-Location.
+    let r3 = s
+        .get("/v1/worlds/default/tiles/0/-1/2/density.npy?layer=low&t=37.2")
+        .await;
     assert_eq!(r3.headers()["x-cloudscape-t"], "30");
     assert_eq!(r3.headers()["etag"].to_str().unwrap(), etag);
-    assert!(!r3.headers()["cache-control"].to_str().unwrap().contains("immutable"));
+    assert_eq!(r3.headers()["cache-control"], "public, max-age=3");
+    assert_eq!(
+        r3.headers()["content-location"],
+        "/v1/worlds/default/tiles/0/-1/2/density.npy?layer=low&t=30"
+    );
     assert_eq!(r3.bytes().await.unwrap(), npy);
+    // The next keyframe is another answer.
+    let next = s.get("/v1/worlds/default/tiles/0/-1/2/density.npy?t=40").await;
+    assert_eq!(next.headers()["x-cloudscape-frame"], "4");
+    assert_ne!(next.headers()["etag"].to_str().unwrap(), etag);
+    // Level 3's span is 80 s: t = 30 and 79 share keyframe 0.
+    let far = |t: &str| format!("/v1/worlds/default/tiles/3/0/0/density.u8?t={t}");
+    let (a, b) = (s.get(&far("30")).await, s.get(&far("79")).await);
+    assert_eq!(a.headers()["x-cloudscape-t"], "0");
+    assert_eq!(a.headers()["x-cloudscape-t1"], "80");
+    assert_eq!(a.headers()["etag"], b.headers()["etag"]);
 
     // A different layer is a different grid (depth 1 here).
     let high = s

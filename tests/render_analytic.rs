@@ -19,10 +19,9 @@ use cloudscape_core::render::sun::Sun;
 const R: f64 = 500.0;
 const CENTRE: [f64; 3] = [10_000.0, 20_000.0, 3_000.0];
 
-/// The one ball: its billboard, the splat sheet, the lighting, the sampled field.
+/// The one ball: its billboard, the lighting, the sampled field.
 struct Ball {
     billboards: Vec<cloudscape_core::render::shade::Billboard>,
-    sheet: SplatSheet,
     lighting: Lighting,
     volume: Volume,
 }
@@ -90,7 +89,6 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
     let volume = Volume::new(grid, place, [origin[0], origin[1], origin[2], top[0], top[1], top[2]]);
     Ball {
         billboards,
-        sheet,
         lighting,
         volume,
     }
@@ -99,7 +97,7 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
 /// The ball seen in `view` by the compositor and by the ray marcher.
 fn draw_both(ball: &Ball, view: &View) -> (Image, Image) {
     let mut drawn = Image::new(view.width, view.height);
-    composite(&mut drawn, &ball.billboards, &ball.sheet, &ball.lighting, view);
+    composite(&mut drawn, &ball.billboards, &ball.lighting, view);
     let params = MarchParams {
         step: 4.0,
         shadow_step: 8.0,

@@ -91,12 +91,21 @@ fn billboards_json_matches_its_documented_shape() {
         let (x, y, z) = (p[0].as_f64().unwrap(), p[1].as_f64().unwrap(), p[2].as_f64().unwrap());
         assert!(x >= x0 && x < x0 + size && y >= y0 && y < y0 + size, "{b}");
         assert!(band.contains(&z), "{z} outside the layer's band {band:?}");
-        assert!(b["splat"].as_u64().unwrap() < splat_count);
-        assert_eq!(b["colour"].as_array().unwrap().len(), 3);
-        let a = b["opacity"].as_f64().unwrap();
-        let tr = b["sun_transmittance"].as_f64().unwrap();
-        assert!((0.0..1.0).contains(&a) && (0.0..=1.0).contains(&tr));
+        assert_eq!(b["velocity"].as_array().unwrap().len(), 2);
+        for end in [&b["start"], &b["end"]] {
+            assert!(end["splat"].as_u64().unwrap() < splat_count);
+            assert_eq!(end["colour"].as_array().unwrap().len(), 3);
+            let a = end["opacity"].as_f64().unwrap();
+            let tr = end["sun_transmittance"].as_f64().unwrap();
+            assert!((0.0..1.0).contains(&a) && (0.0..=1.0).contains(&tr));
+            assert!(
+                end["splat_tau"].as_f64().unwrap() > 0.0,
+                "a tile of one time has both ends"
+            );
+        }
+        assert_eq!(b["start"], b["end"]);
     }
+    assert_eq!(v["keyframe"]["t0"], v["keyframe"]["t1"]);
     // Balls sit only where the blobs are.
     for b in &t.billboards {
         let (cx, cy) = ((b.centre[0] - x0) / 100.0, (b.centre[1] - y0) / 100.0);
@@ -127,11 +136,18 @@ fn billboards_bin_round_trips() {
         assert!((r.offset[1] as f64 + t.origin[1] - b.centre[1]).abs() < 0.01);
         assert!((r.offset[2] as f64 - b.centre[2]).abs() < 0.01);
         assert_eq!(r.radius, b.radius);
-        assert_eq!(r.splat, b.splat);
-        assert_eq!(r.colour, b.colour);
-        assert_eq!(r.opacity, (b.opacity * 255.0).round() as u8);
-        assert_eq!(r.sun_transmittance, (b.sun_transmittance * 255.0).round() as u8);
-        assert_eq!(r.tau_sun, b.tau_sun);
+        // A tile shaded at one time: both ends are that time.
+        assert_eq!(r.ends[0], r.ends[1]);
+        let e = &r.ends[0];
+        assert_eq!(e.splat, b.splat);
+        assert_eq!(e.splat_tau, Some(b.splat_tau));
+        for c in 0..3 {
+            // binary16 keeps 11 significant bits.
+            assert!((e.colour[c] - b.colour[c]).abs() <= b.colour[c] / 1024.0, "{e:?} {b:?}");
+        }
+        assert_eq!(e.opacity, (b.opacity * 255.0).round() as u8);
+        assert_eq!(e.sun_transmittance, (b.sun_transmittance * 255.0).round() as u8);
+        assert!((e.tau_sun - b.tau_sun).abs() <= b.tau_sun / 1024.0, "{e:?} {b:?}");
         // The transmittance is the exponential of the optical depth.
         assert!((b.sun_transmittance as f64 - (-(b.tau_sun as f64)).exp()).abs() < 1e-6);
     }
@@ -151,10 +167,12 @@ fn shadow_and_coverage_pngs_decode_and_show_the_blobs() {
     let (info, px) = decode_png(&shadow::encode_png_map(&t));
     assert_eq!(
         (info.width, info.height, info.color_type),
-        (256, 256, png::ColorType::Grayscale)
+        (256, 256, png::ColorType::Rgb)
     );
-    // PNG row 0 is north: tile row r is PNG row 255 − r.
-    let at = |x: usize, y: usize| px[(255 - y) * 256 + x];
+    // PNG row 0 is north: tile row r is PNG row 255 − r. R is the span's start, G its
+    // end: the same here (one time).
+    let at = |x: usize, y: usize| px[((255 - y) * 256 + x) * 3];
+    assert!(px.chunks_exact(3).all(|p| p[0] == p[1] && p[2] == 0));
     assert!(at(180, 90) < 200, "under the big blob: {}", at(180, 90));
     assert_eq!(at(5, 250), 255, "clear sky far from blobs");
     let (info, px) = decode_png(&coverage::encode_png_from_grid(&layer(), &t.density, t.halo));

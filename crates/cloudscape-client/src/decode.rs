@@ -7,15 +7,17 @@ use std::io::Cursor;
 use serde::Deserialize;
 
 use cloudscape_core::products::Product;
-use cloudscape_core::products::billboards::{BinBillboards, decode_bin};
+use cloudscape_core::products::billboards::{BinBillboards, BinEnd, decode_bin};
 use cloudscape_core::render::camera::View;
 use cloudscape_core::render::composite::composite;
+use cloudscape_core::render::keyframe::between;
 use cloudscape_core::render::light::Lighting;
 use cloudscape_core::render::scene::{LayerBand, background, mean_shadow, plan_bands};
 use cloudscape_core::render::shade::Billboard;
 use cloudscape_core::render::splats::SplatSheet;
 use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_lookup, shadow_shift};
 use cloudscape_core::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
+use cloudscape_core::world::{Keyframe, keyframe_span};
 
 use crate::ClientError;
 
@@ -26,6 +28,9 @@ pub struct RemoteLayer {
     pub base: f64,
     pub top: f64,
     pub cell_size: f64,
+    /// Seconds per automaton step: the keyframe span of level z is
+    /// `world::keyframe_span(dt, z)`.
+    pub dt: f64,
 }
 
 /// The parts of a remote world's discovery document the client uses.
@@ -57,26 +62,34 @@ struct SplatManifest {
     columns: usize,
 }
 
-/// A tile's ground shadow map, decoded from `shadow.png`.
+/// A tile's ground shadow map at both ends of its keyframe span, decoded from
+/// `shadow.png`.
 struct ShadowMap {
     origin: [f64; 2],
     column: f64,
     /// Added to a ground point before the lookup (`render::tile::shadow_shift`).
     shift: [f64; 2],
-    /// Transmittance, 256×256, row 0 = south.
-    values: Vec<f32>,
+    /// Transmittance at the span's start and end, 256×256 each, row 0 = south.
+    ends: [Vec<f32>; 2],
+    /// Where the drawn time falls in the span.
+    fraction: f64,
 }
 
 impl ShadowMap {
-    /// Bilinear lookup, 1 outside the tile (as `ShadedTile::shadow_at`).
+    /// Bilinear lookup of each end, blended (as `ShadedTile::shadow_at`); 1 outside
+    /// the tile.
     fn at(&self, x: f64, y: f64) -> f64 {
-        shadow_lookup(
-            &self.values,
-            self.origin,
-            self.column,
-            x + self.shift[0],
-            y + self.shift[1],
-        )
+        let (x, y) = (x + self.shift[0], y + self.shift[1]);
+        let [a, b] = &self.ends;
+        let a = shadow_lookup(a, self.origin, self.column, x, y);
+        let b = shadow_lookup(b, self.origin, self.column, x, y);
+        (1.0 - self.fraction) * a + self.fraction * b
+    }
+
+    /// The mean transmittance drawn.
+    fn mean(&self) -> f64 {
+        let mean = |v: &[f32]| v.iter().map(|&v| v as f64).sum::<f64>() / v.len().max(1) as f64;
+        (1.0 - self.fraction) * mean(&self.ends[0]) + self.fraction * mean(&self.ends[1])
     }
 }
 
@@ -135,20 +148,28 @@ pub fn decode_splat_sheet(manifest: &[u8], png: &[u8]) -> Result<SplatSheet, Str
     })
 }
 
-/// Decodes a tile's `shadow.png` for the billboard tile it belongs to.
-fn decode_shadow_map(png: &[u8], tile: &BinBillboards, base: f64) -> Result<ShadowMap, String> {
+/// Decodes a tile's `shadow.png` (R the span's start, G its end) for the billboard
+/// tile it belongs to, to be drawn a `fraction` of the way through the span.
+fn decode_shadow_map(png: &[u8], tile: &BinBillboards, base: f64, fraction: f64) -> Result<ShadowMap, String> {
     let n = TILE_COLUMNS;
     let (width, height, channels, samples) = decode_png(png)?;
-    if (width, height, channels) != (n, n, 1) {
+    if (width, height, channels) != (n, n, 3) {
         return Err(format!(
-            "expected a {n}×{n} greyscale shadow map, got {width}×{height}×{channels}"
+            "expected a {n}×{n} RGB shadow map, got {width}×{height}×{channels}"
         ));
     }
     // PNG row 0 is north; the map's row 0 is south.
-    let mut values = Vec::with_capacity(n * n);
-    for row in (0..n).rev() {
-        values.extend(samples[row * n..(row + 1) * n].iter().map(|&v| v as f32 / 255.0));
-    }
+    let end = |e: usize| {
+        let mut values = Vec::with_capacity(n * n);
+        for row in (0..n).rev() {
+            values.extend(
+                samples[3 * row * n..3 * (row + 1) * n]
+                    .chunks_exact(3)
+                    .map(|p| p[e] as f32 / 255.0),
+            );
+        }
+        values
+    };
     let sun = Sun::new(tile.sun_azimuth_deg as f64, tile.sun_elevation_deg as f64).unwrap_or(Sun {
         azimuth_deg: 0.0,
         elevation_deg: 90.0,
@@ -157,8 +178,49 @@ fn decode_shadow_map(png: &[u8], tile: &BinBillboards, base: f64) -> Result<Shad
         origin: tile.origin,
         column: tile.size as f64 / n as f64,
         shift: shadow_shift(sun, base),
-        values,
+        ends: [end(0), end(1)],
+        fraction,
     })
+}
+
+/// The billboards of a decoded `billboards.bin` at time `t`, by the animation rule
+/// (`render::keyframe`): both ends of each record, moved and blended. Version-1
+/// records (one time) draw as they are, their optical depth the sheet's.
+pub fn billboards_at(decoded: &BinBillboards, sheet: &SplatSheet, t: f64) -> Vec<Billboard> {
+    let [t0, t1] = decoded.keyframe.unwrap_or([t, t]);
+    let span = t1 - t0;
+    let f = if span > 0.0 {
+        ((t - t0) / span).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    decoded
+        .records
+        .iter()
+        .enumerate()
+        .map(|(i, r)| {
+            let centre = [
+                decoded.origin[0] + r.offset[0] as f64,
+                decoded.origin[1] + r.offset[1] as f64,
+                r.offset[2] as f64,
+            ];
+            let end = |e: &BinEnd| Billboard {
+                index: [i as i64, 0, 0],
+                centre,
+                radius: r.radius,
+                density: 0.0,
+                tau: 0.0,
+                splat: e.splat,
+                splat_tau: e.splat_tau.unwrap_or_else(|| sheet.tau(e.splat as usize) as f32),
+                opacity: e.opacity as f32 / 255.0,
+                tau_sun: e.tau_sun,
+                sun_transmittance: e.sun_transmittance as f32 / 255.0,
+                colour: e.colour,
+            };
+            let velocity = r.velocity.map(|v| v as f64);
+            between(&end(&r.ends[0]), &end(&r.ends[1]), velocity, f * span, f)
+        })
+        .collect()
 }
 
 /// The path of a world's discovery document.
@@ -199,7 +261,7 @@ impl RemoteRender {
         check_remote(req)?;
         let bands = info.bands();
         let tiles = plan_bands(&bands, info.maxzoom, req)?;
-        let mut query = format!("t={}&quality={}", req.t, req.quality.as_str());
+        let mut query = format!("quality={}", req.quality.as_str());
         if let Some(sun) = req.sun {
             query.push_str(&format!("&sun={},{}", sun.azimuth_deg, sun.elevation_deg));
         }
@@ -213,16 +275,24 @@ impl RemoteRender {
         })
     }
 
-    fn tile_path(&self, tile: TileId, product: Product, layer: &str) -> String {
+    /// The keyframe span of a tile of `layer` that holds the request's time.
+    fn keyframe(&self, layer: usize, tile: TileId) -> Keyframe {
+        Keyframe::on_grid(self.req.t, keyframe_span(self.info.layers[layer].dt, tile.z))
+    }
+
+    /// A tile product's keyframe URL: `t` is the keyframe's own time, so the answer
+    /// is immutable and every client in the span asks the same URL.
+    fn tile_path(&self, layer: usize, tile: TileId, product: Product) -> String {
         format!(
-            "/v1/worlds/{}/tiles/{}/{}/{}/{}?{}&layer={}",
+            "/v1/worlds/{}/tiles/{}/{}/{}/{}?t={}&{}&layer={}",
             encode(&self.world),
             tile.z,
             tile.x,
             tile.y,
             product.name(),
+            self.keyframe(layer, tile).t0,
             self.query,
-            encode(layer)
+            encode(&self.info.layers[layer].name)
         )
     }
 
@@ -231,9 +301,8 @@ impl RemoteRender {
     pub fn paths(&self) -> Vec<String> {
         let mut paths = splat_paths(self.req.quality).to_vec();
         for &(layer, tile) in &self.tiles {
-            let name = &self.info.layers[layer].name;
-            paths.push(self.tile_path(tile, Product::BillboardsBin, name));
-            paths.push(self.tile_path(tile, Product::ShadowPng, name));
+            paths.push(self.tile_path(layer, tile, Product::BillboardsBin));
+            paths.push(self.tile_path(layer, tile, Product::ShadowPng));
         }
         paths
     }
@@ -256,27 +325,15 @@ impl RemoteRender {
         let mut billboards = Vec::new();
         let mut shadows = Vec::new();
         let mut served_sun = None;
-        for (k, &(layer, _)) in self.tiles.iter().enumerate() {
+        for (k, &(layer, tile)) in self.tiles.iter().enumerate() {
             let (bin, shadow) = (2 + 2 * k, 3 + 2 * k);
             let decoded = decode_bin(&bodies[bin]).map_err(decode_error(bin))?;
             served_sun.get_or_insert((decoded.sun_azimuth_deg, decoded.sun_elevation_deg));
-            billboards.extend(decoded.records.iter().map(|r| Billboard {
-                centre: [
-                    decoded.origin[0] + r.offset[0] as f64,
-                    decoded.origin[1] + r.offset[1] as f64,
-                    r.offset[2] as f64,
-                ],
-                radius: r.radius,
-                density: 0.0,
-                tau: 0.0,
-                splat: r.splat,
-                opacity: r.opacity as f32 / 255.0,
-                tau_sun: r.tau_sun,
-                sun_transmittance: r.sun_transmittance as f32 / 255.0,
-                colour: r.colour,
-            }));
+            billboards.extend(billboards_at(&decoded, &sheet, self.req.t));
+            let fraction = self.keyframe(layer, tile).fraction(self.req.t);
             shadows.push(
-                decode_shadow_map(&bodies[shadow], &decoded, self.bands[layer].base).map_err(decode_error(shadow))?,
+                decode_shadow_map(&bodies[shadow], &decoded, self.bands[layer].base, fraction)
+                    .map_err(decode_error(shadow))?,
             );
         }
         // Every tile is shaded for the centre of the request's sun bucket, which the
@@ -297,16 +354,16 @@ impl RemoteRender {
         };
         let view = View::perspective(&req.camera, req.width, req.height);
         let lighting = Lighting::new(sun.bucket().centre(), req.params);
-        let far = mean_shadow(self.tiles.iter().zip(&shadows).map(|(&(layer, _), s)| {
-            (
-                layer,
-                s.values.iter().map(|&v| v as f64).sum::<f64>() / s.values.len().max(1) as f64,
-            )
-        }));
+        let far = mean_shadow(
+            self.tiles
+                .iter()
+                .zip(&shadows)
+                .map(|(&(layer, _), s)| (layer, s.mean())),
+        );
         let mut image = background(&view, &lighting, far, |x, y| {
             shadows.iter().map(|s| s.at(x, y)).product()
         });
-        composite(&mut image, &billboards, &sheet, &lighting, &view);
+        composite(&mut image, &billboards, &lighting, &view);
         Ok(Rendered {
             image,
             tiles: self.tiles,
@@ -341,11 +398,12 @@ mod tests {
         let n = TILE_COLUMNS;
         let mut values = vec![1.0f32; n * n];
         values[0] = 0.0; // south-west column
-        let map = ShadowMap {
+        let mut map = ShadowMap {
             origin: [1000.0, 2000.0],
             column: 100.0,
             shift: [0.0, 0.0],
-            values,
+            ends: [values, vec![1.0f32; n * n]],
+            fraction: 0.0,
         };
         assert_eq!(map.at(1050.0, 2050.0), 0.0);
         assert_eq!(map.at(900.0, 2050.0), 1.0, "outside the tile");
@@ -353,5 +411,8 @@ mod tests {
             (map.at(1100.0, 2050.0) - 0.5).abs() < 1e-9,
             "halfway to the next column"
         );
+        // A quarter of the way to an end without the shadow: a quarter lit.
+        map.fraction = 0.25;
+        assert!((map.at(1050.0, 2050.0) - 0.25).abs() < 1e-9);
     }
 }

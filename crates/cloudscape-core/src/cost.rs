@@ -19,7 +19,7 @@ use crate::density::{self, Region, SimError};
 use crate::render::scene::{RenderRequest, plan};
 use crate::render::tile::{TILE_COLUMNS, tile_halo};
 use crate::render::{Quality, RenderError, Sun, TileId};
-use crate::world::{Config, Layer, World};
+use crate::world::{Config, Keyframe, Layer, World};
 
 /// Estimated CPU time and working memory of one computation.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -112,10 +112,43 @@ pub fn tile_balls(l: &Layer, z: u32, q: Quality) -> u64 {
     per_side * per_side * levels
 }
 
-/// The work of one shaded tile: the density of the tile and its halo, then its
-/// metaballs and their shading. `bytes` is what shading it needs at its peak; the
-/// second value is what the [`crate::render::ShadedTile`] keeps afterwards.
-fn shaded(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Sun) -> Result<(Work, u64), RenderError> {
+/// The work of one shaded tile over a keyframe span: at each end (one for an
+/// instant), the density of the tile and its halo, then its metaballs and their
+/// shading. `bytes` is what shading it needs at its peak; the second value is what the
+/// [`crate::render::ShadedTile`] keeps afterwards.
+fn shaded(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    keyframe: Keyframe,
+    q: Quality,
+    sun: Sun,
+) -> Result<(Work, u64), RenderError> {
+    let (start, kept) = shaded_at(world, layer, tile, keyframe.t0, q, sun)?;
+    if keyframe.is_instant() {
+        return Ok((start, kept));
+    }
+    // The end's density is taken over a box moved downwind: the same size.
+    let (end, end_kept) = shaded_at(world, layer, tile, keyframe.t1, q, sun)?;
+    let kept = kept.saturating_add(end_kept);
+    Ok((
+        Work {
+            cpu_s: start.cpu_s + end.cpu_s,
+            bytes: kept.saturating_add(start.bytes.max(end.bytes)),
+        },
+        kept,
+    ))
+}
+
+/// [`shaded`] at one time.
+fn shaded_at(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    q: Quality,
+    sun: Sun,
+) -> Result<(Work, u64), RenderError> {
     let l = world
         .layers
         .get(layer)
@@ -144,17 +177,17 @@ fn shaded(world: &World, layer: usize, tile: TileId, t: f64, q: Quality, sun: Su
     Ok((work, kept))
 }
 
-/// The work of a tile product: `render::shade_tile(world, layer, tile, t, q, sun, ..)`
-/// and the encoding of the tile's products.
+/// The work of a tile product: `render::shade_tile(world, layer, tile, keyframe, q,
+/// sun, ..)` and the encoding of the tile's products.
 pub fn shade_tile(
     world: &World,
     layer: usize,
     tile: TileId,
-    t: f64,
+    keyframe: Keyframe,
     q: Quality,
     sun: Sun,
 ) -> Result<Work, RenderError> {
-    let (work, _) = shaded(world, layer, tile, t, q, sun)?;
+    let (work, _) = shaded(world, layer, tile, keyframe, q, sun)?;
     let l = &world.layers[layer];
     let encoded = tile_balls(l, tile.z, q).saturating_mul(ENCODED_BYTES_PER_BALL);
     Ok(Work {
@@ -173,7 +206,8 @@ pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Wor
     let mut kept = 0u64;
     let mut peak_shading = 0u64;
     for &(layer, tile) in &tiles {
-        let (w, k) = shaded(world, layer, tile, req.t, req.quality, sun)?;
+        let keyframe = crate::render::scene::tile_keyframe(world, layer, tile, req);
+        let (w, k) = shaded(world, layer, tile, keyframe, req.quality, sun)?;
         cpu_s += w.cpu_s;
         kept = kept.saturating_add(k);
         peak_shading = peak_shading.max(w.bytes - k);
@@ -347,7 +381,8 @@ mod tests {
         for q in [Quality::Fast, Quality::Balanced, Quality::Accurate] {
             let tile = TileId { z: 0, x: 0, y: 0 };
             let sun = Sun::new(180.0, 40.0).unwrap();
-            let est = shade_tile(&world, 0, tile, 43200.0, q, sun).unwrap();
+            let keyframe = Keyframe::containing(43200.0, &world.layers[0], 0);
+            let est = shade_tile(&world, 0, tile, keyframe, q, sun).unwrap();
             println!(
                 "  (march steps of the world: {})",
                 march_steps(&world, Quality::Reference)
@@ -358,7 +393,7 @@ mod tests {
                     &world,
                     0,
                     tile,
-                    43200.0,
+                    keyframe,
                     q,
                     sun,
                     &ShadingParams::default(),

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use cloudscape_core::products::Product;
 use cloudscape_core::render::tile::TILE_COLUMNS;
-use cloudscape_core::world::{ALGORITHM_VERSION, MAX_TIME};
+use cloudscape_core::world::{ALGORITHM_VERSION, MAX_KEYFRAME_DOUBLINGS, MAX_TIME, keyframe_span};
 
 use crate::error::ApiError;
 use crate::extract::WorldPath;
@@ -53,8 +53,13 @@ pub struct LayerInfo {
     pub depth: u32,
     /// Seconds per automaton step.
     pub dt: f64,
-    /// Seconds between canonical frames (`dt / frames_per_step`): `t` is snapped to these.
+    /// Seconds between canonical frames (`dt / frames_per_step`): `sample`,
+    /// `region`, `series` and `render.png` snap `t` to these.
     pub frame_seconds: f64,
+    /// Keyframe span of tiles of level 0, 1, …, seconds: level z uses entry
+    /// `min(z, len − 1)` (`dt · 2^min(z, 4)`). Tile products are computed at
+    /// `t0 = floor(t / span) · span` and animate by themselves until `t0 + span`.
+    pub keyframe_spans: Vec<f64>,
     /// Wind at the base, m/s, and its change with height, (m/s)/m.
     pub wind: [f64; 2],
     pub shear: [f64; 2],
@@ -73,6 +78,9 @@ pub struct WorldInfo {
     /// Largest accepted `t`, seconds.
     pub max_time: f64,
     pub frames_per_step: u32,
+    /// How tile products animate between keyframes (the rule of
+    /// `render::keyframe`; docs/formats.md states it per product).
+    pub keyframes: String,
     pub layers: Vec<LayerInfo>,
     /// Tile products served, by URL name.
     pub products: Vec<String>,
@@ -89,8 +97,9 @@ fn json_response(headers: &HeaderMap, cache_control: &str, value: &impl Serializ
     let body = serde_json::to_vec(value).map_err(|e| ApiError::Internal(e.to_string()))?;
     let repr = Representation {
         etag: format!("\"{}\"", stable_hash_hex(&body)),
-        cache_control,
-        frame: None,
+        cache_control: cache_control.to_string(),
+        time: None,
+        content_location: None,
     };
     Ok(repr
         .not_modified(headers)
@@ -154,6 +163,15 @@ pub async fn world(
         maxzoom: s.worlds.config().limits.max_level,
         max_time: MAX_TIME,
         frames_per_step: fps,
+        keyframes: "A tile of level z is computed at keyframes t0 = k * span(z), span(z) = dt * 2^min(z, 4) \
+                    (keyframe_spans). Ask the keyframe's own t for an immutable answer; any t inside the span \
+                    answers with the same bytes, max-age until the next keyframe and Content-Location naming \
+                    the keyframe's URL. billboards hold each billboard at t0 and t1 = t0 + span with its wind \
+                    velocity: at t, f = (t - t0) / span, draw it at position + velocity * (t - t0) with \
+                    splat_tau, colour, tau_sun and opacity linear in f. shadow.png holds t0 (R) and t1 (G), \
+                    blended linearly. Density grids, coverage.png and atlases hold t0: blend keyframes k and \
+                    k + 1 with the same f, density moved by the wind at each height."
+            .to_string(),
         layers: w
             .layers
             .iter()
@@ -168,6 +186,7 @@ pub async fn world(
                 depth: l.depth,
                 dt: l.dt,
                 frame_seconds: l.dt / fps as f64,
+                keyframe_spans: (0..=MAX_KEYFRAME_DOUBLINGS).map(|z| keyframe_span(l.dt, z)).collect(),
                 wind: l.wind,
                 shear: l.shear,
             })

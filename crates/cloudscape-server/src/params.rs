@@ -176,6 +176,39 @@ impl Params {
     }
 }
 
+/// Percent-encodes a query name or value (RFC 3986 unreserved characters kept).
+fn encode_component(s: &str) -> String {
+    let mut out = String::with_capacity(s.len());
+    for b in s.bytes() {
+        match b {
+            b'A'..=b'Z' | b'a'..=b'z' | b'0'..=b'9' | b'-' | b'.' | b'_' | b'~' | b',' => out.push(b as char),
+            _ => out.push_str(&format!("%{b:02X}")),
+        }
+    }
+    out
+}
+
+impl Params {
+    /// The query string of these parameters with `name` set to `value` (in the place
+    /// of its last occurrence; the others dropped, as [`Params::get`] reads the last),
+    /// re-encoded: the query of the URL that names the same bytes canonically.
+    pub fn query_with(&self, name: &str, value: &str) -> String {
+        let last = self.0.iter().rposition(|(k, _)| k == name);
+        let mut parts = Vec::with_capacity(self.0.len() + 1);
+        for (i, (k, v)) in self.0.iter().enumerate() {
+            if k != name {
+                parts.push(format!("{}={}", encode_component(k), encode_component(v)));
+            } else if Some(i) == last {
+                parts.push(format!("{}={}", encode_component(k), encode_component(value)));
+            }
+        }
+        if last.is_none() {
+            parts.push(format!("{}={}", encode_component(name), encode_component(value)));
+        }
+        parts.join("&")
+    }
+}
+
 impl<S: Send + Sync> axum::extract::FromRequestParts<S> for Params {
     type Rejection = ApiError;
 
@@ -217,6 +250,25 @@ mod tests {
             parse_tile_coordinate("x", "0x10"),
             Err(ApiError::InvalidNumber { .. })
         ));
+    }
+
+    #[test]
+    fn a_canonical_query_replaces_one_parameter_and_keeps_the_rest() {
+        let p = Params(vec![
+            ("t".into(), "1".into()),
+            ("layer".into(), "a b&c".into()),
+            ("t".into(), "1234.5".into()),
+            ("sun".into(), "10,20".into()),
+        ]);
+        assert_eq!(p.query_with("t", "1220"), "layer=a%20b%26c&t=1220&sun=10,20");
+        assert_eq!(Params(vec![]).query_with("t", "5"), "t=5");
+        // What it writes reads back as the same parameters.
+        let uri: axum::http::Uri = format!("/x?{}", p.query_with("t", "1220")).parse().unwrap();
+        let back = Params::from_uri(&uri).unwrap();
+        assert_eq!(
+            (back.get("layer"), back.get("t"), back.get("sun")),
+            (Some("a b&c"), Some("1220"), Some("10,20"))
+        );
     }
 
     #[test]

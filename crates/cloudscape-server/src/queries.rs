@@ -21,7 +21,7 @@ use crate::error::ApiError;
 use crate::extract::{WorldPath, layer};
 use crate::key::{CacheKey, stable_hash_hex};
 use crate::params::Params;
-use crate::respond::{Cached, Representation, cache_control};
+use crate::respond::{Cached, Freshness, Representation, cache_control};
 use crate::state::AppState;
 
 fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
@@ -166,8 +166,16 @@ pub async fn sample(
                 "\"{}\"",
                 stable_hash_hex(&serde_json::to_vec(&answer).unwrap_or_default())
             ),
-            cache_control: cache_control(&s, frame.is_exact(t)),
-            frame: Some(frame),
+            cache_control: cache_control(
+                &s,
+                if frame.is_exact(t) {
+                    Freshness::Final
+                } else {
+                    Freshness::Snapped
+                },
+            ),
+            time: Some(frame.into()),
+            content_location: None,
         };
         return Ok(repr
             .not_modified(&headers)
@@ -339,8 +347,13 @@ pub async fn series(
         kind: "series",
         key,
         content_type: "application/json",
-        frame: None,
-        exact: frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t)),
+        time: None,
+        freshness: if frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t)) {
+            Freshness::Final
+        } else {
+            Freshness::Snapped
+        },
+        content_location: None,
     };
     let world = resolved.world;
     cached

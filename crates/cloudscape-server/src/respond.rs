@@ -14,7 +14,7 @@ use axum::response::{IntoResponse, Response};
 
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
-use cloudscape_core::world::SnappedTime;
+use cloudscape_core::world::{Keyframe, SnappedTime};
 
 use crate::error::ApiError;
 use crate::key::{CacheKey, if_none_match};
@@ -26,11 +26,57 @@ pub struct Cached {
     pub kind: &'static str,
     pub key: CacheKey,
     pub content_type: &'static str,
-    /// The canonical frame the bytes are computed for, when there is one.
-    pub frame: Option<SnappedTime>,
-    /// True when the bytes are for exactly the times asked: such an answer is final
-    /// (`server.cache_control`); one for a snapped time gets `cache_control_other`.
-    pub exact: bool,
+    /// The time the bytes are computed for, when there is one.
+    pub time: Option<TimeHeaders>,
+    /// How long the answer may be kept.
+    pub freshness: Freshness,
+    /// The URL that names these bytes canonically (`Content-Location`), when the
+    /// request named them another way.
+    pub content_location: Option<String>,
+}
+
+/// The time of a time-dependent answer, as its headers state it: `X-Cloudscape-T`
+/// (the time computed), `X-Cloudscape-Frame` (its index on the frame or keyframe
+/// grid) and, for a keyframe, `X-Cloudscape-T1` (the end of its span: the next
+/// keyframe's time).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TimeHeaders {
+    pub t: f64,
+    pub index: u64,
+    pub t1: Option<f64>,
+}
+
+impl From<SnappedTime> for TimeHeaders {
+    fn from(f: SnappedTime) -> TimeHeaders {
+        TimeHeaders {
+            t: f.t,
+            index: f.index,
+            t1: None,
+        }
+    }
+}
+
+impl From<Keyframe> for TimeHeaders {
+    fn from(k: Keyframe) -> TimeHeaders {
+        TimeHeaders {
+            t: k.t0,
+            index: k.index,
+            t1: Some(k.t1),
+        }
+    }
+}
+
+/// How long an answer may be kept.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Freshness {
+    /// Bytes for exactly the times asked: final (`server.cache_control`, immutable
+    /// by default).
+    Final,
+    /// Bytes for a time snapped to the frame grid (`server.cache_control_other`).
+    Snapped,
+    /// A keyframe asked by a time inside its span: `max-age` the seconds until the
+    /// next keyframe (at a world clock of one second per second).
+    UntilNextKeyframe(u64),
 }
 
 /// The bytes of a key and of the sibling keys computed by the same work.
@@ -43,8 +89,9 @@ impl Cached {
             kind,
             key,
             content_type,
-            frame: None,
-            exact: true,
+            time: None,
+            freshness: Freshness::Final,
+            content_location: None,
         }
     }
 
@@ -60,8 +107,39 @@ impl Cached {
             kind,
             key,
             content_type,
-            frame: Some(frame),
-            exact: frame.is_exact(requested),
+            time: Some(frame.into()),
+            freshness: if frame.is_exact(requested) {
+                Freshness::Final
+            } else {
+                Freshness::Snapped
+            },
+            content_location: None,
+        }
+    }
+
+    /// A keyframe product asked for `requested`: final when that is the keyframe's own
+    /// time, else valid until the next keyframe, with `canonical` (the URL that
+    /// names the keyframe) as its `Content-Location`.
+    pub fn keyframe(
+        kind: &'static str,
+        key: CacheKey,
+        content_type: &'static str,
+        keyframe: Keyframe,
+        requested: f64,
+        canonical: impl FnOnce() -> String,
+    ) -> Cached {
+        let exact = keyframe.is_exact(requested);
+        Cached {
+            kind,
+            key,
+            content_type,
+            time: Some(keyframe.into()),
+            freshness: if exact {
+                Freshness::Final
+            } else {
+                Freshness::UntilNextKeyframe((keyframe.t1 - requested).ceil().max(1.0) as u64)
+            },
+            content_location: (!exact).then(canonical),
         }
     }
 
@@ -95,8 +173,9 @@ impl Cached {
     {
         let repr = Representation {
             etag: self.key.etag(),
-            cache_control: cache_control(s, self.exact),
-            frame: self.frame,
+            cache_control: cache_control(s, self.freshness),
+            time: self.time,
+            content_location: self.content_location,
         };
         if let Some(not_modified) = repr.not_modified(headers) {
             return Ok(not_modified);
@@ -114,33 +193,35 @@ impl Cached {
     }
 }
 
-/// The `Cache-Control` of an answer for exactly the times asked, or for snapped ones.
-pub fn cache_control(s: &AppState, exact: bool) -> &str {
-    if exact {
-        &s.settings.cache_control
-    } else {
-        &s.settings.cache_control_other
+/// The `Cache-Control` of an answer of `freshness`.
+pub fn cache_control(s: &AppState, freshness: Freshness) -> String {
+    match freshness {
+        Freshness::Final => s.settings.cache_control.clone(),
+        Freshness::Snapped => s.settings.cache_control_other.clone(),
+        Freshness::UntilNextKeyframe(seconds) => format!("public, max-age={seconds}"),
     }
 }
 
 /// Headers shared by every computed response.
-pub struct Representation<'a> {
+pub struct Representation {
     pub etag: String,
-    pub cache_control: &'a str,
-    /// The canonical frame the bytes were computed for, if time-dependent.
-    pub frame: Option<SnappedTime>,
+    pub cache_control: String,
+    /// The time the bytes were computed for, if time-dependent.
+    pub time: Option<TimeHeaders>,
+    /// `Content-Location`: the canonical URL of the bytes, when asked another way.
+    pub content_location: Option<String>,
 }
 
-impl Representation<'_> {
+impl Representation {
     fn headers(&self) -> HeaderMap {
         let mut h = HeaderMap::new();
         if let Ok(v) = HeaderValue::from_str(&self.etag) {
             h.insert(header::ETAG, v);
         }
-        if let Ok(v) = HeaderValue::from_str(self.cache_control) {
+        if let Ok(v) = HeaderValue::from_str(&self.cache_control) {
             h.insert(header::CACHE_CONTROL, v);
         }
-        if let Some(f) = self.frame {
+        if let Some(f) = self.time {
             if let Ok(v) = HeaderValue::from_str(&f.t.to_string()) {
                 h.insert(HeaderName::from_static("x-cloudscape-t"), v);
             }
@@ -148,6 +229,12 @@ impl Representation<'_> {
                 HeaderName::from_static("x-cloudscape-frame"),
                 HeaderValue::from(f.index),
             );
+            if let Some(Ok(v)) = f.t1.map(|t1| HeaderValue::from_str(&t1.to_string())) {
+                h.insert(HeaderName::from_static("x-cloudscape-t1"), v);
+            }
+        }
+        if let Some(Ok(v)) = self.content_location.as_deref().map(HeaderValue::from_str) {
+            h.insert(header::CONTENT_LOCATION, v);
         }
         h
     }

@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::State;
-use axum::http::HeaderMap;
+use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
 
 use cloudscape_core::cancel::Cancel;
@@ -19,7 +19,7 @@ use cloudscape_core::products::billboards;
 use cloudscape_core::products::catalogue::encode_shaded;
 use cloudscape_core::render::tile::shade_tile;
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
-use cloudscape_core::world::SnappedTime;
+use cloudscape_core::world::Keyframe;
 
 use crate::error::ApiError;
 use crate::extract::{TilePath, layer};
@@ -47,7 +47,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
         ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
-        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12; snapped to the layer's frame grid (dt / frames_per_step)", example = 0),
+        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
         ("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
@@ -70,6 +70,7 @@ pub async fn tile(
     State(s): State<Arc<AppState>>,
     params: Params,
     TilePath { world, tile, product }: TilePath,
+    uri: Uri,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let (layer_index, layer) = layer(&world.world, params.get("layer"))?;
@@ -79,29 +80,30 @@ pub async fn tile(
     let limits = &s.worlds.config().limits;
     let region = tile.region()?;
     region.check(tile.z, layer.depth, limits)?;
-    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
+    let keyframe = Keyframe::containing(t, layer, tile.z);
     let base = CacheKey::new("tile", &world, layer_index)
         .with("z", tile.z)
         .with("x", tile.x)
         .with("y", tile.y)
-        .with("f", frame.index);
+        .with("k", keyframe.index);
     let shading = product.needs_shading().then(|| {
-        let sun = sun.unwrap_or_else(|| Sun::from_clock(frame.t, &s.worlds.config().sun));
+        let sun = sun.unwrap_or_else(|| Sun::from_clock(keyframe.t0, &s.worlds.config().sun));
         (quality.unwrap_or(Quality::Balanced), sun)
     });
     let key = tile_key(&base, product, shading.map(|(q, sun)| (q, sun.bucket())));
-    let cached = Cached::at(product.family(), key, product.content_type(), frame, t);
+    let canonical = || format!("{}?{}", uri.path(), params.query_with("t", &keyframe.t0.to_string()));
+    let cached = Cached::keyframe(product.family(), key, product.content_type(), keyframe, t, canonical);
     let world = world.world;
     let limits = limits.clone();
     let max_response_bytes = limits.max_response_bytes;
     let plan = move || {
         let work = match shading {
-            Some((q, sun)) => cost::shade_tile(&world, layer_index, tile, frame.t, q, sun)?,
-            None => cost::density(&world, layer_index, tile.z, region, frame.t)?,
+            Some((q, sun)) => cost::shade_tile(&world, layer_index, tile, keyframe, q, sun)?,
+            None => cost::density(&world, layer_index, tile.z, region, keyframe.t0)?,
         };
         let job = move |cancel: &Cancel| match shading {
             None => {
-                let grid = density::density_cancellable(&world, layer_index, tile.z, region, frame.t, cancel)?;
+                let grid = density::density_cancellable(&world, layer_index, tile.z, region, keyframe.t0, cancel)?;
                 let bytes = product
                     .encode_grid(&world.layers[layer_index], &grid)
                     .ok_or_else(|| ApiError::Internal(format!("{} is not a grid product", product.name())))?;
@@ -112,7 +114,7 @@ pub async fn tile(
                     &world,
                     layer_index,
                     tile,
-                    frame.t,
+                    keyframe,
                     q,
                     sun,
                     &ShadingParams::default(),

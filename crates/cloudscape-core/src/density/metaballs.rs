@@ -125,6 +125,22 @@ impl Lattice {
     /// each collecting density from `grid` placed at `place`. Balls with density below
     /// `min_density` are dropped. Ordered by (k, j, i); deterministic.
     pub fn collect(&self, grid: &Grid<f32>, place: &GridPlacement, owned: [f64; 4], min_density: f32) -> Vec<Metaball> {
+        self.collect_moved(grid, place, owned, min_density, |_| [0.0, 0.0])
+    }
+
+    /// [`Lattice::collect`] of the lattice moved by the wind: the lattice point whose
+    /// centre `c` lies in `owned` collects at `c + (shift(c_z), 0)` and keeps that
+    /// centre (and its index). With `shift` the wind's displacement over a keyframe
+    /// span at each altitude, each ball collects the air that was at its lattice
+    /// point at the span's start (`render::tile`'s keyframes pair them).
+    pub fn collect_moved(
+        &self,
+        grid: &Grid<f32>,
+        place: &GridPlacement,
+        owned: [f64; 4],
+        min_density: f32,
+        shift: impl Fn(f64) -> [f64; 2] + Sync,
+    ) -> Vec<Metaball> {
         use rayon::prelude::*;
         let s = self.spacing;
         let mut rows = Vec::new();
@@ -144,8 +160,10 @@ impl Lattice {
                 let i1 = (owned[2] / s - ox).ceil() as i64;
                 let mut stencils: Vec<Stencil> = Vec::new();
                 let mut out = Vec::new();
+                let [sx, sy] = shift(self.centre(0, j, k)[2]);
                 for i in i0..i1 {
                     let c = self.centre(i, j, k);
+                    let c = [c[0] + sx, c[1] + sy, c[2]];
                     let d = self.collect_cached(grid, place, c, &mut stencils);
                     if d >= min_density && d > 0.0 {
                         out.push(Metaball {

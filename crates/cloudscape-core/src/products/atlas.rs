@@ -108,7 +108,6 @@ fn clusters(tile: &ShadedTile) -> Vec<Vec<usize>> {
 
 /// Builds the atlas of a shaded tile.
 pub fn build(tile: &ShadedTile) -> Atlas {
-    let sheet = tile.quality.splat_sheet();
     let mut impostors: Vec<Impostor> = clusters(tile)
         .into_iter()
         .map(|members| {
@@ -181,7 +180,7 @@ pub fn build(tile: &ShadedTile) -> Atlas {
             let view = View::orthographic(centre, [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], m, w, h);
             let mut img = Image::new(w, h);
             let members: Vec<Billboard> = im.members.iter().map(|&k| tile.billboards[k]).collect();
-            composite(&mut img, &members, &sheet, &tile.lighting, &view);
+            composite(&mut img, &members, &tile.lighting, &view);
             let (ox, oy) = rects[i];
             for row in 0..h {
                 let src = row * w;

@@ -57,7 +57,7 @@ use super::detail;
 use super::image::Image;
 use super::light::Lighting;
 use super::shade::{Billboard, profile_at, profile_table};
-use super::splats::{SplatSheet, centre_line_integral, line_integral_beyond};
+use super::splats::{centre_line_integral, line_integral_beyond};
 
 /// Rows per band drawn in parallel; each band is drawn independently, so the result
 /// does not depend on the thread count.
@@ -110,7 +110,7 @@ pub struct Footprint {
 impl Footprint {
     /// The footprint of `b` in `view`, or `None` when it is off screen or behind the
     /// near clip.
-    pub fn new(b: &Billboard, sheet: &SplatSheet, lighting: &Lighting, view: &View) -> Option<Footprint> {
+    pub fn new(b: &Billboard, lighting: &Lighting, view: &View) -> Option<Footprint> {
         let p = view.project(b.centre)?;
         let r = b.radius as f64;
         if p.depth < NEAR_CLIP_RADII * r && matches!(view.kind, ViewKind::Perspective { .. }) {
@@ -138,7 +138,7 @@ impl Footprint {
             y: p.y,
             r_px,
             colour,
-            tau: sheet.tau(b.splat as usize),
+            tau: b.splat_tau as f64,
             centre: b.centre,
             radius: r,
             detail_octaves: detail::octaves_for(r, 1.0 / p.scale),
@@ -179,8 +179,8 @@ fn eroded(a: f64, at: &Where, strength: f64) -> f64 {
 }
 
 /// Draws `billboards` over `image` (which holds the background, premultiplied).
-pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
-    composite_cancellable(image, billboards, sheet, lighting, view, &Cancel::never());
+pub fn composite(image: &mut Image, billboards: &[Billboard], lighting: &Lighting, view: &View) {
+    composite_cancellable(image, billboards, lighting, view, &Cancel::never());
 }
 
 /// [`composite`] that leaves the remaining bands undrawn once `cancel` fires (the
@@ -188,7 +188,6 @@ pub fn composite(image: &mut Image, billboards: &[Billboard], sheet: &SplatSheet
 pub fn composite_cancellable(
     image: &mut Image,
     billboards: &[Billboard],
-    sheet: &SplatSheet,
     lighting: &Lighting,
     view: &View,
     cancel: &Cancel,
@@ -227,13 +226,13 @@ pub fn composite_cancellable(
                     draw: Draw::AroundEye {
                         centre: b.centre,
                         radius: r,
-                        tau: sheet.tau(b.splat as usize),
+                        tau: b.splat_tau as f64,
                         colour: b.colour.map(|c| c as f64),
                         tau_sun: b.tau_sun as f64,
                     },
                 });
             }
-            let f = Footprint::new(b, sheet, lighting, view)?;
+            let f = Footprint::new(b, lighting, view)?;
             Some(Item {
                 dist: f.dist,
                 draw: Draw::Splat(f),
@@ -401,14 +400,15 @@ mod tests {
     use super::*;
     use crate::render::camera::Camera;
     use crate::render::light::ShadingParams;
+    use crate::render::splats::SplatSheet;
     use crate::render::sun::Sun;
 
     /// The textbook client: sort back to front, blend each billboard `over`.
-    fn back_to_front(image: &mut Image, bbs: &[Billboard], sheet: &SplatSheet, lighting: &Lighting, view: &View) {
+    fn back_to_front(image: &mut Image, bbs: &[Billboard], lighting: &Lighting, view: &View) {
         let mut sorted: Vec<&Billboard> = bbs.iter().collect();
         sorted.sort_by(|a, b| view.sort_distance(b.centre).total_cmp(&view.sort_distance(a.centre)));
         for b in sorted {
-            let Some(f) = Footprint::new(b, sheet, lighting, view) else {
+            let Some(f) = Footprint::new(b, lighting, view) else {
                 continue;
             };
             let colour = f.colour;
@@ -432,11 +432,13 @@ mod tests {
         // A row of overlapping balls 3 km ahead: a soft-edged cloud filling the middle.
         let bbs: Vec<Billboard> = (0..12)
             .map(|i| Billboard {
+                index: [i, 0, 0],
                 centre: [-1100.0 + 200.0 * i as f64, 3000.0, 1000.0],
                 radius: 300.0,
                 density: 0.5,
                 tau: 2.0,
                 splat: 63,
+                splat_tau: sheet.tau(63) as f32,
                 opacity: 0.9,
                 tau_sun: 1.0,
                 sun_transmittance: (-1.0f32).exp(),
@@ -451,7 +453,7 @@ mod tests {
             let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
             let mut img = Image::new(96, 64);
             img.alpha.iter_mut().for_each(|a| *a = 0.0);
-            composite(&mut img, &bbs, &sheet, &lighting, &view);
+            composite(&mut img, &bbs, &lighting, &view);
             img
         };
         let (smooth, eroded) = (draw(0.0), draw(0.8));
@@ -486,12 +488,15 @@ mod tests {
         let bbs: Vec<Billboard> = (0..300u64)
             .map(|i| {
                 let h = |k: u64| ((i * 7919 + k * 104_729) % 1000) as f64 / 1000.0;
+                let splat = (h(5) * 63.0) as u16;
                 Billboard {
+                    index: [i as i64, 0, 0],
                     centre: [h(1) * 2000.0 - 1000.0, 1500.0 + h(2) * 3000.0, h(3) * 1200.0],
                     radius: 150.0 + 200.0 * h(4) as f32,
                     density: 0.5,
                     tau: 1.0,
-                    splat: (h(5) * 63.0) as u16,
+                    splat,
+                    splat_tau: sheet.tau(splat as usize) as f32,
                     opacity: 0.5,
                     tau_sun: -(h(6) as f32).max(1e-6).ln(),
                     sun_transmittance: h(6) as f32,
@@ -509,8 +514,8 @@ mod tests {
         let (mut fast, mut naive) = (Image::new(40, 30), Image::new(40, 30));
         background(&mut fast);
         background(&mut naive);
-        composite(&mut fast, &bbs, &sheet, &lighting, &view);
-        back_to_front(&mut naive, &bbs, &sheet, &lighting, &view);
+        composite(&mut fast, &bbs, &lighting, &view);
+        back_to_front(&mut naive, &bbs, &lighting, &view);
         let mut max = 0.0f32;
         for (a, b) in fast.rgb.iter().zip(&naive.rgb) {
             for ch in 0..3 {

@@ -28,24 +28,28 @@
 //! assert!(Sun::from_clock(0.0, &config.sun).elevation_deg < 0.0);
 //! ```
 //!
-//! A tile product shades a tile's density and metaballs once
-//! ([`shade_tile`]); every product of that tile encodes the same [`ShadedTile`]
+//! A tile product shades a tile's density and metaballs once per keyframe span
+//! ([`shade_tile`], both ends of the span); every product of that tile encodes the
+//! same [`ShadedTile`], and [`keyframe`]'s rule draws it at any time in the span
 //! (not run here: a tile takes seconds in a debug build):
 //!
 //! ```rust,no_run
 //! use cloudscape_core::products::billboards;
 //! use cloudscape_core::cancel::Cancel;
 //! use cloudscape_core::render::{Quality, ShadingParams, Sun, TileId, shade_tile};
-//! use cloudscape_core::world::Config;
+//! use cloudscape_core::world::{Config, Keyframe};
 //!
 //! let config = Config::embedded();
 //! let world = config.world("default").unwrap();
 //! let tile = TileId { z: 0, x: 0, y: 0 };
 //! let sun = Sun::parse("135,40").unwrap();
-//! let shaded = shade_tile(&world, 0, tile, 0.0, Quality::Fast, sun, &ShadingParams::default(), &config.limits, &Cancel::never()).unwrap();
+//! let span = Keyframe::containing(1234.5, &world.layers[0], tile.z); // [1220, 1240)
+//! let shaded = shade_tile(&world, 0, tile, span, Quality::Fast, sun, &ShadingParams::default(), &config.limits, &Cancel::never()).unwrap();
 //! let bytes = billboards::encode_bin(&shaded); // billboards.bin
 //! let decoded = billboards::decode_bin(&bytes).unwrap();
 //! assert_eq!(decoded.records.len(), shaded.billboards.len());
+//! let drawn = shaded.billboards_at(1234.5); // what a client draws at t = 1234.5
+//! assert_eq!(drawn.len(), shaded.billboards.len());
 //! ```
 //!
 //! `cloudscape render` and `GET /render.png` render a camera view with
@@ -90,6 +94,7 @@ pub mod camera;
 pub mod composite;
 pub mod detail;
 pub mod image;
+pub mod keyframe;
 pub mod light;
 pub mod march;
 pub mod pathtrace;

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 use crate::cancel::Cancel;
 use crate::density::SimError;
-use crate::world::{Config, World};
+use crate::world::{Config, Keyframe, World};
 
 use super::camera::{Camera, View};
 use super::composite::composite_cancellable;
@@ -284,7 +284,7 @@ pub fn prepare_cancellable(
                 world,
                 layer,
                 tile,
-                req.t,
+                tile_keyframe(world, layer, tile, req),
                 req.quality,
                 sun,
                 &req.params,
@@ -295,6 +295,18 @@ pub fn prepare_cancellable(
         .collect()
 }
 
+/// The span a render's tile is shaded for: the keyframe containing the request's
+/// time for the billboard presets (drawn between its ends by the animation rule,
+/// [`crate::render::keyframe`], as a client draws it), the request's time itself for
+/// the volumetric references (ground truth, no keyframes).
+pub fn tile_keyframe(world: &World, layer: usize, tile: TileId, req: &RenderRequest) -> Keyframe {
+    if req.quality.is_volumetric() {
+        Keyframe::instant(req.t)
+    } else {
+        Keyframe::containing(req.t, &world.layers[layer], tile.z)
+    }
+}
+
 /// Draws shaded tiles with the billboard compositor over sky and shadowed ground.
 pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> Image {
     draw_billboards_cancellable(tiles, req, sun, &Cancel::never())
@@ -303,7 +315,6 @@ pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> I
 fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::new(sun.bucket().centre(), req.params);
-    let sheet = req.quality.splat_sheet();
     let far = mean_shadow(tiles.iter().map(|t| {
         (
             t.layer,
@@ -311,10 +322,10 @@ fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: S
         )
     }));
     let mut image = background(&view, &lighting, far, |x, y| {
-        tiles.iter().map(|t| t.shadow_at(x, y)).product()
+        tiles.iter().map(|t| t.shadow_at(x, y, req.t)).product()
     });
-    let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards.iter().copied()).collect();
-    composite_cancellable(&mut image, &all, &sheet, &lighting, &view, cancel);
+    let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards_at(req.t)).collect();
+    composite_cancellable(&mut image, &all, &lighting, &view, cancel);
     image
 }
 

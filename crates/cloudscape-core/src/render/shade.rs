@@ -28,6 +28,8 @@ const MAX_LIGHT_TEXELS: usize = 4096;
 /// A shaded metaball, ready to draw as a camera-facing billboard.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Billboard {
+    /// The metaball's lattice indices (i, j, k): pairs the two ends of a keyframe.
+    pub index: [i64; 3],
     /// Centre, world metres (x east, y north, altitude).
     pub centre: [f64; 3],
     /// Radius, metres.
@@ -38,6 +40,11 @@ pub struct Billboard {
     pub tau: f32,
     /// Index into the splat sheet of the quality preset.
     pub splat: u16,
+    /// The centre optical depth the billboard is drawn with: the splat's
+    /// (`SplatSheet::tau(splat)`), or between two splats' on a keyframe's way from one
+    /// end to the other (0: nothing to draw). Opacity at `q` radii² from the centre is
+    /// `1 − exp(−splat_tau · P(q))`, P the splat profile.
+    pub splat_tau: f32,
     /// Peak opacity of the splat, `1 − exp(−τ_splat)`, in [0, 1).
     pub opacity: f32,
     /// Optical depth of the ball's sun ray (the balls in front plus `κ` of its own).
@@ -240,7 +247,9 @@ fn sweep(
 }
 
 /// Shades `balls` (all of them shadow each other) for `lighting` and returns the
-/// billboards of those whose centres lie in `owned` = [x0, y0, x1, y1), plus the
+/// billboards of those whose lattice points lie in `owned` = [x0, y0, x1, y1) (a
+/// ball moved by the wind, [`Lattice::collect_moved`], belongs where its lattice point
+/// is), plus the
 /// light buffer toward the sun. `light_texel` is the buffer texel in radii.
 /// Deterministic.
 ///
@@ -275,7 +284,8 @@ pub fn shade(
         .iter()
         .enumerate()
         .filter(|(_, b)| {
-            let c = b.centre;
+            let [i, j, k] = b.index;
+            let c = lattice.centre(i, j, k);
             c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3]
         })
         .map(|(i, b)| {
@@ -299,11 +309,13 @@ pub fn shade(
             let colour =
                 [0, 1, 2].map(|ch| (albedo * (lighting.sun_rgb[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
             Billboard {
+                index: b.index,
                 centre: c,
                 radius: r as f32,
                 density: b.density,
                 tau: tau as f32,
                 splat: k as u16,
+                splat_tau: sheet.tau(k) as f32,
                 opacity: (1.0 - (-sheet.tau(k)).exp()) as f32,
                 tau_sun: tau_sun as f32,
                 sun_transmittance: t_sun as f32,

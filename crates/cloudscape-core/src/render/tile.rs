@@ -4,7 +4,7 @@
 use crate::cancel::Cancel;
 use crate::density::metaballs::{GridPlacement, Lattice};
 use crate::density::{self, Grid, Region, SimError, check_time};
-use crate::world::{Layer, Limits, World};
+use crate::world::{Keyframe, Layer, Limits, World};
 
 use super::light::{Lighting, ShadingParams};
 use super::shade::{Billboard, shade};
@@ -52,7 +52,14 @@ impl TileId {
     }
 }
 
-/// A tile after density, metaballs and shading: everything the tile products encode.
+/// A tile after density, metaballs and shading, for one keyframe span: everything
+/// the tile products encode.
+///
+/// The billboards come in pairs: `billboards[i]` is a metaball at the span's start
+/// (`keyframe.t0`) and `end[i]` the same lattice point at its end (`keyframe.t1`),
+/// moved by the wind at its altitude. A ball that forms during the span starts with
+/// nothing to draw (`splat_tau` 0), one that vanishes ends with nothing. The
+/// animation rule between them is [`crate::render::keyframe`]'s.
 #[derive(Clone, Debug)]
 pub struct ShadedTile {
     /// Index of the layer in its world.
@@ -61,8 +68,10 @@ pub struct ShadedTile {
     pub layer_name: String,
     /// The tile's address.
     pub tile: TileId,
-    /// World-clock seconds.
+    /// World-clock seconds of the span's start (`keyframe.t0`).
     pub t: f64,
+    /// The span the tile animates over (an instant for a tile shaded at one time).
+    pub keyframe: Keyframe,
     /// The quality preset it was shaded at.
     pub quality: Quality,
     /// The bucket of the requested sun, and its centre (the sun actually used).
@@ -79,17 +88,30 @@ pub struct ShadedTile {
     pub size: f64,
     /// Column width at the tile's level, metres.
     pub column: f64,
-    /// The shaded metaballs whose centres lie in the tile, in lattice order.
+    /// Wind at the layer's base (m/s, x east, y north) and its change with height
+    /// ((m/s) per metre): a billboard at altitude `z` moves at
+    /// `wind + shear · (z − base)` ([`ShadedTile::velocity_at`]).
+    pub wind: [f64; 2],
+    /// Change of the wind with height, (m/s) per metre.
+    pub shear: [f64; 2],
+    /// The shaded metaballs whose lattice points lie in the tile, in lattice order, at
+    /// the span's start.
     pub billboards: Vec<Billboard>,
+    /// The same metaballs at the span's end (`end[i]` pairs with `billboards[i]`); a
+    /// copy of `billboards` for an instant.
+    pub end: Vec<Billboard>,
     /// Sunlight transmittance through this layer along the sun ray that crosses the
     /// layer's base at each column centre, 256×256, row 0 = south. A ground point
     /// (x, y) lies on the ray through `(x, y) + shadow_shift(sun, base)` (see
     /// [`ShadedTile::shadow_at`]): indexing by the base rather than the ground keeps
     /// every occluder of a texel within the tile and its halo, so neighbouring tiles'
     /// shadows meet without a seam at any sun elevation. All 1 when the sun is not
-    /// above the horizon (no direct light to shadow).
+    /// above the horizon (no direct light to shadow). At the span's start.
     pub shadow: Vec<f32>,
-    /// The density the tile was built from, with `halo` extra columns on each side.
+    /// The shadow map at the span's end.
+    pub shadow_end: Vec<f32>,
+    /// The density the tile was built from (the span's start), with `halo` extra
+    /// columns on each side.
     pub density: Grid<f32>,
     /// Extra columns of `density` on each side of the tile.
     pub halo: usize,
@@ -114,26 +136,49 @@ pub fn tile_halo(l: &Layer, z: u32, quality: Quality, sun: Sun) -> usize {
     shadow_halo(l.top() - l.base, sun.bucket().centre().elevation_deg, column, radius)
 }
 
-/// Computes the density of a tile (with halo), its metaballs, their shading for the
-/// centre of `sun`'s bucket, and the shadow map; stops early once `cancel` fires (then
-/// an error; `Cancel::never()` runs to the end).
+/// Computes the density of a tile (with halo), its metaballs and their shading for
+/// the centre of `sun`'s bucket, and the shadow map, at both ends of the span
+/// `keyframe` (once for an instant); stops early once `cancel` fires (then an error;
+/// `Cancel::never()` runs to the end).
+///
+/// The span's end collects the density at `t1` on the lattice moved by the wind
+/// ([`Lattice::collect_moved`]), so each lattice point follows its air: the grid at
+/// `t1` is taken over the tile's box moved downwind by whole columns (the wind at
+/// the layer's middle over the span), and each level's remaining displacement is the
+/// lattice's own shift.
 #[allow(clippy::too_many_arguments)]
 pub fn shade_tile(
     world: &World,
     layer: usize,
     tile: TileId,
-    t: f64,
+    keyframe: Keyframe,
     quality: Quality,
     sun: Sun,
     params: &ShadingParams,
     limits: &Limits,
     cancel: &Cancel,
 ) -> Result<ShadedTile, RenderError> {
-    let (grid, halo) = tile_density(world, layer, tile, t, quality, sun, limits, cancel)?;
+    let (grid, halo) = tile_density(world, layer, tile, keyframe.t0, quality, sun, limits, cancel)?;
     let l = &world.layers[layer];
-    let shaded = shade_density(layer, l, tile, t, quality, sun, params, grid, halo);
+    let mut shaded = shade_density(layer, l, tile, keyframe.t0, quality, sun, params, grid, halo);
+    cancel.check().map_err(SimError::from)?;
+    if keyframe.is_instant() {
+        return Ok(shaded);
+    }
+    let moved = downwind_columns(l, shaded.column, keyframe.span());
+    let end_grid = density_around(world, layer, tile, keyframe.t1, halo, moved, cancel)?;
+    shaded.shade_end(l, keyframe, end_grid, moved, params);
     cancel.check().map_err(SimError::from)?;
     Ok(shaded)
+}
+
+/// Whole columns (x, y) the wind at the middle of `l` moves in `span` seconds.
+fn downwind_columns(l: &Layer, column: f64, span: f64) -> [i64; 2] {
+    let mid = 0.5 * (l.top() - l.base);
+    let v = [l.wind[0] + l.shear[0] * mid, l.wind[1] + l.shear[1] * mid];
+    // Bounded so the box stays in range for any wind the config accepts; a layer
+    // that outruns it leaves the rest to the lattice's shift (empty air beyond).
+    v.map(|w| ((w * span / column).round()).clamp(-1e6, 1e6) as i64)
 }
 
 /// The density [`shade_tile`] shades: the tile plus the halo its billboards and
@@ -158,19 +203,137 @@ pub fn tile_density(
     let region = tile.region()?;
     region.check(tile.z, l.depth, limits)?;
     let halo = tile_halo(l, tile.z, quality, sun);
-    let h = halo as i64;
-    let halo_region = Region {
-        x0: region.x0 - h,
-        y0: region.y0 - h,
-        cols: TILE_COLUMNS + 2 * halo,
-        rows: TILE_COLUMNS + 2 * halo,
-    };
-    let grid = density::density_cancellable(world, layer, tile.z, halo_region, t, cancel)?;
+    let grid = density_around(world, layer, tile, t, halo, [0, 0], cancel)?;
     Ok((grid, halo))
 }
 
-/// [`shade_tile`] on a density grid already computed: `grid` covers the tile plus
-/// `halo` columns on each side (shape `(depth, 256 + 2·halo, 256 + 2·halo)`).
+/// The density at `t` of the tile's columns plus `halo` on each side, moved by
+/// `moved` whole columns.
+fn density_around(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    t: f64,
+    halo: usize,
+    moved: [i64; 2],
+    cancel: &Cancel,
+) -> Result<Grid<f32>, RenderError> {
+    let region = tile.region()?;
+    let h = halo as i64;
+    let shifted = |v: i64, m: i64| {
+        v.checked_sub(h)
+            .and_then(|v| v.checked_add(m))
+            .ok_or_else(|| SimError::OutOfRange(format!("tile {tile:?} moved by {moved:?} columns overflows")))
+    };
+    let halo_region = Region {
+        x0: shifted(region.x0, moved[0])?,
+        y0: shifted(region.y0, moved[1])?,
+        cols: TILE_COLUMNS + 2 * halo,
+        rows: TILE_COLUMNS + 2 * halo,
+    };
+    Ok(density::density_cancellable(
+        world,
+        layer,
+        tile.z,
+        halo_region,
+        t,
+        cancel,
+    )?)
+}
+
+/// What shading a tile of one layer at one level needs, whichever end of a span.
+struct TileShading {
+    lattice: Lattice,
+    lighting: Lighting,
+    sheet: SplatSheet,
+    light_texel: f64,
+    origin: [f64; 2],
+    column: f64,
+    /// The tile's own box, world metres.
+    owned: [f64; 4],
+}
+
+impl TileShading {
+    fn new(l: &Layer, tile: TileId, quality: Quality, sun: Sun, params: &ShadingParams) -> TileShading {
+        let settings = quality.settings();
+        let column = l.cell_size * (tile.z as f64).exp2();
+        let spacing = settings.spacing_columns * column;
+        let n = TILE_COLUMNS as i64;
+        let origin = [
+            tile.x.saturating_mul(n) as f64 * column,
+            tile.y.saturating_mul(n) as f64 * column,
+        ];
+        let size = TILE_COLUMNS as f64 * column;
+        TileShading {
+            lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base),
+            lighting: Lighting::new(sun.bucket().centre(), *params),
+            sheet: SplatSheet::new(settings.splat_count, settings.splat_size),
+            light_texel: settings.light_texel,
+            origin,
+            column,
+            owned: [origin[0], origin[1], origin[0] + size, origin[1] + size],
+        }
+    }
+
+    /// Where a grid of `halo` extra columns around the tile, moved by `moved` whole
+    /// columns, lies in the world.
+    fn placement(&self, l: &Layer, halo: usize, moved: [i64; 2]) -> GridPlacement {
+        let h = halo as f64;
+        GridPlacement {
+            x0: self.origin[0] + (moved[0] as f64 - h) * self.column,
+            y0: self.origin[1] + (moved[1] as f64 - h) * self.column,
+            column: self.column,
+            base: l.base,
+            cell_height: l.cell_height,
+        }
+    }
+
+    /// The billboards of the balls `grid` gives the lattice moved by `shift(z)`, and
+    /// the ground shadow map they cast.
+    fn shade(
+        &self,
+        grid: &Grid<f32>,
+        unmoved: &GridPlacement,
+        place: &GridPlacement,
+        shift: impl Fn(f64) -> [f64; 2] + Sync,
+    ) -> (Vec<Billboard>, Vec<f32>) {
+        // Lattice points over the unmoved grid: every ball that may shadow the tile.
+        let all = [
+            unmoved.x0,
+            unmoved.y0,
+            unmoved.x0 + grid.cols as f64 * self.column,
+            unmoved.y0 + grid.rows as f64 * self.column,
+        ];
+        let balls = self.lattice.collect_moved(grid, place, all, MIN_BALL_DENSITY, shift);
+        let (billboards, buffer) = shade(
+            &balls,
+            &self.lattice,
+            &self.lighting,
+            &self.sheet,
+            self.light_texel,
+            self.owned,
+        );
+        let mut shadow = vec![1.0f32; TILE_COLUMNS * TILE_COLUMNS];
+        if self.lighting.sun_dir[2] > 0.0 {
+            for r in 0..TILE_COLUMNS {
+                for c in 0..TILE_COLUMNS {
+                    // At the layer's base: the sun line through it crosses only this
+                    // tile's clouds and its halo (see `ShadedTile::shadow`).
+                    let p = [
+                        self.origin[0] + (c as f64 + 0.5) * self.column,
+                        self.origin[1] + (r as f64 + 0.5) * self.column,
+                        self.lattice.base,
+                    ];
+                    shadow[r * TILE_COLUMNS + c] = buffer.transmittance_at(p).clamp(0.0, 1.0) as f32;
+                }
+            }
+        }
+        (billboards, shadow)
+    }
+}
+
+/// [`shade_tile`] of an instant on a density grid already computed: `grid` covers the
+/// tile plus `halo` columns on each side (shape `(depth, 256 + 2·halo, 256 + 2·halo)`).
 #[allow(clippy::too_many_arguments)]
 pub fn shade_density(
     layer: usize,
@@ -183,68 +346,122 @@ pub fn shade_density(
     grid: Grid<f32>,
     halo: usize,
 ) -> ShadedTile {
-    let settings = quality.settings();
-    let column = l.cell_size * (tile.z as f64).exp2();
-    let spacing = settings.spacing_columns * column;
-    let lattice = Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base);
+    let shading = TileShading::new(l, tile, quality, sun, params);
+    let place = shading.placement(l, halo, [0, 0]);
+    let (billboards, shadow) = shading.shade(&grid, &place, &place, |_| [0.0, 0.0]);
     let bucket = sun.bucket();
-    let centre_sun = bucket.centre();
-    let n = TILE_COLUMNS as i64;
-    let (x0, y0) = (tile.x.saturating_mul(n), tile.y.saturating_mul(n));
-    let place = GridPlacement {
-        x0: (x0 - halo as i64) as f64 * column,
-        y0: (y0 - halo as i64) as f64 * column,
-        column,
-        base: l.base,
-        cell_height: l.cell_height,
-    };
-    let origin = [x0 as f64 * column, y0 as f64 * column];
-    let size = TILE_COLUMNS as f64 * column;
-    let owned = [origin[0], origin[1], origin[0] + size, origin[1] + size];
-    let all = [
-        place.x0,
-        place.y0,
-        place.x0 + grid.cols as f64 * column,
-        place.y0 + grid.rows as f64 * column,
-    ];
-    let balls = lattice.collect(&grid, &place, all, MIN_BALL_DENSITY);
-    let lighting = Lighting::new(centre_sun, *params);
-    let sheet = SplatSheet::new(settings.splat_count, settings.splat_size);
-    let (billboards, buffer) = shade(&balls, &lattice, &lighting, &sheet, settings.light_texel, owned);
-    let mut shadow = vec![1.0f32; TILE_COLUMNS * TILE_COLUMNS];
-    if centre_sun.elevation_deg > 0.0 {
-        for r in 0..TILE_COLUMNS {
-            for c in 0..TILE_COLUMNS {
-                // At the layer's base: the sun line through it crosses only this
-                // tile's clouds and its halo (see `ShadedTile::shadow`).
-                let p = [
-                    origin[0] + (c as f64 + 0.5) * column,
-                    origin[1] + (r as f64 + 0.5) * column,
-                    l.base,
-                ];
-                shadow[r * TILE_COLUMNS + c] = buffer.transmittance_at(p).clamp(0.0, 1.0) as f32;
-            }
-        }
-    }
     ShadedTile {
         layer,
         layer_name: l.name.clone(),
         tile,
         t,
+        keyframe: Keyframe::instant(t),
         quality,
         bucket,
-        sun: centre_sun,
-        lighting,
-        lattice,
-        origin,
-        size,
-        column,
+        sun: bucket.centre(),
+        lighting: shading.lighting,
+        lattice: shading.lattice,
+        origin: shading.origin,
+        size: TILE_COLUMNS as f64 * shading.column,
+        column: shading.column,
+        wind: l.wind,
+        shear: l.shear,
+        end: billboards.clone(),
         billboards,
+        shadow_end: shadow.clone(),
         shadow,
         density: grid,
         halo,
         place,
     }
+}
+
+impl ShadedTile {
+    /// Wind (m/s, x east, y north) at altitude `z`: the layer's base wind plus its
+    /// shear over the height above the base.
+    pub fn velocity_at(&self, z: f64) -> [f64; 2] {
+        let h = z - self.lattice.base;
+        [self.wind[0] + self.shear[0] * h, self.wind[1] + self.shear[1] * h]
+    }
+
+    /// Turns an instant's tile into one animating over `keyframe`: shades the end of
+    /// the span from `end_grid` (the density at `t1` over the tile and its halo moved
+    /// by `moved` whole columns) on the lattice moved by the wind, and pairs the balls
+    /// of both ends by lattice point.
+    fn shade_end(
+        &mut self,
+        l: &Layer,
+        keyframe: Keyframe,
+        end_grid: Grid<f32>,
+        moved: [i64; 2],
+        params: &ShadingParams,
+    ) {
+        let shading = TileShading::new(l, self.tile, self.quality, self.sun, params);
+        let place = shading.placement(l, self.halo, moved);
+        let span = keyframe.span();
+        let (wind, shear, base) = (self.wind, self.shear, l.base);
+        let shift = |z: f64| {
+            let h = z - base;
+            [(wind[0] + shear[0] * h) * span, (wind[1] + shear[1] * h) * span]
+        };
+        let (end, shadow_end) = shading.shade(&end_grid, &self.place, &place, shift);
+        let start = std::mem::take(&mut self.billboards);
+        let (start, end) = pair_ends(start, end, shift);
+        self.billboards = start;
+        self.end = end;
+        self.shadow_end = shadow_end;
+        self.keyframe = keyframe;
+    }
+}
+
+/// Pairs the billboards of a span's two ends by lattice point (both in lattice order):
+/// a ball at only one end gets a partner with nothing to draw at the other, moved by
+/// `shift` of its altitude, with the same light (so only its opacity changes).
+fn pair_ends(
+    start: Vec<Billboard>,
+    end: Vec<Billboard>,
+    shift: impl Fn(f64) -> [f64; 2],
+) -> (Vec<Billboard>, Vec<Billboard>) {
+    let order = |b: &Billboard| (b.index[2], b.index[1], b.index[0]);
+    let empty = |b: &Billboard, sign: f64| {
+        let d = shift(b.centre[2]);
+        Billboard {
+            centre: [b.centre[0] + sign * d[0], b.centre[1] + sign * d[1], b.centre[2]],
+            density: 0.0,
+            tau: 0.0,
+            splat: 0,
+            splat_tau: 0.0,
+            opacity: 0.0,
+            ..*b
+        }
+    };
+    let (mut a, mut b) = (start.into_iter().peekable(), end.into_iter().peekable());
+    let (mut s, mut e) = (Vec::new(), Vec::new());
+    loop {
+        match (a.peek(), b.peek()) {
+            (Some(x), Some(y)) if order(x) == order(y) => {
+                s.push(a.next().expect("peeked"));
+                e.push(b.next().expect("peeked"));
+            }
+            (Some(x), Some(y)) if order(x) < order(y) => {
+                let x = a.next().expect("peeked");
+                e.push(empty(&x, 1.0));
+                s.push(x);
+            }
+            (Some(_), None) => {
+                let x = a.next().expect("peeked");
+                e.push(empty(&x, 1.0));
+                s.push(x);
+            }
+            (_, Some(_)) => {
+                let y = b.next().expect("peeked");
+                s.push(empty(&y, -1.0));
+                e.push(y);
+            }
+            (None, None) => break,
+        }
+    }
+    (s, e)
 }
 
 /// Where the sun ray from a ground point crosses altitude `base`, relative to the
@@ -255,16 +472,6 @@ pub fn shadow_shift(sun: Sun, base: f64) -> [f64; 2] {
     let s = sun.direction();
     let k = base / s[2].max(1f64.to_radians().sin());
     [s[0] * k, s[1] * k]
-}
-
-impl ShadedTile {
-    /// Shadow transmittance at ground point (x, y): the map read at the point where
-    /// the sun ray from it crosses the layer's base ([`shadow_shift`]), by bilinear
-    /// lookup; 1 outside the tile.
-    pub fn shadow_at(&self, x: f64, y: f64) -> f64 {
-        let shift = shadow_shift(self.sun, self.place.base);
-        shadow_lookup(&self.shadow, self.origin, self.column, x + shift[0], y + shift[1])
-    }
 }
 
 /// Bilinear lookup of a tile's `TILE_COLUMNS`² shadow map (row 0 south, texel centres

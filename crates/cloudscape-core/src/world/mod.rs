@@ -7,8 +7,10 @@
 //! the key, before anything else runs.
 
 mod config;
+mod keyframe;
 
 pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, SunConfig};
+pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, keyframe_span};
 
 use serde::Deserialize;
 
@@ -24,7 +26,11 @@ use serde::Deserialize;
 /// 6: sun buckets 1° wide near the horizon; scattering octaves and sky-light
 ///    attenuation fitted to the path tracer (b = ¾, sky scale 2); detail erosion by
 ///    the mean of each billboard's own noise.
-pub const ALGORITHM_VERSION: u32 = 6;
+/// 7: keyframes (issue 22): tile products per keyframe span (`world::Keyframe`), each
+///    billboard at both ends of its span moved by the wind (`billboards.bin` version
+///    2, 56-byte records, lighting in the header), shadow maps with both ends, renders
+///    drawn by the animation rule (`render::keyframe`).
+pub const ALGORITHM_VERSION: u32 = 7;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

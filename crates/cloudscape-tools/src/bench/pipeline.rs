@@ -18,7 +18,7 @@ use cloudscape_core::render::shade::shade;
 use cloudscape_core::render::splats::SplatSheet;
 use cloudscape_core::render::tile::{MIN_BALL_DENSITY, shade_density, tile_density};
 use cloudscape_core::render::{Camera, Quality, ShadedTile, ShadingParams, Sun, TileId, shade_tile};
-use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
+use cloudscape_core::world::{Config, DEFAULT_CONFIG, Keyframe, World};
 
 use super::{BenchRun, Effort, Plot, Section, fmt_s, time};
 
@@ -66,7 +66,7 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
             &world,
             0,
             tile,
-            SHOWN_T,
+            Keyframe::instant(SHOWN_T),
             q,
             sun,
             &params,
@@ -116,7 +116,7 @@ pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         &world,
         0,
         tile,
-        5000.0,
+        Keyframe::containing(5000.0, &world.layers[0], level),
         Quality::Balanced,
         sun(),
         &ShadingParams::default(),
@@ -234,7 +234,7 @@ fn rosa_row(w: usize, l: usize, d: u32, size: (usize, usize)) -> Result<[f64; 3]
     let mut image = background(&view, &lighting, 1.0, |x, y| {
         buffer.transmittance_at([x, y, 0.0]).clamp(0.0, 1.0)
     });
-    composite(&mut image, &bills, &sheet, &lighting, &view);
+    composite(&mut image, &bills, &lighting, &view);
     black_box(image.to_png());
     let draw_s = t2.elapsed().as_secs_f64();
     Ok([sim_s, shade_s, draw_s])

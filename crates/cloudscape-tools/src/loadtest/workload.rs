@@ -355,6 +355,7 @@ mod tests {
                 base: 1000.0,
                 top: 2000.0,
                 cell_size: 100.0,
+                dt: 20.0,
             }],
         };
         WorldView::new(&remote, 43_200.0, 1.0)

@@ -112,16 +112,24 @@ fn a_remote_render_matches_a_local_one_and_revalidates() {
         "remote vs local: mean |Δ| {mean:.5}, max |Δ| {max:.5}"
     );
 
-    // Two products per tile, a splat sheet and its manifest, the world: all 200s.
+    // Two products per tile, a splat sheet and its manifest, the world: all 200s. At a
+    // keyframe's own time nothing is past the middle of its span: no prefetch.
     let first = client.stats();
-    assert_eq!(first.revalidated, 0);
+    assert_eq!((first.revalidated, first.reused, first.prefetched), (0, 0, 0));
     assert_eq!(first.fetched as usize, 2 * local.tiles.len() + 3);
-    // Again with the same client: every body is revalidated, none downloaded.
+    // Again with the same client: the keyframes and splat sheets are immutable, so
+    // they come from memory without a request; only the world is revalidated.
     let again = client.render("default", &req).expect("second remote render");
     let second = client.stats();
     assert_eq!(second.fetched, first.fetched, "nothing downloaded again");
     assert_eq!(second.body_bytes, first.body_bytes);
-    assert_eq!(second.revalidated, first.fetched, "every body revalidated with a 304");
+    assert_eq!(
+        second.reused,
+        first.fetched - 1,
+        "immutable bodies reused without asking"
+    );
+    assert_eq!(second.revalidated, 1, "the world document revalidated with a 304");
+    assert_eq!(second.requests, first.requests + 1);
     assert_eq!(again.image.display(), remote.image.display());
 
     // The command line: `render --server` writes the same picture as a local render.
@@ -193,14 +201,55 @@ fn the_async_client_draws_the_blocking_clients_pixels_and_revalidates() {
     assert_eq!(first_stats.body_bytes, blocking.stats().body_bytes);
     assert_eq!(first_stats.revalidated, 0);
 
-    // The same view again: every body is revalidated with a 304, none downloaded.
+    // The same view again: immutable bodies from memory, the world revalidated.
     assert_eq!(second_stats.fetched, first_stats.fetched, "nothing downloaded again");
     assert_eq!(second_stats.body_bytes, first_stats.body_bytes);
-    assert_eq!(
-        second_stats.revalidated, first_stats.fetched,
-        "every body revalidated with a 304"
-    );
+    assert_eq!(second_stats.reused, first_stats.fetched - 1);
+    assert_eq!(second_stats.revalidated, 1);
     assert_eq!(again.image.display(), expected.image.display());
+}
+
+#[test]
+fn between_keyframes_the_client_draws_the_servers_picture_and_prefetches() {
+    // Three quarters into the level-0 keyframe span [43200, 43220): the client applies
+    // the animation rule to the keyframe it fetched, the server's renderer too.
+    let server = start_server();
+    let config = Config::embedded();
+    let world = config.world("default").unwrap();
+    let req = RenderRequest {
+        t: 43_215.0,
+        ..looking_down(192, 108)
+    };
+    let local = render(&world, &config, &req).expect("local render");
+    let mut client = TileClient::new(&server.base).unwrap();
+    let remote = client.render("default", &req).expect("remote render");
+    assert_eq!(remote.tiles, local.tiles);
+    let (mean, max) = difference(&remote.image.display(), &local.image.display());
+    assert!(
+        mean <= MEAN_TOLERANCE && max <= MAX_TOLERANCE,
+        "remote vs local between keyframes: mean |Δ| {mean:.5}, max |Δ| {max:.5}"
+    );
+    // The picture moved on from the keyframe: it is not the keyframe's own.
+    let at_keyframe = render(&world, &config, &RenderRequest { t: 43_200.0, ..req }).unwrap();
+    let (moved, _) = difference(&at_keyframe.image.display(), &local.image.display());
+    assert!(moved > 2.0 * mean, "the clouds moved: {moved:.5} against {mean:.5}");
+    // Past the middle of every level-0 span: the next keyframes were fetched ahead,
+    // and drawing the next keyframe's time needs no tile request.
+    let stats = client.stats();
+    assert!(stats.prefetched > 0, "{stats:?}");
+    let before = client.stats().requests;
+    let level0 = local.tiles.iter().filter(|(_, t)| t.z == 0).count();
+    assert!(level0 > 0, "the view holds level-0 tiles");
+    client
+        .render("default", &RenderRequest { t: 43_220.0, ..req })
+        .expect("render at the next keyframe");
+    let after = client.stats();
+    // Level 0 changed keyframe and was prefetched; coarser levels' spans ([43200,
+    // 43240) and longer) hold 43 220 too. So only the world is asked again, besides
+    // the prefetches of this render (spans now half gone).
+    let prefetched = after.prefetched - stats.prefetched;
+    assert_eq!(after.requests - before - prefetched, 1, "{after:?}");
+    assert!(after.reused >= stats.reused + 2 * local.tiles.len() as u64, "{after:?}");
 }
 
 #[test]

@@ -7,7 +7,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use cloudscape_tools::loadtest::{self, LoadSpec, Scenario};
+use cloudscape_tools::loadtest::{self, FetchMode, LoadSpec, Scenario};
 
 #[derive(Args)]
 pub struct LoadtestArgs {
@@ -42,9 +42,33 @@ pub struct LoadtestArgs {
     /// Write the full report (figures, status counts, per-second timeline) as JSON.
     #[arg(long)]
     json: Option<String>,
-    /// Write a latency plot (PNG).
+    /// Write a latency plot (PNG); with --sweep, players against latency, CPU and lag.
     #[arg(long)]
     plot: Option<String>,
+    /// Players re-plan and revalidate every tile every second at the current time
+    /// (before keyframes). Default: fetch each keyframe URL once, as the viewer does.
+    #[arg(long)]
+    poll: bool,
+    /// Groups share this many places: more players watching the same tiles.
+    #[arg(long)]
+    places: Option<usize>,
+    /// Send from the start but measure only after this long (the first views are cold).
+    #[arg(long, default_value = "0s")]
+    warmup: String,
+    /// The server's process id, for its CPU time when its /metrics has none.
+    #[arg(long)]
+    pid: Option<u32>,
+    /// Capacity sweep: runs of --duration (after --warmup) with 8, 16, 32, … players until
+    /// p99 passes 50 ms or a request is shed; prints the curve.
+    #[arg(long)]
+    sweep: bool,
+    /// The players of each sweep step, comma-separated (default 8,16,…,256,384,…,2048).
+    #[arg(long, value_delimiter = ',')]
+    steps: Option<Vec<usize>>,
+    /// With --sweep: write the curve into this Markdown file between
+    /// `<!-- bench:capacity:begin/end -->` (BENCHMARKS.md).
+    #[arg(long)]
+    markdown: Option<String>,
 }
 
 /// Parses `30s`, `2m`, `1h`, `500ms` or plain seconds.
@@ -72,6 +96,11 @@ pub(crate) fn parse_duration(s: &str) -> Result<Duration, String> {
 pub fn run(a: LoadtestArgs) -> Result<(), String> {
     let scenario = Scenario::parse(&a.scenario)
         .ok_or_else(|| format!("--scenario must be mmo, queries or mixed, got `{}`", a.scenario))?;
+    let warmup = if a.warmup.trim() == "0s" || a.warmup.trim() == "0" {
+        Duration::ZERO
+    } else {
+        parse_duration(&a.warmup)?
+    };
     let spec = LoadSpec {
         target: a.target,
         world: a.world,
@@ -82,7 +111,20 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         t0: a.t,
         clock: a.clock,
         seed: a.seed,
+        fetch: if a.poll { FetchMode::Poll } else { FetchMode::Keyframes },
+        places: a.places,
+        server_pid: a.pid,
+        warmup,
     };
+    if a.sweep {
+        return sweep(
+            &spec,
+            a.steps.unwrap_or_else(loadtest::sweep_steps),
+            &a.json,
+            &a.plot,
+            &a.markdown,
+        );
+    }
     // Hidden when stderr is not a terminal (indicatif checks).
     let bar = ProgressBar::with_draw_target(
         Some(spec.duration.as_millis() as u64),
@@ -112,6 +154,47 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
             Some(e) => format!("no request was answered: {e}"),
             None => "no request was sent (is the duration shorter than the first tick?)".into(),
         });
+    }
+    Ok(())
+}
+
+/// `--sweep`: the capacity curve, printed, and written where asked.
+fn sweep(
+    spec: &LoadSpec,
+    steps: Vec<usize>,
+    json: &Option<String>,
+    plot: &Option<String>,
+    markdown: &Option<String>,
+) -> Result<(), String> {
+    if steps.is_empty() || steps.iter().any(|&n| n == 0 || n > 100_000) {
+        return Err("--steps must list player counts between 1 and 100000".into());
+    }
+    let report = loadtest::sweep(spec, &steps, |players, p| {
+        eprint!(
+            "\r{players} players: {:.0} s, {} requests, {} shed   ",
+            p.elapsed_s, p.requests, p.shed
+        );
+    })
+    .map_err(|e| e.to_string())?;
+    eprintln!();
+    let md = report.markdown();
+    print!("{md}");
+    if let Some(path) = json {
+        let bytes = serde_json::to_vec_pretty(&report).map_err(|e| format!("cannot encode the report: {e}"))?;
+        super::write_out(path, &bytes)?;
+    }
+    if let Some(path) = plot {
+        super::write_out(path, &report.plot()?)?;
+    }
+    if let Some(path) = markdown {
+        let doc = std::fs::read_to_string(path).map_err(|e| format!("cannot read {path}: {e}"))?;
+        let section = cloudscape_tools::bench::Section {
+            id: "capacity",
+            title: "Capacity: players per box",
+            markdown: md,
+        };
+        let merged = cloudscape_tools::bench::merge_sections(&doc, &[section])?;
+        super::write_out(path, merged.as_bytes())?;
     }
     Ok(())
 }

@@ -100,7 +100,11 @@ pub fn run(a: RenderArgs) -> Result<(), String> {
     };
     let rendered = match &a.server {
         Some(url) => TileClient::new(url)
-            .and_then(|mut client| client.render(&a.world, &req))
+            .and_then(|mut client| {
+                // One picture: nothing to animate, so no next keyframes.
+                client.set_prefetch(false);
+                client.render(&a.world, &req)
+            })
             .map_err(|e| e.to_string())?,
         None => {
             let config = super::load_config(a.config.as_deref())?;

@@ -8,8 +8,9 @@ use cloudscape_core::render::{Quality, RenderRequest, Rendered};
 use crate::decode::RemoteWorld;
 use crate::{AsyncTileClient, ClientError, FetchStats};
 
-/// A blocking HTTP client of one server that keeps every body it fetched with its
-/// ETag and revalidates it (`If-None-Match`) instead of downloading it again.
+/// A blocking HTTP client of one server that keeps every body it fetched: an immutable
+/// one (a keyframe) is reused without asking again, any other is revalidated with its
+/// ETag (`If-None-Match`) instead of downloaded again.
 pub struct TileClient {
     inner: AsyncTileClient,
     runtime: tokio::runtime::Runtime,
@@ -55,5 +56,11 @@ impl TileClient {
     /// `cloudscape render`. Billboard presets only.
     pub fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
         self.runtime.block_on(self.inner.render(world, req))
+    }
+
+    /// Whether [`render`](Self::render) also fetches the next keyframe of every tile
+    /// past the middle of its span (on by default).
+    pub fn set_prefetch(&mut self, on: bool) {
+        self.inner.set_prefetch(on);
     }
 }

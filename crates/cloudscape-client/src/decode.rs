@@ -283,6 +283,11 @@ impl RemoteRender {
     /// A tile product's keyframe URL: `t` is the keyframe's own time, so the answer
     /// is immutable and every client in the span asks the same URL.
     fn tile_path(&self, layer: usize, tile: TileId, product: Product) -> String {
+        self.tile_path_at(layer, tile, product, self.keyframe(layer, tile).t0)
+    }
+
+    /// A tile product's URL at keyframe time `t0`.
+    fn tile_path_at(&self, layer: usize, tile: TileId, product: Product, t0: f64) -> String {
         format!(
             "/v1/worlds/{}/tiles/{}/{}/{}/{}?t={}&{}&layer={}",
             encode(&self.world),
@@ -290,7 +295,7 @@ impl RemoteRender {
             tile.x,
             tile.y,
             product.name(),
-            self.keyframe(layer, tile).t0,
+            t0,
             self.query,
             encode(&self.info.layers[layer].name)
         )
@@ -303,6 +308,21 @@ impl RemoteRender {
         for &(layer, tile) in &self.tiles {
             paths.push(self.tile_path(layer, tile, Product::BillboardsBin));
             paths.push(self.tile_path(layer, tile, Product::ShadowPng));
+        }
+        paths
+    }
+
+    /// The next keyframe's products of every tile whose span the request's time is
+    /// past the middle of: what an animating client fetches ahead of need.
+    pub fn prefetch_paths(&self) -> Vec<String> {
+        let mut paths = Vec::new();
+        for &(layer, tile) in &self.tiles {
+            let k = self.keyframe(layer, tile);
+            if k.fraction(self.req.t) >= 0.5 && k.t1 > k.t0 {
+                for product in [Product::BillboardsBin, Product::ShadowPng] {
+                    paths.push(self.tile_path_at(layer, tile, product, k.t1));
+                }
+            }
         }
         paths
     }

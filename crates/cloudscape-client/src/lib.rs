@@ -55,6 +55,11 @@ pub struct FetchStats {
     pub fetched: u64,
     /// 304 answers to `If-None-Match`: the stored bytes were reused.
     pub revalidated: u64,
+    /// Bodies of immutable URLs (keyframes, splat sheets) taken from memory without
+    /// asking the server at all.
+    pub reused: u64,
+    /// Requests for the next keyframe of a tile, sent before it was needed.
+    pub prefetched: u64,
     /// Body bytes of 200 responses.
     pub body_bytes: u64,
 }

@@ -11,12 +11,15 @@ use crate::decode::{RemoteRender, RemoteWorld, check_remote, decode_splat_sheet,
 use crate::store::{Head, Store, check_base};
 use crate::{ClientError, FetchStats};
 
-/// An async HTTP client of one server that keeps every body it fetched with its
-/// ETag and revalidates it (`If-None-Match`) instead of downloading it again.
+/// An async HTTP client of one server that keeps every body it fetched: an immutable
+/// one (a keyframe) is reused without asking again, any other is revalidated with its
+/// ETag (`If-None-Match`) instead of downloaded again.
 pub struct AsyncTileClient {
     base: String,
     http: reqwest::Client,
     store: Store,
+    /// Fetch the next keyframes ahead of need (see [`AsyncTileClient::set_prefetch`]).
+    prefetch: bool,
 }
 
 impl AsyncTileClient {
@@ -35,6 +38,7 @@ impl AsyncTileClient {
             base,
             http,
             store: Store::default(),
+            prefetch: true,
         })
     }
 
@@ -46,6 +50,9 @@ impl AsyncTileClient {
     /// GETs `path` (with its query), revalidating a stored copy; retries 503s after
     /// their `Retry-After`.
     pub async fn get(&mut self, path: &str) -> Result<Vec<u8>, ClientError> {
+        if let Some(body) = self.store.held(path) {
+            return Ok(body);
+        }
         let url = format!("{}{path}", self.base);
         let transport = |e: reqwest::Error| ClientError::Transport {
             url: url.clone(),
@@ -71,8 +78,11 @@ impl AsyncTileClient {
                 }
                 Head::ReadBody => {
                     let etag = header(reqwest::header::ETAG).map(str::to_string);
+                    let cache_control = header(reqwest::header::CACHE_CONTROL).map(str::to_string);
                     let body = response.bytes().await.map_err(transport)?.to_vec();
-                    return self.store.finish(url, path, status, etag, body);
+                    return self
+                        .store
+                        .finish(url, path, status, etag, cache_control.as_deref(), body);
                 }
             }
         }
@@ -111,6 +121,22 @@ impl AsyncTileClient {
         for path in plan.paths() {
             bodies.push(self.get(&path).await?);
         }
+        if self.prefetch {
+            for path in plan.prefetch_paths() {
+                if self.store.is_held(&path) {
+                    continue;
+                }
+                self.store.stats.prefetched += 1;
+                self.get(&path).await?;
+            }
+        }
         plan.compose(&self.base, &bodies)
+    }
+
+    /// Whether [`render`](Self::render) also fetches the next keyframe of every tile
+    /// past the middle of its span (on by default), as an animating client does so the
+    /// boundary finds the next keyframe in memory.
+    pub fn set_prefetch(&mut self, on: bool) {
+        self.prefetch = on;
     }
 }

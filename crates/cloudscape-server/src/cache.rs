@@ -24,6 +24,7 @@ use axum::body::Bytes;
 use moka::future::Cache;
 use tokio::sync::{Semaphore, oneshot};
 
+use crate::encode::Coding;
 use crate::error::ApiError;
 use crate::key::CacheKey;
 use crate::metrics::Metrics;
@@ -221,6 +222,37 @@ pub struct ResponseCache {
     budget: Duration,
     /// The second-level cache shared by replicas, if configured.
     shared: Option<Arc<SharedCache>>,
+    /// Keys computed ahead that no request has found yet.
+    ahead: AheadKeys,
+}
+
+/// Keys computed ahead of any request, until a request finds each (bounded: the
+/// oldest half is forgotten when full).
+#[derive(Default)]
+struct AheadKeys(Mutex<HashMap<CacheKey, u64>>, AtomicU64);
+
+/// Most keys [`AheadKeys`] remembers.
+const MAX_AHEAD_KEYS: usize = 1 << 16;
+
+impl AheadKeys {
+    fn remember<'a>(&self, keys: impl Iterator<Item = &'a CacheKey>) {
+        let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        for key in keys {
+            if map.len() >= MAX_AHEAD_KEYS {
+                let mut ages: Vec<u64> = map.values().copied().collect();
+                ages.sort_unstable();
+                let median = ages[ages.len() / 2];
+                map.retain(|_, age| *age > median);
+            }
+            map.insert(key.clone(), self.1.fetch_add(1, Ordering::Relaxed));
+        }
+    }
+
+    /// True (once) when `key` was computed ahead and no request had found it yet.
+    fn served(&self, key: &CacheKey) -> bool {
+        let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        !map.is_empty() && map.remove(key).is_some()
+    }
 }
 
 /// The share of the cache budget one entry may take at most.
@@ -248,6 +280,7 @@ impl ResponseCache {
             flights: Flights::default(),
             budget,
             shared: shared.map(Arc::new),
+            ahead: AheadKeys::default(),
         }
     }
 
@@ -279,6 +312,9 @@ impl ResponseCache {
     ) -> Result<Bytes, ApiError> {
         if let Some(bytes) = self.cache.get(&key).await {
             metrics.cache_hits.with_label_values(&[kind]).inc();
+            if self.ahead.served(&key) {
+                metrics.ahead_served.inc();
+            }
             return Ok(bytes);
         }
         metrics.cache_misses.with_label_values(&[kind]).inc();
@@ -288,35 +324,14 @@ impl ResponseCache {
         let this = Arc::clone(self);
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
-            let cache = this.cache.clone();
-            let shared = this.shared.clone();
-            let max_entry = this.max_entry;
-            let init = async {
-                if let Some(shared) = &shared
-                    && let Lookup::Hit(bytes) = shared.get(&m, kind, &key).await
-                {
-                    return Ok(bytes);
-                }
-                let (bytes, siblings) = this.queue.run(&m, kind, work, cancel, job).await?;
-                for (k, b) in &siblings {
-                    if b.len() <= max_entry {
-                        cache.insert(k.clone(), b.clone()).await;
-                    }
-                }
-                if let Some(shared) = &shared {
-                    let mut entries = siblings;
-                    entries.push((key.clone(), bytes.clone()));
-                    shared.put(&m, entries);
-                }
-                Ok::<_, ApiError>(bytes)
-            };
+            let init = this.fill(&m, kind, key.clone(), work, cancel, job, false);
             let result = this
                 .cache
                 .try_get_with(key.clone(), init)
                 .await
                 .map_err(|e| (*e).clone());
             if let Ok(bytes) = &result
-                && bytes.len() > max_entry
+                && bytes.len() > this.max_entry
             {
                 this.cache.invalidate(&key).await;
             }
@@ -338,6 +353,91 @@ impl ResponseCache {
             Err(ApiError::Cancelled) => Err(ApiError::Overloaded(self.retry_after())),
             other => other,
         }
+    }
+
+    /// The bytes of `key` from the shared cache, or computed by `job` through the
+    /// queue; the siblings the job yields go into both caches (the key itself is
+    /// inserted by the caller's `try_get_with`). Keys computed `ahead` are remembered,
+    /// so the first request that finds each counts as served from ahead.
+    #[allow(clippy::too_many_arguments)]
+    async fn fill(
+        &self,
+        m: &Arc<Metrics>,
+        kind: &'static str,
+        key: CacheKey,
+        work: Work,
+        cancel: Cancel,
+        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
+        ahead: bool,
+    ) -> Result<Bytes, ApiError> {
+        if let Some(shared) = &self.shared
+            && let Lookup::Hit(bytes) = shared.get(m, kind, &key).await
+        {
+            return Ok(bytes);
+        }
+        let (bytes, siblings) = self.queue.run(m, kind, work, cancel, job).await?;
+        for (k, b) in &siblings {
+            if b.len() <= self.max_entry {
+                self.cache.insert(k.clone(), b.clone()).await;
+            }
+        }
+        if ahead {
+            self.ahead.remember(siblings.iter().map(|(k, _)| k).chain([&key]));
+        }
+        if let Some(shared) = &self.shared {
+            let mut entries = siblings;
+            entries.push((key, bytes.clone()));
+            shared.put(m, entries);
+        }
+        Ok(bytes)
+    }
+
+    /// Computes `key` ahead of any request (no time budget; requests asking for it
+    /// meanwhile join the computation). True when the bytes are in the cache
+    /// afterwards, computed now or before; false when the queue shed it or it failed.
+    pub async fn compute_ahead(
+        self: &Arc<Self>,
+        metrics: &Arc<Metrics>,
+        kind: &'static str,
+        key: CacheKey,
+        work: Work,
+        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
+    ) -> bool {
+        if self.cache.contains_key(&key) {
+            return true;
+        }
+        let init = self.fill(metrics, kind, key.clone(), work, Cancel::never(), job, true);
+        match self.cache.try_get_with(key.clone(), init).await {
+            Ok(bytes) => {
+                if bytes.len() > self.max_entry {
+                    self.cache.invalidate(&key).await;
+                }
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// The `coding` variant of `bytes`, the cached bytes of `key`: compressed once and
+    /// kept in the cache beside them (concurrent requests join one compression);
+    /// `None` if compressing failed.
+    pub async fn encoded(&self, metrics: &Metrics, key: &CacheKey, coding: Coding, bytes: Bytes) -> Option<Bytes> {
+        let key = key.clone().with("enc", coding.name());
+        if let Some(b) = self.cache.get(&key).await {
+            metrics.encodings.with_label_values(&[coding.name(), "hit"]).inc();
+            return Some(b);
+        }
+        metrics.encodings.with_label_values(&[coding.name(), "miss"]).inc();
+        let init = async move {
+            tokio::task::spawn_blocking(move || coding.compress(&bytes))
+                .await
+                .map_err(|e| e.to_string())?
+        };
+        let b = self.cache.try_get_with(key.clone(), init).await.ok()?;
+        if b.len() > self.max_entry {
+            self.cache.invalidate(&key).await;
+        }
+        Some(b)
     }
 
     /// Runs `job` through the queue with no time budget and no caching (start-up work).

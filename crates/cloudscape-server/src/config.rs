@@ -75,6 +75,13 @@ pub struct ServerConfig {
     /// Bytes that replies still being sent may hold together; past it a request is
     /// answered 503 with `Retry-After` instead of another large body.
     pub reply_bytes: u64,
+    /// Compute threads that compute-ahead may use at once (the next keyframes of the
+    /// tiles being watched, `ahead`): a bounded share, so requests keep priority.
+    /// 0 turns compute-ahead off.
+    pub ahead_threads: u32,
+    /// Most tile variants the hot set follows for compute-ahead; the least watched are
+    /// forgotten first.
+    pub ahead_tiles: u32,
 }
 
 /// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
@@ -109,6 +116,8 @@ impl Default for ServerConfig {
             redis_ttl_s: 86_400,
             compute_memory_bytes: 2 << 30,
             reply_bytes: 256 << 20,
+            ahead_threads: 1,
+            ahead_tiles: 4096,
         }
     }
 }
@@ -157,6 +166,12 @@ impl ServerConfig {
         }
         if self.reply_bytes < 1 << 20 {
             return Err(invalid("server.reply_bytes", "must be at least 1 MiB"));
+        }
+        if self.ahead_threads > 64 {
+            return Err(invalid("server.ahead_threads", "must be within [0, 64]"));
+        }
+        if self.ahead_tiles > 1 << 20 {
+            return Err(invalid("server.ahead_tiles", "must be at most 1048576"));
         }
         if !self.redis_url.is_empty() && self.redis_timeout_ms == 0 {
             return Err(invalid("server.redis_timeout_ms", "must be positive"));

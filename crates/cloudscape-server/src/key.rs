@@ -34,6 +34,7 @@ pub fn stable_hash_hex(bytes: &[u8]) -> String {
 }
 
 /// A world resolved for a request, with the fingerprint its keys use.
+#[derive(Clone)]
 pub struct ResolvedWorld {
     pub world: World,
     /// Hash of seed + climate + the server's frame grid (`frames_per_step`, which

@@ -18,10 +18,12 @@
 //! key, known before any work, so `If-None-Match` answers 304 without computing. Bytes are deterministic, so a key's ETag never
 //! names two different bodies.
 
+mod ahead;
 mod cache;
 pub mod config;
 mod conn;
 mod discovery;
+mod encode;
 mod error;
 mod extract;
 mod key;
@@ -109,6 +111,7 @@ impl Server {
     pub async fn run(self) -> io::Result<()> {
         let state = self.state;
         tokio::spawn(start_up(Arc::clone(&state)));
+        let ahead = tokio::spawn(ahead::run(Arc::clone(&state)));
         let app = router(Arc::clone(&state));
         let mut stop = self.stop.subscribe();
         let drain = {
@@ -124,6 +127,7 @@ impl Server {
         };
         let limits = conn::ConnLimits::new(&state.settings);
         conn::serve(self.listener, app, limits, Arc::clone(&state.metrics), drain).await;
+        ahead.abort();
         tracing::info!("shutdown: done");
         Ok(())
     }

@@ -60,6 +60,22 @@ pub struct Metrics {
     pub connections_closed: IntCounterVec,
     /// `accept` calls that failed for want of descriptors or buffers.
     pub accept_errors: IntCounter,
+    /// Keyframe computations run ahead of the clock (`ahead`).
+    pub ahead_computed: IntCounter,
+    /// Requests answered from bytes computed ahead (the first request of each key).
+    pub ahead_served: IntCounter,
+    /// Requests for a keyframe planned ahead that was not computed yet (the request
+    /// computes it, or joins the computation ahead).
+    pub ahead_missed: IntCounter,
+    /// How late a computation ahead finished after the clock reached its keyframe,
+    /// seconds (0 when in time).
+    pub ahead_lag: Histogram,
+    /// Keyframes planned ahead and not computed yet.
+    pub ahead_pending: IntGauge,
+    /// Tile variants the hot set follows.
+    pub ahead_hot: IntGauge,
+    /// Compressed variants served, by coding and whether the cache held them.
+    pub encodings: IntCounterVec,
 }
 
 /// The `method` label values: the methods HTTP defines, then `other`.
@@ -166,6 +182,11 @@ impl Metrics {
         for op in REDIS_OPS {
             m.redis_errors.with_label_values(&[op]);
         }
+        for coding in ["gzip", "zstd"] {
+            for outcome in ["hit", "miss"] {
+                m.encodings.with_label_values(&[coding, outcome]);
+            }
+        }
         for reason in CloseReason::ALL {
             m.connections_closed.with_label_values(&[reason.label()]);
         }
@@ -268,6 +289,40 @@ impl Metrics {
             accept_errors: plain_counter(
                 "cloudscape_accept_errors_total",
                 "accept calls that failed (out of descriptors or buffers)",
+            ),
+            ahead_computed: plain_counter(
+                "cloudscape_ahead_computed_total",
+                "keyframes computed ahead of the clock",
+            ),
+            ahead_served: plain_counter(
+                "cloudscape_ahead_served_total",
+                "requests answered from bytes computed ahead",
+            ),
+            ahead_missed: plain_counter(
+                "cloudscape_ahead_missed_total",
+                "requests for a keyframe planned ahead but not computed yet",
+            ),
+            ahead_lag: {
+                let h = Histogram::with_opts(
+                    HistogramOpts::new(
+                        "cloudscape_ahead_lag_seconds",
+                        "how late a computation ahead finished after the clock reached its keyframe (0: in time)",
+                    )
+                    .buckets(vec![0.0, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0, 30.0, 60.0]),
+                )
+                .expect("valid metric");
+                registry.register(Box::new(h.clone())).expect("unique metric");
+                h
+            },
+            ahead_pending: gauge(
+                "cloudscape_ahead_pending",
+                "keyframes planned ahead and not computed yet",
+            ),
+            ahead_hot: gauge("cloudscape_ahead_hot_tiles", "tile variants the hot set follows"),
+            encodings: counter(
+                "cloudscape_encodings_total",
+                "compressed variants served, by coding and cache outcome",
+                &["coding", "outcome"],
             ),
             registry,
         }

@@ -16,6 +16,7 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
 use cloudscape_core::world::{Keyframe, SnappedTime};
 
+use crate::encode::{self, Coding};
 use crate::error::ApiError;
 use crate::key::{CacheKey, if_none_match};
 use crate::state::AppState;
@@ -177,18 +178,40 @@ impl Cached {
             time: self.time,
             content_location: self.content_location,
         };
-        if let Some(not_modified) = repr.not_modified(headers) {
+        let compressible = encode::compressible(self.content_type);
+        if let Some(mut not_modified) = repr.not_modified(headers) {
+            if compressible {
+                not_modified
+                    .headers_mut()
+                    .insert(header::VARY, HeaderValue::from_static("accept-encoding"));
+            }
             return Ok(not_modified);
         }
         let (work, job) = plan()?;
         let work = s.admit(self.kind, work)?;
         let bytes = s
             .cache
-            .get_or_compute_with_siblings(&s.metrics, self.kind, self.key, work, job)
+            .get_or_compute_with_siblings(&s.metrics, self.kind, self.key.clone(), work, job)
             .await?;
         let extra = finish(&bytes)?;
-        let mut response = repr.ok(s, self.content_type, bytes)?;
-        response.headers_mut().extend(extra);
+        repr.check_size(s, &bytes)?;
+        let coding = Coding::negotiate(headers).filter(|_| compressible && bytes.len() >= encode::MIN_COMPRESSED_BYTES);
+        let (body, coding) = match coding {
+            Some(c) => match s.cache.encoded(&s.metrics, &self.key, c, bytes.clone()).await {
+                Some(z) => (z, Some(c)),
+                None => (bytes, None),
+            },
+            None => (bytes, None),
+        };
+        let mut response = repr.ok(s, self.content_type, body)?;
+        let h = response.headers_mut();
+        h.extend(extra);
+        if let Some(c) = coding {
+            h.insert(header::CONTENT_ENCODING, HeaderValue::from_static(c.name()));
+        }
+        if compressible {
+            h.insert(header::VARY, HeaderValue::from_static("accept-encoding"));
+        }
         Ok(response)
     }
 }
@@ -239,6 +262,19 @@ impl Representation {
         h
     }
 
+    /// 413 for a body over `limits.max_response_bytes`.
+    pub fn check_size(&self, state: &AppState, body: &Bytes) -> Result<(), ApiError> {
+        let max = state.worlds.config().limits.max_response_bytes;
+        if body.len() as u64 > max {
+            return Err(ApiError::ResponseTooLarge(format!(
+                "the answer is {} MiB; the limit is {} MiB (limits.max_response_bytes)",
+                body.len() >> 20,
+                max >> 20
+            )));
+        }
+        Ok(())
+    }
+
     /// 304 when `If-None-Match` names this representation: no computation needed.
     pub fn not_modified(&self, request: &HeaderMap) -> Option<Response> {
         let inm = request.get(header::IF_NONE_MATCH)?.to_str().ok()?;
@@ -249,14 +285,7 @@ impl Representation {
     /// ([`crate::reply`]) until it is sent; 503 when the budget is spent. A body over
     /// `limits.max_response_bytes` is refused with 413.
     pub fn ok(&self, state: &AppState, content_type: &'static str, body: Bytes) -> Result<Response, ApiError> {
-        let max = state.worlds.config().limits.max_response_bytes;
-        if body.len() as u64 > max {
-            return Err(ApiError::ResponseTooLarge(format!(
-                "the answer is {} MiB; the limit is {} MiB (limits.max_response_bytes)",
-                body.len() >> 20,
-                max >> 20
-            )));
-        }
+        self.check_size(state, &body)?;
         let body = state.replies.body(body, state.cache.retry_after())?;
         Ok(self.respond(content_type, body))
     }

@@ -7,6 +7,7 @@ use std::time::Duration;
 use cloudscape_core::cost::Work;
 use cloudscape_core::world::Config;
 
+use crate::ahead::HotSet;
 use crate::cache::{ComputeQueue, ResponseCache};
 use crate::config::ServerConfig;
 use crate::error::ApiError;
@@ -61,6 +62,8 @@ pub struct AppState {
     pub replies: ReplyBudget,
     pub metrics: Arc<Metrics>,
     pub readiness: Readiness,
+    /// The tiles being watched, whose next keyframes are computed ahead.
+    pub ahead: HotSet,
     /// Source of request ids: a per-process prefix and a counter.
     request_ids: (u32, AtomicU64),
 }
@@ -82,6 +85,7 @@ impl AppState {
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
+        let ahead = HotSet::new(settings.ahead_tiles as usize, settings.ahead_threads as usize);
         Ok(AppState {
             worlds: Worlds::new(config, settings.frames_per_step),
             settings,
@@ -89,6 +93,7 @@ impl AppState {
             replies,
             metrics,
             readiness: Readiness(AtomicU8::new(Lifecycle::Starting as u8)),
+            ahead,
             request_ids: (prefix, AtomicU64::new(0)),
         })
     }

@@ -12,20 +12,21 @@ use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
 
 use cloudscape_core::cancel::Cancel;
-use cloudscape_core::cost;
+use cloudscape_core::cost::{self, Work};
 use cloudscape_core::density;
 use cloudscape_core::products::Product;
 use cloudscape_core::products::billboards;
 use cloudscape_core::products::catalogue::encode_shaded;
+use cloudscape_core::render::TileId;
 use cloudscape_core::render::tile::shade_tile;
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
-use cloudscape_core::world::Keyframe;
+use cloudscape_core::world::{Keyframe, Limits, SunConfig};
 
 use crate::error::ApiError;
 use crate::extract::{TilePath, layer};
-use crate::key::CacheKey;
+use crate::key::{CacheKey, ResolvedWorld};
 use crate::params::{Params, parse_quality, parse_sun};
-use crate::respond::Cached;
+use crate::respond::{Cached, WithSiblings};
 use crate::state::AppState;
 
 /// The key of one product of a tile. Shaded products add the quality and sun bucket.
@@ -77,67 +78,34 @@ pub async fn tile(
     let t = params.time("t")?;
     let quality = parse_quality(&params)?;
     let sun = parse_sun(&params)?;
-    let limits = &s.worlds.config().limits;
+    let config = s.worlds.config();
     let region = tile.region()?;
-    region.check(tile.z, layer.depth, limits)?;
+    region.check(tile.z, layer.depth, &config.limits)?;
     let keyframe = Keyframe::containing(t, layer, tile.z);
-    let base = CacheKey::new("tile", &world, layer_index)
-        .with("z", tile.z)
-        .with("x", tile.x)
-        .with("y", tile.y)
-        .with("k", keyframe.index);
-    let shading = product.needs_shading().then(|| {
-        let sun = sun.unwrap_or_else(|| Sun::from_clock(keyframe.t0, &s.worlds.config().sun));
-        (quality.unwrap_or(Quality::Balanced), sun)
+    let recipe = Arc::new(TileRecipe {
+        world,
+        layer: layer_index,
+        tile,
+        product,
+        quality: quality.unwrap_or(Quality::Balanced),
+        sun,
+        sun_config: config.sun.clone(),
+        limits: config.limits.clone(),
     });
-    let key = tile_key(&base, product, shading.map(|(q, sun)| (q, sun.bucket())));
     let canonical = || format!("{}?{}", uri.path(), params.query_with("t", &keyframe.t0.to_string()));
-    let cached = Cached::keyframe(product.family(), key, product.content_type(), keyframe, t, canonical);
-    let world = world.world;
-    let limits = limits.clone();
-    let max_response_bytes = limits.max_response_bytes;
-    let plan = move || {
-        let work = match shading {
-            Some((q, sun)) => cost::shade_tile(&world, layer_index, tile, keyframe, q, sun)?,
-            None => cost::density(&world, layer_index, tile.z, region, keyframe.t0)?,
-        };
-        let job = move |cancel: &Cancel| match shading {
-            None => {
-                let grid = density::density_cancellable(&world, layer_index, tile.z, region, keyframe.t0, cancel)?;
-                let bytes = product
-                    .encode_grid(&world.layers[layer_index], &grid)
-                    .ok_or_else(|| ApiError::Internal(format!("{} is not a grid product", product.name())))?;
-                Ok((Bytes::from(bytes), Vec::new()))
-            }
-            Some((q, sun)) => {
-                let shaded = shade_tile(
-                    &world,
-                    layer_index,
-                    tile,
-                    keyframe,
-                    q,
-                    sun,
-                    &ShadingParams::default(),
-                    &limits,
-                    cancel,
-                )?;
-                // Shading was the long part: stop here rather than encode for nobody.
-                cancel.check().map_err(|_| ApiError::Cancelled)?;
-                let mut all = encode_shaded(&shaded, limits.max_response_bytes);
-                let i = all
-                    .iter()
-                    .position(|(p, _)| *p == product)
-                    .ok_or_else(|| ApiError::Internal(format!("{} is not a shaded product", product.name())))?;
-                let (_, wanted) = all.swap_remove(i);
-                let bucket = Some((q, sun.bucket()));
-                let siblings = all
-                    .into_iter()
-                    .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
-                    .collect();
-                Ok((Bytes::from(wanted), siblings))
-            }
-        };
-        Ok((work, job))
+    let cached = Cached::keyframe(
+        product.family(),
+        recipe.key(keyframe),
+        product.content_type(),
+        keyframe,
+        t,
+        canonical,
+    );
+    s.ahead.watched(&s.metrics, &recipe, keyframe, t);
+    let max_response_bytes = config.limits.max_response_bytes;
+    let plan = {
+        let recipe = Arc::clone(&recipe);
+        move || recipe.plan(keyframe)
     };
     let refuse_oversized_json = |bytes: &Bytes| {
         if product == Product::BillboardsJson && bytes.is_empty() {
@@ -151,4 +119,124 @@ pub async fn tile(
         Ok(HeaderMap::new())
     };
     cached.respond_with(&s, &headers, plan, refuse_oversized_json).await
+}
+
+/// One variant of a tile product (world, layer, tile, product, quality, sun), whatever
+/// its keyframe: what a request and compute-ahead both turn into a key and a job.
+pub struct TileRecipe {
+    pub world: ResolvedWorld,
+    pub layer: usize,
+    pub tile: TileId,
+    pub product: Product,
+    /// Quality of the shaded products (unused by the others).
+    pub quality: Quality,
+    /// The sun asked for; `None` follows the world clock at each keyframe.
+    pub sun: Option<Sun>,
+    pub sun_config: SunConfig,
+    pub limits: Limits,
+}
+
+/// The job that computes a tile's bytes, and those of its siblings.
+pub type TileJob = Box<dyn FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send>;
+
+impl TileRecipe {
+    /// The keyframe span of this tile's level that contains `t`.
+    pub fn keyframe(&self, t: f64) -> Keyframe {
+        Keyframe::containing(t, &self.world.world.layers[self.layer], self.tile.z)
+    }
+
+    /// Quality and sun of a shaded product at `keyframe` (`None` for the others).
+    fn shading(&self, keyframe: Keyframe) -> Option<(Quality, Sun)> {
+        self.product.needs_shading().then(|| {
+            let sun = self
+                .sun
+                .unwrap_or_else(|| Sun::from_clock(keyframe.t0, &self.sun_config));
+            (self.quality, sun)
+        })
+    }
+
+    /// The key of the tile product's keyframe, without the product: its siblings share it.
+    fn base_key(&self, keyframe: Keyframe) -> CacheKey {
+        CacheKey::new("tile", &self.world, self.layer)
+            .with("z", self.tile.z)
+            .with("x", self.tile.x)
+            .with("y", self.tile.y)
+            .with("k", keyframe.index)
+    }
+
+    /// The cache key of the product at `keyframe`.
+    pub fn key(&self, keyframe: Keyframe) -> CacheKey {
+        let shading = self.shading(keyframe).map(|(q, sun)| (q, sun.bucket()));
+        tile_key(&self.base_key(keyframe), self.product, shading)
+    }
+
+    /// What names the variant whatever its keyframe: the hot set's key.
+    pub fn variant(&self) -> String {
+        let sun = self.sun.map_or("clock".to_string(), |s| s.bucket().id());
+        let q = if self.product.needs_shading() {
+            self.quality.as_str()
+        } else {
+            "-"
+        };
+        format!(
+            "{}|l{}|{}/{}/{}|{}|{q}|{sun}",
+            self.world.fingerprint,
+            self.layer,
+            self.tile.z,
+            self.tile.x,
+            self.tile.y,
+            self.product.name()
+        )
+    }
+
+    /// The estimated work of the product at `keyframe`, and the job that computes it.
+    pub fn plan(&self, keyframe: Keyframe) -> Result<(Work, TileJob), ApiError> {
+        let (world, layer, tile, product) = (&self.world.world, self.layer, self.tile, self.product);
+        let region = tile.region()?;
+        let shading = self.shading(keyframe);
+        let work = match shading {
+            Some((q, sun)) => cost::shade_tile(world, layer, tile, keyframe, q, sun)?,
+            None => cost::density(world, layer, tile.z, region, keyframe.t0)?,
+        };
+        let world = world.clone();
+        let limits = self.limits.clone();
+        let base = self.base_key(keyframe);
+        let job: TileJob = Box::new(move |cancel: &Cancel| match shading {
+            None => {
+                let grid = density::density_cancellable(&world, layer, tile.z, region, keyframe.t0, cancel)?;
+                let bytes = product
+                    .encode_grid(&world.layers[layer], &grid)
+                    .ok_or_else(|| ApiError::Internal(format!("{} is not a grid product", product.name())))?;
+                Ok((Bytes::from(bytes), Vec::new()))
+            }
+            Some((q, sun)) => {
+                let shaded = shade_tile(
+                    &world,
+                    layer,
+                    tile,
+                    keyframe,
+                    q,
+                    sun,
+                    &ShadingParams::default(),
+                    &limits,
+                    cancel,
+                )?;
+                // Shading was the long part: stop here rather than encode for nobody.
+                cancel.check().map_err(|_| ApiError::Cancelled)?;
+                let mut all = encode_shaded(&shaded, limits.max_response_bytes, product);
+                let i = all
+                    .iter()
+                    .position(|(p, _)| *p == product)
+                    .ok_or_else(|| ApiError::Internal(format!("{} is not a shaded product", product.name())))?;
+                let (_, wanted) = all.swap_remove(i);
+                let bucket = Some((q, sun.bucket()));
+                let siblings = all
+                    .into_iter()
+                    .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
+                    .collect();
+                Ok((Bytes::from(wanted), siblings))
+            }
+        });
+        Ok((work, job))
+    }
 }

@@ -17,11 +17,18 @@
 //! an impostor wider than [`MAX_IMPOSTOR_PIXELS`] and an atlas taller than
 //! [`MAX_ATLAS_HEIGHT`] get coarser texels.
 //!
+//! **Keyframes**: an atlas shows its tile at the start `t0` of its keyframe span. At
+//! `t` in the span, with `f = (t − t0) / (t1 − t0)`, a client draws this atlas's
+//! impostors with opacity × (1 − f), moved by `velocity · (t − t0)`, and the next
+//! keyframe's with opacity × f, moved by `−velocity · (t1 − t)`: a cross-fade that
+//! glides with the wind.
+//!
 //! **PNG**: RGBA 8-bit, straight (not premultiplied) alpha; colour is tone-mapped
 //! display RGB (`1 − e^{−x}`, gamma 1/2.2). **Manifest** (JSON): the billboard header
 //! (tile, sun bucket, lighting) plus `"width"`, `"height"`, `"alpha": "straight"`, and
 //! `"impostors": [{"rect": [x, y, w, h] (pixels, y down), "centre": [x, y, z] (world
-//! metres), "size": [width, height] (metres), "billboards": n}]`.
+//! metres), "size": [width, height] (metres), "velocity": [vx, vy] (m/s, the wind at
+//! the centre's altitude), "billboards": n}]`.
 
 use std::collections::BTreeMap;
 
@@ -192,6 +199,7 @@ pub fn build(tile: &ShadedTile) -> Atlas {
                 "rect": [ox, oy, w, h],
                 "centre": centre.map(|v| v as f32 as f64),
                 "size": [(w as f64 * m) as f32 as f64, (h as f64 * m) as f32 as f64],
+                "velocity": tile.velocity_at(centre[2]).map(|v| v as f32 as f64),
                 "billboards": im.members.len(),
             }));
         }

@@ -41,9 +41,22 @@ pub enum Encoder {
     /// From the tile's density grid (`(depth, 256, 256)` at the tile's level) and its layer.
     Grid(fn(&Layer, &Grid<f32>) -> Vec<u8>),
     /// From the shaded tile, which depends on a quality and a sun bucket. Shading is the
-    /// expensive part, so every shaded product of a tile is encoded at once
-    /// ([`encode_shaded`]).
+    /// expensive part, so a shaded tile is encoded into every product that is cheap
+    /// once it is shaded, besides the one asked for ([`encode_shaded`]).
     Shaded(fn(&mut ShadedProducts<'_>) -> Vec<u8>),
+}
+
+/// When a shaded product is encoded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Encoding {
+    /// Whenever its tile is shaded: a millisecond or less (`billboards.bin`,
+    /// `shadow.png`), so a client that fetches both causes one shading.
+    Eager,
+    /// Only when asked for: as long as the shading or longer (`billboards.json`, the
+    /// atlas, whose two halves come from one build).
+    OnRequest,
+    /// Not a shaded product.
+    Grid,
 }
 
 /// One row of the catalogue.
@@ -196,8 +209,28 @@ impl ShadedProducts<'_> {
     }
 }
 
-/// Every shaded product of `tile`, in [`Product::ALL`] order.
-pub fn encode_shaded(tile: &ShadedTile, max_json_bytes: u64) -> Vec<(Product, Vec<u8>)> {
+impl Product {
+    /// When the product is encoded from its shaded tile.
+    pub fn encoding(self) -> Encoding {
+        match self {
+            Product::BillboardsBin | Product::ShadowPng => Encoding::Eager,
+            Product::BillboardsJson | Product::AtlasPng | Product::AtlasJson => Encoding::OnRequest,
+            _ => Encoding::Grid,
+        }
+    }
+
+    /// True when `self` and `other` come from one piece of work (the atlas's image
+    /// and manifest), so asking for one encodes both.
+    fn shares_work_with(self, other: Product) -> bool {
+        let atlas = |p| matches!(p, Product::AtlasPng | Product::AtlasJson);
+        self == other || (atlas(self) && atlas(other))
+    }
+}
+
+/// The shaded products of `tile` that are worth encoding when `wanted` is asked for:
+/// `wanted`, what shares its work, and every [`Encoding::Eager`] product, in
+/// [`Product::ALL`] order.
+pub fn encode_shaded(tile: &ShadedTile, max_json_bytes: u64, wanted: Product) -> Vec<(Product, Vec<u8>)> {
     let mut products = ShadedProducts {
         tile,
         max_json_bytes,
@@ -205,6 +238,7 @@ pub fn encode_shaded(tile: &ShadedTile, max_json_bytes: u64) -> Vec<(Product, Ve
     };
     Product::ALL
         .into_iter()
+        .filter(|p| p.encoding() == Encoding::Eager || p.shares_work_with(wanted))
         .filter_map(|p| match p.spec().encoder {
             Encoder::Shaded(encode) => Some((p, encode(&mut products))),
             Encoder::Grid(_) => None,
@@ -243,6 +277,48 @@ mod tests {
         );
         for p in Product::ALL {
             assert_eq!(p.needs_shading(), p.family() == "tile_shaded", "{}", p.name());
+            assert_eq!(p.needs_shading(), p.encoding() != Encoding::Grid, "{}", p.name());
         }
+    }
+
+    #[test]
+    fn a_shaded_tile_is_encoded_into_what_was_asked_and_the_cheap_products() {
+        use crate::render::tile::shade_density;
+        use crate::render::{Quality, ShadingParams, Sun, TileId};
+        let config = crate::world::Config::embedded();
+        let layer = &config.worlds["default"].layers[0];
+        let mut grid = Grid::new(layer.depth as usize, 260, 260);
+        grid.data
+            .iter_mut()
+            .enumerate()
+            .for_each(|(i, v)| *v = if i % 7 == 0 { 0.6 } else { 0.0 });
+        let tile = TileId { z: 0, x: 0, y: 0 };
+        let sun = Sun::new(100.0, 40.0).unwrap();
+        let shaded = shade_density(
+            0,
+            layer,
+            tile,
+            0.0,
+            Quality::Fast,
+            sun,
+            &ShadingParams::default(),
+            grid,
+            2,
+        );
+        let names = |wanted| {
+            encode_shaded(&shaded, u64::MAX, wanted)
+                .into_iter()
+                .map(|(p, _)| p.name())
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(names(Product::ShadowPng), ["billboards.bin", "shadow.png"]);
+        assert_eq!(
+            names(Product::BillboardsJson),
+            ["billboards.json", "billboards.bin", "shadow.png"]
+        );
+        assert_eq!(
+            names(Product::AtlasJson),
+            ["billboards.bin", "atlas.png", "atlas.json", "shadow.png"]
+        );
     }
 }

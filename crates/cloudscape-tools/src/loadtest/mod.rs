@@ -27,7 +27,8 @@ use tokio::sync::Semaphore;
 
 use cloudscape_client::RemoteWorld;
 
-use self::record::{Counts, Latency, Outcome, Recorder, SecondSummary};
+use self::record::{BoundaryLatency, Counts, Latency, Outcome, Recorder, SecondSummary};
+pub use self::workload::FetchMode;
 use self::workload::{Agent, GROUP_SIZE, GameServer, GroupPath, Player, RequestKind, Role, TICK_SECONDS, WorldView};
 
 /// Most requests in flight in the open loop; past it the schedule waits (and the wait
@@ -80,6 +81,16 @@ pub struct LoadSpec {
     pub clock: f64,
     /// Seed of the players' paths and views.
     pub seed: u64,
+    /// How players fetch: keyframes (as the viewer) or polling every tick.
+    pub fetch: FetchMode,
+    /// Groups share this many places (paths) when set: more players, same tiles.
+    pub places: Option<usize>,
+    /// The server's process id, to read its CPU time from /proc when its /metrics has
+    /// no `process_cpu_seconds_total`.
+    pub server_pid: Option<u32>,
+    /// Requests are sent from the start but only those sent after this long are
+    /// measured (the players' first views, all cold, are warm-up).
+    pub warmup: Duration,
 }
 
 /// What went wrong before or around the run (failed requests during it are counted, not errors).
@@ -106,12 +117,107 @@ pub struct CacheFigures {
     pub hit_ratio: Option<f64>,
 }
 
+/// What the server did during the run, from its `/metrics` before and after (and its
+/// CPU time from /proc when a pid is given).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct ServerFigures {
+    /// Computations run (`cloudscape_computations_total`), and their compute time, s.
+    pub computations: u64,
+    pub compute_seconds: f64,
+    /// Keyframes computed ahead, requests served from them, planned ones missed.
+    pub ahead_computed: u64,
+    pub ahead_served: u64,
+    pub ahead_missed: u64,
+    /// Mean lag of the computations ahead that finished late (0 when all in time), s.
+    pub ahead_mean_lag_s: Option<f64>,
+    /// Server CPU time over the run, seconds, and as a share of the run's wall time
+    /// (1.0 = one core busy).
+    pub cpu_seconds: Option<f64>,
+    pub cpu_cores: Option<f64>,
+}
+
+/// A scrape of the server's /metrics.
+struct Scrape {
+    text: String,
+    cpu: Option<f64>,
+}
+
+impl Scrape {
+    fn sum(&self, name: &str) -> f64 {
+        metric_sum(&self.text, name).unwrap_or(0.0)
+    }
+}
+
+/// Sums the samples of a Prometheus metric family in text exposition.
+pub fn metric_sum(metrics: &str, name: &str) -> Option<f64> {
+    let mut found = false;
+    let mut sum = 0f64;
+    for line in metrics.lines() {
+        let Some(rest) = line.strip_prefix(name) else {
+            continue;
+        };
+        if !(rest.starts_with('{') || rest.starts_with(' ')) {
+            continue;
+        }
+        if let Some(v) = rest.rsplit(' ').next().and_then(|v| v.parse::<f64>().ok()) {
+            found = true;
+            sum += v;
+        }
+    }
+    found.then_some(sum)
+}
+
+/// CPU seconds (user + system) of process `pid` so far, from /proc.
+fn proc_cpu_seconds(pid: u32) -> Option<f64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // Fields after the command name (which may hold spaces) in parentheses.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    // SAFETY: sysconf only reads a configuration value.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    (hz > 0).then(|| ticks / hz as f64)
+}
+
+async fn scrape(http: &reqwest::Client, base: &str, pid: Option<u32>) -> Option<Scrape> {
+    let text = http
+        .get(format!("{base}/metrics"))
+        .send()
+        .await
+        .ok()?
+        .text()
+        .await
+        .ok()?;
+    let cpu = metric_sum(&text, "process_cpu_seconds_total").or_else(|| pid.and_then(proc_cpu_seconds));
+    Some(Scrape { text, cpu })
+}
+
+fn server_figures(before: &Scrape, after: &Scrape, elapsed_s: f64) -> ServerFigures {
+    let d = |name: &str| (after.sum(name) - before.sum(name)).max(0.0);
+    let late = d("cloudscape_ahead_lag_seconds_count");
+    let cpu = match (before.cpu, after.cpu) {
+        (Some(b), Some(a)) => Some((a - b).max(0.0)),
+        _ => None,
+    };
+    ServerFigures {
+        computations: d("cloudscape_computations_total") as u64,
+        compute_seconds: d("cloudscape_compute_duration_seconds_sum"),
+        ahead_computed: d("cloudscape_ahead_computed_total") as u64,
+        ahead_served: d("cloudscape_ahead_served_total") as u64,
+        ahead_missed: d("cloudscape_ahead_missed_total") as u64,
+        ahead_mean_lag_s: (late > 0.0).then(|| d("cloudscape_ahead_lag_seconds_sum") / late),
+        cpu_seconds: cpu,
+        cpu_cores: cpu.map(|c| c / elapsed_s.max(1e-9)),
+    }
+}
+
 /// The outcome of a run; `cloudscape loadtest --json` writes it.
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
     pub target: String,
     pub world: String,
     pub scenario: Scenario,
+    pub fetch: FetchMode,
     /// `closed` or `open`.
     pub mode: &'static str,
     /// Requested rate (open loop).
@@ -134,6 +240,10 @@ pub struct Report {
     pub body_bytes: u64,
     /// From the server's /metrics; `None` when it could not be read.
     pub cache: Option<CacheFigures>,
+    /// What the server computed and how busy it was; `None` when /metrics could not be read.
+    pub server: Option<ServerFigures>,
+    /// Latency just after level-0 keyframe boundaries against the rest.
+    pub boundary: BoundaryLatency,
     pub timeline: Vec<SecondSummary>,
     /// (quantile, ms): the HDR percentile distribution.
     pub distribution: Vec<(f64, f64)>,
@@ -158,6 +268,8 @@ struct Shared {
     base: String,
     start: Instant,
     deadline: Instant,
+    /// Requests sent before this are not measured.
+    measure_from: Instant,
 }
 
 impl Shared {
@@ -208,40 +320,6 @@ impl LoadSpec {
     }
 }
 
-/// Sums the samples of a Prometheus counter family in text exposition.
-pub fn counter_sum(metrics: &str, name: &str) -> Option<u64> {
-    let mut found = false;
-    let mut sum = 0f64;
-    for line in metrics.lines() {
-        let Some(rest) = line.strip_prefix(name) else {
-            continue;
-        };
-        if !(rest.starts_with('{') || rest.starts_with(' ')) {
-            continue;
-        }
-        if let Some(v) = rest.rsplit(' ').next().and_then(|v| v.parse::<f64>().ok()) {
-            found = true;
-            sum += v;
-        }
-    }
-    found.then_some(sum as u64)
-}
-
-async fn cache_counters(http: &reqwest::Client, base: &str) -> Option<(u64, u64)> {
-    let text = http
-        .get(format!("{base}/metrics"))
-        .send()
-        .await
-        .ok()?
-        .text()
-        .await
-        .ok()?;
-    Some((
-        counter_sum(&text, "cloudscape_cache_hits_total")?,
-        counter_sum(&text, "cloudscape_cache_misses_total")?,
-    ))
-}
-
 /// Sends one request; returns the outcome (latency from `from`) and the ETag and
 /// `Retry-After` of the answer.
 async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outcome, Option<String>, Option<Duration>) {
@@ -269,7 +347,9 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
     .await;
     let done = Instant::now();
     let micros = done.saturating_duration_since(from).as_micros() as u64;
-    let at = shared.seconds(done);
+    // The timeline counts from the end of the warm-up.
+    let at = done.saturating_duration_since(shared.measure_from).as_secs_f64();
+    let after_boundary = shared.world.just_after_boundary(shared.seconds(from));
     match result {
         Ok((status, etag, retry, bytes)) => (
             Outcome {
@@ -278,6 +358,7 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
                 at,
                 micros,
                 bytes,
+                after_boundary,
             },
             (status == 200).then_some(etag).flatten(),
             (status == 503).then_some(retry).flatten(),
@@ -294,6 +375,7 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
                     at,
                     micros,
                     bytes: 0,
+                    after_boundary,
                 },
                 None,
                 None,
@@ -314,9 +396,12 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
             if Instant::now() >= shared.deadline {
                 return;
             }
-            let (outcome, etag, retry) = send(&shared, &req, Instant::now()).await;
-            shared.recorder.lock().unwrap().record(outcome);
-            agent.answered(&req.resource, etag);
+            let sent = Instant::now();
+            let (outcome, etag, retry) = send(&shared, &req, sent).await;
+            if sent >= shared.measure_from {
+                shared.recorder.lock().unwrap().record(outcome);
+            }
+            agent.answered(&req, etag);
             if outcome.status == Some(503) || outcome.status.is_none() {
                 let wait = retry.unwrap_or(MAX_BACKOFF).min(MAX_BACKOFF);
                 tokio::time::sleep(wait).await;
@@ -363,8 +448,10 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
         let shared = shared.clone();
         tasks.spawn(async move {
             let (outcome, etag, _) = send(&shared, &req, intended).await;
-            shared.recorder.lock().unwrap().record(outcome);
-            agent.lock().unwrap().answered(&req.resource, etag);
+            if intended >= shared.measure_from {
+                shared.recorder.lock().unwrap().record(outcome);
+            }
+            agent.lock().unwrap().answered(&req, etag);
             drop(permit);
         });
         // Reap finished tasks so the set does not grow with the run.
@@ -413,21 +500,27 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             Scenario::Mixed => (spec.players, spec.players.div_ceil(GROUP_SIZE)),
         };
         let groups = spec.players.div_ceil(GROUP_SIZE).max(1);
+        // With `places`, group g walks the path of place g mod places.
+        let places = spec.places.map_or(groups, |p| p.clamp(1, groups));
         let mut agents: Vec<Agent> = (0..players)
-            .map(|i| Agent::new(Role::Player(Player::new(i, spec.seed))))
+            .map(|i| Agent::new(Role::Player(Player::new(i, spec.seed, spec.fetch))))
             .collect();
         agents.extend((0..servers).map(|i| Agent::new(Role::GameServer(GameServer::new(i)))));
 
-        let before = cache_counters(&http, &base).await;
         let start = Instant::now();
         let shared = Arc::new(Shared {
             world,
-            paths: Mutex::new((0..groups).map(|g| GroupPath::new(g, groups, spec.seed)).collect()),
+            paths: Mutex::new(
+                (0..groups)
+                    .map(|g| GroupPath::new(g % places, places, spec.seed))
+                    .collect(),
+            ),
             recorder: Mutex::new(Recorder::default()),
             http: http.clone(),
             base: base.clone(),
             start,
-            deadline: start + spec.duration,
+            deadline: start + spec.warmup + spec.duration,
+            measure_from: start + spec.warmup,
         });
 
         let work = {
@@ -455,6 +548,10 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                 }
             })
         };
+        let before = {
+            tokio::time::sleep_until(shared.measure_from.into()).await;
+            scrape(&http, &base, spec.server_pid).await
+        };
         let mut ticker = tokio::time::interval(Duration::from_millis(200));
         tokio::pin!(work);
         loop {
@@ -466,41 +563,44 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                 _ = ticker.tick() => {
                     let rec = shared.recorder.lock().unwrap();
                     progress(Progress {
-                        elapsed_s: shared.seconds(Instant::now()),
+                        elapsed_s: shared.measure_from.elapsed().as_secs_f64(),
                         requests: rec.totals().requests,
                         shed: rec.totals().shed,
                     });
                 }
             }
         }
-        let elapsed = start.elapsed().as_secs_f64();
-        let after = cache_counters(&http, &base).await;
+        let elapsed = shared.measure_from.elapsed().as_secs_f64();
+        let after = scrape(&http, &base, spec.server_pid).await;
         let rec = shared.recorder.lock().unwrap();
         progress(Progress {
             elapsed_s: elapsed,
             requests: rec.totals().requests,
             shed: rec.totals().shed,
         });
-        let cache = match (before, after) {
+        let (cache, server) = match (&before, &after) {
             (Some(b), Some(a)) => {
-                let (hits, misses) = (a.0.saturating_sub(b.0), a.1.saturating_sub(b.1));
-                Some(CacheFigures {
+                let d = |name| (a.sum(name) - b.sum(name)).max(0.0) as u64;
+                let (hits, misses) = (d("cloudscape_cache_hits_total"), d("cloudscape_cache_misses_total"));
+                let cache = CacheFigures {
                     hits,
                     misses,
                     hit_ratio: (hits + misses > 0).then(|| hits as f64 / (hits + misses) as f64),
-                })
+                };
+                (Some(cache), Some(server_figures(b, a, elapsed)))
             }
-            _ => None,
+            _ => (None, None),
         };
         let by_kind = rec.by_kind();
         let (fetched, revalidated) = by_kind
             .iter()
-            .filter(|(k, _)| matches!(k, RequestKind::Tile | RequestKind::Splats))
+            .filter(|(k, _)| matches!(k, RequestKind::Tile | RequestKind::Prefetch | RequestKind::Splats))
             .fold((0, 0), |(f, r), (_, c)| (f + c.ok, r + c.not_modified));
         Ok(Report {
             target: base.clone(),
             world: spec.world.clone(),
             scenario: spec.scenario,
+            fetch: spec.fetch,
             mode: if spec.rate.is_some() { "open" } else { "closed" },
             rate: spec.rate,
             players,
@@ -515,11 +615,202 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             revalidated_ratio: (fetched + revalidated > 0).then(|| revalidated as f64 / (fetched + revalidated) as f64),
             body_bytes: rec.bytes(),
             cache,
+            server,
+            boundary: rec.boundary_latency(),
             timeline: rec.timeline(),
             distribution: rec.distribution(),
             first_error: rec.first_error.clone(),
         })
     })
+}
+
+/// The players of each step of a capacity sweep, until p99 passes the target: 8, 16,
+/// 32, … doubling to 256, then steps of 128 up to 2048.
+pub fn sweep_steps() -> Vec<usize> {
+    let mut steps: Vec<usize> = (3..=8).map(|e| 1usize << e).collect();
+    steps.extend((3..=16).map(|i| i * 128));
+    steps
+}
+
+/// The p99 a capacity step must stay within, milliseconds.
+pub const SWEEP_P99_MS: f64 = 50.0;
+
+/// One step of a capacity sweep.
+#[derive(Clone, Debug, Serialize)]
+pub struct SweepStep {
+    pub players: usize,
+    pub throughput_rps: f64,
+    pub p50_ms: f64,
+    pub p99_ms: f64,
+    pub max_ms: f64,
+    pub shed: u64,
+    /// p99 in the first second after a level-0 keyframe boundary, and elsewhere.
+    pub boundary_p99_ms: f64,
+    pub elsewhere_p99_ms: f64,
+    pub server: Option<ServerFigures>,
+    /// Body bytes per second received.
+    pub bytes_per_s: f64,
+    /// Within [`SWEEP_P99_MS`] and no 503.
+    pub holds: bool,
+}
+
+/// A capacity sweep: the steps run, and the most players a step held.
+#[derive(Clone, Debug, Serialize)]
+pub struct SweepReport {
+    pub target: String,
+    pub world: String,
+    pub fetch: FetchMode,
+    pub clock: f64,
+    pub step_s: f64,
+    pub warmup_s: f64,
+    pub steps: Vec<SweepStep>,
+    pub capacity: Option<usize>,
+}
+
+/// Raises the number of players step by step ([`sweep_steps`], or `steps`) until a
+/// step's p99 passes [`SWEEP_P99_MS`] or any request is shed. Each step is a run of
+/// `spec` with that many players; the world clock runs on from one step to the next,
+/// so no step finds the previous one's keyframes.
+pub fn sweep(
+    spec: &LoadSpec,
+    steps: &[usize],
+    mut progress: impl FnMut(usize, Progress),
+) -> Result<SweepReport, LoadError> {
+    let mut out = Vec::new();
+    let mut t0 = spec.t0;
+    for &players in steps {
+        let step = LoadSpec {
+            players,
+            t0: t0.min(1e12),
+            ..spec.clone()
+        };
+        let r = run(&step, |p| progress(players, p))?;
+        t0 += spec.clock * (spec.warmup + spec.duration).as_secs_f64();
+        let holds = r.latency.p99_ms <= SWEEP_P99_MS && r.totals.shed == 0 && r.totals.transport_errors == 0;
+        out.push(SweepStep {
+            players,
+            throughput_rps: r.throughput_rps,
+            p50_ms: r.latency.p50_ms,
+            p99_ms: r.latency.p99_ms,
+            max_ms: r.latency.max_ms,
+            shed: r.totals.shed,
+            boundary_p99_ms: r.boundary.after_boundary.p99_ms,
+            elsewhere_p99_ms: r.boundary.elsewhere.p99_ms,
+            server: r.server.clone(),
+            bytes_per_s: r.body_bytes as f64 / r.elapsed_s.max(1e-9),
+            holds,
+        });
+        if !holds {
+            break;
+        }
+    }
+    let capacity = out.iter().take_while(|s| s.holds).last().map(|s| s.players);
+    Ok(SweepReport {
+        target: spec.target.clone(),
+        world: spec.world.clone(),
+        fetch: spec.fetch,
+        clock: spec.clock,
+        step_s: spec.duration.as_secs_f64(),
+        warmup_s: spec.warmup.as_secs_f64(),
+        steps: out,
+        capacity,
+    })
+}
+
+impl SweepReport {
+    /// The curve as a Markdown table (what `--sweep` prints and writes to BENCHMARKS.md).
+    pub fn markdown(&self) -> String {
+        let mut md = format!(
+            "`cloudscape loadtest --sweep` against `{}`, world `{}`: mmo scenario, groups of {GROUP_SIZE} players \
+             {} m apart at the start (each group its own path, players within 300 m of its centre), players \
+             fetching `{}` tiles {} (prefetching past {:.0} % of a span), world clock {} s per second. Each step: \
+             {:.0} s of warm-up (the players' first views, all cold) then {:.0} s measured. A step holds when its \
+             p99 ≤ {SWEEP_P99_MS} ms with no 503.\n\n\
+             | players | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | computations | ahead computed / served / missed | ahead lag | MB/s | holds |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            self.target,
+            self.world,
+            workload::GROUP_SPACING,
+            workload::CLIENT_QUALITY.as_str(),
+            match self.fetch {
+                FetchMode::Keyframes => "by keyframe URL (immutable, never revalidated)",
+                FetchMode::Poll => "every second at the current time, revalidating (`--poll`)",
+            },
+            100.0 * workload::PREFETCH_AT,
+            self.clock,
+            self.warmup_s,
+            self.step_s,
+        );
+        for s in &self.steps {
+            let f = s.server.clone().unwrap_or_default();
+            md += &format!(
+                "| {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} / {} / {} | {} | {:.2} | {} |\n",
+                s.players,
+                s.throughput_rps,
+                s.p50_ms,
+                s.p99_ms,
+                s.max_ms,
+                s.shed,
+                s.boundary_p99_ms,
+                s.elsewhere_p99_ms,
+                f.cpu_cores.map_or("–".into(), |c| format!("{:.0} %", 100.0 * c)),
+                f.computations,
+                f.ahead_computed,
+                f.ahead_served,
+                f.ahead_missed,
+                f.ahead_mean_lag_s.map_or("–".into(), |l| format!("{l:.2} s")),
+                s.bytes_per_s / 1e6,
+                if s.holds { "yes" } else { "**no**" },
+            );
+        }
+        md += &match self.capacity {
+            Some(c) => format!("\nCapacity: **{c} players** held.\n"),
+            None => "\nCapacity: the first step did not hold.\n".to_string(),
+        };
+        md
+    }
+
+    /// Players against p50 and p99, server CPU and compute-ahead lag (PNG).
+    pub fn plot(&self) -> Result<Vec<u8>, String> {
+        use crate::chart::{Mark, PALETTE, Panel, Series, render};
+        let series = |name: &str, c: usize, f: &dyn Fn(&SweepStep) -> Option<f64>| Series {
+            name: name.into(),
+            points: self
+                .steps
+                .iter()
+                .filter_map(|s| f(s).map(|v| (s.players as f64, v)))
+                .collect(),
+            colour: PALETTE[c],
+            mark: Mark::Line,
+        };
+        let latency = Panel {
+            title: "latency against players".into(),
+            x_label: "players".into(),
+            y_label: "ms".into(),
+            x_log: true,
+            y_log: true,
+            series: vec![
+                series("p50", 0, &|s| Some(s.p50_ms)),
+                series("p99", 1, &|s| Some(s.p99_ms)),
+                series("p99 after a boundary", 3, &|s| Some(s.boundary_p99_ms)),
+                series("target", 5, &|_| Some(SWEEP_P99_MS)),
+            ],
+        };
+        let cpu = Panel {
+            title: "server CPU and compute-ahead lag".into(),
+            x_label: "players".into(),
+            y_label: "% of a core / lag ms".into(),
+            x_log: true,
+            y_log: false,
+            series: vec![
+                series("server CPU %", 2, &|s| s.server.as_ref()?.cpu_cores.map(|c| 100.0 * c)),
+                series("ahead lag ms", 4, &|s| {
+                    Some(1000.0 * s.server.as_ref()?.ahead_mean_lag_s.unwrap_or(0.0))
+                }),
+            ],
+        };
+        render(&[latency, cpu], 2, (560, 420))
+    }
 }
 
 impl Report {
@@ -554,6 +845,27 @@ impl Report {
         );
         if let Some(r) = self.revalidated_ratio {
             s += &format!("tiles revalidated (304): {:.1} %\n", 100.0 * r);
+        }
+        let b = &self.boundary;
+        if b.after_boundary_requests > 0 {
+            s += &format!(
+                "p99 in the second after a keyframe boundary: {:.1} ms ({} requests); elsewhere {:.1} ms\n",
+                b.after_boundary.p99_ms, b.after_boundary_requests, b.elsewhere.p99_ms
+            );
+        }
+        if let Some(f) = &self.server {
+            s += &format!(
+                "server: {} computations ({:.1} s of compute){}; ahead: {} computed, {} served, {} missed{}\n",
+                f.computations,
+                f.compute_seconds,
+                f.cpu_cores
+                    .map_or(String::new(), |c| format!(", CPU {:.0} % of a core", 100.0 * c)),
+                f.ahead_computed,
+                f.ahead_served,
+                f.ahead_missed,
+                f.ahead_mean_lag_s
+                    .map_or(String::new(), |l| format!(", mean lag {l:.2} s")),
+            );
         }
         match &self.cache {
             Some(CacheFigures {
@@ -643,8 +955,15 @@ mod tests {
             cloudscape_cache_hits_total{kind=\"tile\"} 3\n\
             cloudscape_cache_hits_total{kind=\"region\"} 4\n\
             cloudscape_cache_hits_total_other 100\n";
-        assert_eq!(counter_sum(text, "cloudscape_cache_hits_total"), Some(7));
-        assert_eq!(counter_sum(text, "cloudscape_cache_misses_total"), None);
+        assert_eq!(metric_sum(text, "cloudscape_cache_hits_total"), Some(7.0));
+        assert_eq!(metric_sum(text, "cloudscape_cache_misses_total"), None);
+    }
+
+    #[test]
+    fn this_process_has_cpu_time() {
+        let cpu = proc_cpu_seconds(std::process::id()).expect("/proc is readable");
+        assert!((0.0..1e6).contains(&cpu));
+        assert!(proc_cpu_seconds(u32::MAX).is_none());
     }
 
     #[test]
@@ -662,6 +981,10 @@ mod tests {
             t0: 0.0,
             clock: 1.0,
             seed: 1,
+            fetch: FetchMode::Keyframes,
+            places: None,
+            server_pid: None,
+            warmup: Duration::ZERO,
         };
         assert!(matches!(run(&spec, |_| {}), Err(LoadError::Spec(_))));
         let spec = LoadSpec {

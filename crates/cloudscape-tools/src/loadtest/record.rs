@@ -27,6 +27,8 @@ pub struct Outcome {
     /// send time in the open loop.
     pub micros: u64,
     pub bytes: u64,
+    /// Sent in the first real second after a level-0 keyframe boundary.
+    pub after_boundary: bool,
 }
 
 /// Counts of one second (or one kind) of the run.
@@ -61,6 +63,9 @@ impl Counts {
 /// Everything recorded during a run. Shared by the workers behind a mutex.
 pub struct Recorder {
     all: Histogram<u64>,
+    /// Requests sent in the first second after a level-0 keyframe boundary, and the others.
+    after_boundary: Histogram<u64>,
+    elsewhere: Histogram<u64>,
     per_second: Vec<(Histogram<u64>, Counts)>,
     statuses: BTreeMap<u16, u64>,
     totals: Counts,
@@ -74,6 +79,8 @@ impl Default for Recorder {
     fn default() -> Self {
         Recorder {
             all: histogram(),
+            after_boundary: histogram(),
+            elsewhere: histogram(),
             per_second: Vec::new(),
             statuses: BTreeMap::new(),
             totals: Counts::default(),
@@ -94,6 +101,15 @@ pub struct Latency {
     pub p99_ms: f64,
     pub p999_ms: f64,
     pub max_ms: f64,
+}
+
+/// The keyframe-boundary spike: latency in the first real second after every level-0
+/// keyframe boundary against the rest of the run.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct BoundaryLatency {
+    pub after_boundary: Latency,
+    pub elsewhere: Latency,
+    pub after_boundary_requests: u64,
 }
 
 /// One second of the run.
@@ -130,6 +146,11 @@ impl Recorder {
     pub fn record(&mut self, o: Outcome) {
         let v = o.micros.clamp(1, MAX_MICROS);
         self.all.saturating_record(v);
+        if o.after_boundary {
+            self.after_boundary.saturating_record(v);
+        } else {
+            self.elsewhere.saturating_record(v);
+        }
         let second = o.at.max(0.0) as usize;
         while self.per_second.len() <= second {
             self.per_second.push((histogram(), Counts::default()));
@@ -150,6 +171,16 @@ impl Recorder {
 
     pub fn latency(&self) -> Latency {
         latency(&self.all)
+    }
+
+    /// Latency of the requests sent in the first second after a level-0 keyframe
+    /// boundary, and of all the others.
+    pub fn boundary_latency(&self) -> BoundaryLatency {
+        BoundaryLatency {
+            after_boundary: latency(&self.after_boundary),
+            elsewhere: latency(&self.elsewhere),
+            after_boundary_requests: self.after_boundary.len(),
+        }
     }
 
     pub fn statuses(&self) -> BTreeMap<String, u64> {
@@ -216,6 +247,7 @@ mod tests {
                 at: i as f64 * 0.6,
                 micros: 1000 * (i as u64 + 1),
                 bytes: 10,
+                after_boundary: i == 4,
             });
         }
         let t = r.totals();
@@ -237,5 +269,8 @@ mod tests {
         let d = r.distribution();
         assert!(d.windows(2).all(|w| w[0].0 < w[1].0 && w[0].1 <= w[1].1));
         assert_eq!(r.statuses().get("503"), Some(&1));
+        let b = r.boundary_latency();
+        assert_eq!(b.after_boundary_requests, 1);
+        assert!((b.after_boundary.max_ms - 5.0).abs() < 0.01 && (b.elsewhere.max_ms - 4.0).abs() < 0.01);
     }
 }

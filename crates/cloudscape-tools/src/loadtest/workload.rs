@@ -2,11 +2,12 @@
 //! that ask region questions. Every agent's position is a pure function of the time
 //! since the run started, so the closed and open loops replay the same world.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use cloudscape_client::RemoteWorld;
 use cloudscape_core::render::scene::{LayerBand, plan_bands};
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, TileId};
+use cloudscape_core::world::{Keyframe, keyframe_span};
 
 /// Players per group: players of one group share an area (and so most of their tiles),
 /// as a party or a town does in an MMO.
@@ -18,11 +19,14 @@ const GROUP_SPEED: f64 = 12.0;
 /// Length of one straight leg of a group's path, metres.
 const LEG_METRES: f64 = 2_000.0;
 /// Distance between the starting points of neighbouring groups, metres.
-const GROUP_SPACING: f64 = 30_000.0;
+pub const GROUP_SPACING: f64 = 30_000.0;
 /// The viewer's default screen, pixels (web/viewer.js).
 const SCREEN: (usize, usize) = (800, 450);
 /// The preset MMO clients fetch (the viewer's default).
-const CLIENT_QUALITY: Quality = Quality::Fast;
+pub const CLIENT_QUALITY: Quality = Quality::Fast;
+/// Past this fraction of a keyframe span a player fetches the next keyframe (as the
+/// viewer does).
+pub const PREFETCH_AT: f64 = 0.5;
 /// Side of a game server's /region box, metres.
 const REGION_SIDE: f64 = 10_000.0;
 /// A game server asks for a /series (the last minute) every this many queries.
@@ -33,9 +37,23 @@ const SERIES_EVERY: u64 = 4;
 #[serde(rename_all = "snake_case")]
 pub enum RequestKind {
     Tile,
+    /// A tile's next keyframe, fetched before the player needs it.
+    Prefetch,
     Splats,
     Region,
     Series,
+}
+
+/// How players fetch their tiles.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FetchMode {
+    /// As the viewer: each tile's keyframe URL once (immutable, never revalidated),
+    /// and the next keyframe once past [`PREFETCH_AT`] of the span.
+    Keyframes,
+    /// Every tile of the view every tick at the current time, revalidating the held
+    /// ETag (what clients did before keyframes; `--poll`).
+    Poll,
 }
 
 /// One request an agent wants sent.
@@ -111,6 +129,8 @@ pub struct WorldView {
     pub maxzoom: u32,
     pub layers: Vec<String>,
     pub bands: Vec<LayerBand>,
+    /// Seconds per automaton step of each layer: its keyframe spans.
+    pub dts: Vec<f64>,
     /// World-clock seconds at the start of the run.
     pub t0: f64,
     /// World seconds per real second.
@@ -124,6 +144,7 @@ impl WorldView {
             maxzoom: world.maxzoom,
             layers: world.layers.iter().map(|l| l.name.clone()).collect(),
             bands: world.bands(),
+            dts: world.layers.iter().map(|l| l.dt).collect(),
             t0,
             clock,
         }
@@ -132,6 +153,22 @@ impl WorldView {
     /// The world clock `s` real seconds into the run.
     pub fn t(&self, s: f64) -> f64 {
         self.t0 + self.clock * s
+    }
+
+    /// The shortest keyframe span of the world (level 0 of its fastest layer), seconds.
+    pub fn shortest_span(&self) -> f64 {
+        self.dts.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
+    /// Whether `s` real seconds into the run fall in the first real second after a
+    /// level-0 keyframe boundary of the fastest layer (when every level-0 tile of it
+    /// turns over).
+    pub fn just_after_boundary(&self, s: f64) -> bool {
+        let span = self.shortest_span();
+        if !(self.clock > 0.0 && span.is_finite() && span > 0.0) {
+            return false;
+        }
+        self.t(s).rem_euclid(span) < self.clock
     }
 }
 
@@ -148,10 +185,13 @@ pub struct Player {
     yaw0: f64,
     turn: f64,
     fetched_splats: bool,
+    mode: FetchMode,
+    /// Keyframe URLs held (their answers never change): never asked again.
+    held: HashSet<String>,
 }
 
 impl Player {
-    pub fn new(index: usize, seed: u64) -> Player {
+    pub fn new(index: usize, seed: u64, mode: FetchMode) -> Player {
         let k = seed ^ (index as u64).wrapping_mul(0x1_0000_0001);
         Player {
             index,
@@ -164,6 +204,8 @@ impl Player {
             yaw0: unit(k + 3) * 360.0,
             turn: (unit(k + 4) - 0.5) * 12.0,
             fetched_splats: false,
+            mode,
+            held: HashSet::new(),
         }
     }
 
@@ -205,7 +247,9 @@ impl Player {
     }
 
     /// The requests of one view refresh at `s`: the splat sheet once, then two
-    /// products per planned tile.
+    /// products per planned tile: in [`FetchMode::Keyframes`] those of its keyframe
+    /// (and of the next one past [`PREFETCH_AT`]) not held yet, in [`FetchMode::Poll`]
+    /// every one at the current time.
     pub fn requests(&mut self, world: &WorldView, paths: &mut [GroupPath], s: f64) -> Vec<Request> {
         let t = world.t(s);
         let q = CLIENT_QUALITY.as_str();
@@ -222,6 +266,7 @@ impl Player {
                 });
             }
         }
+        let mut wanted = HashSet::new();
         for (layer, tile) in self.tiles(world, paths, s) {
             let name = &world.layers[layer];
             for product in ["billboards.bin", "shadow.png"] {
@@ -229,15 +274,46 @@ impl Player {
                     "/v1/worlds/{}/tiles/{}/{}/{}/{product}?quality={q}&layer={name}",
                     world.name, tile.z, tile.x, tile.y
                 );
-                out.push(Request {
-                    kind: RequestKind::Tile,
-                    path: format!("{resource}&t={t}"),
-                    resource,
-                    etag: None,
-                });
+                if self.mode == FetchMode::Poll {
+                    out.push(Request {
+                        kind: RequestKind::Tile,
+                        path: format!("{resource}&t={t}"),
+                        resource,
+                        etag: None,
+                    });
+                    continue;
+                }
+                let k = Keyframe::on_grid(t.clamp(0.0, 1e12), keyframe_span(world.dts[layer], tile.z));
+                let mut times = vec![(RequestKind::Tile, k.t0)];
+                if k.fraction(t) >= PREFETCH_AT && k.t1 > k.t0 {
+                    times.push((RequestKind::Prefetch, k.t1));
+                }
+                for (kind, t0) in times {
+                    let path = format!("{resource}&t={t0}");
+                    wanted.insert(path.clone());
+                    if !self.held.contains(&path) {
+                        out.push(Request {
+                            kind,
+                            resource: path.clone(),
+                            path,
+                            etag: None,
+                        });
+                    }
+                }
             }
         }
+        // What the view no longer needs is let go (a viewer's memory is bounded too).
+        if self.mode == FetchMode::Keyframes {
+            self.held.retain(|p| wanted.contains(p));
+        }
         out
+    }
+
+    /// Takes note of a 200: a keyframe URL is held from now on.
+    fn fetched(&mut self, path: &str) {
+        if self.mode == FetchMode::Keyframes && path.contains("/tiles/") {
+            self.held.insert(path.to_string());
+        }
     }
 
     pub fn index(&self) -> usize {
@@ -333,10 +409,14 @@ impl Agent {
         Some(r)
     }
 
-    /// Remembers the ETag a 200 answer came with.
-    pub fn answered(&mut self, resource: &str, etag: Option<String>) {
+    /// Remembers what a 200 answer came with: its ETag (to revalidate with), and for a
+    /// player fetching keyframes, that the URL is held.
+    pub fn answered(&mut self, req: &Request, etag: Option<String>) {
         if let Some(e) = etag {
-            self.etags.insert(resource.to_string(), e);
+            if let Role::Player(p) = &mut self.role {
+                p.fetched(&req.path);
+            }
+            self.etags.insert(req.resource.clone(), e);
         }
     }
 }
@@ -377,10 +457,53 @@ mod tests {
     }
 
     #[test]
-    fn players_fetch_the_products_of_their_planned_tiles_and_revalidate() {
+    fn players_fetch_each_keyframe_once_and_the_next_one_past_the_middle() {
         let w = world();
         let mut paths = vec![GroupPath::new(0, 1, 1)];
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1)));
+        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
+        let drain = |agent: &mut Agent| {
+            let mut reqs = Vec::new();
+            while let Some(r) = agent.next_request() {
+                reqs.push(r);
+            }
+            reqs
+        };
+        agent.plan(&w, &mut paths, 0.0);
+        let first = drain(&mut agent);
+        let tiles: Vec<_> = first.iter().filter(|r| r.kind == RequestKind::Tile).collect();
+        assert!(!tiles.is_empty());
+        // t = 43 200 is every level's keyframe time: no prefetch yet.
+        assert!(first.iter().all(|r| r.kind != RequestKind::Prefetch));
+        assert!(tiles.iter().all(|r| r.path.ends_with("&t=43200") && r.etag.is_none()));
+        for r in &first {
+            agent.answered(r, Some("\"e\"".into()));
+        }
+        // Three seconds on (level 0 spans 20 s): everything is held, nothing is asked.
+        agent.plan(&w, &mut paths, 3.0);
+        let held: Vec<_> = drain(&mut agent);
+        assert!(
+            held.iter().all(|r| !r.path.ends_with("&t=43200")),
+            "held keyframes are never asked again: {held:?}"
+        );
+        // Past the middle of the level-0 span: the next keyframe, once.
+        agent.plan(&w, &mut paths, 12.0);
+        let pre = drain(&mut agent);
+        let next: Vec<_> = pre.iter().filter(|r| r.path.ends_with("&t=43220")).collect();
+        assert!(!next.is_empty() && next.iter().all(|r| r.kind == RequestKind::Prefetch));
+        for r in &pre {
+            agent.answered(r, Some("\"e\"".into()));
+        }
+        // After the boundary the prefetched keyframe is the current one: not asked again.
+        agent.plan(&w, &mut paths, 20.5);
+        let after = drain(&mut agent);
+        assert!(after.iter().all(|r| !r.path.ends_with("&t=43220")), "{after:?}");
+    }
+
+    #[test]
+    fn polling_players_fetch_their_planned_tiles_and_revalidate() {
+        let w = world();
+        let mut paths = vec![GroupPath::new(0, 1, 1)];
+        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Poll)));
         agent.plan(&w, &mut paths, 0.0);
         let mut reqs = Vec::new();
         while let Some(r) = agent.next_request() {
@@ -390,7 +513,7 @@ mod tests {
         let tiles: Vec<_> = reqs.iter().filter(|r| r.kind == RequestKind::Tile).collect();
         assert!(!tiles.is_empty() && tiles.len() % 2 == 0);
         assert!(tiles.iter().all(|r| r.etag.is_none() && r.path.contains("&t=43200")));
-        agent.answered(&tiles[0].resource, Some("\"abc\"".into()));
+        agent.answered(tiles[0], Some("\"abc\"".into()));
         // One second later: a new time, the same resources, the held ETag is sent.
         agent.plan(&w, &mut paths, 1.0);
         let first = agent.next_request().unwrap();

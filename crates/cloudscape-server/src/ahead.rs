@@ -1,0 +1,267 @@
+//! Compute-ahead: the next keyframes of the tiles being watched, computed before the
+//! clock reaches them.
+//!
+//! Every tile request tells the [`HotSet`] which variant (world, layer, tile, product,
+//! quality, sun) was asked for which keyframe at which `t`. The hot set keeps, per
+//! variant, a demand count that decays with a half-life of [`DEMAND_HALF_LIFE`], the
+//! latest keyframe asked, and the rate at which the asked `t` advances against the
+//! server's own clock (world seconds per real second, 1 until measured). The next
+//! keyframe of each variant is planned with a deadline: the real time at which that
+//! clock reaches it.
+//!
+//! A background task ([`run`]) computes planned keyframes most urgent first (earliest
+//! deadline, then most demanded), through the same cache and compute queue as the
+//! requests, so a request that arrives meanwhile joins the computation instead of
+//! repeating it. It runs at most `server.ahead_threads` computations at once, and
+//! only while the queue has a free compute thread, so requests keep priority: a
+//! request waits at most for the computations ahead already running.
+//!
+//! Replicas: bytes are deterministic, so two replicas computing the same keyframe
+//! ahead only waste work. Routing each tile URL to one replica (nginx
+//! `hash $request_uri consistent`, `docker/nginx.conf`) gives each replica its own
+//! share of the hot set.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tokio::sync::Notify;
+
+use cloudscape_core::world::Keyframe;
+
+use crate::metrics::Metrics;
+use crate::state::AppState;
+use crate::tiles::TileRecipe;
+
+/// Demand counts halve after this long without requests.
+pub const DEMAND_HALF_LIFE: Duration = Duration::from_secs(30);
+/// A variant not asked for this long (or for three of its spans, if longer) leaves
+/// the hot set.
+const FORGET_AFTER: Duration = Duration::from_secs(60);
+/// How often the worker looks for work when nothing wakes it.
+const IDLE_POLL: Duration = Duration::from_millis(250);
+/// How long the worker waits for a free compute thread before it looks again.
+const BUSY_POLL: Duration = Duration::from_millis(20);
+
+/// One watched tile variant.
+struct HotTile {
+    recipe: Arc<TileRecipe>,
+    /// Requests, decayed with [`DEMAND_HALF_LIFE`].
+    demand: f64,
+    last_seen: Instant,
+    /// The first request: the clock rate is measured from it.
+    first: (Instant, f64),
+    /// The latest keyframe asked for, and the `t` and time it was asked at.
+    latest: (Keyframe, f64, Instant),
+    /// The keyframe planned ahead, and when the clock reaches it.
+    planned: Option<(Keyframe, Instant)>,
+    /// A keyframe computed ahead (its index), and whether a request found it missing.
+    done: Option<u64>,
+    missed: Option<u64>,
+    /// True while its computation runs.
+    running: bool,
+}
+
+impl HotTile {
+    /// World seconds per real second, as the requests advanced; 1 until measured.
+    fn clock_rate(&self) -> f64 {
+        let (at, t) = self.first;
+        let (_, t_latest, latest_at) = self.latest;
+        let real = latest_at.duration_since(at).as_secs_f64();
+        let rate = (t_latest - t) / real;
+        if real >= 2.0 && rate.is_finite() && rate > 0.0 {
+            rate.clamp(0.01, 1e4)
+        } else {
+            1.0
+        }
+    }
+
+    fn decayed(&self, now: Instant) -> f64 {
+        let idle = now.duration_since(self.last_seen).as_secs_f64();
+        self.demand * 0.5f64.powf(idle / DEMAND_HALF_LIFE.as_secs_f64())
+    }
+}
+
+/// The tiles being watched and the keyframes planned ahead for them.
+pub struct HotSet {
+    tiles: Mutex<HashMap<String, HotTile>>,
+    /// Most variants followed.
+    capacity: usize,
+    /// Computations ahead at once (0: compute-ahead is off).
+    threads: usize,
+    wake: Notify,
+}
+
+/// A keyframe to compute ahead.
+struct Planned {
+    variant: String,
+    recipe: Arc<TileRecipe>,
+    keyframe: Keyframe,
+    deadline: Instant,
+}
+
+impl HotSet {
+    pub fn new(capacity: usize, threads: usize) -> HotSet {
+        HotSet {
+            tiles: Mutex::new(HashMap::new()),
+            capacity,
+            threads,
+            wake: Notify::new(),
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, HashMap<String, HotTile>> {
+        self.tiles.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A request asked for `keyframe` of `recipe`'s variant at `t`: counts the demand,
+    /// notes a planned keyframe that is not ready yet as missed, and plans the next
+    /// keyframe.
+    pub fn watched(&self, metrics: &Metrics, recipe: &Arc<TileRecipe>, keyframe: Keyframe, t: f64) {
+        if self.threads == 0 || keyframe.is_instant() {
+            return;
+        }
+        let now = Instant::now();
+        let variant = recipe.variant();
+        let mut tiles = self.lock();
+        if !tiles.contains_key(&variant) && tiles.len() >= self.capacity {
+            // Full: forget the least watched.
+            if let Some(coldest) = tiles
+                .iter()
+                .min_by(|a, b| a.1.decayed(now).total_cmp(&b.1.decayed(now)))
+                .map(|(k, _)| k.clone())
+            {
+                tiles.remove(&coldest);
+            }
+        }
+        let hot = tiles.entry(variant).or_insert_with(|| HotTile {
+            recipe: Arc::clone(recipe),
+            demand: 0.0,
+            last_seen: now,
+            first: (now, t),
+            latest: (keyframe, t, now),
+            planned: None,
+            done: None,
+            missed: None,
+            running: false,
+        });
+        hot.demand = hot.decayed(now) + 1.0;
+        hot.last_seen = now;
+        if let Some((planned, _)) = hot.planned
+            && planned.index == keyframe.index
+            && hot.done != Some(keyframe.index)
+            && hot.missed != Some(keyframe.index)
+        {
+            hot.missed = Some(keyframe.index);
+            metrics.ahead_missed.inc();
+        }
+        if keyframe.index >= hot.latest.0.index {
+            hot.latest = (keyframe, t, now);
+        }
+        let (latest, t_latest, _) = hot.latest;
+        let next = hot.recipe.keyframe(latest.t1);
+        let already =
+            hot.planned.is_some_and(|(p, _)| p.index >= next.index) || hot.done.is_some_and(|d| d >= next.index);
+        if next.index > latest.index && !already {
+            let wait = ((next.t0 - t_latest) / hot.clock_rate()).clamp(0.0, 86_400.0);
+            hot.planned = Some((next, now + Duration::from_secs_f64(wait)));
+            drop(tiles);
+            self.wake.notify_one();
+        }
+    }
+
+    /// The most urgent planned keyframe not running, marked running; forgets
+    /// variants nobody watches any more.
+    fn next_job(&self, metrics: &Metrics) -> Option<Planned> {
+        let now = Instant::now();
+        let mut tiles = self.lock();
+        tiles.retain(|_, h| {
+            let span = h.latest.0.span() / h.clock_rate();
+            let keep = FORGET_AFTER.max(Duration::from_secs_f64((3.0 * span).min(86_400.0)));
+            h.running || now.duration_since(h.last_seen) < keep
+        });
+        metrics.ahead_hot.set(tiles.len() as i64);
+        let pending = tiles.values().filter(|h| h.planned.is_some() && !h.running).count();
+        metrics.ahead_pending.set(pending as i64);
+        let (variant, hot) = tiles
+            .iter_mut()
+            .filter(|(_, h)| h.planned.is_some() && !h.running)
+            .min_by(|a, b| {
+                let (da, db) = (a.1.planned.map(|p| p.1), b.1.planned.map(|p| p.1));
+                da.cmp(&db).then(b.1.decayed(now).total_cmp(&a.1.decayed(now)))
+            })?;
+        let (keyframe, deadline) = hot.planned?;
+        hot.running = true;
+        Some(Planned {
+            variant: variant.clone(),
+            recipe: Arc::clone(&hot.recipe),
+            keyframe,
+            deadline,
+        })
+    }
+
+    /// Records the end of a computation ahead.
+    fn finished(&self, job: &Planned, computed: bool) {
+        let mut tiles = self.lock();
+        if let Some(h) = tiles.get_mut(&job.variant) {
+            h.running = false;
+            if h.planned.is_some_and(|(p, _)| p.index == job.keyframe.index) {
+                h.planned = None;
+            }
+            if computed {
+                h.done = Some(job.keyframe.index);
+            }
+        }
+    }
+}
+
+/// The compute-ahead worker: runs until the server stops (the task is dropped).
+pub async fn run(state: Arc<AppState>) {
+    let hot = &state.ahead;
+    if hot.threads == 0 {
+        return;
+    }
+    let slots = Arc::new(tokio::sync::Semaphore::new(hot.threads));
+    let threads = rayon::current_num_threads().max(1);
+    loop {
+        // A free compute thread first: requests keep priority.
+        if state.cache.queue_depth() >= threads {
+            tokio::time::sleep(BUSY_POLL).await;
+            continue;
+        }
+        let Ok(permit) = Arc::clone(&slots).acquire_owned().await else {
+            return;
+        };
+        let Some(job) = hot.next_job(&state.metrics) else {
+            drop(permit);
+            tokio::select! {
+                _ = hot.wake.notified() => {}
+                _ = tokio::time::sleep(IDLE_POLL) => {}
+            }
+            continue;
+        };
+        let state = Arc::clone(&state);
+        tokio::spawn(async move {
+            let computed = compute(&state, &job).await;
+            state.ahead.finished(&job, computed);
+            drop(permit);
+        });
+    }
+}
+
+/// Computes one planned keyframe into the cache; true when it is there afterwards.
+async fn compute(state: &Arc<AppState>, job: &Planned) -> bool {
+    let key = job.recipe.key(job.keyframe);
+    let kind = job.recipe.product.family();
+    let Ok((work, plan)) = job.recipe.plan(job.keyframe) else {
+        return false;
+    };
+    let m = &state.metrics;
+    let computed = state.cache.compute_ahead(m, kind, key, work, plan).await;
+    if computed {
+        m.ahead_computed.inc();
+        let late = Instant::now().saturating_duration_since(job.deadline);
+        m.ahead_lag.observe(late.as_secs_f64());
+    }
+    computed
+}

@@ -1,0 +1,209 @@
+//! Keyframes over a real socket: compute-ahead (the next keyframe of a watched tile is
+//! computed before the clock reaches it, and a request just after the boundary is
+//! answered from it; requests keep priority over it) and encode-once (a compressed
+//! variant is made once and served from the cache after).
+
+mod common;
+
+use std::io::Read;
+use std::time::{Duration, Instant};
+
+use common::{ServeProcess, client, metric, test_config};
+
+fn start(overrides: &[(&str, &str)]) -> (ServeProcess, tempfile::NamedTempFile) {
+    let file = tempfile::NamedTempFile::new().unwrap();
+    std::fs::write(file.path(), test_config(overrides)).unwrap();
+    let server = ServeProcess::start(&["--config", file.path().to_str().unwrap()], &[]);
+    (server, file)
+}
+
+/// Waits up to `limit` for `metric >= at_least`.
+fn wait_for(server: &ServeProcess, name: &str, at_least: f64, limit: Duration) -> f64 {
+    let start = Instant::now();
+    loop {
+        let v = metric(server, name, &[]);
+        if v >= at_least || start.elapsed() > limit {
+            return v;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_request_after_the_boundary_is_served_from_what_was_computed_ahead() {
+    let (server, _config) = start(&[]);
+    let http = client();
+    // Level 0 of the `low` layer: keyframes 10 s apart. A player at t = 105 watches
+    // keyframe [100, 110).
+    let url = |t: &str| {
+        format!(
+            "{}/v1/worlds/default/tiles/0/1/1/billboards.bin?t={t}&quality=fast&sun=120,40",
+            server.base
+        )
+    };
+    let r = http.get(url("105")).send().unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["x-cloudscape-t"], "100");
+    // The next keyframe is computed ahead, without any request for it.
+    assert_eq!(
+        wait_for(&server, "cloudscape_ahead_computed_total", 1.0, Duration::from_secs(60)),
+        1.0
+    );
+    let computed = metric(&server, "cloudscape_computations_total", &[("kind", "tile_shaded")]);
+    assert_eq!(computed, 2.0, "the request's keyframe and the one ahead");
+    // The boundary passes: the request for [110, 120) finds it, computes nothing.
+    let r = http.get(url("110.2")).send().unwrap();
+    assert_eq!(r.status(), 200);
+    assert_eq!(r.headers()["x-cloudscape-t"], "110");
+    let next = r.bytes().unwrap();
+    assert_eq!(metric(&server, "cloudscape_ahead_served_total", &[]), 1.0);
+    assert_eq!(metric(&server, "cloudscape_ahead_missed_total", &[]), 0.0);
+    // Nothing computed for the request: the one computation since is the next
+    // keyframe ahead ([120, 130)), planned by this request.
+    let ahead = wait_for(&server, "cloudscape_ahead_computed_total", 2.0, Duration::from_secs(60));
+    assert_eq!(ahead, 2.0);
+    assert_eq!(
+        metric(&server, "cloudscape_computations_total", &[("kind", "tile_shaded")]),
+        computed + ahead - 1.0,
+        "nothing computed for the request"
+    );
+    // What was computed ahead is what a request computes (a server without
+    // compute-ahead).
+    let (plain, _c) = start(&[("server.ahead_threads", "0")]);
+    let direct = client()
+        .get(format!(
+            "{}/v1/worlds/default/tiles/0/1/1/billboards.bin?t=110&quality=fast&sun=120,40",
+            plain.base
+        ))
+        .send()
+        .unwrap()
+        .bytes()
+        .unwrap();
+    assert_eq!(next, direct);
+    assert_eq!(metric(&plain, "cloudscape_ahead_computed_total", &[]), 0.0);
+    // The shadow map of the same keyframe came with the billboards: served from ahead too.
+    let shadow = http
+        .get(url("110").replace("billboards.bin", "shadow.png"))
+        .send()
+        .unwrap();
+    assert_eq!(shadow.status(), 200);
+    assert_eq!(metric(&server, "cloudscape_ahead_served_total", &[]), 2.0);
+}
+
+#[test]
+fn compute_ahead_never_delays_a_request_past_its_budget() {
+    // A short budget, a queue no larger than the threads, and many watched tiles whose
+    // next keyframes are all due: requests for other tiles must still be answered
+    // within their budget while compute-ahead works through its list.
+    let budget_ms = 4000;
+    let (server, _config) = start(&[
+        ("server.request_timeout_ms", &budget_ms.to_string()),
+        ("server.compute_queue", "64"),
+    ]);
+    let http = client();
+    let tile = |x: i64, t: u32| {
+        format!(
+            "{}/v1/worlds/default/tiles/0/{x}/5/billboards.bin?t={t}&quality=balanced&sun=200,30",
+            server.base
+        )
+    };
+    // Watch 12 tiles: 12 keyframes planned ahead.
+    for x in 0..12 {
+        assert_eq!(http.get(tile(x, 3)).send().unwrap().status(), 200);
+    }
+    // While compute-ahead runs, 12 requests for tiles nobody watched, 3 at a time.
+    let started = Instant::now();
+    let mut worst = Duration::ZERO;
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..3)
+            .map(|lane| {
+                let http = &http;
+                let tile = &tile;
+                s.spawn(move || {
+                    let mut worst = Duration::ZERO;
+                    for i in 0..4 {
+                        let t0 = Instant::now();
+                        let r = http.get(tile(100 + lane * 4 + i, 3)).send().unwrap();
+                        assert_eq!(r.status(), 200, "{}", r.text().unwrap_or_default());
+                        worst = worst.max(t0.elapsed());
+                    }
+                    worst
+                })
+            })
+            .collect();
+        for h in handles {
+            worst = worst.max(h.join().unwrap());
+        }
+    });
+    let ahead = metric(&server, "cloudscape_ahead_computed_total", &[]);
+    assert!(ahead >= 1.0, "compute-ahead ran meanwhile ({ahead} computed)");
+    assert!(
+        worst < Duration::from_millis(budget_ms),
+        "a request took {worst:?}, over its {budget_ms} ms budget ({:?} in all)",
+        started.elapsed()
+    );
+    assert_eq!(metric(&server, "cloudscape_timeouts_total", &[]), 0.0);
+    assert_eq!(metric(&server, "cloudscape_shed_total", &[]), 0.0);
+}
+
+#[test]
+fn a_compressed_variant_is_made_once_and_served_from_the_cache() {
+    let (server, _config) = start(&[("server.ahead_threads", "0")]);
+    let http = reqwest::blocking::Client::builder()
+        .no_proxy()
+        .no_gzip()
+        .build()
+        .unwrap();
+    let url = format!(
+        "{}/v1/worlds/default/tiles/0/0/0/billboards.json?t=50&quality=fast&sun=100,40",
+        server.base
+    );
+    let identity = http.get(&url).send().unwrap();
+    assert_eq!(identity.headers()["vary"], "accept-encoding");
+    let etag = identity.headers()["etag"].to_str().unwrap().to_string();
+    let identity = identity.bytes().unwrap();
+    let mut bodies = Vec::new();
+    for _ in 0..3 {
+        let r = http.get(&url).header("accept-encoding", "gzip").send().unwrap();
+        assert_eq!(r.status(), 200);
+        assert_eq!(r.headers()["content-encoding"], "gzip");
+        assert_eq!(r.headers()["vary"], "accept-encoding");
+        assert_eq!(
+            r.headers()["etag"].to_str().unwrap(),
+            format!("\"{}-gzip\"", etag.trim_matches('"'))
+        );
+        bodies.push(r.bytes().unwrap());
+    }
+    assert!(bodies.iter().all(|b| *b == bodies[0]), "the same compressed bytes");
+    let mut plain = Vec::new();
+    flate2::read::GzDecoder::new(&bodies[0][..])
+        .read_to_end(&mut plain)
+        .unwrap();
+    assert_eq!(plain, identity);
+    assert!(bodies[0].len() < identity.len() / 2);
+    let enc = |outcome| {
+        metric(
+            &server,
+            "cloudscape_encodings_total",
+            &[("coding", "gzip"), ("outcome", outcome)],
+        )
+    };
+    assert_eq!(
+        (enc("miss"), enc("hit")),
+        (1.0, 2.0),
+        "compressed once, then from the cache"
+    );
+    // zstd is preferred when accepted; a 304 still says what varies.
+    let z = http.get(&url).header("accept-encoding", "gzip, zstd").send().unwrap();
+    assert_eq!(z.headers()["content-encoding"], "zstd");
+    let z = z.bytes().unwrap();
+    assert_eq!(zstd::bulk::decompress(&z, identity.len()).unwrap(), identity);
+    let not_modified = http
+        .get(&url)
+        .header("accept-encoding", "gzip")
+        .header("if-none-match", &etag)
+        .send()
+        .unwrap();
+    assert_eq!(not_modified.status(), 304);
+    assert_eq!(not_modified.headers()["vary"], "accept-encoding");
+}

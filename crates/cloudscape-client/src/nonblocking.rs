@@ -29,6 +29,9 @@ impl AsyncTileClient {
         let http = reqwest::Client::builder()
             .no_proxy()
             .timeout(Duration::from_secs(600))
+            // The server closes a connection idle for 5 s (`server.idle_timeout_ms`):
+            // a pooled connection kept longer may be closing as a request goes out on it.
+            .pool_idle_timeout(Duration::from_secs(4))
             .build()
             .map_err(|e| ClientError::Transport {
                 url: base.clone(),

@@ -17,9 +17,10 @@
 //! request waits at most for the computations ahead already running.
 //!
 //! Replicas: bytes are deterministic, so two replicas computing the same keyframe
-//! ahead only waste work. Routing each tile URL to one replica (nginx
-//! `hash $request_uri consistent`, `docker/nginx.conf`) gives each replica its own
-//! share of the hot set.
+//! ahead only waste work. Routing each tile to one replica by its path without the
+//! query (nginx `hash $uri consistent` for `/tiles/`, `docker/nginx.conf`) sends all
+//! keyframes of a tile to the replica that computes them ahead, so each replica owns
+//! its share of the hot set.
 
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};

@@ -20,6 +20,7 @@
 pub mod core;
 pub mod gallery;
 mod http;
+mod keyframes;
 mod pipeline;
 pub mod quality;
 
@@ -159,7 +160,7 @@ pub fn fmt_rate(r: f64) -> String {
 type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
 
 /// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
-pub const SECTION_NAMES: [&str; 9] = [
+pub const SECTION_NAMES: [&str; 10] = [
     "machine",
     "automaton",
     "fields",
@@ -169,6 +170,7 @@ pub const SECTION_NAMES: [&str; 9] = [
     "http",
     "rosa",
     "scaling",
+    "keyframes",
 ];
 
 /// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names) and
@@ -183,7 +185,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ));
     }
     let mut out = BenchRun::default();
-    let steps: [(&str, SectionFn); 9] = [
+    let steps: [(&str, SectionFn); 10] = [
         ("machine", |e, o| {
             o.sections.push(machine(e));
             Ok(())
@@ -196,6 +198,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ("http", http::http),
         ("rosa 2013", pipeline::rosa),
         ("scaling", core::scaling),
+        ("keyframes", keyframes::keyframes),
     ];
     for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {
         if only.is_some_and(|names| !names.iter().any(|n| n == id)) {

@@ -473,6 +473,10 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
         .no_proxy()
         .timeout(REQUEST_TIMEOUT)
         .pool_max_idle_per_host(MAX_IN_FLIGHT)
+        // Keyframe players stay quiet for seconds; the server closes a connection idle
+        // for 5 s, so the pool lets go of it first (a request on a closing connection
+        // would count as a transport error).
+        .pool_idle_timeout(std::time::Duration::from_secs(4))
         .build()
         .map_err(|e| LoadError::Runtime(e.to_string()))?;
     runtime.block_on(async move {

@@ -7,9 +7,19 @@
 // Level choice follows the server's renderer (src/render/scene.rs `plan`): a quadtree
 // per layer, split while a column would span more than the preset's `lod_pixels`.
 //
-// Every fetch revalidates with the ETag it was last given (kept in the Cache Storage
-// API, so reloads revalidate too); a 304 reuses the stored bytes. Tiles held in memory
-// are never fetched again; tiles that leave the view are dropped.
+// Tile products are keyframes (src/world/keyframe.rs): a tile of level z is fetched at
+// t0 = floor(t / span) · span, span the layer's `keyframe_spans[min(z, 4)]` from
+// discovery, so its URL is the same for the whole span and `immutable`. Between t0 and
+// t1 = t0 + span the viewer animates it by the documented rule (the doc comment of
+// src/products/billboards.rs, render::keyframe): with f = (t − t0) / span, each
+// billboard moves by its wind velocity · (t − t0), and its centre optical depth,
+// colour and sun optical depth are linear in f; the shadow map blends its R (t0) and
+// G (t1) channels by f. Past the middle of a span the next keyframe's products are
+// prefetched, so the boundary costs no wait.
+//
+// Immutable bodies are kept (in memory, and in the Cache Storage API across reloads)
+// and never asked for again. Anything else revalidates with the ETag it was last
+// given; a 304 reuses the stored bytes. Tiles that leave the view are dropped.
 //
 // State can be given in the URL: ?world=&t=&camera=X,Y,Z,YAW,PITCH,FOV&quality=
 // &sun=AZ,EL&layers=a,b&view=METRES (the page keeps the URL up to date).
@@ -24,7 +34,11 @@
 const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
 /** Columns per tile side. */
 const TILE_COLUMNS = 256;
-/** ShadingParams::default() (src/render/light.rs): octaves N, a, b, c; detail erosion strength. */
+/**
+ * ShadingParams::default() (src/render/light.rs): what a version-1 billboards.bin (no
+ * lighting in its header) is drawn with. Version 2 carries albedo, phase, octaves and
+ * the sun's radiance in its header; the detail erosion strength is the viewer's own.
+ */
 const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
   octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.6,
@@ -36,11 +50,16 @@ const MIN_WAVELENGTH_PIXELS = 2;
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
 const MAX_IN_FLIGHT = 4;
-/** Bytes of billboards.bin (src/products/billboards.rs). */
-const BIN_HEADER = 64;
-const BIN_RECORD = 36;
-/** Floats per instance in the GPU buffer: centre xyz, radius, colour rgb, splat, τ_sun. */
-const INSTANCE_FLOATS = 9;
+/** Header and record bytes of billboards.bin by format version (src/products/billboards.rs). */
+const BIN_SIZES = { 1: [64, 36], 2: [160, 56] };
+/**
+ * Floats per instance in the GPU buffer: centre xyz at t0 and radius; velocity xy, t0
+ * (relative to `timeOrigin`) and span; colour rgb at t0; colour rgb at t1; centre
+ * optical depth at t0, t1; sun optical depth at t0, t1.
+ */
+const INSTANCE_FLOATS = 18;
+/** Immutable bodies kept in memory (a view holds at most MAX_TILES tiles, two products, two keyframes). */
+const MAX_HELD = 8 * MAX_TILES;
 /** Cache Storage bucket of revalidatable responses. */
 const CACHE_NAME = 'cloudscape-v1';
 
@@ -115,6 +134,10 @@ const stats = {
   fetched: 0,
   /** 304 answers to If-None-Match: the stored bytes were reused. */
   revalidations: 0,
+  /** Immutable (keyframe) bodies used again without a request. */
+  reused: 0,
+  /** Next-keyframe requests made ahead of need. */
+  prefetched: 0,
   /** Decoded body bytes of 200 responses. */
   bodyBytes: 0,
   /** Bytes on the wire (Resource Timing transferSize: headers + encoded body). */
@@ -156,13 +179,39 @@ new PerformanceObserver((list) => {
   for (const e of list.getEntries()) stats.transferBytes += e.transferSize || 0;
 }).observe({ type: 'resource', buffered: true });
 
+/** Bodies of immutable URLs by URL, oldest first (a Map keeps insertion order). */
+const held = new Map();
+
+function hold(url, body) {
+  held.delete(url);
+  held.set(url, body);
+  while (held.size > MAX_HELD) held.delete(held.keys().next().value);
+}
+
+const isImmutable = (cacheControl) =>
+  (cacheControl || '').split(',').some((d) => d.trim().toLowerCase() === 'immutable');
+
 /**
- * GETs `url` and returns its body, revalidating a stored copy with If-None-Match.
- * Retries 503 (overload) after Retry-After.
+ * GETs `url` and returns its body. An immutable body already held (in memory, or in
+ * Cache Storage from an earlier visit) is returned without a request; any other
+ * stored copy is revalidated with If-None-Match. Retries 503 (overload) after
+ * Retry-After.
  */
 async function fetchBytes(url, { track = true } = {}) {
+  const mem = held.get(url);
+  if (mem) {
+    stats.reused++;
+    hold(url, mem);
+    return mem;
+  }
   await cacheReady;
   const stored = cacheStore ? await cacheStore.match(url) : undefined;
+  if (stored && isImmutable(stored.headers.get('Cache-Control'))) {
+    const body = await stored.arrayBuffer();
+    stats.reused++;
+    hold(url, body);
+    return body;
+  }
   const etag = stored && stored.headers.get('ETag');
   const headers = etag ? { 'If-None-Match': etag } : {};
   for (let attempt = 0; ; attempt++) {
@@ -189,8 +238,14 @@ async function fetchBytes(url, { track = true } = {}) {
     stats.fetched++;
     stats.bodyBytes += body.byteLength;
     const tag = res.headers.get('ETag');
+    const cacheControl = res.headers.get('Cache-Control') || '';
+    if (isImmutable(cacheControl)) hold(url, body);
     if (cacheStore && tag) {
-      const h = { ETag: tag, 'Content-Type': res.headers.get('Content-Type') || 'application/octet-stream' };
+      const h = {
+        ETag: tag,
+        'Cache-Control': cacheControl,
+        'Content-Type': res.headers.get('Content-Type') || 'application/octet-stream',
+      };
       await cacheStore.put(url, new Response(body.slice(0), { headers: h }));
     }
     return body;
@@ -383,7 +438,8 @@ const shadowProgram = compile(
   precision highp float;
   in vec2 uv;
   in vec3 rel;
-  uniform sampler2D shadow;
+  uniform sampler2D shadow;  // R: transmittance at the keyframe's t0, G: at t1
+  uniform float shadowF;     // where the drawn time falls in the tile's span
   uniform float eyeZ, viewDistance, far, mode; // mode 0: a tile; 1: the far ground
   uniform vec3 forward, right, up;
   uniform vec2 tanHalf, viewport;
@@ -403,7 +459,8 @@ const shadowProgram = compile(
     float t;
     if (mode < 0.5) {
       if (r >= viewDistance) discard;
-      t = mix(texture(shadow, uv).r, far, smoothstep(0.7 * viewDistance, viewDistance, r));
+      vec4 s = texture(shadow, uv);
+      t = mix(mix(s.r, s.g, shadowF), far, smoothstep(0.7 * viewDistance, viewDistance, r));
     } else {
       if (r < viewDistance) discard;
       t = far;
@@ -470,11 +527,21 @@ float detailNoise(vec3 p, int octaves) {
 // src/render/composite.rs accumulates front to back, and its alpha is Σ_k w_k = A.
 // Points are taken relative to the eye plus the eye's position modulo 65536 m, so
 // f32 noise never sees raw world metres.
+//
+// Each instance holds both ends of its keyframe span and is drawn at `time` by the
+// animation rule (render::keyframe): moved by its velocity, its centre optical depth
+// τ, colour and τ_sun linear in f. The splat drawn is the one nearest τ
+// (SplatSheet::index_for_tau) with its opacity raised to τ / τ_k, which is the
+// opacity 1 − exp(−τ P(q)) of the ball's own τ.
 const billboardProgram = compile(
   `#version 300 es
-  layout(location = 0) in vec4 centreRadius; // centre relative to the buffer origin; radius
-  layout(location = 1) in vec3 rgb;          // colour, isotropic phase (linear)
-  layout(location = 2) in vec2 splatTau;     // splat index, sun optical depth
+  layout(location = 0) in vec4 centreRadius; // centre at t0 relative to the buffer origin; radius
+  layout(location = 1) in vec4 motion;       // velocity xy (m/s); t0 relative to timeOrigin; span (s)
+  layout(location = 2) in vec3 rgb0;         // colour at t0, isotropic phase (linear)
+  layout(location = 3) in vec3 rgb1;         // colour at t1
+  layout(location = 4) in vec4 taus;         // centre optical depth at t0, t1; sun optical depth at t0, t1
+  uniform float time;       // drawn time relative to timeOrigin, seconds
+  uniform vec2 splatTable;  // splat count, tau_max (/v1/splats.json)
   uniform mat4 viewProj;
   uniform vec3 eye, right, up, sunRgb;
   uniform vec4 sheet; // columns, size (texels), texture width, texture height
@@ -488,12 +555,28 @@ const billboardProgram = compile(
   out vec3 radiance;
   out vec3 rel;
   flat out float radius;
+  flat out float alphaPower;
   flat out int detailOctaves;
   float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
   ${ATMOSPHERE}
   void main() {
     corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
-    vec3 c = centreRadius.xyz - eye;
+    float span = motion.w;
+    float since = clamp(time - motion.z, 0.0, span);
+    float f = span > 0.0 ? since / span : 0.0;
+    float tau = mix(taus.x, taus.y, f);
+    if (!(tau > 0.0)) {
+      // Absent at this time (it forms or vanishes during the span): nothing to draw.
+      gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
+      return;
+    }
+    float count = splatTable.x, tauMax = splatTable.y;
+    float k = clamp(floor(sqrt(min(tau, tauMax) / tauMax) * count - 0.5), 0.0, count - 1.0);
+    float tauK = tauMax * ((k + 1.0) / count) * ((k + 1.0) / count);
+    alphaPower = tau / tauK;
+    vec3 rgb = mix(rgb0, rgb1, f);
+    float tauSun = mix(taus.z, taus.w, f);
+    vec3 c = centreRadius.xyz + vec3(motion.xy * since, 0.0) - eye;
     vec3 p = c + (corner.x * right + corner.y * up) * centreRadius.w;
     rel = p;
     radius = centreRadius.w;
@@ -506,7 +589,6 @@ const billboardProgram = compile(
       wl *= 0.5;
     }
     gl_Position = viewProj * vec4(p, 1.0);
-    float k = splatTau.x;
     cellOrigin = vec2(mod(k, sheet.x), floor(k / sheet.x)) * sheet.y;
     float cosTheta = dot(normalize(c), sunDir);
     float w = 1.0, att = 1.0, ecc = 1.0, corr = 0.0;
@@ -514,7 +596,7 @@ const billboardProgram = compile(
       if (float(i) >= octaves.x) break;
       float g1 = clamp(phase.x * ecc, -0.99, 0.99), g2 = clamp(phase.y * ecc, -0.99, 0.99);
       float ph = mix(hg(g2, cosTheta), hg(g1, cosTheta), phase.z);
-      corr += w * (ph - 1.0) * exp(-att * splatTau.y);
+      corr += w * (ph - 1.0) * exp(-att * tauSun);
       w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
     }
     radiance = max(rgb + albedo * sunRgb * corr, vec3(0.0));
@@ -531,6 +613,7 @@ const billboardProgram = compile(
   in vec3 radiance;
   in vec3 rel;
   flat in float radius;
+  flat in float alphaPower;
   flat in int detailOctaves;
   uniform sampler2D splats;
   uniform vec4 sheet;
@@ -543,7 +626,7 @@ const billboardProgram = compile(
     if (dot(corner, corner) >= 1.0) discard;
     float c = (sheet.y - 1.0) * 0.5; // SplatSheet::sample: texel centres span [-1, 1]
     vec2 texel = cellOrigin + 0.5 + c + corner * c;
-    float a = texture(splats, texel / sheet.zw).a;
+    float a = 1.0 - pow(max(1.0 - texture(splats, texel / sheet.zw).a, 1e-6), alphaPower);
     colour = vec4(tone(radiance) * a, a);
     float n = detailOctaves > 0 && a > 0.0 ? detailNoise((rel + eyeMod) / radius, detailOctaves) : 0.0;
     detailOut = vec4(n * a, 0.0, 0.0, a);
@@ -625,15 +708,12 @@ const instanceBuffer = gl.createBuffer();
 gl.bindVertexArray(billboardVao);
 gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
 const stride = INSTANCE_FLOATS * 4;
-gl.enableVertexAttribArray(0);
-gl.vertexAttribPointer(0, 4, gl.FLOAT, false, stride, 0);
-gl.vertexAttribDivisor(0, 1);
-gl.enableVertexAttribArray(1);
-gl.vertexAttribPointer(1, 3, gl.FLOAT, false, stride, 16);
-gl.vertexAttribDivisor(1, 1);
-gl.enableVertexAttribArray(2);
-gl.vertexAttribPointer(2, 2, gl.FLOAT, false, stride, 28);
-gl.vertexAttribDivisor(2, 1);
+// centreRadius, motion, rgb0, rgb1, taus: [location, floats, first float].
+for (const [loc, size, at] of [[0, 4, 0], [1, 4, 4], [2, 3, 8], [3, 3, 11], [4, 4, 14]]) {
+  gl.enableVertexAttribArray(loc);
+  gl.vertexAttribPointer(loc, size, gl.FLOAT, false, stride, at * 4);
+  gl.vertexAttribDivisor(loc, 1);
+}
 gl.bindVertexArray(null);
 const emptyVao = gl.createVertexArray();
 
@@ -692,12 +772,6 @@ function project(p) {
 // ---------------------------------------------------------------------------
 // Tiles: which ones the camera needs, loading, dropping.
 // ---------------------------------------------------------------------------
-
-/** Frame time of a layer's grid: what the server snaps `t` to. */
-function snapTime(t) {
-  const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
-  return Math.round(t / period) * period;
-}
 
 function drawnLayers() {
   return worldInfo.layers
@@ -777,78 +851,173 @@ function plan() {
   }
 }
 
-/** The parameters every tile URL of the current view shares. */
+/** The canonical frame time nearest `t`: what the server snaps sky.json's `t` to. */
+function snapTime(t) {
+  const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
+  return Math.round(t / period) * period;
+}
+
+/**
+ * The keyframe span of level `z` of `layer` that holds `t` (src/world/keyframe.rs):
+ * `t0 = floor(t / span) · span`, span = `keyframe_spans[min(z, len − 1)]`. A server
+ * without keyframes (no `keyframe_spans`) has products at every frame: an instant.
+ */
+function keyframeOf(layer, z, t) {
+  const spans = layer.keyframe_spans;
+  if (!spans || !spans.length) {
+    const at = Math.round(t / layer.frame_seconds) * layer.frame_seconds;
+    return { t0: at, t1: at, span: 0 };
+  }
+  const span = spans[Math.min(z, spans.length - 1)];
+  let t0 = Math.floor(t / span) * span;
+  if (t0 > t) t0 -= span; // t / span rounded up
+  const t1 = Math.min(t0 + span, worldInfo.max_time);
+  return { t0, t1, span: t1 - t0 };
+}
+
+/** Where `t` falls in a keyframe span, 0..1 (0 for an instant). */
+const fractionOf = (k, t) => (k.span > 0 ? clamp((t - k.t0) / k.span, 0, 1) : 0);
+
+/** The parameters every tile URL of the current view shares, but for `t` (quality, sun). */
 function generation() {
-  const t = snapTime(state.t);
-  let q = `t=${t}&quality=${state.quality}`;
+  let q = `quality=${state.quality}`;
   if (state.sun) q += `&sun=${state.sun[0]},${state.sun[1]}`;
   return q;
 }
 
-function tileUrl(tile, product, gen) {
+/** A tile product's URL at keyframe time `t0`: immutable, the same for the whole span. */
+function tileUrl(tile, product, gen, t0) {
   return (
     `/v1/worlds/${encodeURIComponent(state.world)}/tiles/${tile.z}/${tile.x}/${tile.y}/${product}` +
-    `?${gen}&layer=${encodeURIComponent(tile.layerName)}`
+    `?t=${t0}&${gen}&layer=${encodeURIComponent(tile.layerName)}`
   );
 }
 
-/** Loaded or loading tiles by key (`gen|layer/z/x/y`). */
+/** Loaded or loading tiles by key (`gen|layer/z/x/y@t0`). */
 const tiles = new Map();
 /** Keys the current plan wants. */
 let wanted = [];
 let queue = [];
+/** Next-keyframe URLs to fetch ahead of need when nothing else waits. */
+let prefetchQueue = [];
+const prefetching = new Set();
 let inFlight = 0;
 let instancesDirty = true;
 
-/** Decodes billboards.bin into instance floats (centres relative to `origin`). */
-function decodeBillboards(buf) {
+/** IEEE 754 binary16 → number, by table (WebGL2's HALF_FLOAT). */
+const HALF = (() => {
+  const t = new Float32Array(65536);
+  for (let h = 0; h < 65536; h++) {
+    const sign = h & 0x8000 ? -1 : 1;
+    const e = (h >> 10) & 0x1f;
+    const m = h & 0x3ff;
+    t[h] = sign * (e === 0 ? m * 2 ** -24 : e === 31 ? (m ? NaN : Infinity) : (1 + m / 1024) * 2 ** (e - 15));
+  }
+  return t;
+})();
+
+/** The τ_k of splat `k` (src/render/splats.rs: tau_max · ((k + 1) / count)²). */
+const splatTau = (k, count, tauMax) => tauMax * ((Math.min(k, count - 1) + 1) / count) ** 2;
+
+/**
+ * Decodes billboards.bin, version 2 (a keyframe: both ends of each billboard, lighting
+ * in the header) or version 1 (one time, no lighting), into instance floats (centres
+ * relative to the tile origin, t0 relative to the keyframe's own t0). `t` is the
+ * time a version-1 tile was asked for.
+ */
+function decodeBillboards(buf, t) {
   const v = new DataView(buf);
   const magic = String.fromCharCode(v.getUint8(0), v.getUint8(1), v.getUint8(2), v.getUint8(3));
-  if (magic !== 'CSBB' || v.getUint16(4, true) !== 1 || v.getUint16(6, true) !== BIN_RECORD) {
-    throw new Error('billboards.bin: unknown format');
+  const version = v.getUint16(4, true);
+  const sizes = BIN_SIZES[version];
+  if (magic !== 'CSBB' || !sizes || v.getUint16(6, true) !== sizes[1]) {
+    throw new Error(`billboards.bin: unknown format (version ${version})`);
   }
+  const [headerBytes, recordBytes] = sizes;
   const count = v.getUint32(8, true);
-  if (buf.byteLength !== BIN_HEADER + count * BIN_RECORD) throw new Error('billboards.bin: truncated');
+  if (buf.byteLength !== headerBytes + count * recordBytes) throw new Error('billboards.bin: truncated');
+  const f32 = (o) => v.getFloat32(o, true);
+  const vec3 = (o) => [f32(o), f32(o + 4), f32(o + 8)];
   const header = {
+    version,
     origin: [v.getFloat64(32, true), v.getFloat64(40, true)],
-    sun: [v.getFloat32(48, true), v.getFloat32(52, true)],
+    sun: [f32(48), f32(52)],
     splatCount: v.getUint16(56, true),
+    t0: t,
+    t1: t,
+    lighting: null,
   };
+  if (version >= 2) {
+    header.t0 = v.getFloat64(64, true);
+    header.t1 = v.getFloat64(72, true);
+    header.lighting = {
+      sunDir: vec3(80),
+      sunRgb: vec3(92),
+      ambient: vec3(104),
+      albedo: f32(116),
+      extinction: f32(120),
+      phase: vec3(124),
+      octaves: [v.getUint32(136, true), f32(140), f32(144), f32(148)],
+      algorithmVersion: v.getUint32(152, true),
+    };
+  }
+  const span = header.t1 - header.t0;
   const data = new Float32Array(count * INSTANCE_FLOATS);
+  const tauMax = splatInfo.tauMax;
+  const splats = splatInfo.count;
   for (let i = 0; i < count; i++) {
-    const o = BIN_HEADER + i * BIN_RECORD;
+    const o = headerBytes + i * recordBytes;
     const d = i * INSTANCE_FLOATS;
-    data[d] = v.getFloat32(o, true);
-    data[d + 1] = v.getFloat32(o + 4, true);
-    data[d + 2] = v.getFloat32(o + 8, true);
-    data[d + 3] = v.getFloat32(o + 12, true);
-    data[d + 4] = v.getFloat32(o + 20, true);
-    data[d + 5] = v.getFloat32(o + 24, true);
-    data[d + 6] = v.getFloat32(o + 28, true);
-    data[d + 7] = v.getUint16(o + 16, true);
-    data[d + 8] = v.getFloat32(o + 32, true);
+    data[d] = f32(o);
+    data[d + 1] = f32(o + 4);
+    data[d + 2] = f32(o + 8);
+    data[d + 3] = f32(o + 12);
+    data[d + 6] = 0; // t0, made relative to the buffer's time origin when drawn
+    data[d + 7] = span;
+    if (version >= 2) {
+      data[d + 4] = f32(o + 16);
+      data[d + 5] = f32(o + 20);
+      for (let c = 0; c < 3; c++) {
+        data[d + 8 + c] = HALF[v.getUint16(o + 36 + 2 * c, true)];
+        data[d + 11 + c] = HALF[v.getUint16(o + 42 + 2 * c, true)];
+      }
+      data[d + 14] = f32(o + 24);
+      data[d + 15] = f32(o + 28);
+      data[d + 16] = HALF[v.getUint16(o + 48, true)];
+      data[d + 17] = HALF[v.getUint16(o + 50, true)];
+    } else {
+      // One time: both ends the same, the optical depth the splat's own.
+      const tau = splatTau(v.getUint16(o + 16, true), splats, tauMax);
+      for (let c = 0; c < 3; c++) data[d + 8 + c] = data[d + 11 + c] = f32(o + 20 + 4 * c);
+      data[d + 14] = data[d + 15] = tau;
+      data[d + 16] = data[d + 17] = f32(o + 32);
+    }
   }
   return { header, count, data };
 }
 
-/** Mean of the red channel (0..1) of a shadow map: the tile's mean sun transmittance. */
+/** Mean of the red and green channels (0..1) of a shadow map: the tile's mean sun transmittance at t0 and t1. */
 function meanOf(image) {
   const c = new OffscreenCanvas(image.width, image.height);
   const ctx = c.getContext('2d');
   ctx.drawImage(image, 0, 0);
   const d = ctx.getImageData(0, 0, image.width, image.height).data;
-  let sum = 0;
-  for (let i = 0; i < d.length; i += 4) sum += d[i];
-  return sum / (255 * (d.length / 4));
+  let r = 0;
+  let g = 0;
+  for (let i = 0; i < d.length; i += 4) {
+    r += d[i];
+    g += d[i + 1];
+  }
+  const n = 255 * (d.length / 4);
+  return [r / n, g / n];
 }
 
 async function loadTile(tile) {
-  const gen = tile.gen;
   const [bin, png] = await Promise.all([
-    fetchBytes(tileUrl(tile, 'billboards.bin', gen)),
-    fetchBytes(tileUrl(tile, 'shadow.png', gen)),
+    fetchBytes(tileUrl(tile, 'billboards.bin', tile.gen, tile.t0)),
+    fetchBytes(tileUrl(tile, 'shadow.png', tile.gen, tile.t0)),
   ]);
-  const decoded = decodeBillboards(bin);
+  const decoded = decodeBillboards(bin, tile.t0);
   const image = await decodeImage(png, 'image/png');
   return { decoded, image };
 }
@@ -866,6 +1035,9 @@ function pump() {
         if (!tiles.has(tile.key)) return;
         tile.billboards = decoded;
         tile.sun = decoded.header.sun;
+        // The span the bytes say they cover (a version-1 tile: an instant).
+        tile.t0 = decoded.header.t0;
+        tile.t1 = decoded.header.t1;
         tile.shadow = texture(image, gl.LINEAR);
         tile.meanShadow = meanOf(image);
         image.close?.();
@@ -883,9 +1055,30 @@ function pump() {
         pump();
       });
   }
+  // Ahead of need, when the view's own tiles are all asked for.
+  while (inFlight < MAX_IN_FLIGHT && !queue.length && prefetchQueue.length) {
+    const url = prefetchQueue.shift();
+    if (held.has(url) || prefetching.has(url)) continue;
+    inFlight++;
+    prefetching.add(url);
+    stats.prefetched++;
+    fetchBytes(url)
+      .catch(() => {
+        // The tile is asked for again when its keyframe comes; an error shows then.
+      })
+      .finally(() => {
+        prefetching.delete(url);
+        inFlight--;
+        pump();
+      });
+  }
 }
 
-/** Re-plans, queues the new tiles and drops the ones no longer needed. */
+/**
+ * Re-plans, queues the new tiles (each at the keyframe that holds `state.t`), queues
+ * the next keyframe of tiles past the middle of their span, and drops the tiles no
+ * longer needed.
+ */
 function updateTiles() {
   if (!worldInfo) return;
   loadSky().catch((e) => {
@@ -894,15 +1087,21 @@ function updateTiles() {
   });
   const gen = generation();
   const planned = plan();
-  wanted = planned.map((p) => `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}`);
-  planned.forEach((p, i) => {
-    const key = wanted[i];
+  const next = [];
+  wanted = planned.map((p) => {
+    const k = keyframeOf(worldInfo.layers[p.layer], p.z, state.t);
+    const key = `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}@${k.t0}`;
     if (!tiles.has(key)) {
-      const tile = { ...p, key, gen, state: 'queued' };
+      const tile = { ...p, key, gen, t0: k.t0, t1: k.t1, state: 'queued' };
       tiles.set(key, tile);
       queue.push(tile);
     }
+    if (k.span > 0 && fractionOf(k, state.t) >= 0.5) {
+      for (const product of ['billboards.bin', 'shadow.png']) next.push(tileUrl(p, product, gen, k.t1));
+    }
+    return key;
   });
+  prefetchQueue = next.filter((u) => !held.has(u) && !prefetching.has(u));
   // Nearest first.
   const cam = state.camera;
   const centreDistance = (t) => Math.hypot(t.origin[0] + t.size / 2 - cam.x, t.origin[1] + t.size / 2 - cam.y);
@@ -947,11 +1146,17 @@ function drawnTiles() {
 // Drawing.
 // ---------------------------------------------------------------------------
 
-/** All drawn instances, centres relative to `bufferOrigin`, and a sorted copy for the GPU. */
+/**
+ * All drawn instances, centres relative to `bufferOrigin` and keyframe times relative
+ * to `timeOrigin` (so f32 holds them at any world position and clock), and a sorted
+ * copy for the GPU.
+ */
 let instances = new Float32Array(0);
 let sorted = new Float32Array(0);
 let bufferOrigin = [0, 0];
+let timeOrigin = 0;
 let lastSortEye = null;
+let lastSortTime = null;
 
 function rebuildInstances() {
   const drawn = drawnTiles();
@@ -959,15 +1164,18 @@ function rebuildInstances() {
   instances = new Float32Array(total * INSTANCE_FLOATS);
   sorted = new Float32Array(total * INSTANCE_FLOATS);
   bufferOrigin = [Math.round(state.camera.x), Math.round(state.camera.y)];
+  timeOrigin = Math.floor(state.t);
   let at = 0;
   for (const t of drawn) {
     const { data, count, header } = t.billboards;
     instances.set(data, at);
     const ox = header.origin[0] - bufferOrigin[0];
     const oy = header.origin[1] - bufferOrigin[1];
+    const ot = header.t0 - timeOrigin;
     for (let i = 0; i < count; i++) {
       instances[at + i * INSTANCE_FLOATS] += ox;
       instances[at + i * INSTANCE_FLOATS + 1] += oy;
+      instances[at + i * INSTANCE_FLOATS + 6] = ot;
     }
     at += data.length;
   }
@@ -976,15 +1184,16 @@ function rebuildInstances() {
   lastSortEye = null;
 }
 
-/** Sorts instances back to front from the eye and uploads them. */
-function sortInstances(eye) {
+/** Sorts instances back to front from the eye, where they are at `time` (relative to timeOrigin), and uploads them. */
+function sortInstances(eye, time) {
   const n = instances.length / INSTANCE_FLOATS;
   const dist = new Float64Array(n);
   const order = new Uint32Array(n);
   for (let i = 0; i < n; i++) {
     const o = i * INSTANCE_FLOATS;
-    const dx = instances[o] - eye[0];
-    const dy = instances[o + 1] - eye[1];
+    const since = clamp(time - instances[o + 6], 0, instances[o + 7]);
+    const dx = instances[o] + instances[o + 4] * since - eye[0];
+    const dy = instances[o + 1] + instances[o + 5] * since - eye[1];
     const dz = instances[o + 2] - eye[2];
     dist[i] = dx * dx + dy * dy + dz * dz;
     order[i] = i;
@@ -996,6 +1205,19 @@ function sortInstances(eye) {
   gl.bindBuffer(gl.ARRAY_BUFFER, instanceBuffer);
   gl.bufferData(gl.ARRAY_BUFFER, sorted, gl.DYNAMIC_DRAW);
   lastSortEye = eye;
+  lastSortTime = time;
+}
+
+/**
+ * The shading parameters of the drawn tiles: a version-2 header's lighting, else
+ * (version 1) ShadingParams::default(); and the sun's radiance, the header's, else
+ * the sky's.
+ */
+function shading() {
+  const t = drawnTiles().find((t) => t.billboards.header.lighting);
+  if (!t) return { albedo: SHADING.albedo, phase: [SHADING.g1, SHADING.g2, SHADING.mix], octaves: SHADING.octaves, sunRgb: null };
+  const l = t.billboards.header.lighting;
+  return { albedo: l.albedo, phase: l.phase, octaves: l.octaves, sunRgb: l.sunRgb };
 }
 
 /** The sun drawn: the manual one, else the one the server shaded the tiles for. */
@@ -1129,9 +1351,12 @@ function draw() {
     const sd = light.dir;
     const sz = Math.max(sd[2], Math.sin(rad(1)));
     const far = new Map();
+    const shadowF = new Map();
     for (const t of drawn) {
+      const f = fractionOf({ t0: t.t0, span: t.t1 - t.t0 }, state.t);
+      shadowF.set(t, f);
       const e = far.get(t.layer) || { sum: 0, n: 0 };
-      far.set(t.layer, { sum: e.sum + t.meanShadow, n: e.n + 1 });
+      far.set(t.layer, { sum: e.sum + (1 - f) * t.meanShadow[0] + f * t.meanShadow[1], n: e.n + 1 });
     }
     gl.uniform1f(hu.mode, 0);
     for (const t of drawn) {
@@ -1139,6 +1364,7 @@ function draw() {
       const shift = [(sd[0] * base) / sz, (sd[1] * base) / sz];
       const f = far.get(t.layer);
       gl.uniform1f(hu.far, f.sum / f.n);
+      gl.uniform1f(hu.shadowF, shadowF.get(t));
       gl.bindTexture(gl.TEXTURE_2D, t.shadow);
       gl.uniform4f(hu.rect, t.origin[0] - shift[0] - cam.x, t.origin[1] - shift[1] - cam.y, t.size, cam.z);
       gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
@@ -1146,6 +1372,7 @@ function draw() {
     }
     // The far ground of each layer, past the view distance.
     gl.uniform1f(hu.mode, 1);
+    gl.uniform1f(hu.shadowF, 0);
     const big = 400000;
     for (const f of far.values()) {
       gl.uniform1f(hu.far, f.sum / f.n);
@@ -1159,8 +1386,13 @@ function draw() {
   const n = instances.length / INSTANCE_FLOATS;
   if (n > 0 && splatTexture) {
     const eye = [cam.x - bufferOrigin[0], cam.y - bufferOrigin[1], cam.z];
-    if (!lastSortEye || Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1) {
-      sortInstances(eye);
+    const time = state.t - timeOrigin;
+    if (
+      !lastSortEye ||
+      time !== lastSortTime ||
+      Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1
+    ) {
+      sortInstances(eye, time);
     }
     // Into the offscreen targets (cleared to nothing) when the erosion pass runs.
     const target = SHADING.detailErosion > 0 ? cloudTargets(canvas.width, canvas.height) : null;
@@ -1179,10 +1411,13 @@ function draw() {
     gl.uniform3fv(bu.right, right);
     gl.uniform3fv(bu.up, up);
     setAtmosphere(billboardProgram);
-    gl.uniform3fv(bu.sunRgb, light.sunRgb);
-    gl.uniform1f(bu.albedo, SHADING.albedo);
-    gl.uniform3f(bu.phase, SHADING.g1, SHADING.g2, SHADING.mix);
-    gl.uniform4fv(bu.octaves, SHADING.octaves);
+    const sh = shading();
+    gl.uniform3fv(bu.sunRgb, sh.sunRgb || light.sunRgb);
+    gl.uniform1f(bu.albedo, sh.albedo);
+    gl.uniform3fv(bu.phase, sh.phase);
+    gl.uniform4fv(bu.octaves, sh.octaves);
+    gl.uniform1f(bu.time, time);
+    gl.uniform2f(bu.splatTable, splatInfo.count, splatInfo.tauMax);
     gl.uniform4f(bu.sheet, splatInfo.columns, splatInfo.size, splatInfo.width, splatInfo.height);
     const wrap = (v) => v - 65536 * Math.floor(v / 65536);
     gl.uniform3f(bu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
@@ -1248,13 +1483,13 @@ function formatTime(t) {
   const s = t - day * 86400;
   const hh = String(Math.floor(s / 3600)).padStart(2, '0');
   const mm = String(Math.floor((s % 3600) / 60)).padStart(2, '0');
-  return `day ${day} ${hh}:${mm} (t = ${t} s)`;
+  return `day ${day} ${hh}:${mm} (t = ${Math.round(t * 10) / 10} s)`;
 }
 
 function setTime(t) {
   state.t = clamp(t, 0, worldInfo ? worldInfo.max_time : 1e12);
   $('time').value = String(state.t);
-  $('time-out').textContent = formatTime(snapTime(state.t));
+  $('time-out').textContent = formatTime(state.t);
   updateTiles();
   syncUrl();
 }
@@ -1392,6 +1627,8 @@ let lastPlan = 0;
 let lastPlanCamera = '';
 let lastUrlSync = 0;
 let lastPlayStep = 0;
+/** Canonical frames of world time per second of play. */
+const PLAY_FRAMES_PER_SECOND = 4;
 
 function frame(now) {
   const dt = Math.min((now - lastFrame) / 1000, 0.1);
@@ -1409,10 +1646,16 @@ function frame(now) {
       syncUrl();
     }
   }
-  if (state.playing && worldInfo && settled() && now - lastPlayStep > 250) {
-    lastPlayStep = now;
+  if (state.playing && worldInfo) {
+    // The clock runs at PLAY_FRAMES_PER_SECOND canonical frames a second; tiles animate
+    // between their keyframes every frame, and are re-planned (new keyframes, prefetch)
+    // a few times a second.
     const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
-    setTime(snapTime(state.t) + period);
+    state.t = clamp(state.t + dt * PLAY_FRAMES_PER_SECOND * period, 0, worldInfo.max_time);
+    if (now - lastPlayStep > 250) {
+      lastPlayStep = now;
+      setTime(state.t);
+    }
   }
   const shown = [
     JSON.stringify(state),
@@ -1443,7 +1686,7 @@ function updateHud() {
     `tiles      ${ready}/${wanted.length} loaded, ${inFlight} in flight, ${drawnTiles().length} drawn`,
     `billboards ${stats.billboards}, ${stats.drawCalls} draw calls`,
     `fetched    ${stats.fetched} (${kb(stats.bodyBytes)} bodies, ${kb(stats.transferBytes)} on the wire)`,
-    `revalidated ${stats.revalidations} (304)`,
+    `revalidated ${stats.revalidations} (304), ${stats.reused} immutable reused, ${stats.prefetched} prefetched`,
     `camera     ${[c().x, c().y, c().z].map((v) => v.toFixed(0)).join(', ')}  yaw ${c().yaw.toFixed(0)}° pitch ${c().pitch.toFixed(0)}°`,
     `sun        ${currentSun().map((v) => Number(v).toFixed(0)).join('°, ')}°${state.sun ? '' : ' (clock)'}`,
   ].join('\n');
@@ -1459,7 +1702,9 @@ async function loadSplats() {
   const image = await decodeImage(png, 'image/png');
   if (splatTexture) gl.deleteTexture(splatTexture);
   splatTexture = texture(image, gl.LINEAR);
-  splatInfo = { columns: json.columns, size: json.size, width: image.width, height: image.height, count: json.count };
+  splatInfo = {
+    columns: json.columns, size: json.size, width: image.width, height: image.height, count: json.count, tauMax: json.tau_max,
+  };
   image.close?.();
 }
 
@@ -1494,10 +1739,22 @@ window.cloudscape = {
   state,
   stats,
   settled,
+  /** True when nothing is being fetched or waits to be (prefetches included). */
+  idle: () => inFlight === 0 && queue.length === 0 && prefetchQueue.length === 0,
   project,
-  tiles: () => drawnTiles().map((t) => ({ layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count, gen: t.gen })),
+  tiles: () =>
+    drawnTiles().map((t) => ({
+      layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count,
+      version: t.billboards.header.version, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
+    })),
   wanted: () => wanted.slice(),
-  tileUrl: (tile, product) => tileUrl(tile, product, generation()),
+  /** A tile product's keyframe URL at the drawn time (`tile`: layer (name), z, x, y). */
+  tileUrl: (tile, product) => {
+    const l = worldInfo.layers.find((l) => l.name === tile.layer);
+    const k = keyframeOf(l, tile.z, state.t);
+    return tileUrl({ ...tile, layerName: tile.layer }, product, generation(), k.t0);
+  },
+  keyframeOf: (layerName, z, t) => keyframeOf(worldInfo.layers.find((l) => l.name === layerName), z, t),
   /** Draw every frame (true) or only frames that show something new (false, default). */
   setContinuous: (on) => {
     continuous = Boolean(on);

@@ -5,8 +5,10 @@
 //
 // Checks: the page loads without console errors; it requests exactly the tile URLs
 // its view needs; the canvas is not blank and is brighter where the server's coverage
-// map says cloud; moving the time slider changes the picture; a reload revalidates
-// every tile with a 304 and downloads no tile body; the default view's ground has no
+// map says cloud; moving the time slider changes the picture; a reload asks for no
+// immutable (keyframe) tile again; at a time between keyframes it asks for the
+// keyframe URLs (never a per-t URL), draws the clouds, prefetches the next keyframe
+// and crosses into it without asking again; the default view's ground has no
 // seam; the sky (the server's /v1/sky.json) is blue above and brighter at the horizon
 // at noon, reddish toward a low sun; at the far horizon `fast` shows no brighter band
 // than `balanced` (issue 20). Saves screenshots in OUT_DIR and
@@ -225,33 +227,90 @@ try {
     slider.dispatchEvent(new Event('input', { bubbles: true }));
   }, t1);
   await settle(page);
-  const drawnGens = await page.evaluate(() => window.cloudscape.tiles().map((t) => t.gen));
+  const drawnSpans = await page.evaluate(() => window.cloudscape.tiles().map((t) => [t.t0, t.t1, t.version]));
   const b = await canvasLuminance(page);
   const diff = mean(a.lum.map((v, i) => Math.abs(v - b.lum[i])));
   check(
-    'moving the time slider loads the new frame and changes the picture',
-    drawnGens.length > 0 && drawnGens.every((g) => g.startsWith(`t=${t1}&`)) && diff > 0.01,
-    `mean |Δluminance| ${diff.toFixed(4)}`,
+    'moving the time slider loads the keyframe that holds the new time and changes the picture',
+    drawnSpans.length > 0 && drawnSpans.every(([k0, k1, v]) => v === 2 && k0 <= t1 && t1 < k1) && diff > 0.01,
+    `spans ${JSON.stringify(drawnSpans)}; mean |Δluminance| ${diff.toFixed(4)}`,
   );
 
-  // --- Reload: every tile revalidates with a 304, no tile body is downloaded. --------
+  // --- Reload: keyframe URLs are immutable, so no tile is asked for again. ----------
   const before = log.responses.length;
   await page.reload();
   await settle(page);
   const after = log.responses.slice(before).filter((r) => r.url.includes('/tiles/'));
-  const notModified = after.filter((r) => r.status === 304).length;
   const stats = await page.evaluate(() => ({ ...window.cloudscape.stats, urls: undefined }));
   check(
-    'a reload revalidates every tile with a 304',
-    after.length >= 2 && notModified === after.length && stats.revalidations >= after.length,
-    `${notModified}/${after.length} tile responses were 304; viewer counted ${stats.revalidations} revalidations`,
+    'a reload asks for no immutable tile again (bodies kept in Cache Storage)',
+    after.length === 0 && stats.reused >= 2,
+    `${after.length} tile responses after the reload; viewer reused ${stats.reused} immutable bodies`,
   );
-  check('a reload downloads no tile body again', after.every((r) => r.status !== 200));
 
   const bad = log.responses.filter((r) => r.status >= 400);
   check('no request failed', bad.length === 0, JSON.stringify(bad.slice(0, 5)));
   check('the page logs no console errors', log.errors.length === 0, log.errors.slice(0, 5).join(' | '));
   await page.close();
+
+  // --- Between keyframes (issue 22), in a fresh context (nothing stored). -------------
+  // Level 0 of the overcast stratocumulus has a 20 s span: t = t0 + 12 s is 60 % of
+  // the way to the next keyframe. The viewer must ask for the keyframe URLs (t = t0),
+  // never a URL of its own t, draw the animated clouds, and (past the middle) fetch
+  // the next keyframe ahead; crossing into that keyframe then asks for nothing.
+  {
+    const kctx = await browser.newContext({ viewport: VIEWPORT });
+    const kf = await openPage(kctx);
+    const tMid = t0 + 12;
+    const sceneAt = (t) => `/?world=overcast&t=${t}&camera=${camera}&quality=balanced&sun=180,90&layers=stratocumulus`;
+    await kf.page.goto(`${base}${sceneAt(tMid)}`);
+    await settle(kf.page);
+    // The prefetch runs once the view's own tiles are in: wait for it to finish.
+    await kf.page.waitForFunction(() => window.cloudscape.stats.prefetched >= 2 && window.cloudscape.idle(), null, {
+      timeout: LOAD_TIMEOUT_MS,
+      polling: 250,
+    });
+    const span = await kf.page.evaluate(() => window.cloudscape.keyframeOf('stratocumulus', 0, 43212));
+    const url = (p, t) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t}&quality=balanced&sun=180,90&layer=stratocumulus`;
+    const want = [t0, t0 + 20].flatMap((t) => ['billboards.bin', 'shadow.png'].map((p) => url(p, t))).sort();
+    const got = [...new Set(kf.log.tileRequests)].sort();
+    check(
+      'between keyframes the viewer asks for the keyframe URLs and prefetches the next, never its own t',
+      span.t0 === t0 && span.t1 === t0 + 20 && JSON.stringify(got) === JSON.stringify(want),
+      `span ${JSON.stringify(span)}; requested ${JSON.stringify(got)}`,
+    );
+    const responses = kf.log.responses.filter((r) => r.url.includes('/tiles/'));
+    check('the keyframe answers are 200s', responses.length === 4 && responses.every((r) => r.status === 200), JSON.stringify(responses));
+    const m = await canvasLuminance(kf.page);
+    await kf.page.screenshot({ path: join(outDir, 'between-keyframes.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+    const cloudyMid = coverage.samples.filter((s) => s.coverage >= 0.5).map((s) => Math.abs(m.lum[s.py * m.width + s.px] - ground.lum[s.py * m.width + s.px]));
+    const clearMid = coverage.samples.filter((s) => s.coverage === 0).map((s) => Math.abs(m.lum[s.py * m.width + s.px] - ground.lum[s.py * m.width + s.px]));
+    check(
+      'between keyframes the viewer draws the clouds (cloudier where the keyframe coverage says cloud)',
+      std(m.lum) > 0.03 && mean(cloudyMid) > mean(clearMid) + 0.05,
+      `cloudy ${mean(cloudyMid).toFixed(3)}, clear ${mean(clearMid).toFixed(3)}`,
+    );
+    const dMid = mean(a.lum.map((v, i) => Math.abs(v - m.lum[i])));
+    check('the animated picture differs from the keyframe\'s own', dMid > 0.001, `mean |Δluminance| ${dMid.toFixed(4)}`);
+    // Within the span, and then into the prefetched next keyframe: no request at all.
+    const n0 = kf.log.tileRequests.length;
+    for (const t of [tMid + 3, t0 + 25]) {
+      await kf.page.evaluate((t) => {
+        const slider = document.getElementById('time');
+        slider.value = String(t);
+        slider.dispatchEvent(new Event('input', { bubbles: true }));
+      }, t);
+      await settle(kf.page);
+    }
+    const drawn = await kf.page.evaluate(() => window.cloudscape.tiles().map((t) => t.t0));
+    check(
+      'moving within the span and into the prefetched keyframe asks for no tile again',
+      kf.log.tileRequests.length === n0 && drawn.length === 1 && drawn[0] === t0 + 20,
+      `${kf.log.tileRequests.length - n0} more tile requests; drawn keyframes ${JSON.stringify(drawn)}`,
+    );
+    check('the between-keyframes page logs no console errors', kf.log.errors.length === 0, kf.log.errors.slice(0, 5).join(' | '));
+    await kctx.close();
+  }
 
   // --- The default view (what `/` shows), and a 10 km view, for the figures. ---------
   const def = await openPage(context);

@@ -207,11 +207,7 @@ async fn retry_after_follows_the_queue_not_a_constant() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billboards_bin() {
     let _serial = SERIAL.lock().await;
-    // Computations are counted below: nothing computed ahead (tests/keyframes.rs).
-    let server = start(&[
-        ("CLOUDSCAPE_LIMITS_MAX_RESPONSE_BYTES", "1048576"),
-        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
-    ]);
+    let server = start(&[("CLOUDSCAPE_LIMITS_MAX_RESPONSE_BYTES", "1048576")]);
     let c = client();
     let tile = |p: &str| format!("{}/v1/worlds/default/tiles/0/0/0/{p}?t=43200&quality=fast", server.base);
     let a = get(&c, tile("billboards.json")).await;
@@ -239,11 +235,7 @@ async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
     let _serial = SERIAL.lock().await;
     // 4 MiB of cache: at most 1 MiB an entry. density.f32 of a tile is 2.6 MB,
     // density.u8 0.66 MB.
-    // Computations are counted below: nothing computed ahead (tests/keyframes.rs).
-    let server = start(&[
-        ("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304"),
-        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
-    ]);
+    let server = start(&[("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304")]);
     let c = client();
     let tile = |p: &str| format!("{}/v1/worlds/overcast/tiles/0/3/4/{p}?t=40", server.base);
     let before = metric(&server, "cloudscape_cache_bytes", &[]);

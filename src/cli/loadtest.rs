@@ -66,7 +66,7 @@ pub struct LoadtestArgs {
     #[arg(long, value_delimiter = ',')]
     steps: Option<Vec<usize>>,
     /// With --sweep: write the curve into this Markdown file between
-    /// `<!-- bench:capacity:begin/end -->` (BENCHMARKS.md).
+    /// `<!-- bench:capacity:begin/end -->` (`capacity-poll` with --poll; BENCHMARKS.md).
     #[arg(long)]
     markdown: Option<String>,
 }
@@ -188,10 +188,18 @@ fn sweep(
     }
     if let Some(path) = markdown {
         let doc = std::fs::read_to_string(path).map_err(|e| format!("cannot read {path}: {e}"))?;
-        let section = cloudscape_tools::bench::Section {
-            id: "capacity",
-            title: "Capacity: players per box",
-            markdown: md,
+        // The `--poll` baseline has a section of its own, beside the keyframe curve.
+        let section = match spec.fetch {
+            FetchMode::Keyframes => cloudscape_tools::bench::Section {
+                id: "capacity",
+                title: "Capacity: players per box",
+                markdown: md,
+            },
+            FetchMode::Poll => cloudscape_tools::bench::Section {
+                id: "capacity-poll",
+                title: "Capacity: players per box, polling every second (before keyframes)",
+                markdown: md,
+            },
         };
         let merged = cloudscape_tools::bench::merge_sections(&doc, &[section])?;
         super::write_out(path, merged.as_bytes())?;

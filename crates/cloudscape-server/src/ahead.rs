@@ -13,8 +13,11 @@
 //! deadline, then most demanded), through the same cache and compute queue as the
 //! requests, so a request that arrives meanwhile joins the computation instead of
 //! repeating it. It runs at most `server.ahead_threads` computations at once, and
-//! only while the queue has a free compute thread, so requests keep priority: a
-//! request waits at most for the computations ahead already running.
+//! only while the queue has a free compute thread and another free place, so requests
+//! keep priority: a request is never shed for work ahead, and waits at most for the
+//! computations ahead already running. Its computations are counted in
+//! `cloudscape_ahead_computed_total`, not in `cloudscape_computations_total`, which
+//! counts what requests waited for.
 //!
 //! Replicas: bytes are deterministic, so two replicas computing the same keyframe
 //! ahead only waste work. Routing each tile to one replica by its path without the
@@ -31,7 +34,7 @@ use tokio::sync::Notify;
 use cloudscape_core::world::Keyframe;
 
 use crate::metrics::Metrics;
-use crate::state::AppState;
+use crate::cache::ResponseCache;
 use crate::tiles::TileRecipe;
 
 /// Demand counts halve after this long without requests.
@@ -217,23 +220,23 @@ impl HotSet {
 }
 
 /// The compute-ahead worker: runs until the server stops (the task is dropped).
-pub async fn run(state: Arc<AppState>) {
-    let hot = &state.ahead;
+pub async fn run(hot: Arc<HotSet>, cache: Arc<ResponseCache>, metrics: Arc<Metrics>) {
     if hot.threads == 0 {
         return;
     }
     let slots = Arc::new(tokio::sync::Semaphore::new(hot.threads));
     let threads = rayon::current_num_threads().max(1);
     loop {
-        // A free compute thread first: requests keep priority.
-        if state.cache.queue_depth() >= threads {
+        // A free compute thread first, and never the queue's last place: requests keep
+        // priority, and none is shed to make room for work ahead.
+        if cache.queue_depth() >= threads || cache.queue_free() < 2 {
             tokio::time::sleep(BUSY_POLL).await;
             continue;
         }
         let Ok(permit) = Arc::clone(&slots).acquire_owned().await else {
             return;
         };
-        let Some(job) = hot.next_job(&state.metrics) else {
+        let Some(job) = hot.next_job(&metrics) else {
             drop(permit);
             tokio::select! {
                 _ = hot.wake.notified() => {}
@@ -241,24 +244,23 @@ pub async fn run(state: Arc<AppState>) {
             }
             continue;
         };
-        let state = Arc::clone(&state);
+        let (hot, cache, metrics) = (Arc::clone(&hot), Arc::clone(&cache), Arc::clone(&metrics));
         tokio::spawn(async move {
-            let computed = compute(&state, &job).await;
-            state.ahead.finished(&job, computed);
+            let computed = compute(&cache, &metrics, &job).await;
+            hot.finished(&job, computed);
             drop(permit);
         });
     }
 }
 
 /// Computes one planned keyframe into the cache; true when it is there afterwards.
-async fn compute(state: &Arc<AppState>, job: &Planned) -> bool {
+async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) -> bool {
     let key = job.recipe.key(job.keyframe);
     let kind = job.recipe.product.family();
     let Ok((work, plan)) = job.recipe.plan(job.keyframe) else {
         return false;
     };
-    let m = &state.metrics;
-    let computed = state.cache.compute_ahead(m, kind, key, work, plan).await;
+    let computed = cache.compute_ahead(m, kind, key, work, plan).await;
     if computed {
         m.ahead_computed.inc();
         let late = Instant::now().saturating_duration_since(job.deadline);

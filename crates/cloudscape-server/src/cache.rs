@@ -43,6 +43,14 @@ const CANCEL_POLL: Duration = Duration::from_millis(50);
 /// `Retry-After` bounds, seconds.
 const RETRY_AFTER_S: (u32, u32) = (1, 60);
 
+/// Who a computation is for: a request waiting on it, or compute-ahead
+/// (`crate::ahead`), whose computations and refusals are counted apart.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Asker {
+    Request,
+    Ahead,
+}
+
 /// Bounded CPU work: at most `capacity` jobs running or waiting for a rayon thread,
 /// holding at most `memory_mib` MiB of estimated working memory between them.
 pub struct ComputeQueue {
@@ -99,19 +107,25 @@ impl ComputeQueue {
     pub async fn run<T: Send + 'static>(
         &self,
         metrics: &Metrics,
-        kind: &str,
+        (kind, by): (&str, Asker),
         work: Work,
         cancel: Cancel,
         job: impl FnOnce(&Cancel) -> Result<T, ApiError> + Send + 'static,
     ) -> Result<T, ApiError> {
+        // Requests' computations and refusals are counted here; compute-ahead counts
+        // its own (`cloudscape_ahead_*`).
+        let shed = || {
+            if by == Asker::Request {
+                metrics.shed.with_label_values(&[kind]).inc();
+            }
+            ApiError::Overloaded(self.retry_after())
+        };
         let Ok(permit) = self.slots.clone().try_acquire_owned() else {
-            metrics.shed.with_label_values(&[kind]).inc();
-            return Err(ApiError::Overloaded(self.retry_after()));
+            return Err(shed());
         };
         let mib = (work.bytes.div_ceil(1 << 20)).clamp(1, self.memory_mib as u64) as u32;
         let Ok(memory) = self.memory.clone().try_acquire_many_owned(mib) else {
-            metrics.shed.with_label_values(&[kind]).inc();
-            return Err(ApiError::Overloaded(self.retry_after()));
+            return Err(shed());
         };
         metrics.queue_depth.set(self.depth() as i64);
         // Wait (in order) for one of the `threads` running places, or until nobody
@@ -128,7 +142,9 @@ impl ComputeQueue {
                 }
             }
         };
-        metrics.computations.with_label_values(&[kind]).inc();
+        if by == Asker::Request {
+            metrics.computations.with_label_values(&[kind]).inc();
+        }
         let timer = metrics.observe_compute(kind);
         let (tx, rx) = oneshot::channel();
         let mean = Arc::clone(&self.mean_job_s);
@@ -375,7 +391,8 @@ impl ResponseCache {
         {
             return Ok(bytes);
         }
-        let (bytes, siblings) = self.queue.run(m, kind, work, cancel, job).await?;
+        let by = if ahead { Asker::Ahead } else { Asker::Request };
+        let (bytes, siblings) = self.queue.run(m, (kind, by), work, cancel, job).await?;
         for (k, b) in &siblings {
             if b.len() <= self.max_entry {
                 self.cache.insert(k.clone(), b.clone()).await;
@@ -448,7 +465,7 @@ impl ResponseCache {
         job: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
     ) -> Result<T, ApiError> {
         self.queue
-            .run(metrics, kind, Work::default(), Cancel::never(), move |_| job())
+            .run(metrics, (kind, Asker::Request), Work::default(), Cancel::never(), move |_| job())
             .await
     }
 }
@@ -464,5 +481,10 @@ impl ResponseCache {
     /// Compute jobs running or queued.
     pub fn queue_depth(&self) -> usize {
         self.queue.depth()
+    }
+
+    /// Places left in the compute queue.
+    pub fn queue_free(&self) -> usize {
+        self.queue.capacity - self.queue.depth()
     }
 }

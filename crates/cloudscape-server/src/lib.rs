@@ -111,7 +111,11 @@ impl Server {
     pub async fn run(self) -> io::Result<()> {
         let state = self.state;
         tokio::spawn(start_up(Arc::clone(&state)));
-        let ahead = tokio::spawn(ahead::run(Arc::clone(&state)));
+        let ahead = tokio::spawn(ahead::run(
+            Arc::clone(&state.ahead),
+            Arc::clone(&state.cache),
+            Arc::clone(&state.metrics),
+        ));
         let app = router(Arc::clone(&state));
         let mut stop = self.stop.subscribe();
         let drain = {

@@ -232,7 +232,7 @@ impl Metrics {
             cache_misses: counter("cloudscape_cache_misses_total", "response cache misses", &["kind"]),
             computations: counter(
                 "cloudscape_computations_total",
-                "computations run (coalesced)",
+                "computations run for requests (coalesced; compute-ahead counts its own)",
                 &["kind"],
             ),
             compute_seconds: histogram("cloudscape_compute_duration_seconds", "compute time", &["kind"]),

@@ -63,7 +63,7 @@ pub struct AppState {
     pub metrics: Arc<Metrics>,
     pub readiness: Readiness,
     /// The tiles being watched, whose next keyframes are computed ahead.
-    pub ahead: HotSet,
+    pub ahead: Arc<HotSet>,
     /// Source of request ids: a per-process prefix and a counter.
     request_ids: (u32, AtomicU64),
 }
@@ -85,7 +85,7 @@ impl AppState {
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
-        let ahead = HotSet::new(settings.ahead_tiles as usize, settings.ahead_threads as usize);
+        let ahead = Arc::new(HotSet::new(settings.ahead_tiles as usize, settings.ahead_threads as usize));
         Ok(AppState {
             worlds: Worlds::new(config, settings.frames_per_step),
             settings,

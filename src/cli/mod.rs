@@ -11,6 +11,7 @@ mod probe;
 mod render;
 mod serve;
 
+use std::io::Write;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -78,7 +79,8 @@ pub fn main() -> ExitCode {
                     escaped.into_iter().flatten().chain((!c.is_control()).then_some(c))
                 })
                 .collect();
-            eprintln!("error: {line}");
+            // Not eprintln!: it panics when stderr is a closed pipe.
+            let _ = writeln!(std::io::stderr(), "error: {line}");
             ExitCode::FAILURE
         }
     }

@@ -25,6 +25,56 @@ pub struct ServeArgs {
     /// Print the effective configuration as TOML and exit.
     #[arg(long)]
     print_config: bool,
+    /// Log lines on stderr: `text` (colour only when stderr is a terminal and NO_COLOR
+    /// is unset) or `json` (one object a line, the request's fields flattened in).
+    #[arg(long, value_enum, default_value_t = LogFormat::Text)]
+    log_format: LogFormat,
+}
+
+/// How `serve` writes its log lines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    Text,
+    Json,
+}
+
+/// Standard error that never fails: a log line that cannot be written (the reader of
+/// a stderr pipe went away: EPIPE) is dropped. tracing-subscriber reports a failed
+/// write with `eprintln!`, which panics on that same closed pipe, inside whatever
+/// task was logging (the shutdown task, a request).
+struct LossyStderr;
+
+impl std::io::Write for LossyStderr {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        Ok(std::io::stderr().write(buf).unwrap_or(buf.len()))
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        let _ = std::io::stderr().flush();
+        Ok(())
+    }
+}
+
+/// Installs the log subscriber: `RUST_LOG` filter (default `info`), `format`, no
+/// ANSI escapes unless stderr is a terminal, writes that cannot fail.
+fn init_logging(format: LogFormat) {
+    use std::io::IsTerminal;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let ansi = std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none_or(|v| v.is_empty());
+    let builder = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(|| LossyStderr)
+        .log_internal_errors(false);
+    let _ = match format {
+        LogFormat::Text => builder.with_ansi(ansi).try_init(),
+        LogFormat::Json => builder
+            .json()
+            .flatten_event(true)
+            .with_current_span(true)
+            .with_span_list(false)
+            .try_init(),
+    };
 }
 
 /// The config text with environment (`vars`) and flag overrides applied, validated.
@@ -62,6 +112,13 @@ pub(crate) fn effective_config(
             continue;
         };
         let key = rest[section.len() + 1..].to_lowercase();
+        let known = known_keys(section)?;
+        if !known.contains(&key) {
+            return Err(format!(
+                "unknown environment variable {name}: [{section}] has no key `{key}` (keys: {})",
+                known.join(", ")
+            ));
+        }
         // TOML syntax when it parses (numbers, booleans, quoted strings), else a plain string.
         let value = toml::from_str::<toml::Table>(&format!("v = {raw}"))
             .ok()
@@ -76,6 +133,18 @@ pub(crate) fn effective_config(
     let config = Config::parse(&merged).map_err(|e| e.to_string())?;
     let server = ServerConfig::parse(&merged).map_err(|e| e.to_string())?;
     Ok((config, server))
+}
+
+/// The keys of the `[server]` or `[limits]` section, as the environment may name them.
+fn known_keys(section: &str) -> Result<Vec<String>, String> {
+    let defaults = match section {
+        "server" => value(&ServerConfig::default())?,
+        _ => value(&Config::embedded().limits)?,
+    };
+    Ok(defaults
+        .as_table()
+        .map(|t| t.keys().cloned().collect())
+        .unwrap_or_default())
 }
 
 /// The effective configuration as TOML that `Config::parse` reads back to the same config.
@@ -119,13 +188,7 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         print!("{}", config_to_toml(&config, &settings)?);
         return Ok(());
     }
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .try_init();
+    init_logging(a.log_format);
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -210,7 +273,17 @@ mod tests {
     #[test]
     fn unknown_or_invalid_overrides_are_named() {
         let e = effective_config(None, None, vec![("CLOUDSCAPE_SERVER_BOGUS".into(), "1".into())]).unwrap_err();
-        assert!(e.contains("bogus"), "{e}");
+        assert!(
+            e.starts_with("unknown environment variable CLOUDSCAPE_SERVER_BOGUS:"),
+            "{e}"
+        );
+        assert!(e.contains("`bogus`") && e.contains("cors_origins"), "{e}");
+        let e = effective_config(None, None, vec![("CLOUDSCAPE_LIMITS_MAX_LEVLE".into(), "3".into())]).unwrap_err();
+        assert!(
+            e.starts_with("unknown environment variable CLOUDSCAPE_LIMITS_MAX_LEVLE:"),
+            "{e}"
+        );
+        assert!(e.contains("max_level"), "{e}");
         let e = effective_config(
             None,
             None,

@@ -82,6 +82,34 @@ pub struct ServerConfig {
     /// Most tile variants the hot set follows for compute-ahead; the least watched are
     /// forgotten first.
     pub ahead_tiles: u32,
+    /// Origins whose scripts may read the answers (CORS, [`crate::cors`]): `["*"]`
+    /// (the default) is any origin; a list such as `["https://game.example"]` only
+    /// those; `[]` sends no CORS headers. A string is read as a comma-separated list
+    /// (`CLOUDSCAPE_SERVER_CORS_ORIGINS=https://a.example,https://b.example`).
+    #[serde(deserialize_with = "origin_list")]
+    pub cors_origins: Vec<String>,
+    /// The scheme and authority clients reach the server at (`https://clouds.example`),
+    /// for the absolute URLs of TileJSON documents; empty means the request's `Host`.
+    pub public_url: String,
+}
+
+/// A list of strings, or one string of comma-separated entries.
+fn origin_list<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Origins {
+        List(Vec<String>),
+        Text(String),
+    }
+    Ok(match Origins::deserialize(d)? {
+        Origins::List(l) => l,
+        Origins::Text(t) => t
+            .split(',')
+            .map(str::trim)
+            .filter(|s| !s.is_empty())
+            .map(str::to_string)
+            .collect(),
+    })
 }
 
 /// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
@@ -118,6 +146,8 @@ impl Default for ServerConfig {
             reply_bytes: 256 << 20,
             ahead_threads: 1,
             ahead_tiles: 4096,
+            cors_origins: vec!["*".to_string()],
+            public_url: String::new(),
         }
     }
 }
@@ -172,6 +202,27 @@ impl ServerConfig {
         }
         if self.ahead_tiles > 1 << 20 {
             return Err(invalid("server.ahead_tiles", "must be at most 1048576"));
+        }
+        for origin in &self.cors_origins {
+            crate::cors::check_origin(origin).map_err(|e| invalid("server.cors_origins", &e))?;
+        }
+        if !self.public_url.is_empty() {
+            let rest = self
+                .public_url
+                .strip_prefix("https://")
+                .or_else(|| self.public_url.strip_prefix("http://"));
+            let ok = rest.is_some_and(|r| {
+                let r = r.trim_end_matches('/');
+                !r.is_empty()
+                    && r.bytes()
+                        .all(|b| b.is_ascii_graphic() && !matches!(b, b'?' | b'#' | b'"'))
+            });
+            if !ok {
+                return Err(invalid(
+                    "server.public_url",
+                    "must be http(s)://host[:port][/path] with no query (or empty for the request's Host)",
+                ));
+            }
         }
         if !self.redis_url.is_empty() && self.redis_timeout_ms == 0 {
             return Err(invalid("server.redis_timeout_ms", "must be positive"));

@@ -34,11 +34,12 @@ use std::time::{Duration, Instant};
 
 use axum::Router;
 use hyper::server::conn::http1;
+use hyper::service::Service;
 use hyper_util::rt::{TokioIo, TokioTimer};
+use hyper_util::service::TowerToHyperService;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
-use tower::Service;
 
 use crate::config::ServerConfig;
 use crate::metrics::{CloseReason, Metrics};
@@ -463,12 +464,12 @@ impl Connection {
         });
         let service = {
             let activity = Arc::clone(&activity);
-            let app = self.app.clone();
+            let app = TowerToHyperService::new(self.app.clone());
             hyper::service::service_fn(move |req| {
                 let handling = Handling::enter(&activity);
-                let mut app = app.clone();
+                let response = app.call(req);
                 async move {
-                    let response = app.call(req).await;
+                    let response = response.await;
                     drop(handling);
                     response
                 }

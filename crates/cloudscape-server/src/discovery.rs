@@ -91,9 +91,15 @@ pub struct WorldInfo {
     pub series: String,
     pub render: String,
     pub splats: Vec<String>,
+    /// TileJSON 3.0.0 of one layer and product (absolute URLs, zoom = maxzoom − level).
+    pub tilejson: String,
 }
 
-fn json_response(headers: &HeaderMap, cache_control: &str, value: &impl Serialize) -> Result<Response, ApiError> {
+pub(crate) fn json_response(
+    headers: &HeaderMap,
+    cache_control: &str,
+    value: &impl Serialize,
+) -> Result<Response, ApiError> {
     let body = serde_json::to_vec(value).map_err(|e| ApiError::Internal(e.to_string()))?;
     let repr = Representation {
         etag: format!("\"{}\"", stable_hash_hex(&body)),
@@ -211,6 +217,7 @@ pub async fn world(
             "/v1/splats.png?quality={quality}".to_string(),
             "/v1/splats.json?quality={quality}".to_string(),
         ],
+        tilejson: format!("{base}/tilejson.json?layer={{layer}}&product={{product}}"),
         name: w.name,
     };
     json_response(&headers, &s.settings.cache_control_other, &info)

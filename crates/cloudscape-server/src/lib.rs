@@ -6,8 +6,10 @@
 //! that is bound, then run until its [`ShutdownHandle`] fires, and a [`Readiness`]
 //! that `/readyz` reports.
 //!
-//! Routes (see `openapi.json`): discovery under `/v1/worlds`, tiles under
-//! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}`, region queries (`/sample`,
+//! Routes (see `openapi.json`): discovery under `/v1/worlds` (and TileJSON 3.0.0 at
+//! `/v1/worlds/{world}/tilejson.json`), tiles under
+//! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}` (and by TileJSON zoom under
+//! `/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}`), region queries (`/sample`,
 //! `/region`, `/series`), `/v1/worlds/{world}/render.png`, the splat sheets
 //! `/v1/splats.{png,json}`, `/v1/sky.json`, and the operator routes `/healthz`, `/readyz`,
 //! `/metrics`, `/openapi.json`.
@@ -22,6 +24,7 @@ mod ahead;
 mod cache;
 pub mod config;
 mod conn;
+mod cors;
 mod discovery;
 mod encode;
 mod error;
@@ -37,6 +40,7 @@ mod reply;
 mod respond;
 mod shared;
 mod state;
+mod tilejson;
 mod tiles;
 mod web;
 
@@ -193,10 +197,15 @@ async fn start_up(state: Arc<AppState>) {
 
 /// The router with every route and the layers every route shares.
 fn router(state: Arc<AppState>) -> Router {
-    Router::new()
+    let routes = Router::new()
         .route("/v1/worlds", get(discovery::list))
         .route("/v1/worlds/{world}", get(discovery::world))
         .route("/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}", get(tiles::tile))
+        .route("/v1/worlds/{world}/tilejson.json", get(tilejson::tilejson))
+        .route(
+            "/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}",
+            get(tilejson::zoom_tile),
+        )
         .route("/v1/worlds/{world}/sample", get(queries::sample))
         .route("/v1/worlds/{world}/region", get(queries::region))
         .route("/v1/worlds/{world}/series", get(queries::series))
@@ -211,16 +220,27 @@ fn router(state: Arc<AppState>) -> Router {
         .merge(web::routes())
         .fallback(|req: Request| async move { ApiError::NotFound(req.uri().path().chars().take(200).collect()) })
         .method_not_allowed_fallback(|| async { ApiError::MethodNotAllowed })
-        // No brotli: its encoder holds ~27 MiB a stream at quality 4 (measured: 12
-        // clients that stalled a 16 MB billboards.json added 325 MiB of RSS, against
-        // 4 MiB for gzip and 18 MiB for zstd), memory outside the reply budget.
-        .layer(CompressionLayer::new().no_br())
-        .layer(middleware::from_fn(tag_coding))
+        // No brotli (tower-http's `compression-br` feature is off): its encoder holds
+        // ~27 MiB a stream at quality 4 (measured: 12 clients that stalled a 16 MB
+        // billboards.json added 325 MiB of RSS, against 4 MiB for gzip and 18 MiB for
+        // zstd), memory outside the reply budget.
+        .layer(CompressionLayer::new())
+        .layer(middleware::from_fn(tag_coding));
+    // CORS outside compression and the handlers, so errors carry it too; inside
+    // `observe`, so preflights are counted and logged like any request.
+    let routes = match cors::layer(&state.settings.cors_origins) {
+        Some(cors) => routes.layer(cors).layer(middleware::from_fn(cors::preflight_204)),
+        None => routes,
+    };
+    routes
         .layer(middleware::from_fn_with_state(Arc::clone(&state), observe))
         .with_state(state)
 }
 
 const REQUEST_ID: HeaderName = HeaderName::from_static("x-request-id");
+
+/// Longest request path written to the access log, characters.
+const MAX_LOGGED_PATH: usize = 512;
 
 /// Counts requests in flight, even when the client goes away mid-request.
 struct InFlight(prometheus::IntGauge);
@@ -231,7 +251,8 @@ impl Drop for InFlight {
     }
 }
 
-/// Request id, tracing span, metrics by route template, and a log line per request.
+/// Request id, tracing span, metrics by route template, and a log line per request
+/// (the access log: id, method, route template, path, status, time).
 async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -> Response {
     let route = req
         .extensions()
@@ -246,7 +267,9 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
         .map_or_else(|| state.next_request_id(), str::to_string);
     // Labels and log fields from fixed sets: a client-made method name is `other`.
     let method = metrics::method_label(req.method());
-    let span = tracing::info_span!("request", id = %id, method, route = %route);
+    // The path as sent (the URI parser admits only printable ASCII), cut to a bound.
+    let path: String = req.uri().path().chars().take(MAX_LOGGED_PATH).collect();
+    let span = tracing::info_span!("request", id = %id, method, route = %route, path = %path);
     let m = &state.metrics;
     m.in_flight.inc();
     let _in_flight = InFlight(m.in_flight.clone());

@@ -4,8 +4,11 @@
 //! `other`), never tiles — so no request can add a series.
 
 use prometheus::{
-    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, Opts, Registry, TextEncoder,
+    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry,
+    TextEncoder,
 };
+
+use cloudscape_core::world::ALGORITHM_VERSION;
 
 /// Every metric the service exports. Owned by `AppState`; handlers and the compute
 /// queue update it.
@@ -190,6 +193,25 @@ impl Metrics {
         for reason in CloseReason::ALL {
             m.connections_closed.with_label_values(&[reason.label()]);
         }
+        // The standard process metrics (process_cpu_seconds_total,
+        // process_resident_memory_bytes, process_open_fds, process_max_fds,
+        // process_start_time_seconds, process_threads, …), read from /proc when scraped.
+        #[cfg(target_os = "linux")]
+        m.registry
+            .register(Box::new(prometheus::process_collector::ProcessCollector::for_self()))
+            .expect("unique metric");
+        let build = IntGaugeVec::new(
+            Opts::new(
+                "cloudscape_build_info",
+                "always 1: the build's version and the algorithm version in every cache key and ETag",
+            ),
+            &["version", "algorithm_version"],
+        )
+        .expect("valid metric");
+        build
+            .with_label_values(&[env!("CARGO_PKG_VERSION"), &ALGORITHM_VERSION.to_string()])
+            .set(1);
+        m.registry.register(Box::new(build)).expect("unique metric");
         m
     }
 

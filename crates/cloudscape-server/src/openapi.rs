@@ -7,7 +7,7 @@ use utoipa::OpenApi;
 
 use crate::extract::TileProduct;
 use crate::params::QualityName;
-use crate::{discovery, error, ops, queries, render, tiles};
+use crate::{discovery, error, ops, queries, render, tilejson, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -18,7 +18,9 @@ use crate::{discovery, error, ops, queries, render, tiles};
     paths(
         discovery::list,
         discovery::world,
+        tilejson::tilejson,
         tiles::tile,
+        tilejson::zoom_tile,
         queries::sample,
         queries::region,
         queries::series,
@@ -40,6 +42,8 @@ use crate::{discovery, error, ops, queries, render, tiles};
         discovery::WorldSummary,
         discovery::WorldInfo,
         discovery::LayerInfo,
+        tilejson::TileJson,
+        tilejson::TileJsonExtra,
         queries::Columns,
         queries::SampleAnswer,
         queries::RegionAnswer,

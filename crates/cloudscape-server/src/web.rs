@@ -1,4 +1,7 @@
-//! The viewer: `GET /` and its static files, embedded in the binary (`web/`).
+//! The viewer: `GET /` and its static files, embedded in the binary (`web/`), and the
+//! JS client module (`clients/js`) at `/client/cloudscape.js` with its TypeScript
+//! types at `/client/index.d.ts`, so a page can import the client from the server it
+//! draws.
 //!
 //! The files are compiled in with `include_str!`, so the binary serves the viewer
 //! offline and a deployed replica cannot drift from its own API. Each has a strong
@@ -23,8 +26,8 @@ struct Asset {
     body: &'static str,
 }
 
-/// Every file of the viewer, by URL path.
-const ASSETS: [Asset; 3] = [
+/// Every file of the viewer and the JS client, by URL path.
+const ASSETS: [Asset; 5] = [
     Asset {
         path: "/",
         content_type: "text/html; charset=utf-8",
@@ -39,6 +42,16 @@ const ASSETS: [Asset; 3] = [
         path: "/viewer.css",
         content_type: "text/css; charset=utf-8",
         body: include_str!("../../../web/viewer.css"),
+    },
+    Asset {
+        path: "/client/cloudscape.js",
+        content_type: "text/javascript; charset=utf-8",
+        body: include_str!("../../../clients/js/cloudscape.js"),
+    },
+    Asset {
+        path: "/client/index.d.ts",
+        content_type: "text/plain; charset=utf-8",
+        body: include_str!("../../../clients/js/index.d.ts"),
     },
 ];
 
@@ -86,6 +99,15 @@ mod tests {
         let mut other = HeaderMap::new();
         other.insert(header::IF_NONE_MATCH, HeaderValue::from_static("\"nope\""));
         assert_eq!(serve(index, &other).status(), StatusCode::OK);
+    }
+
+    #[test]
+    fn the_js_client_is_served_as_a_module() {
+        let client = ASSETS.iter().find(|a| a.path == "/client/cloudscape.js").unwrap();
+        assert!(client.content_type.starts_with("text/javascript"));
+        assert!(client.body.contains("export class CloudscapeClient"));
+        let types = ASSETS.iter().find(|a| a.path == "/client/index.d.ts").unwrap();
+        assert!(types.body.contains("export class CloudscapeClient"));
     }
 
     #[test]

@@ -20,7 +20,7 @@ use std::fmt::Write as _;
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
-use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
+use cloudscape_core::products::{atlas, billboards, coverage, precipitation, shadow, splats};
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
 use cloudscape_core::world::{ALGORITHM_VERSION, Config, Keyframe};
 
@@ -125,6 +125,7 @@ fn tile_products() -> BTreeMap<String, String> {
             let r = tile.region().unwrap();
             let g = density::density(&w, li, tile.z, r, t).unwrap();
             put(format!("density.u8 {key}"), encode_density(&g, GridFormat::U8));
+            put(format!("precipitation.png {key}"), precipitation::encode_png(layer, &g));
             put(
                 format!("coverage.png {key}"),
                 coverage::encode_png_for_tile(&w, li, tile, t, &tiny.limits).unwrap(),

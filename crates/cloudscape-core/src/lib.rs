@@ -3,7 +3,7 @@
 //!
 //! The pipeline runs one way, one module per stage:
 //! world spec → probability fields → automaton → density → metaballs →
-//! shading → encoding ([`products`]). A stage depends only on the stages before it.
+//! shading → encoding ([`products`]); [`weather`] reads precipitation off the density. A stage depends only on the stages before it.
 //! The HTTP service is `cloudscape-server`; the tile client is `cloudscape-client`.
 
 #![warn(missing_docs)]
@@ -16,4 +16,5 @@ pub mod density;
 pub mod fields;
 pub mod products;
 pub mod render;
+pub mod weather;
 pub mod world;

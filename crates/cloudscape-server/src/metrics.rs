@@ -146,9 +146,10 @@ impl CloseReason {
 pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 9] = [
+pub const KINDS: [&str; 10] = [
     "tile_density",
     "tile_coverage",
+    "tile_precipitation",
     "tile_shaded",
     "sample",
     "region",

@@ -3,6 +3,7 @@
 use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use cloudscape_core::density::RegionStats;
+use cloudscape_core::weather::PrecipitationStats;
 use utoipa::OpenApi;
 
 use crate::extract::TileProduct;
@@ -38,6 +39,7 @@ use crate::{discovery, error, ops, queries, render, tilejson, tiles};
         QualityName,
         error::ErrorBody,
         RegionStats,
+        PrecipitationStats,
         discovery::WorldList,
         discovery::WorldSummary,
         discovery::WorldInfo,

@@ -1,4 +1,5 @@
-//! REST queries by region and time: `/sample`, `/region`, `/series`.
+//! REST queries by region and time: `/sample`, `/region`, `/series` (with the
+//! precipitation of `cloudscape_core::weather` beside the cloud statistics).
 //!
 //! They read the same density the tiles serve (same function, same canonical frames),
 //! so a region's answer equals what is computed from the tiles it spans.
@@ -15,6 +16,7 @@ use serde::Serialize;
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::density::{self, Cell, Region, RegionStats, region_stats};
+use cloudscape_core::weather::{PrecipitationKind, PrecipitationStats, column_rate, kind_at, precipitation_stats};
 use cloudscape_core::world::SnappedTime;
 
 use crate::error::ApiError;
@@ -67,6 +69,14 @@ pub struct SampleAnswer {
     pub density: f32,
     /// The automaton's cloud bit of that cell.
     pub cloud: bool,
+    /// Precipitation rate at the point, mm/h: the sum of the column rates
+    /// (`weather::precipitation`) of the layers above it (of `layer` alone when the
+    /// request names one), each at its level-0 column holding (x, y).
+    pub precipitation_mm_h: f64,
+    /// What falls at altitude z: `none` when the rate is 0, `snow` at or above the
+    /// snow level (the world's freezing level − 300 m), else `rain`.
+    #[schema(value_type = String, example = "rain")]
+    pub precipitation_kind: PrecipitationKind,
 }
 
 /// `/region`: statistics of a region at one time.
@@ -82,6 +92,9 @@ pub struct RegionAnswer {
     pub columns: Columns,
     #[serde(flatten)]
     pub stats: RegionStats,
+    /// Precipitating fraction, mean and max rate of the region's columns.
+    #[serde(flatten)]
+    pub precipitation: PrecipitationStats,
 }
 
 /// One time point of a `/series`.
@@ -94,6 +107,8 @@ pub struct SeriesPoint {
     pub frame: u64,
     #[serde(flatten)]
     pub stats: RegionStats,
+    #[serde(flatten)]
+    pub precipitation: PrecipitationStats,
 }
 
 /// `/series`: region statistics over time.
@@ -119,7 +134,7 @@ pub struct SeriesAnswer {
         ("layer" = Option<String>, Query, description = "Layer name (default: the layer whose altitude band holds z)"),
     ),
     responses(
-        (status = 200, body = SampleAnswer, description = "Density and cloud flag of the level-0 cell holding the point"),
+        (status = 200, body = SampleAnswer, description = "Density and cloud flag of the level-0 cell holding the point; precipitation rate (mm/h) and kind at the point"),
         (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
@@ -140,26 +155,34 @@ pub async fn sample(
         params.required_f64("z")?,
     );
     let t = params.time("t")?;
+    let world = &resolved.world;
     let chosen = match params.get("layer") {
-        Some(name) => Some(layer(&resolved.world, Some(name))?),
-        None => resolved
-            .world
+        Some(name) => Some(layer(world, Some(name))?),
+        None => world
             .layers
             .iter()
             .enumerate()
             .find(|(_, l)| l.base <= z && z < l.top()),
     };
-    let Some((layer_index, layer)) = chosen else {
-        // No layer spans this altitude: clear sky, nothing to compute.
-        let frame = SnappedTime::snap(t, &resolved.world.layers[0], s.settings.frames_per_step);
+    // The layers whose precipitation reaches the point: the one asked for, else every
+    // layer whose top is above it (what falls from a layer crosses all of it).
+    let falling: Vec<usize> = match params.get("layer") {
+        Some(_) => chosen.iter().map(|(i, _)| *i).collect(),
+        None => (0..world.layers.len()).filter(|&i| world.layers[i].top() > z).collect(),
+    };
+    let Some(primary) = chosen.map(|(i, _)| i).or(falling.first().copied()) else {
+        // Above every layer: clear sky, nothing falls, nothing to compute.
+        let frame = SnappedTime::snap(t, &world.layers[0], s.settings.frames_per_step);
         let answer = SampleAnswer {
-            world: resolved.world.name.clone(),
+            world: world.name.clone(),
             layer: None,
             t: frame.t,
             frame: frame.index,
             cell: None,
             density: 0.0,
             cloud: false,
+            precipitation_mm_h: 0.0,
+            precipitation_kind: PrecipitationKind::None,
         };
         let repr = Representation {
             etag: format!(
@@ -181,32 +204,71 @@ pub async fn sample(
             .not_modified(&headers)
             .unwrap_or_else(|| repr.ok_small("application/json", json_bytes(&answer).unwrap_or_default())));
     };
+    let limits = &s.worlds.config().limits;
+    let fps = s.settings.frames_per_step;
+    // Each falling layer's column at its own frame (layers differ in cell size and dt).
+    let mut columns = Vec::with_capacity(falling.len());
+    for &i in &falling {
+        let l = &world.layers[i];
+        let column = Cell::at(l, x, y, z)?;
+        column.region().check(0, l.depth, limits)?;
+        columns.push((i, column, SnappedTime::snap(t, l, fps)));
+    }
+    let layer = &world.layers[primary];
     let cell = Cell::at(layer, x, y, z)?;
     let region = cell.region();
-    let limits = &s.worlds.config().limits;
     region.check(0, layer.depth, limits)?;
-    let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
-    let key = CacheKey::new("sample", &resolved, layer_index)
+    let frame = SnappedTime::snap(t, layer, fps);
+    let snow = kind_at(1.0, layer.freezing_level, z) == PrecipitationKind::Snow;
+    let mut key = CacheKey::new("sample", &resolved, primary)
         .with("c", cell.col)
         .with("r", cell.row)
         .with("k", cell.k)
-        .with("f", frame.index);
+        .with("f", frame.index)
+        .with("in", chosen.is_some())
+        .with("snow", snow);
+    for (i, c, f) in &columns {
+        key = key.with(&format!("p{i}"), format_args!("{},{},{}", c.col, c.row, f.index));
+    }
+    let mut cached = Cached::at("sample", key, "application/json", frame, t);
+    if columns.iter().any(|(_, _, f)| !f.is_exact(t)) {
+        cached.freshness = Freshness::Snapped;
+    }
+    let inside = chosen.is_some();
     let world = resolved.world;
-    let cached = Cached::at("sample", key, "application/json", frame, t);
     cached
         .respond(&s, &headers, move || {
-            let work = cost::density(&world, layer_index, 0, region, frame.t)?;
+            let mut work = cost::density(&world, primary, 0, region, frame.t)?;
+            for (i, c, f) in &columns {
+                let w = cost::density(&world, *i, 0, c.region(), f.t)?;
+                work.cpu_s += w.cpu_s;
+                work.bytes = work.bytes.saturating_add(w.bytes);
+            }
             Ok((work, move |cancel: &Cancel| {
-                let d = density::density_cancellable(&world, layer_index, 0, region, frame.t, cancel)?;
-                let c = density::cloud_cells(&world, layer_index, region, frame.t)?;
+                let (mut density, mut cloud) = (0.0, false);
+                if inside {
+                    let d = density::density_cancellable(&world, primary, 0, region, frame.t, cancel)?;
+                    let c = density::cloud_cells(&world, primary, region, frame.t)?;
+                    density = d.get(cell.k, 0, 0);
+                    cloud = c.get(cell.k, 0, 0) != 0;
+                }
+                // Layer by layer in configuration order, so the sum is reproducible.
+                let mut rate = 0.0;
+                for (i, c, f) in &columns {
+                    let grid = density::density_cancellable(&world, *i, 0, c.region(), f.t, cancel)?;
+                    rate += column_rate(&world.layers[*i], &grid, 0, 0);
+                }
+                let layer = &world.layers[primary];
                 json_bytes(&SampleAnswer {
-                    layer: Some(world.layers[layer_index].name.clone()),
-                    world: world.name,
+                    layer: inside.then(|| layer.name.clone()),
+                    world: world.name.clone(),
                     t: frame.t,
                     frame: frame.index,
-                    cell: Some([cell.col, cell.row, cell.k as i64]),
-                    density: d.get(cell.k, 0, 0),
-                    cloud: c.get(cell.k, 0, 0) != 0,
+                    cell: inside.then_some([cell.col, cell.row, cell.k as i64]),
+                    density,
+                    cloud,
+                    precipitation_mm_h: rate,
+                    precipitation_kind: kind_at(rate, layer.freezing_level, z),
                 })
             }))
         })
@@ -225,7 +287,7 @@ pub async fn sample(
         ("level" = Option<u32>, Query, description = "Level of the columns (default 0); matches the tiles of that level"),
     ),
     responses(
-        (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count"),
+        (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count; precipitating fraction, mean and max precipitation rate (mm/h)"),
         (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter or inverted bbox"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
@@ -270,6 +332,7 @@ pub async fn region(
                     frame: frame.index,
                     columns: region.into(),
                     stats: region_stats(&grid, layer),
+                    precipitation: precipitation_stats(&grid, layer),
                 })
             }))
         })
@@ -375,25 +438,29 @@ pub async fn series(
                 .saturating_mul(distinct.len().min(rayon::current_num_threads().max(1)) as u64);
             Ok((work, move |cancel: &Cancel| {
                 let layer = &world.layers[layer_index];
-                let stats: Vec<(u64, RegionStats)> = distinct
+                let stats: Vec<(u64, (RegionStats, PrecipitationStats))> = distinct
                     .par_iter()
                     .map(|f| {
                         let grid = density::density_cancellable(&world, layer_index, level, region, f.t, cancel)?;
-                        Ok((f.index, region_stats(&grid, layer)))
+                        Ok((f.index, (region_stats(&grid, layer), precipitation_stats(&grid, layer))))
                     })
                     .collect::<Result<_, ApiError>>()?;
                 let points = times
                     .iter()
                     .zip(&frames)
-                    .map(|(&t, f)| SeriesPoint {
-                        t,
-                        frame_t: f.t,
-                        frame: f.index,
-                        stats: stats
+                    .map(|(&t, f)| {
+                        let (stats, precipitation) = stats
                             .iter()
                             .find(|(i, _)| *i == f.index)
                             .map(|(_, s)| s.clone())
-                            .expect("every frame computed"),
+                            .expect("every frame computed");
+                        SeriesPoint {
+                            t,
+                            frame_t: f.t,
+                            frame: f.index,
+                            stats,
+                            precipitation,
+                        }
                     })
                     .collect();
                 json_bytes(&SeriesAnswer {

@@ -47,14 +47,14 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("z" = u32, Path, description = "Level: a level-z column is 2^z level-0 cells wide", minimum = 0, example = 0),
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
-        ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png", example = "density.u8"),
+        ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png", example = "density.u8"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
         ("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
     ),
     responses(
-        (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded. coverage.png: RGBA weather map (R max density, G opacity, B base, A top). billboards.json/.bin: shaded metaball instances. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map. Headers: ETag, X-Cloudscape-T (the frame time computed), X-Cloudscape-Frame.", content(
+        (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded. coverage.png: RGBA weather map (R max density, G opacity, B base, A top). billboards.json/.bin: shaded metaball instances. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map. precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top as coverage B; A 255 where precipitating). Headers: ETag, X-Cloudscape-T (the frame time computed), X-Cloudscape-Frame.", content(
             (Vec<u8> = "application/octet-stream"),
             (Vec<u8> = "image/png"),
             (Object = "application/json"),

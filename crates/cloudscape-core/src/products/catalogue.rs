@@ -10,7 +10,7 @@ use crate::world::Layer;
 
 use super::atlas::{self, Atlas};
 use super::grid::{GridFormat, encode_density};
-use super::{billboards, coverage, shadow};
+use super::{billboards, coverage, precipitation, shadow};
 
 /// What a tile URL can ask for (`/tiles/{z}/{x}/{y}/{product}`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -33,6 +33,8 @@ pub enum Product {
     AtlasJson,
     /// `shadow.png`: ground shadow transmittance.
     ShadowPng,
+    /// `precipitation.png`: rate, kind and streak top per column.
+    PrecipitationPng,
 }
 
 /// How a product's bytes are made from a computed tile.
@@ -78,7 +80,7 @@ const JSON: &str = "application/json";
 
 impl Product {
     /// Every tile product, in the order the API lists them.
-    pub const ALL: [Product; 9] = [
+    pub const ALL: [Product; 10] = [
         Product::DensityNpy,
         Product::DensityF32,
         Product::DensityU8,
@@ -88,6 +90,7 @@ impl Product {
         Product::AtlasPng,
         Product::AtlasJson,
         Product::ShadowPng,
+        Product::PrecipitationPng,
     ];
 
     /// The product's row of the catalogue.
@@ -146,6 +149,12 @@ impl Product {
                 PNG,
                 "tile_shaded",
                 Encoder::Shaded(|s| shadow::encode_png_map(s.tile)),
+            ),
+            Product::PrecipitationPng => (
+                "precipitation.png",
+                PNG,
+                "tile_precipitation",
+                Encoder::Grid(precipitation::encode_png),
             ),
         };
         Spec {

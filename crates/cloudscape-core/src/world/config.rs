@@ -135,7 +135,17 @@ struct RawConfig {
 #[serde(deny_unknown_fields)]
 struct RawWorld {
     seed: u64,
+    #[serde(default = "default_freezing_level")]
+    freezing_level: f64,
     layers: Vec<RawLayer>,
+}
+
+/// The freezing level of a world that does not set one, metres: a mid-latitude
+/// summer's 0 °C isotherm.
+pub const DEFAULT_FREEZING_LEVEL: f64 = 3000.0;
+
+fn default_freezing_level() -> f64 {
+    DEFAULT_FREEZING_LEVEL
 }
 
 #[derive(Deserialize)]
@@ -233,6 +243,12 @@ impl Config {
                     "a world needs at least one layer",
                 ));
             }
+            if !(rw.freezing_level.is_finite() && (-1e4..=1e5).contains(&rw.freezing_level)) {
+                return Err(invalid(
+                    format!("worlds.{wname}.freezing_level"),
+                    "must be within [-1e4, 1e5] metres",
+                ));
+            }
             let mut layers = Vec::new();
             for (i, rl) in rw.layers.into_iter().enumerate() {
                 let key = format!("worlds.{wname}.layers[{i}]");
@@ -261,6 +277,7 @@ impl Config {
                     epoch: rl.epoch,
                     extent: rl.extent,
                     ellipsoids: rl.ellipsoids,
+                    freezing_level: rw.freezing_level,
                 };
                 validate_layer(&key, &layer)?;
                 layers.push(layer);
@@ -369,6 +386,20 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
         if !(v.is_finite() && (0.0..=1.0).contains(&v)) {
             return Err(invalid(format!("{key}.rosa_thresholds"), "must be within [0, 1]"));
         }
+    }
+    let r = &p.precipitation;
+    let key = format!("{key}.precipitation");
+    if !(r.liquid_water.is_finite() && (0.0..=10.0).contains(&r.liquid_water)) {
+        return Err(invalid(format!("{key}.liquid_water"), "must be within [0, 10] g/m³"));
+    }
+    if !(r.droplets.is_finite() && (1.0..=10_000.0).contains(&r.droplets)) {
+        return Err(invalid(format!("{key}.droplets"), "must be within [1, 10000] per cm³"));
+    }
+    if !(r.onset.is_finite() && (0.0..=1e5).contains(&r.onset)) {
+        return Err(invalid(format!("{key}.onset"), "must be within [0, 1e5] g/m²"));
+    }
+    if !(r.efficiency.is_finite() && (0.0..=1.0).contains(&r.efficiency)) {
+        return Err(invalid(format!("{key}.efficiency"), "must be within [0, 1]"));
     }
     Ok(())
 }

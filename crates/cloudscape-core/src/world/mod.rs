@@ -9,7 +9,7 @@
 mod config;
 mod keyframe;
 
-pub use config::{Config, ConfigError, DEFAULT_CONFIG, Limits, SunConfig};
+pub use config::{Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, SunConfig};
 pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, keyframe_span};
 
 use serde::Deserialize;
@@ -162,6 +162,39 @@ pub struct Preset {
     /// Rosa mode: thresholds p_hum, p_act, p_ext against the textures.
     #[serde(default = "default_rosa_thresholds")]
     pub rosa_thresholds: [f64; 3],
+    /// How much of the preset's cloud water falls out (`weather::precipitation`).
+    #[serde(default)]
+    pub precipitation: PrecipitationSpec,
+}
+
+/// The microphysics of a preset's precipitation (`weather::precipitation` says how
+/// they combine): liquid water path from density and depth, then a drizzle-rate
+/// power law above an onset threshold, scaled by an efficiency.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PrecipitationSpec {
+    /// Cloud liquid water content at density 1, g/m³ (density scales it linearly).
+    pub liquid_water: f64,
+    /// Cloud droplet number concentration, per cm³ (maritime ~100, continental ~300):
+    /// more droplets, smaller drops, less rain for the same water.
+    pub droplets: f64,
+    /// Liquid water path below which a column does not precipitate, g/m².
+    pub onset: f64,
+    /// Precipitation efficiency in [0, 1]: the share of the relation's rate that
+    /// reaches the ground (0 for ice clouds whose fall streaks evaporate).
+    pub efficiency: f64,
+}
+
+impl Default for PrecipitationSpec {
+    /// A maritime stratocumulus (Comstock et al. 2004's EPIC clouds).
+    fn default() -> Self {
+        PrecipitationSpec {
+            liquid_water: 0.3,
+            droplets: 100.0,
+            onset: 50.0,
+            efficiency: 1.0,
+        }
+    }
 }
 
 fn default_evolve() -> f64 {
@@ -226,6 +259,9 @@ pub struct Layer {
     pub extent: Option<[f64; 4]>,
     /// Dobashi ellipsoids that shape humidity and activation.
     pub ellipsoids: Vec<Ellipsoid>,
+    /// The world's freezing level (altitude of the 0 °C isotherm, metres), copied from
+    /// `worlds.NAME.freezing_level` so that a layer's products need only the layer.
+    pub freezing_level: f64,
 }
 
 impl Layer {

@@ -10,7 +10,7 @@ use crate::world::Layer;
 
 use super::atlas::{self, Atlas};
 use super::grid::{GridFormat, encode_density};
-use super::{billboards, coverage, precipitation, shadow};
+use super::{billboards, coverage, ktx2, precipitation, shadow};
 
 /// What a tile URL can ask for (`/tiles/{z}/{x}/{y}/{product}`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -21,6 +21,8 @@ pub enum Product {
     DensityF32,
     /// `density.u8`: the same grid, density × 255 rounded.
     DensityU8,
+    /// `density.ktx2`: the `density.u8` bytes as a KTX 2.0 R8 3D texture.
+    DensityKtx2,
     /// `coverage.png`: cloud cover, base and top per column.
     CoveragePng,
     /// `billboards.json`: the shaded billboards as JSON.
@@ -80,10 +82,11 @@ const JSON: &str = "application/json";
 
 impl Product {
     /// Every tile product, in the order the API lists them.
-    pub const ALL: [Product; 10] = [
+    pub const ALL: [Product; 11] = [
         Product::DensityNpy,
         Product::DensityF32,
         Product::DensityU8,
+        Product::DensityKtx2,
         Product::CoveragePng,
         Product::BillboardsJson,
         Product::BillboardsBin,
@@ -113,6 +116,12 @@ impl Product {
                 OCTETS,
                 "tile_density",
                 Encoder::Grid(|_, g| encode_density(g, GridFormat::U8)),
+            ),
+            Product::DensityKtx2 => (
+                "density.ktx2",
+                OCTETS,
+                "tile_density",
+                Encoder::Grid(|_, g| ktx2::encode_density_ktx2(g)),
             ),
             Product::CoveragePng => (
                 "coverage.png",

@@ -4,11 +4,12 @@ use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use cloudscape_core::density::RegionStats;
 use cloudscape_core::weather::PrecipitationStats;
+use cloudscape_core::weather::lightning::{Strike, StrikeKind};
 use utoipa::OpenApi;
 
 use crate::extract::TileProduct;
 use crate::params::QualityName;
-use crate::{discovery, error, ops, queries, render, tiles};
+use crate::{discovery, error, lightning, ops, queries, render, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -23,6 +24,7 @@ use crate::{discovery, error, ops, queries, render, tiles};
         queries::sample,
         queries::region,
         queries::series,
+        lightning::lightning,
         render::render_png,
         render::splats_png,
         render::splats_json,
@@ -47,6 +49,9 @@ use crate::{discovery, error, ops, queries, render, tiles};
         queries::RegionAnswer,
         queries::SeriesAnswer,
         queries::SeriesPoint,
+        lightning::LightningAnswer,
+        Strike,
+        StrikeKind,
         ops::Status,
     ))
 )]

@@ -1,6 +1,7 @@
 //! Weather products against the cloud tile they come from (issue 24 figures): a cold
 //! level-0 density tile of the storm front's cumulonimbus layer, and the
-//! `precipitation.png` (and, for scale, `coverage.png`) encoded from that grid.
+//! `precipitation.png` (and, for scale, `coverage.png`) encoded from that grid, and a
+//! lightning query over the same square.
 //!
 //!     cargo bench --bench weather
 //!
@@ -11,6 +12,7 @@ use std::time::Duration;
 
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::{coverage, precipitation};
+use cloudscape_core::weather::lightning::{self, LightningLimits, LightningPlan};
 use cloudscape_core::world::Config;
 use criterion::{Criterion, criterion_group, criterion_main};
 
@@ -41,6 +43,13 @@ fn weather(c: &mut Criterion) {
     });
     g.bench_function("coverage.png from that grid", |b| {
         b.iter(|| black_box(coverage::encode_png_from_grid(layer, &grid, 0)))
+    });
+    // A lightning query over the same tile's 25.6 km square for 10 minutes (ten
+    // level-3 density grids of 32×32 columns).
+    let bbox = [0.0, 25_600.0, 25_600.0, 51_200.0];
+    let plan = LightningPlan::new(&w, 0, bbox, 1200.0, 1800.0, &LightningLimits::default()).unwrap();
+    g.bench_function("lightning 25.6 km square, 600 s", |b| {
+        b.iter(|| black_box(lightning::strikes(&w, 0, bbox, 1200.0, 1800.0, &plan).unwrap()))
     });
     g.finish();
 }

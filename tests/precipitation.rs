@@ -331,6 +331,12 @@ async fn bad_precipitation_requests_get_clear_errors() {
             assert_eq!(body["error"], code, "{path}");
         }
     }
+    // Discovery states where snow starts, so a client can read the tile at its altitude.
+    let world = s.json("/v1/worlds/default").await;
+    assert_eq!(world["freezing_level"], FREEZING_LEVEL);
+    assert_eq!(world["snow_level"], FREEZING_LEVEL - 300.0);
+    assert!(world["products"].to_string().contains("precipitation.png"));
+    assert!(world["lightning"].as_str().unwrap().contains("/lightning?bbox="));
     // The product is documented in the OpenAPI document, and so are the new fields.
     let doc = s.json("/openapi.json").await;
     let products = doc["components"]["schemas"]["TileProduct"]["enum"].to_string();

@@ -1,5 +1,6 @@
 //! Discovery: `/v1/worlds` and `/v1/worlds/{world}` (TileJSON-like).
 
+use cloudscape_core::weather::precipitation::snow_level;
 use std::sync::Arc;
 
 use axum::extract::State;
@@ -81,6 +82,12 @@ pub struct WorldInfo {
     /// How tile products animate between keyframes (the rule of
     /// `render::keyframe`; docs/formats.md states it per product).
     pub keyframes: String,
+    /// Altitude of the 0 °C isotherm, metres (config `freezing_level`).
+    pub freezing_level: f64,
+    /// Precipitation is snow at and above this altitude (300 m below the freezing
+    /// level), rain below it: what a client at its own altitude reads off
+    /// `precipitation.png`.
+    pub snow_level: f64,
     pub layers: Vec<LayerInfo>,
     /// Tile products served, by URL name.
     pub products: Vec<String>,
@@ -89,6 +96,7 @@ pub struct WorldInfo {
     pub sample: String,
     pub region: String,
     pub series: String,
+    pub lightning: String,
     pub render: String,
     pub splats: Vec<String>,
     /// TileJSON 3.0.0 of one layer and product (absolute URLs, zoom = maxzoom − level).
@@ -178,6 +186,8 @@ pub async fn world(
                     blended linearly. Density grids, coverage.png and atlases hold t0: blend keyframes k and \
                     k + 1 with the same f, density moved by the wind at each height."
             .to_string(),
+        freezing_level: w.layers[0].freezing_level,
+        snow_level: snow_level(w.layers[0].freezing_level),
         layers: w
             .layers
             .iter()
@@ -210,6 +220,7 @@ pub async fn world(
         sample: format!("{base}/sample?x={{x}}&y={{y}}&z={{z}}&t={{t}}"),
         region: format!("{base}/region?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t={{t}}&layer={{layer}}&level={{level}}"),
         series: format!("{base}/series?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t0={{t0}}&t1={{t1}}&dt={{dt}}&layer={{layer}}"),
+        lightning: format!("{base}/lightning?bbox={{x0}},{{y0}},{{x1}},{{y1}}&t0={{t0}}&t1={{t1}}"),
         render: format!(
             "{base}/render.png?camera={{x}},{{y}},{{z}},{{yaw}},{{pitch}},{{fov}}&t={{t}}&size={{w}}x{{h}}&quality={{quality}}&sun={{az}},{{el}}"
         ),

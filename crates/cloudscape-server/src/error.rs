@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use cloudscape_core::density::SimError;
 use cloudscape_core::render::RenderError;
+use cloudscape_core::weather::lightning::LightningError;
 
 /// A request the service refuses or could not answer.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -149,6 +150,19 @@ impl From<SimError> for ApiError {
             },
             SimError::OutOfRange(m) => ApiError::CoordinatesOutOfRange(m),
             SimError::Cancelled(_) => ApiError::Cancelled,
+        }
+    }
+}
+
+impl From<LightningError> for ApiError {
+    fn from(e: LightningError) -> ApiError {
+        match e {
+            LightningError::TooLarge(m) => ApiError::RegionTooLarge(m),
+            LightningError::Sim(e) => e.into(),
+            LightningError::EmptySpan => ApiError::InvalidParameter {
+                name: "t1".into(),
+                message: "must be greater than t0".into(),
+            },
         }
     }
 }

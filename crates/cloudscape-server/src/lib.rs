@@ -30,6 +30,7 @@ mod encode;
 mod error;
 mod extract;
 mod key;
+mod lightning;
 mod metrics;
 mod openapi;
 mod ops;
@@ -209,6 +210,7 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/worlds/{world}/sample", get(queries::sample))
         .route("/v1/worlds/{world}/region", get(queries::region))
         .route("/v1/worlds/{world}/series", get(queries::series))
+        .route("/v1/worlds/{world}/lightning", get(lightning::lightning))
         .route("/v1/worlds/{world}/render.png", get(render::render_png))
         .route("/v1/splats.png", get(render::splats_png))
         .route("/v1/splats.json", get(render::splats_json))

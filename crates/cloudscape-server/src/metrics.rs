@@ -146,7 +146,7 @@ impl CloseReason {
 pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 10] = [
+pub const KINDS: [&str; 11] = [
     "tile_density",
     "tile_coverage",
     "tile_precipitation",
@@ -154,6 +154,7 @@ pub const KINDS: [&str; 10] = [
     "sample",
     "region",
     "series",
+    "lightning",
     "render",
     "splats",
     "sky",

@@ -4,11 +4,12 @@ use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
 use cloudscape_core::density::RegionStats;
 use cloudscape_core::weather::PrecipitationStats;
+use cloudscape_core::weather::lightning::{Strike, StrikeKind};
 use utoipa::OpenApi;
 
 use crate::extract::TileProduct;
 use crate::params::QualityName;
-use crate::{discovery, error, ops, queries, render, tilejson, tiles};
+use crate::{discovery, error, lightning, ops, queries, render, tilejson, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -25,6 +26,7 @@ use crate::{discovery, error, ops, queries, render, tilejson, tiles};
         queries::sample,
         queries::region,
         queries::series,
+        lightning::lightning,
         render::render_png,
         render::splats_png,
         render::splats_json,
@@ -51,6 +53,9 @@ use crate::{discovery, error, ops, queries, render, tilejson, tiles};
         queries::RegionAnswer,
         queries::SeriesAnswer,
         queries::SeriesPoint,
+        lightning::LightningAnswer,
+        Strike,
+        StrikeKind,
         ops::Status,
     ))
 )]

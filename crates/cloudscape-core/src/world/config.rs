@@ -387,6 +387,9 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
             return Err(invalid(format!("{key}.rosa_thresholds"), "must be within [0, 1]"));
         }
     }
+    if !(p.lightning.is_finite() && (0.0..=1000.0).contains(&p.lightning)) {
+        return Err(invalid(format!("{key}.lightning"), "must be within [0, 1000]"));
+    }
     let r = &p.precipitation;
     let key = format!("{key}.precipitation");
     if !(r.liquid_water.is_finite() && (0.0..=10.0).contains(&r.liquid_water)) {
@@ -514,5 +517,29 @@ mod tests {
         let text = DEFAULT_CONFIG.replacen("dt = 20.0", "dt = nan", 1);
         let e = Config::parse(&text).unwrap_err().to_string();
         assert!(e.contains("dt"), "{e}");
+    }
+
+    #[test]
+    fn invalid_weather_values_are_named() {
+        let text = DEFAULT_CONFIG.replacen("freezing_level = 3000.0", "freezing_level = nan", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("worlds.default.freezing_level"), "{e}");
+        let text = DEFAULT_CONFIG.replacen("onset = 500.0, efficiency = 1.0", "onset = 500.0, efficiency = 1.5", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("presets.cumulonimbus.precipitation.efficiency"), "{e}");
+        let text = DEFAULT_CONFIG.replacen("droplets = 100.0", "droplets = 0.0", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("precipitation.droplets"), "{e}");
+        let text = DEFAULT_CONFIG.replacen("onset = 500.0,", "onset = 500.0, rain = 1,", 1);
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.contains("rain"), "{e}");
+        // A world without a freezing level gets the default one in every layer.
+        let c = Config::embedded();
+        assert!(
+            c.worlds["overcast"]
+                .layers
+                .iter()
+                .all(|l| l.freezing_level == DEFAULT_FREEZING_LEVEL)
+        );
     }
 }

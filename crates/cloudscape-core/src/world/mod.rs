@@ -165,6 +165,10 @@ pub struct Preset {
     /// How much of the preset's cloud water falls out (`weather::precipitation`).
     #[serde(default)]
     pub precipitation: PrecipitationSpec,
+    /// Lightning: a factor on the Price & Rind flash rate of the layer's deep columns
+    /// (`weather::lightning`); 0, the default, for clouds that do not electrify.
+    #[serde(default)]
+    pub lightning: f64,
 }
 
 /// The microphysics of a preset's precipitation (`weather::precipitation` says how

@@ -1,0 +1,129 @@
+//! `GET /v1/worlds/{world}/lightning?bbox=&t0=&t1=`: the strikes of
+//! `cloudscape_core::weather::lightning` in a box and span.
+
+use std::sync::Arc;
+
+use axum::body::Bytes;
+use axum::extract::State;
+use axum::http::HeaderMap;
+use axum::response::Response;
+use serde::Serialize;
+
+use cloudscape_core::cancel::Cancel;
+use cloudscape_core::cost::{self, Work};
+use cloudscape_core::weather::lightning::{self, LightningLimits, LightningPlan, Strike};
+
+use crate::error::ApiError;
+use crate::extract::{WorldPath, layer};
+use crate::key::CacheKey;
+use crate::params::Params;
+use crate::respond::{Cached, Freshness};
+use crate::state::AppState;
+
+/// `/lightning`: the strikes in a box and span.
+#[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
+pub struct LightningAnswer {
+    pub world: String,
+    /// The bbox asked for, metres (half-open: x0 <= x < x1, y0 <= y < y1).
+    pub bbox: [f64; 4],
+    /// The span asked for, seconds (half-open: t0 <= t < t1).
+    pub t0: f64,
+    pub t1: f64,
+    /// The layers whose strikes are listed (those whose preset has lightning, or the
+    /// one asked for).
+    pub layers: Vec<String>,
+    /// The strikes, by time.
+    pub strikes: Vec<Strike>,
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/worlds/{world}/lightning",
+    tag = "queries",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "storm-front"),
+        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1, each side at most 50 km; strikes with x0 <= x < x1, y0 <= y < y1", example = "-10000,20000,10000,40000"),
+        ("t0" = f64, Query, description = "Start of the span, seconds (inclusive)", example = 0),
+        ("t1" = f64, Query, description = "End of the span, seconds (exclusive), t0 < t1 <= t0 + 3600", example = 600),
+        ("layer" = Option<String>, Query, description = "Layer name (default: every layer whose preset has lightning)"),
+    ),
+    responses(
+        (status = 200, body = LightningAnswer, description = "Strikes (t, x, y, z, kind cg|ic) by time. A deterministic counter-based point process: the strikes of a box are the union of those of its halves; cloud-to-ground strikes have z = 0 (the ground contact), intra-cloud ones z inside the cloud"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 <= t0"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "Span over 3600 s or bbox side over 50 km (checked before any work)"),
+        (status = 422, body = crate::error::ErrorBody, description = "Times or coordinates out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn lightning(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    WorldPath(resolved): WorldPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    let world = &resolved.world;
+    let bbox = params.bbox()?;
+    let (t0, t1) = (params.time("t0")?, params.time("t1")?);
+    let layers: Vec<usize> = match params.get("layer") {
+        Some(name) => vec![layer(world, Some(name))?.0],
+        None => (0..world.layers.len())
+            .filter(|&i| world.layers[i].preset.lightning > 0.0)
+            .collect(),
+    };
+    let limits = LightningLimits::default();
+    // Every check (span, box, coordinates) before any work; a world without
+    // lightning still has its query checked.
+    let plans = layers
+        .iter()
+        .map(|&i| LightningPlan::new(world, i, bbox, t0, t1, &limits).map(|p| (i, p)))
+        .collect::<Result<Vec<_>, _>>()?;
+    if plans.is_empty() {
+        LightningPlan::new(world, 0, bbox, t0, t1, &limits)?;
+    }
+    let key = CacheKey::new("lightning", &resolved, 0)
+        .with("b", format!("{},{},{},{}", bbox[0], bbox[1], bbox[2], bbox[3]))
+        .with("t", format!("{t0},{t1}"))
+        .with("l", layers.iter().map(usize::to_string).collect::<Vec<_>>().join(","));
+    let cached = Cached {
+        kind: "lightning",
+        key,
+        content_type: "application/json",
+        time: None,
+        freshness: Freshness::Final,
+        content_location: None,
+    };
+    let world = resolved.world;
+    cached
+        .respond(&s, &headers, move || {
+            let mut work = Work::default();
+            for (i, p) in &plans {
+                for b in 0..p.buckets {
+                    let w = cost::density(&world, *i, lightning::FLASH_LEVEL, p.region, p.bucket_time(b))?;
+                    work.cpu_s += w.cpu_s;
+                    work.bytes = work.bytes.max(w.bytes);
+                }
+            }
+            Ok((work, move |cancel: &Cancel| {
+                let mut strikes = Vec::new();
+                for (i, p) in &plans {
+                    cancel.check().map_err(|_| ApiError::Cancelled)?;
+                    strikes.extend(lightning::strikes(&world, *i, bbox, t0, t1, p)?);
+                }
+                strikes.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.x.total_cmp(&b.x)).then(a.y.total_cmp(&b.y)));
+                let answer = LightningAnswer {
+                    world: world.name.clone(),
+                    bbox,
+                    t0,
+                    t1,
+                    layers: plans.iter().map(|(i, _)| world.layers[*i].name.clone()).collect(),
+                    strikes,
+                };
+                serde_json::to_vec(&answer)
+                    .map(Bytes::from)
+                    .map_err(|e| ApiError::Internal(e.to_string()))
+            }))
+        })
+        .await
+}

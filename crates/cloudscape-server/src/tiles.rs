@@ -54,7 +54,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
     ),
     responses(
-        (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded. coverage.png: RGBA weather map (R max density, G opacity, B base, A top). billboards.json/.bin: shaded metaball instances. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map. Headers: ETag, X-Cloudscape-T (the frame time computed), X-Cloudscape-Frame.", content(
+        (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. docs/formats.md has every layout. billboards.json/.bin: shaded metaball instances. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map. Headers: ETag, X-Cloudscape-T (the frame time computed), X-Cloudscape-Frame.", content(
             (Vec<u8> = "application/octet-stream"),
             (Vec<u8> = "image/png"),
             (Object = "application/json"),

@@ -12,7 +12,7 @@
 use std::time::Instant;
 
 use cloudscape_core::products::atlas;
-use cloudscape_core::render::image::{Image, encode_png, rmse, ssim};
+use cloudscape_core::render::image::{Image, PngSpace, encode_png, rmse, ssim};
 use cloudscape_core::render::scene::{self, RenderRequest};
 use cloudscape_core::render::tile::ShadedTile;
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
@@ -319,5 +319,5 @@ fn plot(points: &[(Quality, f64, f64)], convergence: &[(f64, f64)]) -> Vec<u8> {
             }
         }
     }
-    encode_png(w, h, png::ColorType::Rgb, &px)
+    encode_png(w, h, png::ColorType::Rgb, PngSpace::Srgb, &px)
 }

@@ -22,6 +22,9 @@ const OTHER_WORLD: &str = r#"{ seed = 99, layers = [
 /// series of at most 8 frames, then `overrides` (as [`common::test_config`]'s).
 fn test_config(overrides: &[(&str, &str)]) -> String {
     let mut all = vec![
+        // No compute-ahead: these tests count computations, and a keyframe computed
+        // ahead in the background (tests/keyframes.rs tests that) would race them.
+        ("server.ahead_threads", "0"),
         ("server.compute_queue", "8"),
         ("server.max_series", "8"),
         ("sun", "{ latitude = 45.0, day_of_year = 172 }"),
@@ -862,13 +865,13 @@ async fn render_tile_products_share_one_shading_per_sun_bucket() {
     assert_eq!(r.headers()["content-type"], "image/png");
     assert!(r.headers().get("content-encoding").is_none(), "PNG is not recompressed");
     let (w, h, channels, pixels) = decode_png(&r.bytes().await.unwrap());
-    assert_eq!((w, h, channels), (256, 256, 4));
+    assert_eq!((w, h, channels), (256, 256, 3), "RGB: no data in alpha");
     let (_, density) = parse_npy(&s.get(&format!("{tile}/density.npy?t=40")).await.bytes().await.unwrap());
     for (row, col) in [(0usize, 0usize), (17, 200), (255, 255), (128, 3)] {
         let max = (0..2)
             .map(|k| density[(k * 256 + row) * 256 + col])
             .fold(0.0f32, f32::max);
-        let red = pixels[((255 - row) * 256 + col) * 4] as f32;
+        let red = pixels[((255 - row) * 256 + col) * 3] as f32;
         assert!(
             (red - max * 255.0).abs() <= 1.0,
             "coverage R at ({row}, {col}): {red} vs {max}"

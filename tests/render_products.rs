@@ -53,6 +53,18 @@ fn decode_png(bytes: &[u8]) -> (png::OutputInfo, Vec<u8>) {
     (info, buf)
 }
 
+/// A PNG's colour-space chunks: (its `gAMA` × 100000, whether it has an `sRGB` chunk,
+/// whether a `cHRM`).
+fn png_space(bytes: &[u8]) -> (Option<u32>, bool, bool) {
+    let reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().unwrap();
+    let info = reader.info();
+    (
+        info.gama_chunk.map(|g| g.into_scaled()),
+        info.srgb.is_some(),
+        info.chrm_chunk.is_some(),
+    )
+}
+
 fn all_numbers_finite(v: &serde_json::Value) -> bool {
     match v {
         serde_json::Value::Number(n) => n.as_f64().is_some_and(f64::is_finite),
@@ -178,12 +190,21 @@ fn shadow_and_coverage_pngs_decode_and_show_the_blobs() {
     let (info, px) = decode_png(&coverage::encode_png_from_grid(&layer(), &t.density, t.halo));
     assert_eq!(
         (info.width, info.height, info.color_type),
-        (256, 256, png::ColorType::Rgba)
+        (256, 256, png::ColorType::Rgb)
     );
-    let rgba = |x: usize, y: usize| &px[((255 - y) * 256 + x) * 4..((255 - y) * 256 + x) * 4 + 4];
-    let c = rgba(60, 60);
-    assert!(c[0] > 240 && c[1] > 100 && c[2] < c[3], "{c:?}");
-    assert_eq!(rgba(5, 250), &[0, 0, 0, 0]);
+    let rgb = |x: usize, y: usize| &px[((255 - y) * 256 + x) * 3..((255 - y) * 256 + x) * 3 + 3];
+    let c = rgb(60, 60);
+    assert!(c[0] > 240 && c[1] > 100 && c[2] > 0, "{c:?}");
+    assert_eq!(rgb(5, 250), &[0, 0, 0]);
+    // Data maps say linear (gAMA 1.0, no sRGB chunk); pictures say sRGB.
+    let linear = (Some(100_000), false, false);
+    assert_eq!(png_space(&shadow::encode_png_map(&t)), linear);
+    assert_eq!(
+        png_space(&coverage::encode_png_from_grid(&layer(), &t.density, t.halo)),
+        linear
+    );
+    assert_eq!(png_space(&splats::encode_png_sheet(Quality::Fast)), linear);
+    assert_eq!(png_space(&atlas::build(&t).png), (Some(45_455), true, true));
 }
 
 #[test]

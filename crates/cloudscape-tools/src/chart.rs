@@ -11,7 +11,7 @@ use std::sync::Once;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use cloudscape_core::render::image::encode_png;
+use cloudscape_core::render::image::{PngSpace, encode_png};
 
 const FONT: &[u8] = include_bytes!("../../../assets/fonts/DejaVuSansMono.ttf");
 const FONT_NAME: &str = "sans-serif";
@@ -80,7 +80,13 @@ pub fn render(panels: &[Panel], columns: usize, panel_size: (u32, u32)) -> Resul
         }
         root.present().map_err(|e| e.to_string())?;
     }
-    Ok(encode_png(w as usize, h as usize, png::ColorType::Rgb, &buf))
+    Ok(encode_png(
+        w as usize,
+        h as usize,
+        png::ColorType::Rgb,
+        PngSpace::Srgb,
+        &buf,
+    ))
 }
 
 /// Axis range of `values` (already transformed), padded; a degenerate range is widened.
@@ -271,7 +277,7 @@ pub fn contact_sheet(
         }
         root.present().map_err(e)?;
     }
-    Ok(encode_png(w, h, png::ColorType::Rgb, &buf))
+    Ok(encode_png(w, h, png::ColorType::Rgb, PngSpace::Srgb, &buf))
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ use crate::world::Layer;
 use super::Grid;
 
 /// Density at or above which a cell counts as cloud: in region statistics and in the
-/// cloud base/top channels of `coverage.png`.
+/// cloud-top channel of `coverage.png`.
 pub const CLOUD_THRESHOLD: f32 = 0.1;
 
 /// Statistics of one region at one time.

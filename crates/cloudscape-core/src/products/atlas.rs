@@ -34,6 +34,7 @@ use std::collections::BTreeMap;
 
 use serde_json::json;
 
+use super::json_f32;
 use crate::render::ShadedTile;
 use crate::render::camera::View;
 use crate::render::composite::composite;
@@ -197,9 +198,9 @@ pub fn build(tile: &ShadedTile) -> Atlas {
             }
             entries.push(json!({
                 "rect": [ox, oy, w, h],
-                "centre": centre.map(|v| v as f32 as f64),
-                "size": [(w as f64 * m) as f32 as f64, (h as f64 * m) as f32 as f64],
-                "velocity": tile.velocity_at(centre[2]).map(|v| v as f32 as f64),
+                "centre": centre.map(json_f32),
+                "size": [json_f32(w as f64 * m), json_f32(h as f64 * m)],
+                "velocity": tile.velocity_at(centre[2]).map(json_f32),
                 "billboards": im.members.len(),
             }));
         }

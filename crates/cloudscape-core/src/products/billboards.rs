@@ -84,6 +84,7 @@
 
 use serde_json::json;
 
+use super::json_f32 as f;
 use crate::render::ShadedTile;
 use crate::render::image::to_u8;
 use crate::render::shade::Billboard;
@@ -99,20 +100,6 @@ pub const BIN_HEADER_BYTES: usize = 160;
 pub const BIN_RECORD_BYTES: usize = 56;
 /// Header and record sizes of version 1, still decoded.
 const BIN_V1_SIZES: (usize, usize) = (64, 36);
-
-/// Rounds an f64 to a value that prints shortly in JSON (f32 precision), never NaN.
-/// A finite value beyond f32's range keeps its f64 value (rounding it would give ±∞,
-/// which JSON writes as `null`).
-fn f(v: f64) -> f64 {
-    let short = v as f32 as f64;
-    if short.is_finite() {
-        short
-    } else if v.is_finite() {
-        v
-    } else {
-        0.0
-    }
-}
 
 /// The header fields shared by the JSON and the atlas manifest.
 pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {

@@ -16,7 +16,7 @@
 //! tile's shadow halo are not included.
 
 use crate::render::ShadedTile;
-use crate::render::image::{encode_png, to_u8};
+use crate::render::image::{PngSpace, encode_png, to_u8};
 use crate::render::tile::TILE_COLUMNS;
 
 /// Encodes the tile's shadow map as a PNG.
@@ -31,5 +31,5 @@ pub fn encode_png_map(tile: &ShadedTile) -> Vec<u8> {
             bytes.extend_from_slice(&[to_u8(a), to_u8(b), 0]);
         }
     }
-    encode_png(n, n, png::ColorType::Rgb, &bytes)
+    encode_png(n, n, png::ColorType::Rgb, PngSpace::Linear, &bytes)
 }

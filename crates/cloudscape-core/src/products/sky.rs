@@ -16,15 +16,11 @@
 
 use serde_json::json;
 
+use super::json_f32 as f;
 use crate::render::SunBucket;
 use crate::render::light::{Lighting, SUN_DISC_GAIN};
 use crate::render::sky::{self, GROUND_RADIUS, SKY_COLUMNS, SKY_ROWS, SUN_TABLE_STEP, TOP_RADIUS};
 use crate::world::ALGORITHM_VERSION;
-
-fn f(v: f64) -> f64 {
-    let short = v as f32 as f64;
-    if short.is_finite() { short } else { 0.0 }
-}
 
 fn rgb(c: [f64; 3]) -> [f64; 3] {
     c.map(f)

@@ -8,8 +8,9 @@
 
 use serde_json::json;
 
+use super::json_f32;
 use crate::render::Quality;
-use crate::render::image::{encode_png, to_u8};
+use crate::render::image::{PngSpace, encode_png, to_u8};
 use crate::render::splats::TAU_MAX;
 
 fn grid_columns(count: usize) -> usize {
@@ -36,14 +37,14 @@ pub fn encode_png_sheet(quality: Quality) -> Vec<u8> {
             }
         }
     }
-    encode_png(w, h, png::ColorType::GrayscaleAlpha, &bytes)
+    encode_png(w, h, png::ColorType::GrayscaleAlpha, PngSpace::Linear, &bytes)
 }
 
 /// The description of the sheet of `quality` as JSON.
 pub fn encode_json_sheet(quality: Quality) -> Vec<u8> {
     let sheet = quality.splat_sheet();
     let cols = grid_columns(sheet.count);
-    let taus: Vec<f64> = (0..sheet.count).map(|k| sheet.tau(k) as f32 as f64).collect();
+    let taus: Vec<f64> = (0..sheet.count).map(|k| json_f32(sheet.tau(k))).collect();
     let v = json!({
         "quality": quality.as_str(),
         "count": sheet.count,

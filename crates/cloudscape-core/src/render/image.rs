@@ -36,10 +36,17 @@ impl Image {
         self.rgb.iter().map(|c| c.map(|v| tone_map(v as f64) as f32)).collect()
     }
 
-    /// An opaque 8-bit sRGB-ish PNG of the display values.
+    /// An opaque 8-bit PNG of the display values, marked sRGB.
     pub fn to_png(&self) -> Vec<u8> {
         let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
-        encode_png_with_text(self.width, self.height, png::ColorType::Rgb, &bytes, &[])
+        encode_png_with_text(
+            self.width,
+            self.height,
+            png::ColorType::Rgb,
+            PngSpace::Srgb,
+            &bytes,
+            &[],
+        )
     }
 
     /// As [`Image::to_png`], with the path tracer's stated noise in tEXt chunks
@@ -53,7 +60,14 @@ impl Image {
             format!("{:e}", noise.mean_luminance),
         ];
         let text: Vec<(&str, String)> = NOISE_KEYS.into_iter().zip(values).collect();
-        encode_png_with_text(self.width, self.height, png::ColorType::Rgb, &bytes, &text)
+        encode_png_with_text(
+            self.width,
+            self.height,
+            png::ColorType::Rgb,
+            PngSpace::Srgb,
+            &bytes,
+            &text,
+        )
     }
 
     /// An RGBA PNG with straight (not premultiplied) alpha: colour = display(rgb / alpha).
@@ -65,7 +79,7 @@ impl Image {
             bytes.extend(straight.map(|v| to_u8(tone_map(v as f64) as f32)));
             bytes.push(to_u8(a));
         }
-        encode_png(self.width, self.height, png::ColorType::Rgba, &bytes)
+        encode_png(self.width, self.height, png::ColorType::Rgba, PngSpace::Srgb, &bytes)
     }
 }
 
@@ -91,10 +105,25 @@ pub fn png_noise(png_bytes: &[u8]) -> Option<Noise> {
     })
 }
 
+/// What the samples of a PNG mean, stated in its colour-space chunks so that a
+/// decoder (or an engine's importer) knows whether to linearise them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngSpace {
+    /// Colour for display (renders, impostor atlases, charts): an `sRGB` chunk
+    /// (perceptual intent) with the `gAMA` 1/2.2 and `cHRM` fallbacks PNG 3 §11.3.2.5
+    /// asks for. Decode to linear before blending or lighting.
+    Srgb,
+    /// Data, linear in what it measures (densities, opacities, transmittances,
+    /// heights): `gAMA` 1.0 and no `sRGB` chunk. Read the bytes as they are (no colour
+    /// conversion: three.js `NoColorSpace`, `createImageBitmap(…, {colorSpaceConversion:
+    /// 'none'})`, Unity/Godot/Unreal "linear"/"non-colour" import).
+    Linear,
+}
+
 /// Encodes 8-bit samples as a PNG. The encoder writes to memory, so it cannot fail
 /// for consistent dimensions; a mismatch is a programming error.
-pub fn encode_png(width: usize, height: usize, colour: png::ColorType, data: &[u8]) -> Vec<u8> {
-    encode_png_with_text(width, height, colour, data, &[])
+pub fn encode_png(width: usize, height: usize, colour: png::ColorType, space: PngSpace, data: &[u8]) -> Vec<u8> {
+    encode_png_with_text(width, height, colour, space, data, &[])
 }
 
 /// [`encode_png`] with tEXt chunks (Latin-1 keyword, text) before the image data.
@@ -102,6 +131,7 @@ fn encode_png_with_text(
     width: usize,
     height: usize,
     colour: png::ColorType,
+    space: PngSpace,
     data: &[u8],
     text: &[(&str, String)],
 ) -> Vec<u8> {
@@ -111,6 +141,21 @@ fn encode_png_with_text(
         enc.set_color(colour);
         enc.set_depth(png::BitDepth::Eight);
         enc.set_compression(png::Compression::Fast);
+        match space {
+            PngSpace::Srgb => {
+                enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+                // The fallbacks are written when they are exactly PNG's sRGB values.
+                let s = png::ScaledFloat::from_scaled;
+                enc.set_source_gamma(s(45_455));
+                enc.set_source_chromaticities(png::SourceChromaticities {
+                    white: (s(31_270), s(32_900)),
+                    red: (s(64_000), s(33_000)),
+                    green: (s(30_000), s(60_000)),
+                    blue: (s(15_000), s(6_000)),
+                });
+            }
+            PngSpace::Linear => enc.set_source_gamma(png::ScaledFloat::new(1.0)),
+        }
         for (keyword, value) in text {
             enc.add_text_chunk(keyword.to_string(), value.clone())
                 .expect("a Latin-1 keyword of 1-79 bytes");

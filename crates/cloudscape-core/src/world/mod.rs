@@ -30,7 +30,11 @@ use serde::Deserialize;
 ///    billboard at both ends of its span moved by the wind (`billboards.bin` version
 ///    2, 56-byte records, lighting in the header), shadow maps with both ends, renders
 ///    drawn by the animation rule (`render::keyframe`).
-pub const ALGORITHM_VERSION: u32 = 7;
+/// 8: into the engines (issue 23): JSON products print f32 values in their shortest
+///    decimals (`0.9`, not `0.8999999761581421`); PNGs carry their colour space
+///    (`gAMA` 1.0 for data maps, `sRGB` for pictures); `coverage.png` is RGB with no
+///    data in alpha (B is the cloud top; the base is gone).
+pub const ALGORITHM_VERSION: u32 = 8;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -33,8 +33,8 @@ use tokio::sync::Notify;
 
 use cloudscape_core::world::Keyframe;
 
-use crate::metrics::Metrics;
 use crate::cache::ResponseCache;
+use crate::metrics::Metrics;
 use crate::tiles::TileRecipe;
 
 /// Demand counts halve after this long without requests.

@@ -465,7 +465,13 @@ impl ResponseCache {
         job: impl FnOnce() -> Result<T, ApiError> + Send + 'static,
     ) -> Result<T, ApiError> {
         self.queue
-            .run(metrics, (kind, Asker::Request), Work::default(), Cancel::never(), move |_| job())
+            .run(
+                metrics,
+                (kind, Asker::Request),
+                Work::default(),
+                Cancel::never(),
+                move |_| job(),
+            )
             .await
     }
 }

@@ -85,7 +85,10 @@ impl AppState {
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.subsec_nanos() ^ (d.as_secs() as u32));
-        let ahead = Arc::new(HotSet::new(settings.ahead_tiles as usize, settings.ahead_threads as usize));
+        let ahead = Arc::new(HotSet::new(
+            settings.ahead_tiles as usize,
+            settings.ahead_threads as usize,
+        ));
         Ok(AppState {
             worlds: Worlds::new(config, settings.frames_per_step),
             settings,

@@ -66,7 +66,7 @@ pub fn encode_png(layer: &Layer, grid: &Grid<f32>) -> Vec<u8> {
             bytes.extend_from_slice(&[rate_to_u8(rate), if snow { 255 } else { 0 }, base, 255]);
         }
     }
-    image::encode_png(n, n, png::ColorType::Rgba, &bytes)
+    image::encode_png(n, n, png::ColorType::Rgba, image::PngSpace::Linear, &bytes)
 }
 
 #[cfg(test)]

@@ -70,7 +70,11 @@ pub fn keyframes(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     ];
     let start = Keyframe::containing(43_200.0, layer, 0);
     let span0 = start.t1 - start.t0;
-    let fractions: &[f64] = if effort == Effort::Smoke { &[0.5] } else { &[0.25, 0.5, 0.75] };
+    let fractions: &[f64] = if effort == Effort::Smoke {
+        &[0.5]
+    } else {
+        &[0.25, 0.5, 0.75]
+    };
     let mut md = format!(
         "The default world, `balanced`, {width}×{height}, sun from the clock. A level-0 keyframe spans one \
          automaton step ({span0} s); level z spans `dt·2^min(z,{MAX_KEYFRAME_DOUBLINGS})`. At a time t inside the \
@@ -95,7 +99,11 @@ pub fn keyframes(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     let mut cost_model = 0.0;
     for (name, camera) in views {
         let held_req = request(camera, start.t0);
-        let held = draw_billboards(&instant_tiles(&world, &config, &held_req)?, &held_req, request_sun(&config, &held_req));
+        let held = draw_billboards(
+            &instant_tiles(&world, &config, &held_req)?,
+            &held_req,
+            request_sun(&config, &held_req),
+        );
         for &f in fractions {
             let req = request(camera, start.t0 + f * span0);
             let sun = request_sun(&config, &req);
@@ -140,8 +148,18 @@ pub fn keyframes(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         let tile = TileId { z, x: 0, y: 0 };
         let key = Keyframe::containing(start.t0, layer, z);
         let shade = |k: Keyframe| {
-            shade_tile(&world, 0, tile, k, Quality::Balanced, sun, &params, &config.limits, &Cancel::never())
-                .expect("a valid tile")
+            shade_tile(
+                &world,
+                0,
+                tile,
+                k,
+                Quality::Balanced,
+                sun,
+                &params,
+                &config.limits,
+                &Cancel::never(),
+            )
+            .expect("a valid tile")
         };
         let kf = time(effort, || {
             std::hint::black_box(shade(key));

@@ -235,7 +235,12 @@ async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
     let _serial = SERIAL.lock().await;
     // 4 MiB of cache: at most 1 MiB an entry. density.f32 of a tile is 2.6 MB,
     // density.u8 0.66 MB.
-    let server = start(&[("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304")]);
+    // The growth of the cache is measured below: nothing computed ahead of the clock
+    // (tests/keyframes.rs) adds its entries meanwhile.
+    let server = start(&[
+        ("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304"),
+        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
+    ]);
     let c = client();
     let tile = |p: &str| format!("{}/v1/worlds/overcast/tiles/0/3/4/{p}?t=40", server.base);
     let before = metric(&server, "cloudscape_cache_bytes", &[]);

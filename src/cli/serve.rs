@@ -162,6 +162,8 @@ pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<S
                 return Err("a layer is not a table".into());
             };
             t.remove("preset_name");
+            // The world's freezing level, which every layer carries a copy of.
+            t.remove("freezing_level");
             t.insert("preset".into(), toml::Value::String(l.preset_name.clone()));
             if l.ellipsoids.is_empty() {
                 t.remove("ellipsoids");
@@ -170,6 +172,9 @@ pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<S
         }
         let mut wt = toml::Table::new();
         wt.insert("seed".into(), toml::Value::Integer(w.seed as i64));
+        if let Some(l) = w.layers.first() {
+            wt.insert("freezing_level".into(), toml::Value::Float(l.freezing_level));
+        }
         wt.insert("layers".into(), toml::Value::Array(layers));
         worlds.insert(name.clone(), toml::Value::Table(wt));
     }

@@ -13,7 +13,8 @@
 //! deadline, then most demanded), through the same cache and compute queue as the
 //! requests, so a request that arrives meanwhile joins the computation instead of
 //! repeating it. It runs at most `server.ahead_threads` computations at once, and
-//! only while the queue has a free compute thread and another free place, so requests
+//! only while no request is queued and the queue has a free compute thread and another
+//! free place, so requests
 //! keep priority: a request is never shed for work ahead, and waits at most for the
 //! computations ahead already running. Its computations are counted in
 //! `cloudscape_ahead_computed_total`, not in `cloudscape_computations_total`, which
@@ -227,9 +228,11 @@ pub async fn run(hot: Arc<HotSet>, cache: Arc<ResponseCache>, metrics: Arc<Metri
     let slots = Arc::new(tokio::sync::Semaphore::new(hot.threads));
     let threads = rayon::current_num_threads().max(1);
     loop {
-        // A free compute thread first, and never the queue's last place: requests keep
-        // priority, and none is shed to make room for work ahead.
-        if cache.queue_depth() >= threads || cache.queue_free() < 2 {
+        // Only while no request is queued, with a free compute thread, and never in the
+        // queue's last place: requests keep priority, and none is shed to make room
+        // for work ahead.
+        let running_ahead = hot.threads - slots.available_permits();
+        if cache.queue_depth() > running_ahead || cache.queue_depth() >= threads || cache.queue_free() < 2 {
             tokio::time::sleep(BUSY_POLL).await;
             continue;
         }

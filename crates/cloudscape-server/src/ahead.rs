@@ -32,11 +32,32 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::Notify;
 
+use axum::body::Bytes;
+use cloudscape_core::cancel::Cancel;
+use cloudscape_core::cost::Work;
 use cloudscape_core::world::Keyframe;
 
 use crate::cache::ResponseCache;
+use crate::error::ApiError;
+use crate::key::CacheKey;
 use crate::metrics::Metrics;
-use crate::tiles::TileRecipe;
+
+/// A computation ahead: the bytes of a key and of its siblings.
+pub type AheadJob = Box<dyn FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send>;
+
+/// What compute-ahead needs of a watched tile variant (`tiles::TileRecipe`).
+pub trait Recipe: Send + Sync {
+    /// The variant's identity, whatever its time.
+    fn variant(&self) -> String;
+    /// The keyframe containing `t`.
+    fn keyframe(&self, t: f64) -> Keyframe;
+    /// The cache key of one keyframe.
+    fn key(&self, keyframe: Keyframe) -> CacheKey;
+    /// The family its work is counted under.
+    fn family(&self) -> &'static str;
+    /// The work of one keyframe and the job that does it.
+    fn plan(&self, keyframe: Keyframe) -> Result<(Work, AheadJob), ApiError>;
+}
 
 /// Demand counts halve after this long without requests.
 pub const DEMAND_HALF_LIFE: Duration = Duration::from_secs(30);
@@ -50,7 +71,7 @@ const BUSY_POLL: Duration = Duration::from_millis(20);
 
 /// One watched tile variant.
 struct HotTile {
-    recipe: Arc<TileRecipe>,
+    recipe: Arc<dyn Recipe>,
     /// Requests, decayed with [`DEMAND_HALF_LIFE`].
     demand: f64,
     last_seen: Instant,
@@ -100,7 +121,7 @@ pub struct HotSet {
 /// A keyframe to compute ahead.
 struct Planned {
     variant: String,
-    recipe: Arc<TileRecipe>,
+    recipe: Arc<dyn Recipe>,
     keyframe: Keyframe,
     deadline: Instant,
 }
@@ -122,7 +143,7 @@ impl HotSet {
     /// A request asked for `keyframe` of `recipe`'s variant at `t`: counts the demand,
     /// notes a planned keyframe that is not ready yet as missed, and plans the next
     /// keyframe.
-    pub fn watched(&self, metrics: &Metrics, recipe: &Arc<TileRecipe>, keyframe: Keyframe, t: f64) {
+    pub fn watched(&self, metrics: &Metrics, recipe: &Arc<dyn Recipe>, keyframe: Keyframe, t: f64) {
         if self.threads == 0 || keyframe.is_instant() {
             return;
         }
@@ -259,7 +280,7 @@ pub async fn run(hot: Arc<HotSet>, cache: Arc<ResponseCache>, metrics: Arc<Metri
 /// Computes one planned keyframe into the cache; true when it is there afterwards.
 async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) -> bool {
     let key = job.recipe.key(job.keyframe);
-    let kind = job.recipe.product.family();
+    let kind = job.recipe.family();
     let Ok((work, plan)) = job.recipe.plan(job.keyframe) else {
         return false;
     };

@@ -26,7 +26,7 @@ use crate::error::ApiError;
 use crate::extract::{TilePath, layer};
 use crate::key::{CacheKey, ResolvedWorld};
 use crate::params::{Params, parse_quality, parse_sun};
-use crate::respond::{Cached, WithSiblings};
+use crate::respond::Cached;
 use crate::state::AppState;
 
 /// The key of one product of a tile. Shaded products add the quality and sun bucket.
@@ -101,7 +101,8 @@ pub async fn tile(
         t,
         canonical,
     );
-    s.ahead.watched(&s.metrics, &recipe, keyframe, t);
+    let watched: Arc<dyn crate::ahead::Recipe> = Arc::clone(&recipe) as _;
+    s.ahead.watched(&s.metrics, &watched, keyframe, t);
     let max_response_bytes = config.limits.max_response_bytes;
     let plan = {
         let recipe = Arc::clone(&recipe);
@@ -137,7 +138,7 @@ pub struct TileRecipe {
 }
 
 /// The job that computes a tile's bytes, and those of its siblings.
-pub type TileJob = Box<dyn FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send>;
+pub type TileJob = crate::ahead::AheadJob;
 
 impl TileRecipe {
     /// The keyframe span of this tile's level that contains `t`.
@@ -238,5 +239,27 @@ impl TileRecipe {
             }
         });
         Ok((work, job))
+    }
+}
+
+impl crate::ahead::Recipe for TileRecipe {
+    fn variant(&self) -> String {
+        TileRecipe::variant(self)
+    }
+
+    fn keyframe(&self, t: f64) -> Keyframe {
+        TileRecipe::keyframe(self, t)
+    }
+
+    fn key(&self, keyframe: Keyframe) -> CacheKey {
+        TileRecipe::key(self, keyframe)
+    }
+
+    fn family(&self) -> &'static str {
+        self.product.family()
+    }
+
+    fn plan(&self, keyframe: Keyframe) -> Result<(Work, TileJob), ApiError> {
+        TileRecipe::plan(self, keyframe)
     }
 }

@@ -125,7 +125,9 @@ fn serve_with_redis(url: &str, extra: &[(&str, &str)]) -> ServeProcess {
 #[test]
 fn a_second_replica_gets_products_from_redis_with_identical_bytes_and_etags() {
     let redis = RedisServer::start();
-    let a = serve_with_redis(&redis.url(), &[]);
+    // Redis lookups are counted below: nothing computed ahead of the clock
+    // (tests/keyframes.rs) asks Redis meanwhile.
+    let a = serve_with_redis(&redis.url(), &[("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0")]);
     let density = "/v1/worlds/default/tiles/0/3/-2/density.npy?t=40";
     let billboards = "/v1/worlds/default/tiles/0/1/1/billboards.json?t=40&sun=120,30";
     let atlas = "/v1/worlds/default/tiles/0/1/1/atlas.json?t=40&sun=120,30";

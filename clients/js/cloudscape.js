@@ -616,9 +616,9 @@ export function shadowAt(shadow, f) {
 }
 
 /**
- * A decoded coverage.png: per column (rows north first) `coverage` (largest density),
- * `opacity` (vertical opacity), `base` and `top` (fractions of the layer's thickness;
- * 0 where there is no cloud), each 0..1.
+ * A decoded coverage.png (RGB since ALGORITHM_VERSION 8): per column (rows north
+ * first) `coverage` (largest density), `opacity` (vertical opacity) and `top` (a
+ * fraction of the layer's thickness; 0 where there is no cloud), each 0..1.
  */
 export async function decodeCoverage(buffer) {
   const png = await decodePng(buffer);
@@ -628,7 +628,7 @@ export async function decodeCoverage(buffer) {
     for (let i = 0; i < n; i++) a[i] = png.data[i * png.channels + k] / 255;
     return a;
   };
-  return { width: png.width, height: png.height, coverage: ch(0), opacity: ch(1), base: ch(2), top: ch(3) };
+  return { width: png.width, height: png.height, coverage: ch(0), opacity: ch(1), top: ch(2) };
 }
 
 /**

@@ -265,7 +265,6 @@ export interface CoverageMap {
   height: number;
   coverage: Float32Array;
   opacity: Float32Array;
-  base: Float32Array;
   top: Float32Array;
 }
 

@@ -400,3 +400,28 @@ async fn a_computation_whose_client_went_away_is_stopped_before_its_budget_ends(
     assert!(stopped, "the job was not stopped when its client went away");
     assert_eq!(metric(&server, "cloudscape_compute_queue_depth", &[]), 0.0);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shaded_tile_at_the_coarsest_level_costs_what_a_fine_one_does() {
+    // A metaball's radius grows with the level while a cell's height does not: at
+    // level 19 one ball spans 2.6 million cell heights. Each ball's weight once
+    // summed them all (a level-19 billboards.bin ran for minutes on both threads,
+    // found by schemathesis); it is now bounded by the layer's depth. Every level
+    // answers within a budget a level-0 tile needs a small part of.
+    let _serial = SERIAL.lock().await;
+    let server = start(&[
+        ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "10000"),
+        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
+    ]);
+    let c = client();
+    // config/default.toml: limits.max_level = 16.
+    for z in [0, 9, 13, 16] {
+        for product in ["billboards.bin", "atlas.png"] {
+            let url = format!("{}/v1/worlds/default/tiles/{z}/1/1/{product}?t=43200", server.base);
+            let a = get(&c, url).await;
+            assert_eq!(a.status, 200, "level {z} {product}: {}", a.json);
+            assert!(a.bytes > 0);
+        }
+    }
+    assert_eq!(metric(&server, "cloudscape_compute_queue_depth", &[]), 0.0);
+}

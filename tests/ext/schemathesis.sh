@@ -71,7 +71,10 @@ status=0
   --request-timeout 30 \
   --workers 2 \
   --seed 1 \
-  --no-color) 2>&1 | tail -n 60 || status=$?
+  --no-color) >"$work/st.log" 2>&1 || status=$?
+# The failures section in full (each with its curl line), then the summary.
+if [ "$status" -ne 0 ]; then sed -n "/^=* FAILURES/,/^=* WARNINGS/p" "$work/st.log"; fi
+tail -n 30 "$work/st.log"
 if ! kill -0 "$server_pid" 2>/dev/null; then
   echo "error: the server died during the run" >&2
   cat "$work/server.log" >&2

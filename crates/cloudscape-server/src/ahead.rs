@@ -284,7 +284,9 @@ async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) ->
     let Ok((work, plan)) = job.recipe.plan(job.keyframe) else {
         return false;
     };
+    tracing::debug!(variant = %job.variant, index = job.keyframe.index, bytes = work.bytes, "ahead: start");
     let computed = cache.compute_ahead(m, kind, key, work, plan).await;
+    tracing::debug!(variant = %job.variant, computed, "ahead: end");
     if computed {
         m.ahead_computed.inc();
         let late = Instant::now().saturating_duration_since(job.deadline);

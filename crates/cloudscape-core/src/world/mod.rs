@@ -34,7 +34,7 @@ use serde::Deserialize;
 ///    decimals (`0.9`, not `0.8999999761581421`); PNGs carry their colour space
 ///    (`gAMA` 1.0 for data maps, `sRGB` for pictures); `coverage.png` is RGB with no
 ///    data in alpha (B is the cloud top; the base is gone).
-pub const ALGORITHM_VERSION: u32 = 8;
+pub const ALGORITHM_VERSION: u32 = 9;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

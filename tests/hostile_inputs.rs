@@ -203,6 +203,7 @@ fn product_type(p: &str) -> &'static str {
     match p.rsplit('.').next() {
         Some("png") => "image/png",
         Some("json") => "application/json",
+        Some("ktx2") => "image/ktx2",
         _ => "application/octet-stream",
     }
 }

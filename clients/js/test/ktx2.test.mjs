@@ -20,7 +20,7 @@ test('density.ktx2 is a KTX 2.0 R8 3D texture holding density.u8', async () => {
   const at = { t: 43212 };
   const res = await fetch(client.url(client.tilePath(world, tile, 'density.ktx2', at)));
   assert.equal(res.status, 200);
-  assert.equal(res.headers.get('Content-Type'), 'application/octet-stream');
+  assert.equal(res.headers.get('Content-Type'), 'image/ktx2');
   assert.match(res.headers.get('Cache-Control'), /immutable/);
   const bytes = new Uint8Array(await res.arrayBuffer());
   const u8 = new Uint8Array(await client.tile(world, tile, 'density.u8', at));

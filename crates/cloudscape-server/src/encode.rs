@@ -69,10 +69,10 @@ impl Coding {
     }
 }
 
-/// Whether a body of `content_type` is worth compressing (not already compressed
-/// images).
+/// Whether a body of `content_type` is worth compressing: not images, which are
+/// compressed already, except KTX2, whose density texels are stored raw.
 pub fn compressible(content_type: &str) -> bool {
-    !content_type.starts_with("image/")
+    !content_type.starts_with("image/") || content_type == "image/ktx2"
 }
 
 #[cfg(test)]

@@ -269,6 +269,7 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
         (status = 200, description = "The same bytes, ETag and headers as /tiles/{max_level - zoom}/{x}/{y}/{product}", content(
             (Vec<u8> = "application/octet-stream"),
             (Vec<u8> = "image/png"),
+            (Vec<u8> = "image/ktx2"),
             (Object = "application/json"),
         )),
         (status = 304, description = "If-None-Match matched; nothing computed"),

@@ -47,7 +47,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         ("z" = u32, Path, description = "Level: a level-z column is 2^z level-0 cells wide", minimum = 0, example = 0),
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
-        ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png", example = "density.u8"),
+        ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | density.ktx2 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png", example = "density.u8"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
         ("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
@@ -57,6 +57,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
         (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded, `.ktx2` a KTX 2.0 R8 3D texture. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. billboards.json/.bin: shaded metaball instances at both ends of the keyframe. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map (R at t0, G at t1). precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top; A 255 where precipitating). docs/formats.md has every layout. Headers: ETag, X-Cloudscape-T and X-Cloudscape-T1 (the keyframe's span), X-Cloudscape-Frame.", content(
             (Vec<u8> = "application/octet-stream"),
             (Vec<u8> = "image/png"),
+            (Vec<u8> = "image/ktx2"),
             (Object = "application/json"),
         )),
         (status = 304, description = "If-None-Match matched; nothing computed"),

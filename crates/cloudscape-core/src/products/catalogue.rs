@@ -79,6 +79,8 @@ pub struct Spec {
 const OCTETS: &str = "application/octet-stream";
 const PNG: &str = "image/png";
 const JSON: &str = "application/json";
+/// KTX 2.0's registered media type (Khronos, IANA `image/ktx2`).
+const KTX2: &str = "image/ktx2";
 
 impl Product {
     /// Every tile product, in the order the API lists them.
@@ -119,7 +121,7 @@ impl Product {
             ),
             Product::DensityKtx2 => (
                 "density.ktx2",
-                OCTETS,
+                KTX2,
                 "tile_density",
                 Encoder::Grid(|_, g| ktx2::encode_density_ktx2(g)),
             ),

@@ -24,8 +24,7 @@
 //! | 4-aligned | level 0 | the texels |
 //!
 //! The values are data, not colour: linear, never sRGB-decoded. Served as
-//! `application/octet-stream`, the type the OpenAPI document gives binary tiles
-//! (KTX2's registered type is `image/ktx2`).
+//! `image/ktx2`, KTX 2.0's registered media type.
 
 use crate::density::Grid;
 use crate::world::ALGORITHM_VERSION;

@@ -349,3 +349,32 @@ async fn bad_precipitation_requests_get_clear_errors() {
             .contains("precipitating")
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_shading_leaves_the_tiles_precipitation_map_in_the_cache() {
+    // Two servers of one config: `a` shades the tile first and answers its
+    // precipitation.png from the density that shading was built from; `b` computes
+    // precipitation.png from the tile's own density. Same bytes, and `a` computed none.
+    let (a, b) = (start().await, start().await);
+    let world = a.json("/v1/worlds/default").await;
+    assert_eq!(world["layers"][0]["precipitates"], true, "{}", world["layers"][0]);
+    assert_eq!(world["layers"][0]["lightning"], false);
+    let tile = "/v1/worlds/default/tiles/0/-1/0";
+    let q = "?t=60&layer=low";
+    a.bytes(&format!("{tile}/billboards.bin{q}")).await;
+    let from_shading = a.bytes(&format!("{tile}/precipitation.png{q}")).await;
+    let direct = b.bytes(&format!("{tile}/precipitation.png{q}")).await;
+    assert!(
+        from_shading == direct,
+        "precipitation.png differs between the sibling and the direct computation"
+    );
+    let computed =
+        |s: String| common::parse_metric(&s, "cloudscape_computations_total", &[("kind", "tile_precipitation")]);
+    let text = |s: &TestServer| {
+        let url = format!("{}/metrics", s.base);
+        let c = s.client.clone();
+        async move { c.get(url).send().await.unwrap().text().await.unwrap() }
+    };
+    assert_eq!(computed(text(&a).await), 0.0);
+    assert_eq!(computed(text(&b).await), 1.0);
+}

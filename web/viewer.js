@@ -62,6 +62,12 @@ const INSTANCE_FLOATS = 18;
 const MAX_HELD = 8 * MAX_TILES;
 /** Cache Storage bucket of revalidatable responses. */
 const CACHE_NAME = 'cloudscape-v1';
+/** Lightning (issue 24): the world-time window and half side (m) of one /lightning query. */
+const LIGHTNING_WINDOW = 300;
+const LIGHTNING_HALF_SIDE = 20000;
+/** How long a flash shows, wall-clock ms; a time jump longer than this (s) flashes nothing. */
+const FLASH_MS = 400;
+const FLASH_MAX_JUMP = 60;
 
 // ---------------------------------------------------------------------------
 // Small maths.
@@ -124,6 +130,8 @@ const state = {
   /** Names of the layers drawn (`layers=` alone: none), or null for all. */
   layers: query.has('layers') ? query.get('layers').split(',').filter(Boolean) : null,
   viewDistance: Number(query.get('view')) > 0 ? Number(query.get('view')) : 20000,
+  /** Rain, snow and lightning drawn (`weather=off`: clouds only, and fewer requests). */
+  weather: query.get('weather') !== 'off',
   playing: false,
 };
 
@@ -150,6 +158,13 @@ const stats = {
   frameMs: 0,
   /** Tile URLs requested, in order. */
   urls: [],
+  /** Drawn tiles with a precipitation map, and the rain or snow at the eye (mm/h). */
+  precipitationTiles: 0,
+  eyeRate: 0,
+  eyeSnow: false,
+  /** Strikes known around the view (the last /lightning answer), and flashes shown. */
+  strikes: 0,
+  flashes: 0,
 };
 
 let worldInfo = null;
@@ -550,6 +565,7 @@ const billboardProgram = compile(
   uniform vec4 octaves; // N, a, b, c
   uniform float pixelAngle; // radians per pixel
   uniform bool detail;      // whether the erosion pass runs
+  uniform vec4 flashAt;     // a lightning flash: its light relative to the eye (xyz), gain (w)
   out vec2 corner;
   out vec2 cellOrigin;
   out vec3 radiance;
@@ -600,6 +616,7 @@ const billboardProgram = compile(
       w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
     }
     radiance = max(rgb + albedo * sunRgb * corr, vec3(0.0));
+    radiance += flashAt.w * vec3(1.4, 1.5, 1.8) * exp(-length(c - flashAt.xyz) / 2500.0);
     // Aerial perspective by the billboard's distance (composite.rs: c · T + L_in).
     vec3 T, L;
     aerial(c, eye.z, centreRadius.z, 1.0, T, L);
@@ -667,6 +684,144 @@ const erosionProgram = compile(
 );
 
 /** The offscreen targets of the billboards when the erosion pass runs (null without float targets). */
+// Precipitation under the clouds (issue 24): each drawn tile whose layer precipitates
+// is a box from the ground up to its layer's top. Its back faces ray-march the view
+// ray's stretch inside the box through precipitation.png: below each column's streak
+// top (B) the air holds rain or snow of the column's rate (R), extinction after
+// Marshall–Palmer-type visibility laws (rain σ = 0.25·R^0.63 /km, snow σ = 3·R^0.7
+// /km with R the water-equivalent rate in mm/h), lit by the sky under the clouds.
+const rainProgram = compile(
+  `#version 300 es
+  uniform mat4 viewProj;
+  uniform vec3 boxMin, boxSize; // relative to the eye
+  out vec3 rel;
+  const int CORNERS[36] = int[36](0, 1, 3, 0, 3, 2, 4, 6, 7, 4, 7, 5, 0, 4, 5, 0, 5, 1,
+                                  2, 3, 7, 2, 7, 6, 0, 2, 6, 0, 6, 4, 1, 5, 7, 1, 7, 3);
+  void main() {
+    int c = CORNERS[gl_VertexID];
+    vec3 q = vec3(float(c & 1), float((c >> 1) & 1), float((c >> 2) & 1));
+    rel = boxMin + q * boxSize;
+    gl_Position = viewProj * vec4(rel, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  in vec3 rel;
+  uniform sampler2D rain;
+  uniform vec3 boxMin, boxSize;
+  uniform float eyeZ, layerBase, layerThickness, snowLevel, viewDistance;
+  uniform vec3 hazeRgb;
+  out vec4 colour;
+  ${TONE}
+  void main() {
+    vec3 d = normalize(rel);
+    vec3 inv = 1.0 / mix(d, vec3(1e-9), lessThan(abs(d), vec3(1e-9)));
+    vec3 a = boxMin * inv, b = (boxMin + boxSize) * inv;
+    vec3 lo = min(a, b), hi = max(a, b);
+    float tIn = max(max(lo.x, lo.y), lo.z), tOut = min(min(hi.x, hi.y), hi.z);
+    float tHere = length(rel);
+    // The front face of a box in front of the eye: its back face draws the stretch.
+    if (tIn > 0.0 && abs(tHere - tIn) < abs(tHere - tOut)) discard;
+    float t0 = max(tIn, 0.0), t1 = min(tOut, viewDistance);
+    if (t1 <= t0) discard;
+    const int N = 24;
+    float ds = (t1 - t0) / float(N);
+    float jitter = fract(sin(dot(gl_FragCoord.xy, vec2(12.9898, 78.233))) * 43758.5453);
+    float tau = 0.0;
+    for (int i = 0; i < N; i++) {
+      vec3 p = d * (t0 + (float(i) + jitter) * ds);
+      vec2 uv = (p.xy - boxMin.xy) / boxSize.xy;
+      vec4 v = texture(rain, vec2(uv.x, 1.0 - uv.y)); // row 0 is the northern edge
+      if (v.a <= 0.0) continue;
+      float z = p.z + eyeZ;
+      if (z > layerBase + v.b * layerThickness) continue; // above the streak top
+      float r = v.r / max(v.a, 1e-3); // un-blended from dry neighbours by the filter
+      float rate = 100.0 * r * r;
+      float perKm = z >= snowLevel ? 3.0 * pow(rate, 0.7) : 0.25 * pow(rate, 0.63);
+      tau += v.a * perKm * 1e-3 * ds;
+    }
+    float alpha = 1.0 - exp(-tau);
+    colour = vec4(tone(hazeRgb) * alpha, alpha);
+  }`,
+);
+
+// Streaks where the eye stands in rain or snow: falling lines (rain) or drifting
+// flakes (snow) over the screen, as many as the rate at the eye asks for. The haze
+// around the eye is the boxes' (it grows with distance).
+const streakProgram = compile(
+  `#version 300 es
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  uniform vec2 viewport;
+  uniform float time, rate, snow;
+  uniform vec3 hazeRgb;
+  out vec4 colour;
+  ${TONE}
+  float hash(float n) { return fract(sin(n * 127.1) * 43758.5453); }
+  void main() {
+    vec2 uv = gl_FragCoord.xy / viewport.y;
+    float fill = clamp(0.15 + 0.35 * log(1.0 + rate), 0.0, 1.0); // share of columns with a streak
+    float a = 0.0;
+    for (int layer = 0; layer < 3; layer++) {
+      float l = float(layer);
+      float columns = (snow > 0.5 ? 40.0 : 90.0) * (1.0 + 0.6 * l);
+      vec2 q = uv * columns;
+      if (snow < 0.5) q.x += q.y * 0.12; // rain slants with the wind
+      float col = floor(q.x);
+      float h = hash(col + 31.0 * l);
+      if (h > fill) continue;
+      float speed = snow > 0.5 ? 0.12 + 0.04 * l : 1.6 + 0.5 * l; // screen heights per second
+      float y = fract(uv.y * (snow > 0.5 ? 3.0 : 1.0) + time * speed + 7.0 * h);
+      float x = fract(q.x) - 0.5 + (snow > 0.5 ? 0.3 * sin(time * 1.3 + 6.0 * h) : 0.0);
+      float w = snow > 0.5 ? 0.18 : 0.06;
+      float across = 1.0 - smoothstep(0.0, w, abs(x));
+      float along = snow > 0.5 ? 1.0 - smoothstep(0.0, 0.02, abs(y - 0.5))
+                               : smoothstep(0.0, 0.05, y) * (1.0 - smoothstep(0.05, 0.25, y));
+      a = max(a, across * along * (0.55 - 0.12 * l));
+    }
+    // The haze of the rain itself is the boxes' (it grows with distance); the streaks
+    // are the drops close by, lit a little brighter than the haze.
+    colour = vec4(tone(hazeRgb * 1.8) * a, a);
+  }`,
+);
+
+// Lightning: a bolt (cloud-to-ground), drawn as a jagged line, and the flash lighting
+// the air around the viewer (added over everything).
+const boltProgram = compile(
+  `#version 300 es
+  layout(location = 0) in vec3 position; // relative to the eye
+  uniform mat4 viewProj;
+  void main() { gl_Position = viewProj * vec4(position, 1.0); }`,
+  `#version 300 es
+  precision highp float;
+  uniform float gain;
+  out vec4 colour;
+  void main() { colour = vec4(vec3(0.85, 0.9, 1.0) * gain, 0.0); }`,
+);
+const boltBuffer = gl.createBuffer();
+const boltVao = gl.createVertexArray();
+gl.bindVertexArray(boltVao);
+gl.bindBuffer(gl.ARRAY_BUFFER, boltBuffer);
+gl.enableVertexAttribArray(0);
+gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 12, 0);
+gl.bindVertexArray(null);
+
+const veilProgram = compile(
+  `#version 300 es
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`,
+  `#version 300 es
+  precision highp float;
+  uniform vec3 rgb;
+  out vec4 colour;
+  void main() { colour = vec4(rgb, 0.0); }`,
+);
+
 const floatTargets = gl.getExtension('EXT_color_buffer_float');
 let cloudTarget = null;
 
@@ -1012,14 +1167,28 @@ function meanOf(image) {
   return [r / n, g / n];
 }
 
+/** The tile products the viewer draws of a layer: precipitation.png where it can rain or snow. */
+function tileProducts(layer) {
+  return state.weather && layer.precipitates
+    ? ['billboards.bin', 'shadow.png', 'precipitation.png']
+    : ['billboards.bin', 'shadow.png'];
+}
+
+/** An image's RGBA bytes (row 0 first), for reading values on the CPU. */
+function pixelsOf(image) {
+  const c = new OffscreenCanvas(image.width, image.height);
+  const ctx = c.getContext('2d');
+  ctx.drawImage(image, 0, 0);
+  return ctx.getImageData(0, 0, image.width, image.height).data;
+}
+
 async function loadTile(tile) {
-  const [bin, png] = await Promise.all([
-    fetchBytes(tileUrl(tile, 'billboards.bin', tile.gen, tile.t0)),
-    fetchBytes(tileUrl(tile, 'shadow.png', tile.gen, tile.t0)),
-  ]);
+  const products = tileProducts(worldInfo.layers[tile.layer]);
+  const [bin, png, rain] = await Promise.all(products.map((p) => fetchBytes(tileUrl(tile, p, tile.gen, tile.t0))));
   const decoded = decodeBillboards(bin, tile.t0);
   const image = await decodeImage(png, 'image/png');
-  return { decoded, image };
+  const rainImage = rain ? await decodeImage(rain, 'image/png') : null;
+  return { decoded, image, rainImage };
 }
 
 function pump() {
@@ -1031,8 +1200,15 @@ function pump() {
     }
     inFlight++;
     loadTile(tile)
-      .then(({ decoded, image }) => {
+      .then(({ decoded, image, rainImage }) => {
         if (!tiles.has(tile.key)) return;
+        if (rainImage) {
+          // precipitation.png (src/products/precipitation.rs): R rate, G snow at sea
+          // level, B streak top, A precipitating; data, so linear and unpremultiplied.
+          tile.rain = texture(rainImage, gl.LINEAR);
+          tile.rainPixels = pixelsOf(rainImage);
+          rainImage.close?.();
+        }
         tile.billboards = decoded;
         tile.sun = decoded.header.sun;
         // The span the bytes say they cover (a version-1 tile: an instant).
@@ -1085,6 +1261,10 @@ function updateTiles() {
     stats.failures++;
     showError(e.message);
   });
+  loadLightning().catch((e) => {
+    stats.failures++;
+    showError(e.message);
+  });
   const gen = generation();
   const planned = plan();
   const next = [];
@@ -1097,7 +1277,7 @@ function updateTiles() {
       queue.push(tile);
     }
     if (k.span > 0 && fractionOf(k, state.t) >= 0.5) {
-      for (const product of ['billboards.bin', 'shadow.png']) next.push(tileUrl(p, product, gen, k.t1));
+      for (const product of tileProducts(worldInfo.layers[p.layer])) next.push(tileUrl(p, product, gen, k.t1));
     }
     return key;
   });
@@ -1133,6 +1313,7 @@ function dropTile(key) {
   const tile = tiles.get(key);
   if (!tile) return;
   if (tile.shadow) gl.deleteTexture(tile.shadow);
+  if (tile.rain) gl.deleteTexture(tile.rain);
   tiles.delete(key);
   queue = queue.filter((t) => t.key !== key);
   instancesDirty = true;
@@ -1235,6 +1416,136 @@ function resize() {
     canvas.width = w;
     canvas.height = h;
   }
+}
+
+// ---------------------------------------------------------------------------
+// Weather: precipitation at the eye, lightning strikes and their flashes.
+// ---------------------------------------------------------------------------
+
+/**
+ * Rain or snow where the eye is: the heaviest rate of the drawn precipitation maps
+ * whose column holds the eye below its streak top (the finest tile of each layer).
+ */
+function eyePrecipitation() {
+  const cam = state.camera;
+  let rate = 0;
+  let snow = false;
+  const finest = new Map();
+  for (const t of drawnTiles()) {
+    if (!t.rainPixels) continue;
+    const u = (cam.x - t.origin[0]) / t.size;
+    const v = (cam.y - t.origin[1]) / t.size;
+    if (u < 0 || u >= 1 || v < 0 || v >= 1) continue;
+    const f = finest.get(t.layer);
+    if (!f || t.z < f.z) finest.set(t.layer, t);
+  }
+  for (const t of finest.values()) {
+    const u = (cam.x - t.origin[0]) / t.size;
+    const v = (cam.y - t.origin[1]) / t.size;
+    const col = Math.min(255, Math.floor(u * 256));
+    const row = Math.min(255, 255 - Math.floor(v * 256)); // row 0 is the northern edge
+    const i = (row * 256 + col) * 4;
+    const p = t.rainPixels;
+    if (p[i + 3] === 0) continue;
+    const l = worldInfo.layers[t.layer];
+    const top = l.base + (p[i + 2] / 255) * (l.top - l.base);
+    if (cam.z > top) continue;
+    const r = 100 * (p[i] / 255) ** 2;
+    if (r > rate) {
+      rate = r;
+      snow = cam.z >= worldInfo.snow_level;
+    }
+  }
+  return { rate, snow };
+}
+
+/** Strikes around the view (the last /lightning answer), sorted by time. */
+let strikes = [];
+let strikesKey = '';
+let strikesLoading = '';
+/** Flashes on screen: { strike, start (performance.now()) }. */
+let flashes = [];
+let lastStrikeT = null;
+
+/** Asks /lightning for the strikes of the current window around the eye, when the world has lightning. */
+async function loadLightning() {
+  if (!state.weather || !worldInfo.layers.some((l) => l.lightning)) {
+    strikes = [];
+    stats.strikes = 0;
+    return;
+  }
+  const w0 = Math.floor(state.t / LIGHTNING_WINDOW) * LIGHTNING_WINDOW;
+  const cx = Math.round(state.camera.x / 10000) * 10000;
+  const cy = Math.round(state.camera.y / 10000) * 10000;
+  const key = `${state.world}|${w0}|${cx}|${cy}`;
+  if (key === strikesKey || key === strikesLoading) return;
+  strikesLoading = key;
+  const h = LIGHTNING_HALF_SIDE;
+  const bbox = [cx - h, cy - h, cx + h, cy + h].join(',');
+  try {
+    const answer = await fetchJson(
+      `/v1/worlds/${encodeURIComponent(state.world)}/lightning?bbox=${bbox}&t0=${w0}&t1=${w0 + LIGHTNING_WINDOW}`,
+    );
+    if (strikesLoading !== key) return;
+    strikes = answer.strikes.slice().sort((a, b) => a.t - b.t);
+    strikesKey = key;
+    stats.strikes = strikes.length;
+  } finally {
+    if (strikesLoading === key) strikesLoading = '';
+  }
+}
+
+/** Starts the flash of `strike` (a /lightning strike); `hold` keeps it at its brightest (tests, screenshots). */
+function flash(strike, hold = false) {
+  flashes.push({ strike, start: performance.now(), hold });
+  stats.flashes++;
+}
+
+/** Flashes the strikes the drawn time passed since the last frame (not on a jump). */
+function strikesPassed() {
+  const t = state.t;
+  if (lastStrikeT !== null && t > lastStrikeT && t - lastStrikeT <= FLASH_MAX_JUMP) {
+    for (const s of strikes) if (s.t > lastStrikeT && s.t <= t) flash(s);
+  }
+  lastStrikeT = t;
+  const now = performance.now();
+  flashes = flashes.filter((f) => f.hold || now - f.start < FLASH_MS);
+}
+
+/** A flash's brightness at `ms` after it started: a stroke, then a return stroke. */
+function flashGain(ms) {
+  const first = Math.exp(-ms / 60);
+  const second = ms > 140 ? 0.7 * Math.exp(-(ms - 140) / 70) : 0;
+  return first + second;
+}
+
+/** A jagged bolt from the cloud base down to the strike point, relative to the eye. */
+function boltPoints(strike, cam) {
+  const l = worldInfo.layers.find((l) => l.lightning) || worldInfo.layers[0];
+  const n = 24;
+  const pts = new Float32Array((n + 1) * 3);
+  // A deterministic walk from the strike's own numbers: the same bolt every time.
+  let seed = Math.abs(Math.floor(strike.x * 7 + strike.y * 13 + strike.t * 101)) % 2147483647 || 1;
+  const rnd = () => (seed = (seed * 48271) % 2147483647) / 2147483647 - 0.5;
+  let dx = 0;
+  let dy = 0;
+  for (let i = 0; i <= n; i++) {
+    const z = l.base * (1 - i / n);
+    pts.set([strike.x + dx - cam.x, strike.y + dy - cam.y, z - cam.z], i * 3);
+    dx += rnd() * 0.12 * (l.base / n) * 3;
+    dy += rnd() * 0.12 * (l.base / n) * 3;
+  }
+  return pts;
+}
+
+/**
+ * The lit haze colour of rain and snow: grey, the brightness of the sky above less
+ * what the storm's clouds take (drops scatter all colours alike), and a little sun.
+ */
+function hazeRgb(light) {
+  const grey = (c) => 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+  const v = 0.45 * grey(light.above) + 0.05 * grey(light.sunGround) * Math.max(light.dir[2], 0);
+  return [v, v, v * 1.03];
 }
 
 /** Sets the ATMOSPHERE and GROUND uniforms of `prog` from skyInfo (sky table on texture unit 1). */
@@ -1382,6 +1693,61 @@ function draw() {
     }
   }
 
+  // Rain and snow under the clouds.
+  const wet = drawn.filter((t) => t.rain);
+  stats.precipitationTiles = wet.length;
+  const haze = hazeRgb(light);
+  if (wet.length) {
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    gl.useProgram(rainProgram.program);
+    const ru = rainProgram.u;
+    gl.uniformMatrix4fv(ru.viewProj, false, vp);
+    gl.uniform1f(ru.eyeZ, cam.z);
+    gl.uniform1f(ru.snowLevel, worldInfo.snow_level);
+    gl.uniform1f(ru.viewDistance, state.viewDistance);
+    gl.uniform3fv(ru.hazeRgb, haze);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.uniform1i(ru.rain, 0);
+    gl.bindVertexArray(emptyVao);
+    for (const t of wet) {
+      const l = worldInfo.layers[t.layer];
+      gl.uniform3f(ru.boxMin, t.origin[0] - cam.x, t.origin[1] - cam.y, -cam.z);
+      gl.uniform3f(ru.boxSize, t.size, t.size, l.top);
+      gl.uniform1f(ru.layerBase, l.base);
+      gl.uniform1f(ru.layerThickness, l.top - l.base);
+      gl.bindTexture(gl.TEXTURE_2D, t.rain);
+      gl.drawArrays(gl.TRIANGLES, 0, 36);
+      calls++;
+    }
+  }
+
+  // Lightning: the bolts of cloud-to-ground flashes; the brightest flash lights the
+  // clouds around it, and every flash the air (the veil, last).
+  const now = performance.now();
+  let veil = 0;
+  let brightest = null;
+  for (const f of flashes) {
+    const g = f.hold ? 1 : flashGain(now - f.start);
+    const s = f.strike;
+    const d = Math.hypot(s.x - cam.x, s.y - cam.y, s.z - cam.z);
+    veil += 0.35 * g * Math.exp(-d / 15000);
+    if (!brightest || g > brightest.gain) brightest = { strike: s, gain: g };
+    if (s.kind === 'cg' && g > 0.05) {
+      gl.enable(gl.BLEND);
+      gl.blendFunc(gl.ONE, gl.ONE);
+      gl.useProgram(boltProgram.program);
+      gl.uniformMatrix4fv(boltProgram.u.viewProj, false, vp);
+      gl.uniform1f(boltProgram.u.gain, Math.min(1, 1.5 * g));
+      gl.bindVertexArray(boltVao);
+      gl.bindBuffer(gl.ARRAY_BUFFER, boltBuffer);
+      gl.bufferData(gl.ARRAY_BUFFER, boltPoints(s, cam), gl.DYNAMIC_DRAW);
+      gl.drawArrays(gl.LINE_STRIP, 0, 25);
+      gl.bindVertexArray(null);
+      calls++;
+    }
+  }
+
   // Billboards, back to front.
   const n = instances.length / INSTANCE_FLOATS;
   if (n > 0 && splatTexture) {
@@ -1423,6 +1789,14 @@ function draw() {
     gl.uniform3f(bu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
     gl.uniform1f(bu.pixelAngle, (2 * tanH) / canvas.width);
     gl.uniform1i(bu.detail, target ? 1 : 0);
+    if (brightest) {
+      // A cloud-to-ground stroke lights the cloud base above it; an intra-cloud one, its own height.
+      const s = brightest.strike;
+      const lz = s.kind === 'cg' ? (worldInfo.layers.find((l) => l.lightning) || worldInfo.layers[0]).base + 500 : s.z;
+      gl.uniform4f(bu.flashAt, s.x - cam.x, s.y - cam.y, lz - cam.z, brightest.gain);
+    } else {
+      gl.uniform4f(bu.flashAt, 0, 0, 0, 0);
+    }
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_2D, splatTexture);
     gl.uniform1i(bu.splats, 0);
@@ -1447,6 +1821,33 @@ function draw() {
       calls++;
       gl.activeTexture(gl.TEXTURE0);
     }
+  }
+  // Streaks where the eye stands in rain or snow, then the flashes' veil.
+  const eye = eyePrecipitation();
+  stats.eyeRate = eye.rate;
+  stats.eyeSnow = eye.snow;
+  if (eye.rate > 0) {
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
+    gl.useProgram(streakProgram.program);
+    const zu = streakProgram.u;
+    gl.uniform2f(zu.viewport, canvas.width, canvas.height);
+    gl.uniform1f(zu.time, (now / 1000) % 1000);
+    gl.uniform1f(zu.rate, eye.rate);
+    gl.uniform1f(zu.snow, eye.snow ? 1 : 0);
+    gl.uniform3fv(zu.hazeRgb, haze);
+    gl.bindVertexArray(emptyVao);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    calls++;
+  }
+  if (veil > 0.002) {
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.ONE, gl.ONE);
+    gl.useProgram(veilProgram.program);
+    gl.uniform3f(veilProgram.u.rgb, 0.85 * veil, 0.9 * veil, veil);
+    gl.bindVertexArray(emptyVao);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    calls++;
   }
   stats.drawCalls = calls;
 }
@@ -1475,6 +1876,7 @@ function syncUrl() {
   if (state.sun) p.set('sun', state.sun.join(','));
   if (state.layers) p.set('layers', state.layers.join(','));
   if (query.has('view')) p.set('view', String(state.viewDistance));
+  if (!state.weather) p.set('weather', 'off');
   history.replaceState(null, '', `?${p}`);
 }
 
@@ -1657,7 +2059,9 @@ function frame(now) {
       setTime(state.t);
     }
   }
+  strikesPassed();
   const shown = [
+    flashes.length,
     JSON.stringify(state),
     canvas.clientWidth,
     canvas.clientHeight,
@@ -1667,7 +2071,9 @@ function frame(now) {
     instancesDirty,
     skyUrlLoaded,
   ].join('|');
-  if (splatTexture && skyInfo && (continuous || shown !== lastDrawn)) {
+  // Flashes and the streaks around the eye move every frame.
+  const moving = flashes.length > 0 || stats.eyeRate > 0;
+  if (splatTexture && skyInfo && (continuous || moving || shown !== lastDrawn)) {
     draw();
     lastDrawn = shown;
   }
@@ -1688,6 +2094,7 @@ function updateHud() {
     `fetched    ${stats.fetched} (${kb(stats.bodyBytes)} bodies, ${kb(stats.transferBytes)} on the wire)`,
     `revalidated ${stats.revalidations} (304), ${stats.reused} immutable reused, ${stats.prefetched} prefetched`,
     `camera     ${[c().x, c().y, c().z].map((v) => v.toFixed(0)).join(', ')}  yaw ${c().yaw.toFixed(0)}° pitch ${c().pitch.toFixed(0)}°`,
+    `weather    ${stats.eyeRate > 0 ? `${stats.eyeSnow ? 'snow' : 'rain'} ${stats.eyeRate.toFixed(1)} mm/h at the eye` : 'dry at the eye'}, ${stats.precipitationTiles} wet tiles, ${stats.strikes} strikes near, ${stats.flashes} flashes`,
     `sun        ${currentSun().map((v) => Number(v).toFixed(0)).join('°, ')}°${state.sun ? '' : ' (clock)'}`,
   ].join('\n');
   function c() { return state.camera; }
@@ -1748,6 +2155,15 @@ window.cloudscape = {
       version: t.billboards.header.version, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
     })),
   wanted: () => wanted.slice(),
+  /** The strikes of the last /lightning answer around the view. */
+  strikes: () => strikes.slice(),
+  /** Flashes `strike` now (as when the drawn time passes it); `hold` keeps it lit until `unflash()`. */
+  flash: (strike, hold = false) => flash(strike, hold),
+  unflash: () => {
+    flashes = [];
+  },
+  /** Rain or snow at the eye: { rate (mm/h), snow }. */
+  eyePrecipitation: () => eyePrecipitation(),
   /** A tile product's keyframe URL at the drawn time (`tile`: layer (name), z, x, y). */
   tileUrl: (tile, product) => {
     const l = worldInfo.layers.find((l) => l.name === tile.layer);

@@ -21,6 +21,10 @@ export interface Layer {
   frame_seconds: number;
   /** Keyframe span of tiles of level 0, 1, …; level z uses entry min(z, len − 1). */
   keyframe_spans?: number[];
+  /** Whether the layer can rain or snow (`precipitation.png` is worth asking for). */
+  precipitates?: boolean;
+  /** Whether `/lightning` lists strikes in the layer. */
+  lightning?: boolean;
   /** Wind at the base (m/s, x east, y north) and its change with height ((m/s)/m). */
   wind: [number, number];
   shear: [number, number];

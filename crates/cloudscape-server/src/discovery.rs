@@ -61,6 +61,12 @@ pub struct LayerInfo {
     /// `min(z, len − 1)` (`dt · 2^min(z, 4)`). Tile products are computed at
     /// `t0 = floor(t / span) · span` and animate by themselves until `t0 + span`.
     pub keyframe_spans: Vec<f64>,
+    /// Whether the layer's preset can precipitate (a precipitation efficiency above
+    /// 0): `precipitation.png` is worth asking for.
+    pub precipitates: bool,
+    /// Whether the layer's preset makes lightning (a `lightning` factor above 0):
+    /// `/lightning` lists strikes in it.
+    pub lightning: bool,
     /// Wind at the base, m/s, and its change with height, (m/s)/m.
     pub wind: [f64; 2],
     pub shear: [f64; 2],
@@ -203,6 +209,8 @@ pub async fn world(
                 dt: l.dt,
                 frame_seconds: l.dt / fps as f64,
                 keyframe_spans: (0..=MAX_KEYFRAME_DOUBLINGS).map(|z| keyframe_span(l.dt, z)).collect(),
+                precipitates: l.preset.precipitation.efficiency > 0.0,
+                lightning: l.preset.lightning > 0.0,
                 wind: l.wind,
                 shear: l.shear,
             })

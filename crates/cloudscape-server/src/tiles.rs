@@ -232,10 +232,17 @@ impl TileRecipe {
                     .ok_or_else(|| ApiError::Internal(format!("{} is not a shaded product", product.name())))?;
                 let (_, wanted) = all.swap_remove(i);
                 let bucket = Some((q, sun.bucket()));
-                let siblings = all
+                let mut siblings: Vec<(CacheKey, Bytes)> = all
                     .into_iter()
                     .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
                     .collect();
+                // The precipitation map from the density this shading was built from:
+                // the viewer asks for it beside the billboards, and it costs an
+                // encoding here instead of a second density computation.
+                let rain = Product::PrecipitationPng;
+                if let Some(b) = rain.encode_grid(&world.layers[layer], &shaded.tile_density()) {
+                    siblings.push((tile_key(&base, rain, None), Bytes::from(b)));
+                }
                 Ok((Bytes::from(wanted), siblings))
             }
         });

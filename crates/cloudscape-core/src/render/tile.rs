@@ -377,6 +377,23 @@ pub fn shade_density(
 }
 
 impl ShadedTile {
+    /// The density of the tile's own columns at the span's start (`density` without
+    /// its halo): the grid `density::density` gives for the tile, since every column
+    /// is a function of its own coordinates (seams are exact).
+    pub fn tile_density(&self) -> Grid<f32> {
+        let d = &self.density;
+        let (h, n) = (self.halo, TILE_COLUMNS.min(d.rows.saturating_sub(2 * self.halo)));
+        let mut out = Grid::new(d.depth, n, n);
+        for k in 0..d.depth {
+            for r in 0..n {
+                let from = d.index(k, r + h, h);
+                let to = out.index(k, r, 0);
+                out.data[to..to + n].copy_from_slice(&d.data[from..from + n]);
+            }
+        }
+        out
+    }
+
     /// Wind (m/s, x east, y north) at altitude `z`: the layer's base wind plus its
     /// shear over the height above the base.
     pub fn velocity_at(&self, z: f64) -> [f64; 2] {

@@ -62,7 +62,7 @@ pub struct LoadtestArgs {
     /// p99 passes 50 ms or a request is shed; prints the curve.
     #[arg(long)]
     sweep: bool,
-    /// The players of each sweep step, comma-separated (default 8,16,…,256,384,…,2048).
+    /// The players of each sweep step, comma-separated (default 8,16,…,256,384,…,2048, stopping at the first step that does not hold); steps given here all run, for a whole curve.
     #[arg(long, value_delimiter = ',')]
     steps: Option<Vec<usize>>,
     /// With --sweep: write the curve into this Markdown file between
@@ -117,9 +117,12 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         warmup,
     };
     if a.sweep {
+        // Steps given by hand run to the last, for a whole curve; the default steps
+        // stop at the first that does not hold.
+        let every_step = a.steps.is_some();
         return sweep(
             &spec,
-            a.steps.unwrap_or_else(loadtest::sweep_steps),
+            (a.steps.unwrap_or_else(loadtest::sweep_steps), every_step),
             &a.json,
             &a.plot,
             &a.markdown,
@@ -161,7 +164,7 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
 /// `--sweep`: the capacity curve, printed, and written where asked.
 fn sweep(
     spec: &LoadSpec,
-    steps: Vec<usize>,
+    (steps, every_step): (Vec<usize>, bool),
     json: &Option<String>,
     plot: &Option<String>,
     markdown: &Option<String>,
@@ -169,7 +172,7 @@ fn sweep(
     if steps.is_empty() || steps.iter().any(|&n| n == 0 || n > 100_000) {
         return Err("--steps must list player counts between 1 and 100000".into());
     }
-    let report = loadtest::sweep(spec, &steps, |players, p| {
+    let report = loadtest::sweep(spec, &steps, every_step, |players, p| {
         eprint!(
             "\r{players} players: {:.0} s, {} requests, {} shed   ",
             p.elapsed_s, p.requests, p.shed

@@ -672,12 +672,14 @@ pub struct SweepReport {
 }
 
 /// Raises the number of players step by step ([`sweep_steps`], or `steps`) until a
-/// step's p99 passes [`SWEEP_P99_MS`] or any request is shed. Each step is a run of
-/// `spec` with that many players; the world clock runs on from one step to the next,
-/// so no step finds the previous one's keyframes.
+/// step's p99 passes [`SWEEP_P99_MS`] or any request is shed, or (`every_step`)
+/// through all of `steps`, for a whole curve. Each step is a run of `spec` with that
+/// many players; the world clock runs on from one step to the next, so no step finds
+/// the previous one's keyframes.
 pub fn sweep(
     spec: &LoadSpec,
     steps: &[usize],
+    every_step: bool,
     mut progress: impl FnMut(usize, Progress),
 ) -> Result<SweepReport, LoadError> {
     let mut out = Vec::new();
@@ -704,7 +706,7 @@ pub fn sweep(
             bytes_per_s: r.body_bytes as f64 / r.elapsed_s.max(1e-9),
             holds,
         });
-        if !holds {
+        if !holds && !every_step {
             break;
         }
     }

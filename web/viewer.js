@@ -684,6 +684,13 @@ const erosionProgram = compile(
 );
 
 /** The offscreen targets of the billboards when the erosion pass runs (null without float targets). */
+/** A vertex shader drawing one triangle over the whole screen (3 vertices, no buffers). */
+const FULL_SCREEN = `#version 300 es
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`;
+
 // Precipitation under the clouds (issue 24): each drawn tile whose layer precipitates
 // is a box from the ground up to its layer's top. Its back faces ray-march the view
 // ray's stretch inside the box through precipitation.png: below each column's streak
@@ -723,7 +730,7 @@ const rainProgram = compile(
     if (tIn > 0.0 && abs(tHere - tIn) < abs(tHere - tOut)) discard;
     float t0 = max(tIn, 0.0), t1 = min(tOut, viewDistance);
     if (t1 <= t0) discard;
-    const int N = 24;
+    const int N = 16;
     float ds = (t1 - t0) / float(N);
     float jitter = fract(sin(dot(gl_FragCoord.xy, vec2(12.9898, 78.233))) * 43758.5453);
     float tau = 0.0;
@@ -748,11 +755,7 @@ const rainProgram = compile(
 // flakes (snow) over the screen, as many as the rate at the eye asks for. The haze
 // around the eye is the boxes' (it grows with distance).
 const streakProgram = compile(
-  `#version 300 es
-  void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
-    gl_Position = vec4(p, 0.0, 1.0);
-  }`,
+  FULL_SCREEN,
   `#version 300 es
   precision highp float;
   uniform vec2 viewport;
@@ -810,11 +813,7 @@ gl.vertexAttribPointer(0, 3, gl.FLOAT, false, 12, 0);
 gl.bindVertexArray(null);
 
 const veilProgram = compile(
-  `#version 300 es
-  void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
-    gl_Position = vec4(p, 0.0, 1.0);
-  }`,
+  FULL_SCREEN,
   `#version 300 es
   precision highp float;
   uniform vec3 rgb;
@@ -1205,8 +1204,14 @@ function pump() {
         if (rainImage) {
           // precipitation.png (src/products/precipitation.rs): R rate, G snow at sea
           // level, B streak top, A precipitating; data, so linear and unpremultiplied.
-          tile.rain = texture(rainImage, gl.LINEAR);
-          tile.rainPixels = pixelsOf(rainImage);
+          // A dry tile keeps neither: no box to march through, nothing at the eye.
+          const pixels = pixelsOf(rainImage);
+          let wet = false;
+          for (let i = 3; i < pixels.length && !wet; i += 4) wet = pixels[i] > 0;
+          if (wet) {
+            tile.rain = texture(rainImage, gl.LINEAR);
+            tile.rainPixels = pixels;
+          }
           rainImage.close?.();
         }
         tile.billboards = decoded;

@@ -3,11 +3,9 @@
 //! space and in time), repeated queries agree, fair weather has none, and the limits
 //! (span, box side) and malformed input get clear 4xx before any work.
 
-use std::time::Duration;
+mod common;
 
-use cloudscape_core::world::{Config, DEFAULT_CONFIG};
-use cloudscape_server::{Server, ServerConfig};
-use reqwest::StatusCode;
+use cloudscape_core::world::DEFAULT_CONFIG;
 
 struct TestServer {
     base: String,
@@ -16,25 +14,8 @@ struct TestServer {
 
 async fn start() -> TestServer {
     let text = DEFAULT_CONFIG.replacen("listen = \"127.0.0.1:8080\"", "listen = \"127.0.0.1:0\"", 1);
-    let config = Config::parse(&text).unwrap();
-    let settings = ServerConfig::parse(&text).unwrap();
-    let server = Server::bind(config, settings).await.expect("bind 127.0.0.1:0");
-    let addr = server.local_addr().unwrap();
-    tokio::spawn(server.run());
-    let client = reqwest::Client::builder().no_proxy().build().unwrap();
-    let s = TestServer {
-        base: format!("http://{addr}"),
-        client,
-    };
-    for _ in 0..1200 {
-        if let Ok(r) = s.client.get(format!("{}/readyz", s.base)).send().await
-            && r.status() == StatusCode::OK
-        {
-            return s;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    panic!("server never became ready");
+    let (base, client) = common::start_in_process(&text).await;
+    TestServer { base, client }
 }
 
 impl TestServer {

@@ -7,10 +7,6 @@
 
 mod common;
 
-use std::time::Duration;
-
-use cloudscape_core::world::Config;
-use cloudscape_server::{Server, ServerConfig};
 use reqwest::StatusCode;
 
 /// The test world with a preset wet enough to rain from its two thin layers, and a
@@ -35,25 +31,8 @@ async fn start() -> TestServer {
         ("presets.puffy.precipitation", WET),
         ("worlds.default.freezing_level", &FREEZING_LEVEL.to_string()),
     ]);
-    let config = Config::parse(&text).expect("test config is valid");
-    let settings = ServerConfig::parse(&text).expect("test config is valid");
-    let server = Server::bind(config, settings).await.expect("bind 127.0.0.1:0");
-    let addr = server.local_addr().unwrap();
-    tokio::spawn(server.run());
-    let client = reqwest::Client::builder().no_proxy().build().unwrap();
-    let s = TestServer {
-        base: format!("http://{addr}"),
-        client,
-    };
-    for _ in 0..1200 {
-        if let Ok(r) = s.client.get(format!("{}/readyz", s.base)).send().await
-            && r.status() == StatusCode::OK
-        {
-            return s;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    panic!("server never became ready");
+    let (base, client) = common::start_in_process(&text).await;
+    TestServer { base, client }
 }
 
 impl TestServer {

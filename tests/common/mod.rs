@@ -179,3 +179,25 @@ pub fn world_names(list: &serde_json::Value) -> Vec<String> {
         .map(|w| w["name"].as_str().expect("a world has a name").to_string())
         .collect()
 }
+
+/// An in-process server (`cloudscape_server::Server` on 127.0.0.1:0) of the config
+/// `text`, ready once `/readyz` answers 200: its base URL and a client for it.
+pub async fn start_in_process(text: &str) -> (String, reqwest::Client) {
+    let config = cloudscape_core::world::Config::parse(text).expect("the test config is valid");
+    let settings = cloudscape_server::ServerConfig::parse(text).expect("the test config is valid");
+    let server = cloudscape_server::Server::bind(config, settings)
+        .await
+        .expect("bind 127.0.0.1:0");
+    let base = format!("http://{}", server.local_addr().unwrap());
+    tokio::spawn(server.run());
+    let client = reqwest::Client::builder().no_proxy().build().unwrap();
+    for _ in 0..1200 {
+        if let Ok(r) = client.get(format!("{base}/readyz")).send().await
+            && r.status() == reqwest::StatusCode::OK
+        {
+            return (base, client);
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("server never became ready");
+}

@@ -787,7 +787,7 @@ const streakProgram = compile(
     }
     // The haze of the rain itself is the boxes' (it grows with distance); the streaks
     // are the drops close by, lit a little brighter than the haze.
-    colour = vec4(tone(hazeRgb * 1.8) * a, a);
+    colour = vec4(tone(hazeRgb * 3.0) * a, a);
   }`,
 );
 
@@ -1698,11 +1698,15 @@ function draw() {
     }
   }
 
-  // Rain and snow under the clouds.
+  // Rain and snow under the clouds: before the billboards (clouds in front of a
+  // distant shaft hide it), but after them when the eye stands in it (then the rain
+  // is in front of everything, the clouds above included).
   const wet = drawn.filter((t) => t.rain);
   stats.precipitationTiles = wet.length;
   const haze = hazeRgb(light);
-  if (wet.length) {
+  const eye = eyePrecipitation();
+  const drawRain = () => {
+    if (!wet.length) return;
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(rainProgram.program);
@@ -1725,7 +1729,8 @@ function draw() {
       gl.drawArrays(gl.TRIANGLES, 0, 36);
       calls++;
     }
-  }
+  };
+  if (eye.rate === 0) drawRain();
 
   // Lightning: the bolts of cloud-to-ground flashes; the brightest flash lights the
   // clouds around it, and every flash the air (the veil, last).
@@ -1827,8 +1832,8 @@ function draw() {
       gl.activeTexture(gl.TEXTURE0);
     }
   }
-  // Streaks where the eye stands in rain or snow, then the flashes' veil.
-  const eye = eyePrecipitation();
+  // In rain: its haze over everything, streaks where the eye stands, then the flashes' veil.
+  if (eye.rate > 0) drawRain();
   stats.eyeRate = eye.rate;
   stats.eyeSnow = eye.snow;
   if (eye.rate > 0) {

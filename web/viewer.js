@@ -1152,10 +1152,7 @@ function decodeBillboards(buf, t) {
 
 /** Mean of the red and green channels (0..1) of a shadow map: the tile's mean sun transmittance at t0 and t1. */
 function meanOf(image) {
-  const c = new OffscreenCanvas(image.width, image.height);
-  const ctx = c.getContext('2d');
-  ctx.drawImage(image, 0, 0);
-  const d = ctx.getImageData(0, 0, image.width, image.height).data;
+  const d = pixelsOf(image);
   let r = 0;
   let g = 0;
   for (let i = 0; i < d.length; i += 4) {

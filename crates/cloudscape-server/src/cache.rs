@@ -128,7 +128,6 @@ impl ComputeQueue {
             return Err(shed());
         };
         metrics.queue_depth.set(self.depth() as i64);
-        tracing::debug!(kind, mib, depth = self.depth(), "queue: admitted");
         // Wait (in order) for one of the `threads` running places, or until nobody
         // waits for this job any more.
         let running = loop {
@@ -170,7 +169,6 @@ impl ComputeQueue {
             let _ = tx.send(result);
         });
         let result = rx.await;
-        tracing::debug!(kind, depth = self.depth(), "queue: done");
         metrics.queue_depth.set(self.depth() as i64);
         let result = match result {
             Ok(Ok(r)) => r,

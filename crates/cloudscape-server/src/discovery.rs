@@ -209,8 +209,8 @@ pub async fn world(
                 dt: l.dt,
                 frame_seconds: l.dt / fps as f64,
                 keyframe_spans: (0..=MAX_KEYFRAME_DOUBLINGS).map(|z| keyframe_span(l.dt, z)).collect(),
-                precipitates: l.preset.precipitation.efficiency > 0.0,
-                lightning: l.preset.lightning > 0.0,
+                precipitates: l.preset.precipitates(),
+                lightning: l.preset.makes_lightning(),
                 wind: l.wind,
                 shear: l.shear,
             })

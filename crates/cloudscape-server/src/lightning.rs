@@ -69,7 +69,7 @@ pub async fn lightning(
     let layers: Vec<usize> = match params.get("layer") {
         Some(name) => vec![layer(world, Some(name))?.0],
         None => (0..world.layers.len())
-            .filter(|&i| world.layers[i].preset.lightning > 0.0)
+            .filter(|&i| world.layers[i].preset.makes_lightning())
             .collect(),
     };
     let limits = LightningLimits::default();

@@ -237,10 +237,13 @@ impl TileRecipe {
                     .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
                     .collect();
                 // The precipitation map from the density this shading was built from:
-                // the viewer asks for it beside the billboards, and it costs an
-                // encoding here instead of a second density computation.
-                let rain = Product::PrecipitationPng;
-                if let Some(b) = rain.encode_grid(&world.layers[layer], &shaded.tile_density()) {
+                // the viewer asks for it beside the billboards of a layer that can
+                // precipitate, and it costs an encoding here instead of a second
+                // density computation.
+                let (l, rain) = (&world.layers[layer], Product::PrecipitationPng);
+                if l.preset.precipitates()
+                    && let Some(b) = rain.encode_grid(l, &shaded.tile_density())
+                {
                     siblings.push((tile_key(&base, rain, None), Bytes::from(b)));
                 }
                 Ok((Bytes::from(wanted), siblings))

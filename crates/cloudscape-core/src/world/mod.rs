@@ -175,6 +175,18 @@ pub struct Preset {
     pub lightning: f64,
 }
 
+impl Preset {
+    /// Whether the preset's clouds can precipitate at all (an efficiency above 0).
+    pub fn precipitates(&self) -> bool {
+        self.precipitation.efficiency > 0.0
+    }
+
+    /// Whether the preset's clouds make lightning (a `lightning` factor above 0).
+    pub fn makes_lightning(&self) -> bool {
+        self.lightning > 0.0
+    }
+}
+
 /// The microphysics of a preset's precipitation (`weather::precipitation` says how
 /// they combine): liquid water path from density and depth, then a drizzle-rate
 /// power law above an onset threshold, scaled by an efficiency.

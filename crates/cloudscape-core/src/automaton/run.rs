@@ -17,9 +17,9 @@ use super::random::StochasticDrives;
 use crate::cancel::Cancel;
 use crate::fields::noise::NoiseBackend;
 use crate::fields::noise::mix64;
-use crate::fields::probability::LevelMapping;
+use crate::fields::probability::{LevelMapping, max_filter};
 use crate::fields::{FieldWindow, LayerFields, quantize};
-use crate::world::{Mode, World};
+use crate::world::{Mode, World, authored};
 
 /// A layer ready to simulate: its fields, frames and random stream.
 #[derive(Clone, Debug)]
@@ -69,6 +69,20 @@ impl LayerSim {
             stream,
             cancel: Cancel::never(),
         }
+    }
+
+    /// Where and when the authored weather (`world::authored`) is evaluated for the
+    /// run whose fields are aligned at step `reference`: at the middle of the epoch
+    /// the run serves (Dobashi: steps `reference − E` to `reference`; Rosa: its own
+    /// frame), with the reference frame's offset at that step, so that a frame cell
+    /// `x` stands at world cell `x + offset` then. Returns (time in seconds, offset).
+    pub fn authored_at(&self, reference: i64) -> (f64, (i64, i64)) {
+        let layer = &self.fields.layer;
+        let step = match layer.preset.mode {
+            Mode::Dobashi => reference - (layer.epoch.length / 2) as i64,
+            Mode::Rosa => reference,
+        };
+        (step as f64 * layer.dt, self.frames.reference_offset(step))
     }
 
     /// The number of vertical levels.
@@ -149,6 +163,10 @@ impl LayerSim {
             };
             hull = hull.hull(&r.shift(s.0, s.1));
         }
+        // An anvil spreads brightness from up to its radius away: the window grows by
+        // that margin so that every cell's spread is whole, whatever the tiling.
+        let margin = f.anvil_cells();
+        let hull = hull.expand(margin as i64);
         let tau = f.tau(reference_step as f64 * layer.dt);
         let start = std::time::Instant::now();
         let window = f.window(
@@ -160,9 +178,12 @@ impl LayerSim {
             tau,
             r_off,
         );
+        let spread: Option<[Vec<f32>; 2]> = (margin > 0)
+            .then(|| [0, 1].map(|i| max_filter(&window.b[i], window.w, window.h, margin)));
         let fields_done = start.elapsed();
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;
+        let authored = self.authored_at(reference_step);
         let drives: Vec<Drives> = levels
             .par_iter()
             .enumerate()
@@ -175,6 +196,8 @@ impl LayerSim {
                     window: &window,
                     hull,
                     shift: shifts[k],
+                    authored,
+                    spread: spread.as_ref(),
                 };
                 match mode {
                     Mode::Dobashi => Drives::Stochastic(stochastic(&conv, backend)),
@@ -281,6 +304,10 @@ struct Conversion<'a> {
     window: &'a FieldWindow,
     hull: Rect,
     shift: (i64, i64),
+    /// Time and reference-frame offset of the authored weather ([`LayerSim::authored_at`]).
+    authored: (f64, (i64, i64)),
+    /// The anvil's spread of humidity and activation over the window (with an anvil).
+    spread: Option<&'a [Vec<f32>; 2]>,
 }
 
 impl Conversion<'_> {
@@ -292,7 +319,13 @@ impl Conversion<'_> {
         let (sx, sy) = self.shift;
         let layer = &f.layer;
         let has_ellipsoids = !layer.ellipsoids.is_empty();
+        let has_authored = !layer.authored.is_empty();
+        let (t_authored, o_authored) = self.authored;
+        let z = layer.level_altitude(self.k);
+        let anvil = f.anvil_weight(self.k);
+        let spread = self.spread.filter(|_| anvil > 0.0);
         let mut ew = [1.0f32; 64];
+        let (mut hum, mut act) = ([0f32; 64], [0f32; 64]);
         let mut p = [[0f32; 64]; 3];
         for r in 0..lv.rows {
             let y = lv.y0 + r as i64 + sy;
@@ -301,8 +334,25 @@ impl Conversion<'_> {
                 // Lane b is frame cell x0 + b; its brightness is at column x0 + b − hull.x0.
                 let x0 = lv.x0 + 64 * w as i64 + sx;
                 let at = row + (x0 - hull.x0) as usize;
-                let bright: [&[f32; 64]; 3] =
+                let mut bright: [&[f32; 64]; 3] =
                     std::array::from_fn(|i| window.b[i][at..at + 64].try_into().expect("64 lanes"));
+                if has_authored || spread.is_some() {
+                    let ym = ((y + o_authored.1) as f64 + 0.5) * layer.cell_size;
+                    for b in 0..64 {
+                        let (mut h, mut a) = (bright[0][b], bright[1][b]);
+                        if let Some(m) = spread {
+                            h += (m[0][at + b] - h) * anvil;
+                            a += (m[1][at + b] - a) * anvil;
+                        }
+                        if has_authored {
+                            let xm = ((x0 + b as i64 + o_authored.0) as f64 + 0.5) * layer.cell_size;
+                            let s = authored::push(&layer.authored, xm, ym, z, t_authored);
+                            (h, a) = (authored::pushed(h, s), authored::pushed(a, s));
+                        }
+                        (hum[b], act[b]) = (h, a);
+                    }
+                    bright = [&hum, &act, bright[2]];
+                }
                 if has_ellipsoids {
                     for (b, e) in ew.iter_mut().enumerate() {
                         let x = x0 + b as i64;

@@ -30,7 +30,8 @@ use super::exact::split_time;
 use super::{Grid, Region};
 use crate::automaton::{LayerSim, plan_step};
 use crate::fields::noise::Coord;
-use crate::world::Event;
+use crate::fields::probability::max_filter;
+use crate::world::{Event, authored};
 use crate::world::Mode;
 
 /// Lookup-table resolution per axis; axes are in sqrt(p) so small probabilities
@@ -152,9 +153,19 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     let (dx, dy) = sim.frames.displacement(0, n, frac);
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
-    // Brightness of each run's fields at every column centre (level 0's frame).
+    // An anvil's spread in columns of this level (at least one while it has a radius).
+    let margin = f
+        .layer
+        .preset
+        .anvil
+        .as_ref()
+        .map_or(0, |a| a.cells(span as f64 * layer.cell_size));
+    // Brightness of each run's fields at every column centre (level 0's frame), and
+    // with an anvil the spread of humidity and activation (from `margin` more columns
+    // on each side, as `automaton::run` widens its window).
     let which = Event::ALL;
-    let brightness: Vec<[Vec<f32>; 3]> = plan
+    type Fields = ([Vec<f32>; 3], Option<[Vec<f32>; 2]>);
+    let brightness: Vec<Fields> = plan
         .runs
         .iter()
         .map(|run| {
@@ -166,19 +177,63 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                 let c = Coord::new(i * span - d.int + o - r, span as f64 * 0.5 - d.frac);
                 (c.int, c.frac)
             };
-            let xs: Vec<(i64, f64)> = (0..region.cols as i64)
+            let m = margin as i64;
+            let (w, h) = (region.cols + 2 * margin, region.rows + 2 * margin);
+            let xs: Vec<(i64, f64)> = (-m..region.cols as i64 + m)
                 .map(|c| centre(region.x0 + c, &dx, o0.0, r_off.0))
                 .collect();
-            let ys: Vec<(i64, f64)> = (0..region.rows as i64)
+            let ys: Vec<(i64, f64)> = (-m..region.rows as i64 + m)
                 .map(|r| centre(region.y0 + r, &dy, o0.1, r_off.1))
                 .collect();
-            std::array::from_fn(|i| {
-                let mut out = vec![0f32; plane];
+            let wide: [Vec<f32>; 3] = std::array::from_fn(|i| {
+                let mut out = vec![0f32; w * h];
                 f.brightness_grid(which[i], octaves[i], &xs, &ys, tau, r_off, &mut out);
                 out
-            })
+            });
+            let inner = |v: &[f32]| -> Vec<f32> {
+                v.chunks(w)
+                    .skip(margin)
+                    .take(region.rows)
+                    .flat_map(|row| &row[margin..margin + region.cols])
+                    .copied()
+                    .collect()
+            };
+            let spread = (margin > 0).then(|| [0, 1].map(|i| inner(&max_filter(&wide[i], w, h, margin))));
+            (wide.each_ref().map(|v| inner(v)), spread)
         })
         .collect();
+    // Each run's authored weather (`world::authored`) at every column centre, pushed
+    // as `automaton::run` pushes it: at the run's authored time, in world metres.
+    let pushes: Vec<Vec<f32>> = if layer.authored.is_empty() {
+        Vec::new()
+    } else {
+        plan.runs
+            .iter()
+            .map(|run| {
+                let (t_a, o_a) = sim.authored_at(run.reference);
+                let r_off = sim.frames.reference_offset(run.reference);
+                let o0 = sim.frames.offset(0, run.reference);
+                let metres = |i: i64, d: &Coord, o: i64, r: i64, a: i64| {
+                    let c = Coord::new(i * span - d.int + o - r + a, span as f64 * 0.5 - d.frac);
+                    (c.int as f64 + c.frac) * layer.cell_size
+                };
+                let xs: Vec<f64> = (0..region.cols as i64)
+                    .map(|c| metres(region.x0 + c, &dx, o0.0, r_off.0, o_a.0))
+                    .collect();
+                let ys: Vec<f64> = (0..region.rows as i64)
+                    .map(|r| metres(region.y0 + r, &dy, o0.1, r_off.1, o_a.1))
+                    .collect();
+                let mut out = vec![0f32; plane * depth];
+                out.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
+                    let z = layer.level_altitude(k as u32);
+                    for (i, s) in out.iter_mut().enumerate() {
+                        *s = authored::push(&layer.authored, xs[i % region.cols], ys[i / region.cols], z, t_a);
+                    }
+                });
+                out
+            })
+            .collect()
+    };
     let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
     grid.data.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
         for (i, v) in out.iter_mut().enumerate() {
@@ -187,8 +242,18 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
             let ym = ((region.y0 + r as i64) as f64 + 0.5) * span as f64 * layer.cell_size;
             let ew = f.ellipsoid_weight(xm, ym, k as u32);
             let mut d = 0.0;
-            for (b, w) in brightness.iter().zip(&weights) {
-                let p = f.level_values(k as u32, [b[0][i], b[1][i], b[2][i]], ew);
+            let anvil = f.anvil_weight(k as u32);
+            for (run, ((b, spread), w)) in brightness.iter().zip(&weights).enumerate() {
+                let (mut hum, mut act) = (b[0][i], b[1][i]);
+                if let Some(m) = spread.as_ref().filter(|_| anvil > 0.0) {
+                    hum += (m[0][i] - hum) * anvil;
+                    act += (m[1][i] - act) * anvil;
+                }
+                if let Some(s) = pushes.get(run) {
+                    let s = s[k * plane + i];
+                    (hum, act) = (authored::pushed(hum, s), authored::pushed(act, s));
+                }
+                let p = f.level_values(k as u32, [hum, act, b[2][i]], ew);
                 let e = match layer.preset.mode {
                     Mode::Dobashi => calibrate(expected_cloud(p.hum, spread_activation(p.hum, p.act), p.ext)),
                     // Rosa: cloud where the textures pass their thresholds (eq. 3.6–3.8).

@@ -282,12 +282,29 @@ impl LayerFields {
     }
 
     /// Height shaping: at height fraction `h` the brightness needed rises by
-    /// `top_narrowing * h²`, so the footprint shrinks toward the top.
+    /// `top_narrowing * h²`, so the footprint shrinks toward the top (less so where
+    /// an anvil spreads: see [`LayerFields::anvil_weight`]).
     #[inline]
     pub fn shape(&self, v: f32, k: u32) -> f32 {
-        let h = (k as f32 + 0.5) / self.layer.depth as f32;
-        let n = self.layer.preset.top_narrowing as f32 * h * h;
+        let n = self.narrowing(k);
         ((v - n) / (1.0 - n)).clamp(0.0, 1.0)
+    }
+
+    /// `top_narrowing · h²` at level `k`, faded out by the anvil's weight there.
+    fn narrowing(&self, k: u32) -> f32 {
+        let h = (k as f32 + 0.5) / self.layer.depth as f32;
+        self.layer.preset.top_narrowing as f32 * h * h * (1.0 - self.anvil_weight(k))
+    }
+
+    /// How far level `k`'s humidity and activation brightness move toward their
+    /// anvil spread (the largest value within the anvil's radius): 0 without an anvil.
+    pub fn anvil_weight(&self, k: u32) -> f32 {
+        self.layer.preset.anvil.as_ref().map_or(0.0, |a| a.weight(k, self.layer.depth))
+    }
+
+    /// The anvil's half-width in cells (0 without an anvil).
+    pub fn anvil_cells(&self) -> usize {
+        self.layer.preset.anvil.as_ref().map_or(0, |a| a.cells(self.layer.cell_size))
     }
 
     /// Dobashi ellipsoid weight at a wind-frame position (metres) and level; 1 with none.
@@ -308,10 +325,9 @@ impl LayerFields {
 
     /// The per-level constants of [`LayerFields::level_values`], for 64 lanes at a time.
     pub fn level_mapping(&self, k: u32) -> LevelMapping {
-        let h = (k as f32 + 0.5) / self.layer.depth as f32;
         LevelMapping {
             mode: self.layer.preset.mode,
-            narrowing: self.layer.preset.top_narrowing as f32 * h * h,
+            narrowing: self.narrowing(k),
             ranges: std::array::from_fn(|i| {
                 let r = self.specs[i].range;
                 [r[0] as f32, (r[1] - r[0]) as f32]
@@ -392,6 +408,60 @@ impl LevelMapping {
                 }
             }
         }
+    }
+}
+
+/// The largest of `src` (row-major, `w × h`) within `r` cells in x and y of each cell
+/// (a square window, cut at the grid's edges): the anvil's spread. Separable, and each
+/// pass the van Herk / Gil-Werman running maximum, O(1) per cell whatever `r`.
+pub fn max_filter(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
+    assert_eq!(src.len(), w * h, "one value per cell");
+    if r == 0 || src.is_empty() {
+        return src.to_vec();
+    }
+    let mut along = vec![0f32; w * h];
+    along
+        .par_chunks_mut(w)
+        .zip(src.par_chunks(w))
+        .for_each_init(Vec::new, |scratch, (out, row)| running_max(row, r, out, scratch));
+    // Columns: transpose, filter the rows, transpose back.
+    let mut t = vec![0f32; w * h];
+    for (y, row) in along.chunks(w).enumerate() {
+        for (x, &v) in row.iter().enumerate() {
+            t[x * h + y] = v;
+        }
+    }
+    let mut t2 = vec![0f32; w * h];
+    t2.par_chunks_mut(h)
+        .zip(t.par_chunks(h))
+        .for_each_init(Vec::new, |scratch, (out, col)| running_max(col, r, out, scratch));
+    let mut out = vec![0f32; w * h];
+    for (x, col) in t2.chunks(h).enumerate() {
+        for (y, &v) in col.iter().enumerate() {
+            out[y * w + x] = v;
+        }
+    }
+    out
+}
+
+/// `out[i]` = the largest of `src[i − r ..= i + r]` (within bounds): prefix and suffix
+/// maxima of blocks of `2r + 1` over the row padded with `r` values below every input
+/// on each side (brightness is never below 0, so 0 pads; NaN never wins a `max`).
+fn running_max(src: &[f32], r: usize, out: &mut [f32], scratch: &mut Vec<f32>) {
+    let (n, l) = (src.len(), 2 * r + 1);
+    let m = n + 2 * r;
+    let p = |j: usize| if j >= r && j - r < n { src[j - r] } else { 0.0 };
+    scratch.clear();
+    scratch.resize(2 * m, 0.0);
+    let (g, hh) = scratch.split_at_mut(m);
+    for j in 0..m {
+        g[j] = if j % l == 0 { p(j) } else { g[j - 1].max(p(j)) };
+    }
+    for j in (0..m).rev() {
+        hh[j] = if j + 1 == m || (j + 1) % l == 0 { p(j) } else { hh[j + 1].max(p(j)) };
+    }
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = hh[i].max(g[i + 2 * r]);
     }
 }
 
@@ -597,6 +667,53 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn max_filter_equals_the_naive_maximum() {
+        let (w, h) = (37, 23);
+        let mut s = 5u64;
+        let src: Vec<f32> = (0..w * h)
+            .map(|_| {
+                s = mix64(s);
+                (s >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect();
+        for r in [0usize, 1, 2, 5, 11, 40] {
+            let got = max_filter(&src, w, h, r);
+            for y in 0..h {
+                for x in 0..w {
+                    let mut want = 0f32;
+                    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                        for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                            want = want.max(src[yy * w + xx]);
+                        }
+                    }
+                    assert_eq!(got[y * w + x], want, "r {r} at ({x}, {y})");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn an_anvil_spreads_toward_the_top_and_stops_narrowing() {
+        let mut f = fields();
+        f.layer.depth = 10;
+        f.layer.preset.top_narrowing = 0.4;
+        let before: Vec<f32> = (0..10).map(|k| f.shape(0.5, k)).collect();
+        f.layer.preset.anvil = Some(crate::world::Anvil {
+            start: 0.6,
+            radius: 1000.0,
+        });
+        let w: Vec<f32> = (0..10).map(|k| f.anvil_weight(k)).collect();
+        assert!(w[..6].iter().all(|&w| w == 0.0), "{w:?}");
+        assert_eq!(w[9], 1.0);
+        assert!(w[6] > 0.0 && w[6] < w[7] && w[7] < w[8] && w[8] < 1.0, "{w:?}");
+        for k in 0..6 {
+            assert_eq!(f.shape(0.5, k), before[k as usize]);
+        }
+        assert_eq!(f.shape(0.5, 9), 0.5, "no narrowing under the cap");
+        assert_eq!(f.anvil_cells(), (1000.0 / f.layer.cell_size).ceil() as usize);
     }
 
     #[test]

@@ -4,7 +4,8 @@ use std::collections::BTreeMap;
 
 use serde::Deserialize;
 
-use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, Preset, World};
+use super::authored::{Area, Front, Influence, Shape, Storm};
+use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, MAX_TIME, Preset, World};
 
 /// The embedded default configuration, the text of `config/default.toml`: the one
 /// place it is compiled in (the binary, benches, examples and tests all read this).
@@ -138,7 +139,69 @@ struct RawWorld {
     #[serde(default = "default_freezing_level")]
     freezing_level: f64,
     layers: Vec<RawLayer>,
+    #[serde(default)]
+    events: Vec<RawEvent>,
+    #[serde(default)]
+    regions: Vec<RawRegion>,
 }
+
+/// `[[worlds.NAME.events]]`: a storm or a front (see `world::authored`).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawEvent {
+    kind: String,
+    preset: String,
+    start: Option<f64>,
+    end: Option<f64>,
+    #[serde(default = "default_ramp")]
+    ramp: f64,
+    #[serde(default = "default_intensity")]
+    intensity: f64,
+    // Storm.
+    centre: Option<[f64; 3]>,
+    radii: Option<[f64; 3]>,
+    velocity: Option<[f64; 2]>,
+    path: Option<Vec<[f64; 3]>>,
+    // Front.
+    origin: Option<[f64; 2]>,
+    width: Option<f64>,
+    #[serde(default)]
+    behind: f64,
+    length: Option<f64>,
+}
+
+/// `[[worlds.NAME.regions]]`: a regional override of the preset mix.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, rename_all = "snake_case")]
+struct RawRegion {
+    #[serde(rename = "box")]
+    bbox: Option<[f64; 4]>,
+    polygon: Option<Vec<[f64; 2]>>,
+    #[serde(default = "default_blend")]
+    blend: f64,
+    mix: BTreeMap<String, f64>,
+    start: Option<f64>,
+    end: Option<f64>,
+    #[serde(default = "default_ramp")]
+    ramp: f64,
+}
+
+fn default_ramp() -> f64 {
+    600.0
+}
+fn default_intensity() -> f64 {
+    1.0
+}
+fn default_blend() -> f64 {
+    2000.0
+}
+
+/// Largest anvil radius in cells of its layer: the margin every field window of the
+/// layer grows by on each side (`automaton::run`).
+const MAX_ANVIL_CELLS: usize = 256;
+
+/// Largest coordinate (metres) or speed (m/s) an authored event may name.
+const MAX_AUTHORED: f64 = 1e9;
 
 /// The freezing level of a world that does not set one, metres: a mid-latitude
 /// summer's 0 °C isotherm.
@@ -277,10 +340,41 @@ impl Config {
                     epoch: rl.epoch,
                     extent: rl.extent,
                     ellipsoids: rl.ellipsoids,
+                    authored: Vec::new(),
                     freezing_level: rw.freezing_level,
                 };
                 validate_layer(&key, &layer)?;
                 layers.push(layer);
+            }
+            let drives = |key: &str, preset: &str, layers: &[Layer]| {
+                if layers.iter().any(|l| l.preset_name == preset) {
+                    Ok(())
+                } else {
+                    Err(invalid(
+                        key,
+                        format!("no layer of this world places preset `{preset}`"),
+                    ))
+                }
+            };
+            for (i, re) in rw.events.into_iter().enumerate() {
+                let key = format!("worlds.{wname}.events[{i}]");
+                drives(&format!("{key}.preset"), &re.preset, &layers)?;
+                let preset = re.preset.clone();
+                let influence = event(&key, re)?;
+                for l in layers.iter_mut().filter(|l| l.preset_name == preset) {
+                    l.authored.push(influence.clone());
+                }
+            }
+            for (i, rr) in rw.regions.into_iter().enumerate() {
+                let key = format!("worlds.{wname}.regions[{i}]");
+                for preset in rr.mix.keys() {
+                    drives(&format!("{key}.mix.{preset}"), preset, &layers)?;
+                }
+                for (preset, influence) in region(&key, rr)? {
+                    for l in layers.iter_mut().filter(|l| l.preset_name == preset) {
+                        l.authored.push(influence.clone());
+                    }
+                }
             }
             worlds.insert(
                 wname.clone(),
@@ -325,6 +419,194 @@ fn finite(key: &str, v: f64) -> Result<(), ConfigError> {
     } else {
         Err(invalid(key, "must be a finite number"))
     }
+}
+
+fn bounded(key: &str, values: &[f64], max: f64, what: &str) -> Result<(), ConfigError> {
+    if values.iter().all(|v| v.is_finite() && v.abs() <= max) {
+        Ok(())
+    } else {
+        Err(invalid(key, format!("must be finite {what} within ±{max:e}")))
+    }
+}
+
+/// The timing of an event or region: `start`, `end`, `ramp` and `intensity`, checked.
+fn timing(
+    key: &str,
+    start: Option<f64>,
+    end: Option<f64>,
+    ramp: f64,
+    intensity: f64,
+    shape: Shape,
+) -> Result<Influence, ConfigError> {
+    if let Some(s) = start
+        && !(s.is_finite() && (0.0..=MAX_TIME).contains(&s))
+    {
+        return Err(invalid(format!("{key}.start"), "must be within [0, 1e12] seconds"));
+    }
+    if let Some(e) = end
+        && !(e.is_finite() && e > start.unwrap_or(0.0) && e <= MAX_TIME)
+    {
+        return Err(invalid(format!("{key}.end"), "must be after start and at most 1e12 seconds"));
+    }
+    if !(ramp.is_finite() && (0.0..=MAX_TIME).contains(&ramp)) {
+        return Err(invalid(format!("{key}.ramp"), "must be within [0, 1e12] seconds"));
+    }
+    if !(intensity.is_finite() && (-1.0..=1.0).contains(&intensity)) {
+        return Err(invalid(format!("{key}.intensity"), "must be within [-1, 1]"));
+    }
+    Ok(Influence {
+        shape,
+        intensity,
+        start,
+        end,
+        ramp,
+    })
+}
+
+/// A checked `[[worlds.NAME.events]]` entry.
+fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
+    let need = |name: &str, present: bool| {
+        if present {
+            Ok(())
+        } else {
+            Err(invalid(format!("{key}.{name}"), format!("is required for a {}", e.kind)))
+        }
+    };
+    let refuse = |name: &str, present: bool| {
+        if present {
+            Err(invalid(format!("{key}.{name}"), format!("does not apply to a {}", e.kind)))
+        } else {
+            Ok(())
+        }
+    };
+    let shape = match e.kind.as_str() {
+        "storm" => {
+            need("centre", e.centre.is_some())?;
+            need("radii", e.radii.is_some())?;
+            refuse("origin", e.origin.is_some())?;
+            refuse("width", e.width.is_some())?;
+            refuse("length", e.length.is_some())?;
+            refuse("behind", e.behind != 0.0)?;
+            let (centre, radii) = (e.centre.unwrap_or_default(), e.radii.unwrap_or_default());
+            bounded(&format!("{key}.centre"), &centre, MAX_AUTHORED, "metres")?;
+            if !radii.iter().all(|r| r.is_finite() && *r >= 1.0 && *r <= MAX_AUTHORED) {
+                return Err(invalid(format!("{key}.radii"), "must be within [1, 1e9] metres"));
+            }
+            let path = e.path.unwrap_or_default();
+            if !path.is_empty() && e.velocity.is_some() {
+                return Err(invalid(format!("{key}.velocity"), "give a path or a velocity, not both"));
+            }
+            let velocity = e.velocity.unwrap_or_default();
+            bounded(&format!("{key}.velocity"), &velocity, 1000.0, "m/s")?;
+            for (j, p) in path.iter().enumerate() {
+                bounded(&format!("{key}.path[{j}]"), &p[1..], MAX_AUTHORED, "metres")?;
+                if !(p[0].is_finite() && (0.0..=MAX_TIME).contains(&p[0])) {
+                    return Err(invalid(format!("{key}.path[{j}]"), "its time must be within [0, 1e12] seconds"));
+                }
+                if j > 0 && p[0] <= path[j - 1][0] {
+                    return Err(invalid(format!("{key}.path[{j}]"), "times must ascend"));
+                }
+            }
+            Shape::Storm(Storm {
+                centre,
+                radii,
+                velocity,
+                path,
+            })
+        }
+        "front" => {
+            need("origin", e.origin.is_some())?;
+            need("velocity", e.velocity.is_some())?;
+            need("width", e.width.is_some())?;
+            refuse("centre", e.centre.is_some())?;
+            refuse("radii", e.radii.is_some())?;
+            refuse("path", e.path.is_some())?;
+            let (origin, velocity, width) = (e.origin.unwrap_or_default(), e.velocity.unwrap_or_default(), e.width.unwrap_or_default());
+            bounded(&format!("{key}.origin"), &origin, MAX_AUTHORED, "metres")?;
+            bounded(&format!("{key}.velocity"), &velocity, 1000.0, "m/s")?;
+            if velocity[0].hypot(velocity[1]) < 1e-3 {
+                return Err(invalid(format!("{key}.velocity"), "a front must move (at least 1 mm/s): its line is perpendicular to its velocity"));
+            }
+            if !(width.is_finite() && (1.0..=MAX_AUTHORED).contains(&width)) {
+                return Err(invalid(format!("{key}.width"), "must be within [1, 1e9] metres"));
+            }
+            if !(e.behind.is_finite() && (-1.0..=1.0).contains(&e.behind)) {
+                return Err(invalid(format!("{key}.behind"), "must be within [-1, 1]"));
+            }
+            if let Some(l) = e.length
+                && !(l.is_finite() && (1.0..=MAX_AUTHORED).contains(&l))
+            {
+                return Err(invalid(format!("{key}.length"), "must be within [1, 1e9] metres"));
+            }
+            Shape::Front(Front {
+                origin,
+                velocity,
+                width,
+                behind: e.behind,
+                length: e.length,
+            })
+        }
+        other => {
+            return Err(invalid(
+                format!("{key}.kind"),
+                format!("unknown kind `{other}` (storm or front)"),
+            ));
+        }
+    };
+    timing(key, e.start, e.end, e.ramp, e.intensity, shape)
+}
+
+/// A checked `[[worlds.NAME.regions]]` entry: one influence per preset of its mix.
+fn region(key: &str, r: RawRegion) -> Result<Vec<(String, Influence)>, ConfigError> {
+    let area = match (r.bbox, r.polygon) {
+        (Some(b), None) => {
+            bounded(&format!("{key}.box"), &b, MAX_AUTHORED, "metres")?;
+            if !(b[0] < b[2] && b[1] < b[3]) {
+                return Err(invalid(format!("{key}.box"), "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1"));
+            }
+            Area::Box(b)
+        }
+        (None, Some(p)) => {
+            if !(3..=1024).contains(&p.len()) {
+                return Err(invalid(format!("{key}.polygon"), "needs 3 to 1024 vertices"));
+            }
+            bounded(&format!("{key}.polygon"), p.as_flattened(), MAX_AUTHORED, "metres")?;
+            Area::Polygon(p)
+        }
+        _ => return Err(invalid(key, "needs exactly one of `box` and `polygon`")),
+    };
+    if !(r.blend.is_finite() && (0.0..=MAX_AUTHORED).contains(&r.blend)) {
+        return Err(invalid(format!("{key}.blend"), "must be within [0, 1e9] metres"));
+    }
+    if r.mix.is_empty() {
+        return Err(invalid(format!("{key}.mix"), "names no preset"));
+    }
+    let base = timing(
+        key,
+        r.start,
+        r.end,
+        r.ramp,
+        1.0,
+        Shape::Region {
+            area,
+            blend: r.blend,
+        },
+    )?;
+    r.mix
+        .iter()
+        .map(|(preset, &push)| {
+            if !(push.is_finite() && (-1.0..=1.0).contains(&push)) {
+                return Err(invalid(format!("{key}.mix.{preset}"), "must be within [-1, 1]"));
+            }
+            Ok((
+                preset.clone(),
+                Influence {
+                    intensity: push,
+                    ..base.clone()
+                },
+            ))
+        })
+        .collect()
 }
 
 fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {
@@ -389,6 +671,14 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
     }
     if !(p.lightning.is_finite() && (0.0..=1000.0).contains(&p.lightning)) {
         return Err(invalid(format!("{key}.lightning"), "must be within [0, 1000]"));
+    }
+    if let Some(a) = &p.anvil {
+        if !(a.start.is_finite() && a.start > 0.0 && a.start < 1.0) {
+            return Err(invalid(format!("{key}.anvil.start"), "must be within (0, 1)"));
+        }
+        if !(a.radius.is_finite() && (0.0..=50_000.0).contains(&a.radius)) {
+            return Err(invalid(format!("{key}.anvil.radius"), "must be within [0, 50000] metres"));
+        }
     }
     let r = &p.precipitation;
     let key = format!("{key}.precipitation");
@@ -464,6 +754,17 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
         return Err(invalid(
             format!("{key}.extent"),
             "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+        ));
+    }
+    if let Some(a) = &l.preset.anvil
+        && a.cells(l.cell_size) > MAX_ANVIL_CELLS
+    {
+        return Err(invalid(
+            format!("{key}.preset"),
+            format!(
+                "its anvil radius {} m is over {MAX_ANVIL_CELLS} cells of {} m",
+                a.radius, l.cell_size
+            ),
         ));
     }
     for (i, el) in l.ellipsoids.iter().enumerate() {

@@ -6,6 +6,7 @@
 //! Parsing rejects unknown keys and invalid values with a message that names
 //! the key, before anything else runs.
 
+pub mod authored;
 mod config;
 mod keyframe;
 
@@ -34,7 +35,12 @@ use serde::Deserialize;
 ///    decimals (`0.9`, not `0.8999999761581421`); PNGs carry their colour space
 ///    (`gAMA` 1.0 for data maps, `sRGB` for pictures); `coverage.png` is RGB with no
 ///    data in alpha (B is the cloud top; the base is gone).
-pub const ALGORITHM_VERSION: u32 = 9;
+/// 9: coarse shaded tiles normalise each metaball by the field's vertical integral
+///    past 1,024 cell heights of radius.
+/// 10: authored weather (storms, fronts and regional overrides that push a layer's
+///    humidity and activation, `world::authored`) and the cumulonimbus anvil
+///    (`Preset::anvil`: brightness spread under the layer's top).
+pub const ALGORITHM_VERSION: u32 = 10;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;
@@ -173,6 +179,42 @@ pub struct Preset {
     /// (`weather::lightning`); 0, the default, for clouds that do not electrify.
     #[serde(default)]
     pub lightning: f64,
+    /// An anvil: deep convective cloud spreading sideways under the layer's top (the cap).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub anvil: Option<Anvil>,
+}
+
+/// A cumulonimbus anvil. From `start` (a fraction of the layer's depth) up to its top,
+/// the humidity and activation brightness blend (smoothly, fully at the top) toward
+/// their largest value within `radius` metres, and the top narrowing fades out: the
+/// updrafts' cloud spreads sideways under the cap (the tropopause, in nature) into a
+/// flat, wide top.
+#[derive(Clone, Debug, PartialEq, Deserialize, serde::Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct Anvil {
+    /// Height fraction of the layer, in (0, 1), where the spreading begins.
+    pub start: f64,
+    /// How far the cloud spreads, metres (the square max filter's half-width).
+    pub radius: f64,
+}
+
+impl Anvil {
+    /// The anvil's weight in [0, 1] at vertical level `k` of a layer `depth` cells deep:
+    /// 0 below `start`, rising smoothly to 1 at the top level.
+    pub fn weight(&self, k: u32, depth: u32) -> f32 {
+        let h = (k as f64 + 0.5) / depth as f64;
+        let top = (depth as f64 - 0.5) / depth as f64;
+        if h <= self.start || top <= self.start {
+            return 0.0;
+        }
+        let w = ((h - self.start) / (top - self.start)).clamp(0.0, 1.0);
+        (w * w * (3.0 - 2.0 * w)) as f32
+    }
+
+    /// The radius in whole cells of `cell` metres (at least 1 when the radius is positive).
+    pub fn cells(&self, cell: f64) -> usize {
+        if self.radius <= 0.0 { 0 } else { (self.radius / cell).ceil().max(1.0) as usize }
+    }
 }
 
 impl Preset {
@@ -279,6 +321,10 @@ pub struct Layer {
     pub extent: Option<[f64; 4]>,
     /// Dobashi ellipsoids that shape humidity and activation.
     pub ellipsoids: Vec<Ellipsoid>,
+    /// The world's authored storms, fronts and regional overrides that drive this
+    /// layer's preset (`worlds.NAME.events` and `.regions`), in configuration order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub authored: Vec<authored::Influence>,
     /// The world's freezing level (altitude of the 0 °C isotherm, metres), copied from
     /// `worlds.NAME.freezing_level` so that a layer's products need only the layer.
     pub freezing_level: f64,

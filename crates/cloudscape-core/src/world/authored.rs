@@ -1,0 +1,304 @@
+//! Authored weather: storms and fronts a designer places and times
+//! (`[[worlds.NAME.events]]`), and regional climate overrides
+//! (`[[worlds.NAME.regions]]`).
+//!
+//! Each one pushes the humidity and activation brightness of the layers that place
+//! its preset: a push `s` in [-1, 1] moves a brightness `b` toward 1 (`b + (1 − b)s`
+//! for `s > 0`, more cloud) or toward 0 (`b(1 + s)` for `s < 0`, clear air), before
+//! the height shaping and Dobashi ellipsoids. So the noise still draws the cloud's
+//! texture and the automaton its life; the designer says where and when.
+//!
+//! Every push is a smooth function of world position and time: storms fall off
+//! from their centre, fronts across their band, regions across their `blend`
+//! margin, and all of them fade in and out over `ramp` seconds. The automaton
+//! evaluates pushes once per run (at the middle of the epoch the run serves, in
+//! the wind frame, see `automaton::run`), so between runs a storm moves with the
+//! wind and the epoch's fade carries it on; nothing pops.
+
+use serde::Serialize;
+
+/// A storm: a moving Dobashi ellipsoid of more (or, with negative intensity, less) cloud.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Storm {
+    /// Centre at `start` (or, with a path, its altitude only): world metres x, y, altitude.
+    pub centre: [f64; 3],
+    /// Semi-axes in metres.
+    pub radii: [f64; 3],
+    /// Drift of the centre, m/s (ignored with a path).
+    pub velocity: [f64; 2],
+    /// Waypoints `[t, x, y]` (ascending t): the centre moves linearly between them
+    /// and rests at the first before it and at the last after it.
+    pub path: Vec<[f64; 3]>,
+}
+
+/// A front: a straight line moving along `velocity`, perpendicular to it, with a
+/// band of cloud of half-width `width` and, optionally, another climate behind it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Front {
+    /// A point on the line at `start`, world metres.
+    pub origin: [f64; 2],
+    /// The line's motion, m/s (nonzero); the line is perpendicular to it.
+    pub velocity: [f64; 2],
+    /// Half-width of the band, metres.
+    pub width: f64,
+    /// Push in the air the front has passed (0: the climate returns behind it).
+    pub behind: f64,
+    /// Length of the line along itself, centred on the origin's track (None: endless).
+    pub length: Option<f64>,
+}
+
+/// Where a regional override applies.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub enum Area {
+    /// `[x0, y0, x1, y1]`, world metres.
+    Box([f64; 4]),
+    /// A simple polygon's vertices, world metres (even-odd rule).
+    Polygon(Vec<[f64; 2]>),
+}
+
+/// What an authored influence is.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub enum Shape {
+    /// A moving ellipsoid.
+    Storm(Storm),
+    /// A moving line.
+    Front(Front),
+    /// A fixed area (regional override), full strength `blend` metres inside its edge.
+    Region {
+        /// The area.
+        area: Area,
+        /// Width of the margin over which the push ramps up inside the edge, metres.
+        blend: f64,
+    },
+}
+
+/// One authored influence on one layer: a shape, how hard it pushes, and when.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Influence {
+    /// Where it acts.
+    pub shape: Shape,
+    /// Push at full strength, in [-1, 1].
+    pub intensity: f64,
+    /// World time it begins to fade in, seconds (None: it has always been there).
+    pub start: Option<f64>,
+    /// World time it has faded out, seconds (None: never).
+    pub end: Option<f64>,
+    /// Seconds over which it fades in after `start` and out before `end` (0: at once).
+    pub ramp: f64,
+}
+
+/// `3w² − 2w³` on w clamped to [0, 1]: 0 and 1 with zero slope at both ends.
+fn smooth(w: f64) -> f64 {
+    let w = w.clamp(0.0, 1.0);
+    w * w * (3.0 - 2.0 * w)
+}
+
+impl Influence {
+    /// Strength in [0, 1] at time `t` from the start/end ramps.
+    pub fn envelope(&self, t: f64) -> f64 {
+        let edge = |d: f64| {
+            if self.ramp > 0.0 {
+                smooth(d / self.ramp)
+            } else {
+                f64::from(d >= 0.0)
+            }
+        };
+        let rise = self.start.map_or(1.0, |start| edge(t - start));
+        match self.end {
+            Some(end) => rise.min(edge(end - t)),
+            None => rise,
+        }
+    }
+
+    /// Signed push at world position (x, y, altitude z), metres, and time t.
+    pub fn push(&self, x: f64, y: f64, z: f64, t: f64) -> f64 {
+        let e = self.envelope(t);
+        if e == 0.0 {
+            return 0.0;
+        }
+        let w = match &self.shape {
+            Shape::Storm(s) => {
+                let [cx, cy] = s.centre_at(self.start.unwrap_or(0.0), t);
+                let d = |v: f64, c: f64, r: f64| (v - c) / r;
+                let r2 = d(x, cx, s.radii[0]).powi(2) + d(y, cy, s.radii[1]).powi(2) + d(z, s.centre[2], s.radii[2]).powi(2);
+                self.intensity * smooth(1.0 - r2)
+            }
+            Shape::Front(f) => {
+                let speed = f.velocity[0].hypot(f.velocity[1]);
+                let n = [f.velocity[0] / speed, f.velocity[1] / speed];
+                let moved = t - self.start.unwrap_or(0.0);
+                let (px, py) = (
+                    x - f.origin[0] - f.velocity[0] * moved,
+                    y - f.origin[1] - f.velocity[1] * moved,
+                );
+                // Signed distance ahead of the line, and along it.
+                let ahead = px * n[0] + py * n[1];
+                let along = -px * n[1] + py * n[0];
+                let band = smooth(1.0 - (ahead / f.width).powi(2));
+                let passed = smooth(0.5 - ahead / (2.0 * f.width));
+                let ends = f.length.map_or(1.0, |l| smooth((0.5 * l - along.abs()) / f.width));
+                (self.intensity * band + f.behind * passed) * ends
+            }
+            Shape::Region { area, blend } => {
+                let inside = area.depth(x, y);
+                self.intensity * if *blend > 0.0 { smooth(inside / blend) } else { f64::from(inside >= 0.0) }
+            }
+        };
+        w * e
+    }
+}
+
+impl Storm {
+    /// The centre's (x, y) at time `t` for a storm that starts at `start` (its
+    /// `centre` is where it is then; 0 for a storm without a start).
+    pub fn centre_at(&self, start: f64, t: f64) -> [f64; 2] {
+        let Some(first) = self.path.first() else {
+            let dt = t - start;
+            return [self.centre[0] + self.velocity[0] * dt, self.centre[1] + self.velocity[1] * dt];
+        };
+        if t <= first[0] {
+            return [first[1], first[2]];
+        }
+        for w in self.path.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            if t <= b[0] {
+                let f = (t - a[0]) / (b[0] - a[0]);
+                return [a[1] + (b[1] - a[1]) * f, a[2] + (b[2] - a[2]) * f];
+            }
+        }
+        let last = self.path[self.path.len() - 1];
+        [last[1], last[2]]
+    }
+}
+
+impl Area {
+    /// Signed distance from the edge, metres: positive inside, negative outside.
+    pub fn depth(&self, x: f64, y: f64) -> f64 {
+        match self {
+            Area::Box([x0, y0, x1, y1]) => (x - x0).min(x1 - x).min(y - y0).min(y1 - y),
+            Area::Polygon(v) => {
+                let mut inside = false;
+                let mut nearest = f64::INFINITY;
+                for (i, &a) in v.iter().enumerate() {
+                    let b = v[(i + 1) % v.len()];
+                    if (a[1] > y) != (b[1] > y) && x < a[0] + (y - a[1]) / (b[1] - a[1]) * (b[0] - a[0]) {
+                        inside = !inside;
+                    }
+                    let (ex, ey) = (b[0] - a[0], b[1] - a[1]);
+                    let f = (((x - a[0]) * ex + (y - a[1]) * ey) / (ex * ex + ey * ey)).clamp(0.0, 1.0);
+                    nearest = nearest.min((x - a[0] - f * ex).hypot(y - a[1] - f * ey));
+                }
+                if inside { nearest } else { -nearest }
+            }
+        }
+    }
+}
+
+/// The summed push of `influences` at a point, clamped to [-1, 1] (0 with none).
+pub fn push(influences: &[Influence], x: f64, y: f64, z: f64, t: f64) -> f32 {
+    influences
+        .iter()
+        .map(|i| i.push(x, y, z, t))
+        .sum::<f64>()
+        .clamp(-1.0, 1.0) as f32
+}
+
+/// A brightness `b` pushed by `s` in [-1, 1]: toward 1 for `s > 0`, toward 0 for `s < 0`.
+#[inline]
+pub fn pushed(b: f32, s: f32) -> f32 {
+    if s >= 0.0 { b + (1.0 - b) * s } else { b * (1.0 + s) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn storm() -> Influence {
+        Influence {
+            shape: Shape::Storm(Storm {
+                centre: [0.0, 0.0, 3000.0],
+                radii: [5000.0, 5000.0, 4000.0],
+                velocity: [10.0, 0.0],
+                path: Vec::new(),
+            }),
+            intensity: 1.0,
+            start: Some(1000.0),
+            end: Some(5000.0),
+            ramp: 500.0,
+        }
+    }
+
+    #[test]
+    fn a_storm_moves_and_fades_in_and_out() {
+        let s = storm();
+        assert_eq!(s.push(0.0, 0.0, 3000.0, 900.0), 0.0, "before its start");
+        assert_eq!(s.push(10_000.0, 0.0, 3000.0, 2000.0), 1.0, "centre after 1000 s at 10 m/s");
+        assert_eq!(s.push(0.0, 0.0, 3000.0, 2000.0), 0.0, "its old place is 2 radii behind");
+        assert!((s.push(2500.0, 0.0, 3000.0, 1250.0) - 0.5).abs() < 1e-12, "half way up its ramp");
+        assert_eq!(s.push(40_000.0, 0.0, 3000.0, 5000.0), 0.0, "gone at its end");
+        assert!(s.push(5000.0, 0.0, 3000.0, 1500.0) > s.push(7000.0, 0.0, 3000.0, 1500.0));
+    }
+
+    #[test]
+    fn a_path_is_followed_and_held_at_its_ends() {
+        let s = Storm {
+            centre: [0.0, 0.0, 0.0],
+            radii: [1.0; 3],
+            velocity: [0.0; 2],
+            path: vec![[100.0, 0.0, 0.0], [200.0, 1000.0, 0.0], [400.0, 1000.0, 2000.0]],
+        };
+        assert_eq!(s.centre_at(0.0, 50.0), [0.0, 0.0]);
+        assert_eq!(s.centre_at(0.0, 150.0), [500.0, 0.0]);
+        assert_eq!(s.centre_at(0.0, 300.0), [1000.0, 1000.0]);
+        assert_eq!(s.centre_at(0.0, 1e12), [1000.0, 2000.0]);
+    }
+
+    #[test]
+    fn a_front_has_a_band_and_another_climate_behind() {
+        let f = Influence {
+            shape: Shape::Front(Front {
+                origin: [0.0, 0.0],
+                velocity: [0.0, 5.0],
+                width: 2000.0,
+                behind: -0.5,
+                length: Some(20_000.0),
+            }),
+            intensity: 1.0,
+            start: None,
+            end: None,
+            ramp: 0.0,
+        };
+        // After 1000 s the line is at y = 5000.
+        assert_eq!(f.push(0.0, 5000.0, 0.0, 1000.0), 1.0 - 0.5 * 0.5);
+        assert_eq!(f.push(0.0, 9000.0, 0.0, 1000.0), 0.0, "ahead of the band");
+        assert_eq!(f.push(0.0, -9000.0, 0.0, 1000.0), -0.5, "behind it");
+        assert_eq!(f.push(30_000.0, 5000.0, 0.0, 1000.0), 0.0, "beyond its length");
+    }
+
+    #[test]
+    fn areas_measure_depth_inside_their_edge() {
+        let b = Area::Box([0.0, 0.0, 100.0, 50.0]);
+        assert_eq!(b.depth(10.0, 25.0), 10.0);
+        assert_eq!(b.depth(-10.0, 25.0), -10.0);
+        // The same square as a polygon, and a concave L.
+        let p = Area::Polygon(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 50.0], [0.0, 50.0]]);
+        assert_eq!(p.depth(10.0, 25.0), 10.0);
+        assert_eq!(p.depth(-10.0, 25.0), -10.0);
+        let l = Area::Polygon(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 20.0], [20.0, 20.0], [20.0, 100.0], [0.0, 100.0]]);
+        assert!(l.depth(10.0, 50.0) > 0.0);
+        assert!(l.depth(50.0, 50.0) < 0.0, "the notch of the L is outside");
+        assert_eq!(l.depth(50.0, 30.0), -10.0);
+    }
+
+    #[test]
+    fn pushes_sum_clamp_and_move_brightness_toward_their_end() {
+        let s = storm();
+        assert_eq!(push(&[s.clone(), s.clone()], 10_000.0, 0.0, 3000.0, 2000.0), 1.0);
+        assert_eq!(push(&[], 0.0, 0.0, 0.0, 0.0), 0.0);
+        assert_eq!(pushed(0.2, 1.0), 1.0);
+        assert_eq!(pushed(0.2, -1.0), 0.0);
+        assert_eq!(pushed(0.2, 0.0), 0.2);
+        assert_eq!(pushed(0.5, 0.5), 0.75);
+        assert_eq!(pushed(0.5, -0.5), 0.25);
+    }
+}

@@ -178,8 +178,8 @@ impl LayerSim {
             tau,
             r_off,
         );
-        let spread: Option<[Vec<f32>; 2]> = (margin > 0)
-            .then(|| [0, 1].map(|i| max_filter(&window.b[i], window.w, window.h, margin)));
+        let spread: Option<[Vec<f32>; 2]> =
+            (margin > 0).then(|| [0, 1].map(|i| max_filter(&window.b[i], window.w, window.h, margin)));
         let fields_done = start.elapsed();
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;

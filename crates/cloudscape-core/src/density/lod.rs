@@ -31,8 +31,8 @@ use super::{Grid, Region};
 use crate::automaton::{LayerSim, plan_step};
 use crate::fields::noise::Coord;
 use crate::fields::probability::max_filter;
-use crate::world::{Event, authored};
 use crate::world::Mode;
+use crate::world::{Event, authored};
 
 /// Lookup-table resolution per axis; axes are in sqrt(p) so small probabilities
 /// (activation is typically a few percent) get most of the entries.

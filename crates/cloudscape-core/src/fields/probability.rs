@@ -299,12 +299,20 @@ impl LayerFields {
     /// How far level `k`'s humidity and activation brightness move toward their
     /// anvil spread (the largest value within the anvil's radius): 0 without an anvil.
     pub fn anvil_weight(&self, k: u32) -> f32 {
-        self.layer.preset.anvil.as_ref().map_or(0.0, |a| a.weight(k, self.layer.depth))
+        self.layer
+            .preset
+            .anvil
+            .as_ref()
+            .map_or(0.0, |a| a.weight(k, self.layer.depth))
     }
 
     /// The anvil's half-width in cells (0 without an anvil).
     pub fn anvil_cells(&self) -> usize {
-        self.layer.preset.anvil.as_ref().map_or(0, |a| a.cells(self.layer.cell_size))
+        self.layer
+            .preset
+            .anvil
+            .as_ref()
+            .map_or(0, |a| a.cells(self.layer.cell_size))
     }
 
     /// Dobashi ellipsoid weight at a wind-frame position (metres) and level; 1 with none.
@@ -458,7 +466,11 @@ fn running_max(src: &[f32], r: usize, out: &mut [f32], scratch: &mut Vec<f32>) {
         g[j] = if j % l == 0 { p(j) } else { g[j - 1].max(p(j)) };
     }
     for j in (0..m).rev() {
-        hh[j] = if j + 1 == m || (j + 1) % l == 0 { p(j) } else { hh[j + 1].max(p(j)) };
+        hh[j] = if j + 1 == m || (j + 1) % l == 0 {
+            p(j)
+        } else {
+            hh[j + 1].max(p(j))
+        };
     }
     for (i, o) in out.iter_mut().enumerate() {
         *o = hh[i].max(g[i + 2 * r]);

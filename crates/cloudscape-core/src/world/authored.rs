@@ -120,7 +120,8 @@ impl Influence {
             Shape::Storm(s) => {
                 let [cx, cy] = s.centre_at(self.start.unwrap_or(0.0), t);
                 let d = |v: f64, c: f64, r: f64| (v - c) / r;
-                let r2 = d(x, cx, s.radii[0]).powi(2) + d(y, cy, s.radii[1]).powi(2) + d(z, s.centre[2], s.radii[2]).powi(2);
+                let r2 =
+                    d(x, cx, s.radii[0]).powi(2) + d(y, cy, s.radii[1]).powi(2) + d(z, s.centre[2], s.radii[2]).powi(2);
                 self.intensity * smooth(1.0 - r2)
             }
             Shape::Front(f) => {
@@ -141,7 +142,12 @@ impl Influence {
             }
             Shape::Region { area, blend } => {
                 let inside = area.depth(x, y);
-                self.intensity * if *blend > 0.0 { smooth(inside / blend) } else { f64::from(inside >= 0.0) }
+                self.intensity
+                    * if *blend > 0.0 {
+                        smooth(inside / blend)
+                    } else {
+                        f64::from(inside >= 0.0)
+                    }
             }
         };
         w * e
@@ -154,7 +160,10 @@ impl Storm {
     pub fn centre_at(&self, start: f64, t: f64) -> [f64; 2] {
         let Some(first) = self.path.first() else {
             let dt = t - start;
-            return [self.centre[0] + self.velocity[0] * dt, self.centre[1] + self.velocity[1] * dt];
+            return [
+                self.centre[0] + self.velocity[0] * dt,
+                self.centre[1] + self.velocity[1] * dt,
+            ];
         };
         if t <= first[0] {
             return [first[1], first[2]];
@@ -232,9 +241,16 @@ mod tests {
     fn a_storm_moves_and_fades_in_and_out() {
         let s = storm();
         assert_eq!(s.push(0.0, 0.0, 3000.0, 900.0), 0.0, "before its start");
-        assert_eq!(s.push(10_000.0, 0.0, 3000.0, 2000.0), 1.0, "centre after 1000 s at 10 m/s");
+        assert_eq!(
+            s.push(10_000.0, 0.0, 3000.0, 2000.0),
+            1.0,
+            "centre after 1000 s at 10 m/s"
+        );
         assert_eq!(s.push(0.0, 0.0, 3000.0, 2000.0), 0.0, "its old place is 2 radii behind");
-        assert!((s.push(2500.0, 0.0, 3000.0, 1250.0) - 0.5).abs() < 1e-12, "half way up its ramp");
+        assert!(
+            (s.push(2500.0, 0.0, 3000.0, 1250.0) - 0.5).abs() < 1e-12,
+            "half way up its ramp"
+        );
         assert_eq!(s.push(40_000.0, 0.0, 3000.0, 5000.0), 0.0, "gone at its end");
         assert!(s.push(5000.0, 0.0, 3000.0, 1500.0) > s.push(7000.0, 0.0, 3000.0, 1500.0));
     }
@@ -284,7 +300,14 @@ mod tests {
         let p = Area::Polygon(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 50.0], [0.0, 50.0]]);
         assert_eq!(p.depth(10.0, 25.0), 10.0);
         assert_eq!(p.depth(-10.0, 25.0), -10.0);
-        let l = Area::Polygon(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 20.0], [20.0, 20.0], [20.0, 100.0], [0.0, 100.0]]);
+        let l = Area::Polygon(vec![
+            [0.0, 0.0],
+            [100.0, 0.0],
+            [100.0, 20.0],
+            [20.0, 20.0],
+            [20.0, 100.0],
+            [0.0, 100.0],
+        ]);
         assert!(l.depth(10.0, 50.0) > 0.0);
         assert!(l.depth(50.0, 50.0) < 0.0, "the notch of the L is outside");
         assert_eq!(l.depth(50.0, 30.0), -10.0);

@@ -350,10 +350,7 @@ impl Config {
                 if layers.iter().any(|l| l.preset_name == preset) {
                     Ok(())
                 } else {
-                    Err(invalid(
-                        key,
-                        format!("no layer of this world places preset `{preset}`"),
-                    ))
+                    Err(invalid(key, format!("no layer of this world places preset `{preset}`")))
                 }
             };
             for (i, re) in rw.events.into_iter().enumerate() {
@@ -446,7 +443,10 @@ fn timing(
     if let Some(e) = end
         && !(e.is_finite() && e > start.unwrap_or(0.0) && e <= MAX_TIME)
     {
-        return Err(invalid(format!("{key}.end"), "must be after start and at most 1e12 seconds"));
+        return Err(invalid(
+            format!("{key}.end"),
+            "must be after start and at most 1e12 seconds",
+        ));
     }
     if !(ramp.is_finite() && (0.0..=MAX_TIME).contains(&ramp)) {
         return Err(invalid(format!("{key}.ramp"), "must be within [0, 1e12] seconds"));
@@ -469,12 +469,18 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
         if present {
             Ok(())
         } else {
-            Err(invalid(format!("{key}.{name}"), format!("is required for a {}", e.kind)))
+            Err(invalid(
+                format!("{key}.{name}"),
+                format!("is required for a {}", e.kind),
+            ))
         }
     };
     let refuse = |name: &str, present: bool| {
         if present {
-            Err(invalid(format!("{key}.{name}"), format!("does not apply to a {}", e.kind)))
+            Err(invalid(
+                format!("{key}.{name}"),
+                format!("does not apply to a {}", e.kind),
+            ))
         } else {
             Ok(())
         }
@@ -494,14 +500,20 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
             }
             let path = e.path.unwrap_or_default();
             if !path.is_empty() && e.velocity.is_some() {
-                return Err(invalid(format!("{key}.velocity"), "give a path or a velocity, not both"));
+                return Err(invalid(
+                    format!("{key}.velocity"),
+                    "give a path or a velocity, not both",
+                ));
             }
             let velocity = e.velocity.unwrap_or_default();
             bounded(&format!("{key}.velocity"), &velocity, 1000.0, "m/s")?;
             for (j, p) in path.iter().enumerate() {
                 bounded(&format!("{key}.path[{j}]"), &p[1..], MAX_AUTHORED, "metres")?;
                 if !(p[0].is_finite() && (0.0..=MAX_TIME).contains(&p[0])) {
-                    return Err(invalid(format!("{key}.path[{j}]"), "its time must be within [0, 1e12] seconds"));
+                    return Err(invalid(
+                        format!("{key}.path[{j}]"),
+                        "its time must be within [0, 1e12] seconds",
+                    ));
                 }
                 if j > 0 && p[0] <= path[j - 1][0] {
                     return Err(invalid(format!("{key}.path[{j}]"), "times must ascend"));
@@ -521,11 +533,18 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
             refuse("centre", e.centre.is_some())?;
             refuse("radii", e.radii.is_some())?;
             refuse("path", e.path.is_some())?;
-            let (origin, velocity, width) = (e.origin.unwrap_or_default(), e.velocity.unwrap_or_default(), e.width.unwrap_or_default());
+            let (origin, velocity, width) = (
+                e.origin.unwrap_or_default(),
+                e.velocity.unwrap_or_default(),
+                e.width.unwrap_or_default(),
+            );
             bounded(&format!("{key}.origin"), &origin, MAX_AUTHORED, "metres")?;
             bounded(&format!("{key}.velocity"), &velocity, 1000.0, "m/s")?;
             if velocity[0].hypot(velocity[1]) < 1e-3 {
-                return Err(invalid(format!("{key}.velocity"), "a front must move (at least 1 mm/s): its line is perpendicular to its velocity"));
+                return Err(invalid(
+                    format!("{key}.velocity"),
+                    "a front must move (at least 1 mm/s): its line is perpendicular to its velocity",
+                ));
             }
             if !(width.is_finite() && (1.0..=MAX_AUTHORED).contains(&width)) {
                 return Err(invalid(format!("{key}.width"), "must be within [1, 1e9] metres"));
@@ -562,7 +581,10 @@ fn region(key: &str, r: RawRegion) -> Result<Vec<(String, Influence)>, ConfigErr
         (Some(b), None) => {
             bounded(&format!("{key}.box"), &b, MAX_AUTHORED, "metres")?;
             if !(b[0] < b[2] && b[1] < b[3]) {
-                return Err(invalid(format!("{key}.box"), "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1"));
+                return Err(invalid(
+                    format!("{key}.box"),
+                    "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+                ));
             }
             Area::Box(b)
         }
@@ -581,17 +603,7 @@ fn region(key: &str, r: RawRegion) -> Result<Vec<(String, Influence)>, ConfigErr
     if r.mix.is_empty() {
         return Err(invalid(format!("{key}.mix"), "names no preset"));
     }
-    let base = timing(
-        key,
-        r.start,
-        r.end,
-        r.ramp,
-        1.0,
-        Shape::Region {
-            area,
-            blend: r.blend,
-        },
-    )?;
+    let base = timing(key, r.start, r.end, r.ramp, 1.0, Shape::Region { area, blend: r.blend })?;
     r.mix
         .iter()
         .map(|(preset, &push)| {
@@ -677,7 +689,10 @@ fn validate_preset(key: &str, p: &Preset) -> Result<(), ConfigError> {
             return Err(invalid(format!("{key}.anvil.start"), "must be within (0, 1)"));
         }
         if !(a.radius.is_finite() && (0.0..=50_000.0).contains(&a.radius)) {
-            return Err(invalid(format!("{key}.anvil.radius"), "must be within [0, 50000] metres"));
+            return Err(invalid(
+                format!("{key}.anvil.radius"),
+                "must be within [0, 50000] metres",
+            ));
         }
     }
     let r = &p.precipitation;

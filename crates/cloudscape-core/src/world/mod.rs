@@ -213,7 +213,11 @@ impl Anvil {
 
     /// The radius in whole cells of `cell` metres (at least 1 when the radius is positive).
     pub fn cells(&self, cell: f64) -> usize {
-        if self.radius <= 0.0 { 0 } else { (self.radius / cell).ceil().max(1.0) as usize }
+        if self.radius <= 0.0 {
+            0
+        } else {
+            (self.radius / cell).ceil().max(1.0) as usize
+        }
     }
 }
 

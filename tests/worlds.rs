@@ -28,7 +28,7 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
         .unwrap();
     let list: serde_json::Value = serde_json::from_slice(&body).unwrap();
     let names = common::world_names(&list);
-    for w in ["default", "overcast", "storm-front"] {
+    for w in ["default", "overcast", "storm-front", "archipelago"] {
         assert!(names.iter().any(|n| n == w), "{w} missing from {names:?}");
     }
     // Default: fair-weather cumulus, 30–50 % of columns covered in every box and time
@@ -71,4 +71,16 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
         ahead_later > ahead_now + 0.1,
         "the front advances: {ahead_now} then {ahead_later}"
     );
+
+    // Archipelago: the authored thunderstorm (centre x = 5000 + 8 (t − 1800), y = 4000)
+    // is over the harbour at t = 2400 and over the highlands at t = 5550; nothing
+    // convects anywhere else.
+    let harbour = "5000,-1000,15000,9000";
+    let highlands = "30000,-1000,40000,9000";
+    let storm = |bbox: &str, t: f64| coverage(&server, "archipelago", "cumulonimbus", bbox, t);
+    let (h0, g0) = (storm(harbour, 2400.0), storm(highlands, 2400.0));
+    let (h1, g1) = (storm(harbour, 5550.0), storm(highlands, 5550.0));
+    assert!(h0 > 0.5 && g0 == 0.0, "storm over the harbour first: {h0} {g0}");
+    assert!(g1 > 0.5 && h1 == 0.0, "then over the highlands: {h1} {g1}");
+    assert_eq!(storm("60000,-1000,70000,9000", 5550.0), 0.0, "no convection elsewhere");
 }

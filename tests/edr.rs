@@ -62,7 +62,12 @@ async fn landing_conformance_and_collections_describe_every_world() {
         .collect();
     assert!(rels.contains(&("conformance", "/v1/edr/conformance")), "{rels:?}");
     assert!(rels.contains(&("data", "/v1/edr/collections")), "{rels:?}");
-    assert!(landing["title"].as_str().unwrap().contains("Environmental Data Retrieval"));
+    assert!(
+        landing["title"]
+            .as_str()
+            .unwrap()
+            .contains("Environmental Data Retrieval")
+    );
 
     let conformance = s.json("/v1/edr/conformance").await.to_string();
     for class in [
@@ -91,14 +96,26 @@ async fn landing_conformance_and_collections_describe_every_world() {
     let names: Vec<&String> = c["parameter_names"].as_object().unwrap().keys().collect();
     assert_eq!(
         names,
-        ["cloud_base", "cloud_cover", "cloud_top", "density", "precipitation_rate"]
+        [
+            "cloud_base",
+            "cloud_cover",
+            "cloud_top",
+            "density",
+            "precipitation_rate"
+        ]
     );
-    assert_eq!(c["parameter_names"]["precipitation_rate"]["unit"]["symbol"]["value"], "mm/h");
+    assert_eq!(
+        c["parameter_names"]["precipitation_rate"]["unit"]["symbol"]["value"],
+        "mm/h"
+    );
     assert_eq!(c["parameter_names"]["cloud_base"]["unit"]["symbol"]["value"], "m");
     for q in ["position", "area", "cube"] {
         let link = &c["data_queries"][q]["link"];
         assert!(
-            link["href"].as_str().unwrap().starts_with(&format!("/v1/edr/collections/default/{q}?")),
+            link["href"]
+                .as_str()
+                .unwrap()
+                .starts_with(&format!("/v1/edr/collections/default/{q}?")),
             "{link}"
         );
         assert_eq!(link["variables"]["query_type"], q);
@@ -132,7 +149,13 @@ async fn a_position_answers_what_sample_answers() {
     let s = start().await;
     let mut clouds = 0;
     let mut rain = 0;
-    for (z, layer) in [(1050.0f64, ""), (1150.0, ""), (0.0, ""), (3000.0, ""), (5100.0, "&layer=high")] {
+    for (z, layer) in [
+        (1050.0f64, ""),
+        (1150.0, ""),
+        (0.0, ""),
+        (3000.0, ""),
+        (5100.0, "&layer=high"),
+    ] {
         for t in [0.0, 20.0] {
             for i in 0..6 {
                 for j in 0..6 {
@@ -170,7 +193,10 @@ async fn a_position_answers_what_sample_answers() {
             }
         }
     }
-    assert!(clouds > 0 && rain > 0, "the test points saw no cloud ({clouds}) or no rain ({rain})");
+    assert!(
+        clouds > 0 && rain > 0,
+        "the test points saw no cloud ({clouds}) or no rain ({rain})"
+    );
 
     // ISO 8601 and plain seconds name the same instant, and the same bytes.
     let iso = s
@@ -186,7 +212,10 @@ async fn a_position_answers_what_sample_answers() {
         .unwrap();
     assert_eq!(iso, seconds);
     let c: Value = serde_json::from_slice(&iso).unwrap();
-    assert_eq!(c["domain"]["axes"]["t"]["values"], serde_json::json!(["1970-01-01T00:00:20Z"]));
+    assert_eq!(
+        c["domain"]["axes"]["t"]["values"],
+        serde_json::json!(["1970-01-01T00:00:20Z"])
+    );
     let again = s
         .client
         .get(format!(
@@ -227,7 +256,9 @@ async fn an_area_aggregates_to_the_region_statistics() {
     let s = start().await;
     for (level, t) in [(0, 0.0), (0, 20.0), (1, 10.0)] {
         let region = s
-            .json(&format!("/v1/worlds/default/region?bbox=0,0,6400,4800&t={t}&level={level}"))
+            .json(&format!(
+                "/v1/worlds/default/region?bbox=0,0,6400,4800&t={t}&level={level}"
+            ))
             .await;
         let c = s
             .json(&format!(
@@ -235,7 +266,10 @@ async fn an_area_aggregates_to_the_region_statistics() {
             ))
             .await;
         assert_eq!(c["domain"]["domainType"], "Grid");
-        let (cols, rows) = (region["columns"]["cols"].as_u64().unwrap(), region["columns"]["rows"].as_u64().unwrap());
+        let (cols, rows) = (
+            region["columns"]["cols"].as_u64().unwrap(),
+            region["columns"]["rows"].as_u64().unwrap(),
+        );
         assert_eq!(c["ranges"]["density"]["shape"], serde_json::json!([1, rows, cols]));
         assert_eq!(c["ranges"]["density"]["axisNames"], serde_json::json!(["t", "y", "x"]));
         let w = LOW_CELL * f64::from(1 << level);
@@ -244,11 +278,17 @@ async fn an_area_aggregates_to_the_region_statistics() {
         let what = format!("level {level}, t {t}");
         let density = present(&range(&c, "density"));
         assert_eq!(density.len() as u64, rows * cols, "{what}");
-        assert!(close(mean(&density), region["mean_density"].as_f64().unwrap()), "{what}");
+        assert!(
+            close(mean(&density), region["mean_density"].as_f64().unwrap()),
+            "{what}"
+        );
         let cover = present(&range(&c, "cloud_cover"));
         assert!(close(mean(&cover), region["coverage"].as_f64().unwrap()), "{what}");
         let rate = present(&range(&c, "precipitation_rate"));
-        assert!(close(mean(&rate), region["mean_precipitation_mm_h"].as_f64().unwrap()), "{what}");
+        assert!(
+            close(mean(&rate), region["mean_precipitation_mm_h"].as_f64().unwrap()),
+            "{what}"
+        );
         assert_eq!(
             rate.iter().copied().fold(0.0, f64::max),
             region["max_precipitation_mm_h"].as_f64().unwrap()
@@ -258,7 +298,10 @@ async fn an_area_aggregates_to_the_region_statistics() {
         assert_eq!(base, region["cloud_base"].as_f64(), "{what}");
         assert_eq!(top, region["cloud_top"].as_f64(), "{what}");
         if level == 0 {
-            assert!(region["coverage"].as_f64().unwrap() > 0.0, "no cloud in the test area at t = {t}");
+            assert!(
+                region["coverage"].as_f64().unwrap() > 0.0,
+                "no cloud in the test area at t = {t}"
+            );
         }
     }
 
@@ -322,13 +365,25 @@ async fn a_cube_steps_by_dt_and_equals_the_series() {
     assert_eq!(c["ranges"]["cloud_cover"]["shape"], serde_json::json!([4, 20, 30]));
     for (i, p) in points.iter().enumerate() {
         let step = |name: &str| present(&range(&c, name)[i * per_step..(i + 1) * per_step]);
-        assert!(close(mean(&step("density")), p["mean_density"].as_f64().unwrap()), "step {i}");
-        assert!(close(mean(&step("cloud_cover")), p["coverage"].as_f64().unwrap()), "step {i}");
         assert!(
-            close(mean(&step("precipitation_rate")), p["mean_precipitation_mm_h"].as_f64().unwrap()),
+            close(mean(&step("density")), p["mean_density"].as_f64().unwrap()),
             "step {i}"
         );
-        assert_eq!(step("cloud_base").into_iter().reduce(f64::min), p["cloud_base"].as_f64());
+        assert!(
+            close(mean(&step("cloud_cover")), p["coverage"].as_f64().unwrap()),
+            "step {i}"
+        );
+        assert!(
+            close(
+                mean(&step("precipitation_rate")),
+                p["mean_precipitation_mm_h"].as_f64().unwrap()
+            ),
+            "step {i}"
+        );
+        assert_eq!(
+            step("cloud_base").into_iter().reduce(f64::min),
+            p["cloud_base"].as_f64()
+        );
         assert_eq!(step("cloud_top").into_iter().reduce(f64::max), p["cloud_top"].as_f64());
     }
 
@@ -342,14 +397,22 @@ async fn a_cube_steps_by_dt_and_equals_the_series() {
     // tile's values.
     for t in [0.0, 20.0] {
         let tile = density_tile(&s, t).await;
-        for (z, levels) in [("1000/1200", vec![0usize, 1]), ("1150", vec![1]), ("1190,1010", vec![0, 1])] {
+        for (z, levels) in [
+            ("1000/1200", vec![0usize, 1]),
+            ("1150", vec![1]),
+            ("1190,1010", vec![0, 1]),
+        ] {
             let cube = s
                 .json(&format!(
                     "/v1/edr/collections/default/cube?bbox=0,0,3000,2000&datetime={t}&z={z}"
                 ))
                 .await;
             let centres: Vec<f64> = levels.iter().map(|&k| 1050.0 + 100.0 * k as f64).collect();
-            assert_eq!(cube["domain"]["axes"]["z"]["values"], serde_json::json!(centres), "z={z}");
+            assert_eq!(
+                cube["domain"]["axes"]["z"]["values"],
+                serde_json::json!(centres),
+                "z={z}"
+            );
             assert_eq!(
                 cube["ranges"]["density"]["axisNames"],
                 serde_json::json!(["t", "z", "y", "x"])
@@ -363,7 +426,11 @@ async fn a_cube_steps_by_dt_and_equals_the_series() {
                         let i = (n * 20 + row) * 30 + col;
                         let d = tile[(k * 256 + row) * 256 + col];
                         // Written as f32 (the shortest text that reads back as the same f32).
-                        assert_eq!(density[i].map(|v| v as f32), Some(d), "t {t} z {z} k {k} ({row}, {col})");
+                        assert_eq!(
+                            density[i].map(|v| v as f32),
+                            Some(d),
+                            "t {t} z {z} k {k} ({row}, {col})"
+                        );
                         assert_eq!(cover[i], Some(if d >= 0.1 { 1.0 } else { 0.0 }));
                     }
                 }
@@ -384,45 +451,157 @@ async fn bad_edr_requests_get_clear_errors_before_any_work() {
     let point = "coords=POINT(150%20150)";
     let square = "coords=POLYGON((0%200,1000%200,1000%201000,0%201000))";
     for (path, status, code) in [
-        (format!("{base}/position?coords=POINT(1)&datetime=0"), 400, "invalid_parameter"),
-        (format!("{base}/position?coords=POINT(a%20b)&datetime=0"), 400, "invalid_number"),
-        (format!("{base}/position?coords=POINT(nan%200)&datetime=0"), 400, "not_finite"),
-        (format!("{base}/position?coords=MULTIPOINT((1%202))&datetime=0"), 400, "invalid_parameter"),
+        (
+            format!("{base}/position?coords=POINT(1)&datetime=0"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?coords=POINT(a%20b)&datetime=0"),
+            400,
+            "invalid_number",
+        ),
+        (
+            format!("{base}/position?coords=POINT(nan%200)&datetime=0"),
+            400,
+            "not_finite",
+        ),
+        (
+            format!("{base}/position?coords=MULTIPOINT((1%202))&datetime=0"),
+            400,
+            "invalid_parameter",
+        ),
         (format!("{base}/position?datetime=0"), 400, "missing_parameter"),
         (format!("{base}/position?{point}"), 400, "missing_parameter"),
-        (format!("{base}/position?{point}&datetime=0&parameter-name=temperature"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=../1970-01-01T00:00:10Z"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=0/.."), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=30/0"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=1970-01-01T00:00:00"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=1969-12-31T23:59:59Z"), 422, "time_out_of_range"),
-        (format!("{base}/position?{point}&datetime=1e12"), 422, "time_out_of_range"),
-        (format!("{base}/position?{point}&datetime=0&f=xml"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=0&crs=CRS84"), 400, "invalid_parameter"),
-        (format!("{base}/position?{point}&datetime=0&layer=nope"), 404, "unknown_layer"),
-        (format!("{base}/position?coords=POINT(1e300%200)&datetime=0"), 422, "coordinates_out_of_range"),
-        (format!("{base}/position?{point}&datetime=0/1000"), 413, "series_too_long"),
-        (format!("{base}/area?coords=POLYGON((0%200,1%201))&datetime=0"), 400, "invalid_parameter"),
-        (format!("{base}/area?coords=LINESTRING(0%200,1%201)&datetime=0"), 400, "invalid_parameter"),
-        (format!("{base}/area?coords=POLYGON((0%200,1000%200,1000%201000)&datetime=0"), 400, "invalid_parameter"),
-        (format!("{base}/area?coords=POLYGON((0%200,1e9%200,1e9%201e9,0%201e9))&datetime=0"), 413, "region_too_large"),
-        (format!("{base}/area?{square}&datetime=0&level=99"), 422, "level_out_of_range"),
+        (
+            format!("{base}/position?{point}&datetime=0&parameter-name=temperature"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=../1970-01-01T00:00:10Z"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=0/.."),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=30/0"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=1970-01-01T00:00:00"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=1969-12-31T23:59:59Z"),
+            422,
+            "time_out_of_range",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=1e12"),
+            422,
+            "time_out_of_range",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=0&f=xml"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=0&crs=CRS84"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=0&layer=nope"),
+            404,
+            "unknown_layer",
+        ),
+        (
+            format!("{base}/position?coords=POINT(1e300%200)&datetime=0"),
+            422,
+            "coordinates_out_of_range",
+        ),
+        (
+            format!("{base}/position?{point}&datetime=0/1000"),
+            413,
+            "series_too_long",
+        ),
+        (
+            format!("{base}/area?coords=POLYGON((0%200,1%201))&datetime=0"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/area?coords=LINESTRING(0%200,1%201)&datetime=0"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/area?coords=POLYGON((0%200,1000%200,1000%201000)&datetime=0"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/area?coords=POLYGON((0%200,1e9%200,1e9%201e9,0%201e9))&datetime=0"),
+            413,
+            "region_too_large",
+        ),
+        (
+            format!("{base}/area?{square}&datetime=0&level=99"),
+            422,
+            "level_out_of_range",
+        ),
         (format!("{base}/area?{square}&datetime=0/1000"), 413, "series_too_long"),
-        (format!("{base}/area?{square}&datetime=0&f=html"), 400, "invalid_parameter"),
+        (
+            format!("{base}/area?{square}&datetime=0&f=html"),
+            400,
+            "invalid_parameter",
+        ),
         (format!("{base}/cube?bbox=10,0,0,10&datetime=0"), 400, "invalid_bbox"),
         (format!("{base}/cube?bbox=0,0,10&datetime=0"), 400, "invalid_parameter"),
-        (format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=5000"), 400, "invalid_parameter"),
-        (format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=3000/4000"), 400, "invalid_parameter"),
-        (format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=R2/1000/100"), 400, "invalid_parameter"),
+        (
+            format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=5000"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=3000/4000"),
+            400,
+            "invalid_parameter",
+        ),
+        (
+            format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=R2/1000/100"),
+            400,
+            "invalid_parameter",
+        ),
         (
             format!("{base}/cube?bbox=0,0,1000,1000&datetime=0&z=1050&parameter-name=cloud_base"),
             400,
             "invalid_parameter",
         ),
-        (format!("{base}/cube?bbox=0,0,1000,1000&datetime=0/1000"), 413, "series_too_long"),
-        (format!("{base}/cube?bbox=0,0,1000,1000&datetime=0/1000&layer=high"), 413, "series_too_long"),
+        (
+            format!("{base}/cube?bbox=0,0,1000,1000&datetime=0/1000"),
+            413,
+            "series_too_long",
+        ),
+        (
+            format!("{base}/cube?bbox=0,0,1000,1000&datetime=0/1000&layer=high"),
+            413,
+            "series_too_long",
+        ),
         ("/v1/edr/collections/nope".to_string(), 404, "unknown_world"),
-        (format!("/v1/edr/collections/nope/position?{point}&datetime=0"), 404, "unknown_world"),
+        (
+            format!("/v1/edr/collections/nope/position?{point}&datetime=0"),
+            404,
+            "unknown_world",
+        ),
         (format!("{base}/radius?{point}&datetime=0"), 404, "not_found"),
         ("/v1/edr?f=html".to_string(), 400, "invalid_parameter"),
         ("/v1/edr/conformance?f=xml".to_string(), 400, "invalid_parameter"),
@@ -434,7 +613,9 @@ async fn bad_edr_requests_get_clear_errors_before_any_work() {
     }
     // The unknown parameter is named.
     let (_, body) = s
-        .status_json(&format!("{base}/position?{point}&datetime=0&parameter-name=density,temperature"))
+        .status_json(&format!(
+            "{base}/position?{point}&datetime=0&parameter-name=density,temperature"
+        ))
         .await;
     assert!(body["message"].as_str().unwrap().contains("`temperature`"), "{body}");
     assert_eq!(computations().await, before, "a refused request computed something");

@@ -108,7 +108,10 @@ pub fn parameter(q: Quantity) -> Parameter {
         description: en(description),
         unit: Unit {
             label: en(unit),
-            symbol: Symbol { value: symbol, scheme: UCUM },
+            symbol: Symbol {
+                value: symbol,
+                scheme: UCUM,
+            },
         },
         observed_property: ObservedProperty { id, label: en(label) },
     }

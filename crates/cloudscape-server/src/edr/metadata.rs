@@ -8,7 +8,7 @@ use cloudscape_core::density::MAX_CELL_INDEX;
 use cloudscape_core::world::World;
 
 use super::covjson::parameter;
-use super::query::{CRS_NAME, Quantity, format_instant, MAX_EDR_TIME};
+use super::query::{CRS_NAME, MAX_EDR_TIME, Quantity, format_instant};
 
 /// The world plane as a WKT 2 engineering CRS.
 pub const CRS_WKT: &str = "ENGCRS[\"cloudscape world plane\",EDATUM[\"world origin: the corner of tile (z, 0, 0)\"],\

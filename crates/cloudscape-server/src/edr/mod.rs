@@ -238,11 +238,19 @@ pub async fn position(
     // frames[time][column]
     let frames: Vec<Vec<SnappedTime>> = times
         .iter()
-        .map(|&t| columns.iter().map(|(i, _)| SnappedTime::snap(t, &world.layers[*i], fps)).collect())
+        .map(|&t| {
+            columns
+                .iter()
+                .map(|(i, _)| SnappedTime::snap(t, &world.layers[*i], fps))
+                .collect()
+        })
         .collect();
     check_answer_size(&s, (times.len() * quantities.len()) as u64)?;
     let exact = times.iter().zip(&axis).all(|(&t, f)| f.is_exact(t))
-        && times.iter().zip(&frames).all(|(&t, fs)| fs.iter().all(|f| f.is_exact(t)));
+        && times
+            .iter()
+            .zip(&frames)
+            .all(|(&t, fs)| fs.iter().all(|f| f.is_exact(t)));
     let key = CacheKey::new("edr-position", &resolved, primary)
         .with("p", format!("{x},{y},{z}"))
         .with("in", chosen.map_or(-1, |i| i as i64))
@@ -573,7 +581,12 @@ fn grid_answer(q: &GridQuery, frames: &[SnappedTime], cancel: &Cancel) -> Result
     let inside: Option<Vec<bool>> = q.polygon.as_ref().map(|p| {
         (0..r.rows)
             .flat_map(|row| (0..r.cols).map(move |col| (row, col)))
-            .map(|(row, col)| p.contains((r.x0 as f64 + col as f64 + 0.5) * w, (r.y0 as f64 + row as f64 + 0.5) * w))
+            .map(|(row, col)| {
+                p.contains(
+                    (r.x0 as f64 + col as f64 + 0.5) * w,
+                    (r.y0 as f64 + row as f64 + 0.5) * w,
+                )
+            })
             .collect()
     });
     let per_frame: Vec<Vec<Values>> = frames
@@ -636,7 +649,8 @@ fn frame_values(
             _ => Values::F64(
                 cells
                     .map(|(k, i)| {
-                        kept(i).then(|| f64::from(u8::from(grid.get(k, i / grid.cols, i % grid.cols) >= CLOUD_THRESHOLD)))
+                        kept(i)
+                            .then(|| f64::from(u8::from(grid.get(k, i / grid.cols, i % grid.cols) >= CLOUD_THRESHOLD)))
                     })
                     .collect(),
             ),

@@ -34,12 +34,9 @@ fn invalid(name: &str, message: impl Into<String>) -> ApiError {
 /// which must be one parenthesised group: `POINT (1 2)` gives `1 2`.
 fn wkt_body<'a>(value: &'a str, keyword: &str) -> Result<&'a str, ApiError> {
     let v = value.trim();
-    let open = v.find('(').ok_or_else(|| {
-        invalid(
-            "coords",
-            format!("must be WKT {keyword}(…), got `{}`", truncated(v)),
-        )
-    })?;
+    let open = v
+        .find('(')
+        .ok_or_else(|| invalid("coords", format!("must be WKT {keyword}(…), got `{}`", truncated(v))))?;
     let word = v[..open].trim();
     if !word.eq_ignore_ascii_case(keyword) {
         return Err(invalid(
@@ -123,11 +120,7 @@ pub fn parse_polygon(value: &str) -> Result<Polygon, ApiError> {
             .strip_prefix('(')
             .and_then(|r| r.split_once(')'))
             .ok_or_else(|| invalid("coords", "a POLYGON is a list of rings `((x y, x y, …), …)`"))?;
-        let mut ring = body
-            .0
-            .split(',')
-            .map(wkt_position)
-            .collect::<Result<Vec<_>, _>>()?;
+        let mut ring = body.0.split(',').map(wkt_position).collect::<Result<Vec<_>, _>>()?;
         if ring.len() > 1 && ring.first() == ring.last() {
             ring.pop();
         }
@@ -144,7 +137,12 @@ pub fn parse_polygon(value: &str) -> Result<Polygon, ApiError> {
         match rest.strip_prefix(',') {
             Some(r) => rest = r.trim(),
             None if rest.is_empty() => break,
-            None => return Err(invalid("coords", format!("unexpected `{}` after a ring", truncated(rest)))),
+            None => {
+                return Err(invalid(
+                    "coords",
+                    format!("unexpected `{}` after a ring", truncated(rest)),
+                ));
+            }
         }
     }
     let polygon = Polygon { rings };
@@ -333,12 +331,7 @@ pub fn format_instant(t: f64) -> String {
     }
     let (y, m, d) = civil_from_days(whole.div_euclid(86_400));
     let s = whole.rem_euclid(86_400);
-    let mut out = format!(
-        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}",
-        s / 3600,
-        s / 60 % 60,
-        s % 60
-    );
+    let mut out = format!("{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60);
     if nanos > 0 {
         out.push_str(format!(".{nanos:09}").trim_end_matches('0'));
     }
@@ -507,13 +500,25 @@ mod tests {
 
     #[test]
     fn bad_instants_are_refused() {
-        for bad in ["1970-13-01T00:00:00Z", "1970-02-30", "1970-01-01T00:00:00", "1970-01-01T24:00:00Z", "soon"] {
+        for bad in [
+            "1970-13-01T00:00:00Z",
+            "1970-02-30",
+            "1970-01-01T00:00:00",
+            "1970-01-01T24:00:00Z",
+            "soon",
+        ] {
             assert!(
-                matches!(parse_instant(bad), Err(ApiError::InvalidParameter { .. } | ApiError::InvalidNumber { .. })),
+                matches!(
+                    parse_instant(bad),
+                    Err(ApiError::InvalidParameter { .. } | ApiError::InvalidNumber { .. })
+                ),
                 "{bad}"
             );
         }
-        assert!(matches!(parse_instant("1969-12-31T23:59:59Z"), Err(ApiError::DatetimeOutOfRange(_))));
+        assert!(matches!(
+            parse_instant("1969-12-31T23:59:59Z"),
+            Err(ApiError::DatetimeOutOfRange(_))
+        ));
         assert!(matches!(parse_instant("-1"), Err(ApiError::TimeOutOfRange(_))));
         assert!(matches!(parse_instant("1e12"), Err(ApiError::DatetimeOutOfRange(_))));
     }
@@ -522,7 +527,10 @@ mod tests {
     fn intervals_are_closed_and_bounded() {
         let d = parse_datetime(&params(&[("datetime", "0/30")])).unwrap();
         assert_eq!(d.times(10.0, 8).unwrap(), vec![0.0, 10.0, 20.0, 30.0]);
-        assert!(matches!(d.times(1.0, 8), Err(ApiError::SeriesTooLong { points: 31, max: 8 })));
+        assert!(matches!(
+            d.times(1.0, 8),
+            Err(ApiError::SeriesTooLong { points: 31, max: 8 })
+        ));
         for open in ["../30", "0/..", "/30", "0/"] {
             assert!(parse_datetime(&params(&[("datetime", open)])).is_err(), "{open}");
         }
@@ -532,7 +540,14 @@ mod tests {
     #[test]
     fn wkt_points_and_polygons() {
         assert_eq!(parse_point(" point ( 150 -2.5 ) ").unwrap(), [150.0, -2.5]);
-        for bad in ["POINT(1)", "POINT(1 2 3)", "POINT Z(1 2 3)", "MULTIPOINT((1 2))", "POINT(1 2", "1 2"] {
+        for bad in [
+            "POINT(1)",
+            "POINT(1 2 3)",
+            "POINT Z(1 2 3)",
+            "MULTIPOINT((1 2))",
+            "POINT(1 2",
+            "1 2",
+        ] {
             assert!(parse_point(bad).is_err(), "{bad}");
         }
         let p = parse_polygon("POLYGON((0 0, 10 0, 10 10, 0 10, 0 0), (4 4, 6 4, 6 6, 4 6))").unwrap();
@@ -540,12 +555,20 @@ mod tests {
         assert!(p.contains(1.0, 1.0) && !p.contains(5.0, 5.0) && !p.contains(11.0, 1.0));
         let tri = parse_polygon("POLYGON((0 0, 10 0, 0 10))").unwrap();
         assert!(tri.contains(2.0, 2.0) && !tri.contains(8.0, 8.0));
-        for bad in ["POLYGON((0 0, 1 1))", "POLYGON((0 0, 1 0, 0 0))", "POLYGON(0 0, 1 0, 1 1)", "POLYGON((0 0, 1 0, 1 1)) x"] {
+        for bad in [
+            "POLYGON((0 0, 1 1))",
+            "POLYGON((0 0, 1 0, 0 0))",
+            "POLYGON(0 0, 1 0, 1 1)",
+            "POLYGON((0 0, 1 0, 1 1)) x",
+        ] {
             assert!(parse_polygon(bad).is_err(), "{bad}");
         }
         let many = format!(
             "POLYGON(({}))",
-            (0..=MAX_POLYGON_VERTICES).map(|i| format!("{i} {}", i % 2)).collect::<Vec<_>>().join(",")
+            (0..=MAX_POLYGON_VERTICES)
+                .map(|i| format!("{i} {}", i % 2))
+                .collect::<Vec<_>>()
+                .join(",")
         );
         assert!(matches!(parse_polygon(&many), Err(ApiError::TooMuchWork(_))));
     }
@@ -555,6 +578,9 @@ mod tests {
         let q = parse_quantities(&params(&[("parameter-name", "density,cloud_cover,density")]), &[]).unwrap();
         assert_eq!(q, vec![Quantity::CloudCover, Quantity::Density]);
         assert!(parse_quantities(&params(&[("parameter-name", "temperature")]), &[]).is_err());
-        assert_eq!(parse_quantities(&params(&[]), &Quantity::ALL).unwrap(), Quantity::ALL.to_vec());
+        assert_eq!(
+            parse_quantities(&params(&[]), &Quantity::ALL).unwrap(),
+            Quantity::ALL.to_vec()
+        );
     }
 }

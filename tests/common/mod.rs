@@ -201,3 +201,43 @@ pub async fn start_in_process(text: &str) -> (String, reqwest::Client) {
     }
     panic!("server never became ready");
 }
+
+/// An in-process server ([`start_in_process`]) and its client, asked by path.
+pub struct InProcess {
+    /// `http://127.0.0.1:PORT`
+    pub base: String,
+    pub client: reqwest::Client,
+}
+
+impl InProcess {
+    /// Starts a server of the config `text`.
+    pub async fn start(text: &str) -> InProcess {
+        let (base, client) = start_in_process(text).await;
+        InProcess { base, client }
+    }
+
+    pub async fn get(&self, path: &str) -> reqwest::Response {
+        self.client
+            .get(format!("{}{path}", self.base))
+            .send()
+            .await
+            .expect("request")
+    }
+
+    /// The status and JSON body of `path`.
+    pub async fn status_json(&self, path: &str) -> (u16, serde_json::Value) {
+        let r = self.get(path).await;
+        let status = r.status().as_u16();
+        let bytes = r.bytes().await.unwrap();
+        let body = serde_json::from_slice(&bytes)
+            .unwrap_or_else(|e| panic!("{path}: {status}, not JSON ({e}): {}", String::from_utf8_lossy(&bytes)));
+        (status, body)
+    }
+
+    /// The JSON body of `path`, which must answer 200.
+    pub async fn json(&self, path: &str) -> serde_json::Value {
+        let (status, body) = self.status_json(path).await;
+        assert_eq!(status, 200, "{path}: {body}");
+        body
+    }
+}

@@ -28,6 +28,13 @@ pub enum ApiError {
     InvalidParameter { name: String, message: String },
     #[error("t must be within [0, 1e12] seconds, got {0}")]
     TimeOutOfRange(f64),
+    /// An EDR `datetime` instant before the world clock's start or after the last
+    /// second a four-digit year can name.
+    #[error(
+        "datetime `{0}` is out of range: world time runs from 1970-01-01T00:00:00Z (t = 0) and EDR instants \
+         end at 9999-12-31T23:59:59Z (t = 253402300799 s)"
+    )]
+    DatetimeOutOfRange(String),
     #[error("bbox must be X0,Y0,X1,Y1 in metres with X0 < X1 and Y0 < Y1")]
     InvalidBbox,
     #[error("the bbox holds no column centre at this level")]
@@ -103,7 +110,7 @@ impl ApiError {
             MissingParameter(_) => (StatusCode::BAD_REQUEST, "missing_parameter"),
             InvalidParameter { .. } => (StatusCode::BAD_REQUEST, "invalid_parameter"),
             InvalidBbox => (StatusCode::BAD_REQUEST, "invalid_bbox"),
-            TimeOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "time_out_of_range"),
+            TimeOutOfRange(_) | DatetimeOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "time_out_of_range"),
             EmptyRegion => (StatusCode::UNPROCESSABLE_ENTITY, "empty_region"),
             LevelOutOfRange { .. } => (StatusCode::UNPROCESSABLE_ENTITY, "level_out_of_range"),
             CoordinatesOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "coordinates_out_of_range"),

@@ -10,7 +10,8 @@
 //! `/v1/worlds/{world}/tilejson.json`), tiles under
 //! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}` (and by TileJSON zoom under
 //! `/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}`), region queries (`/sample`,
-//! `/region`, `/series`), `/v1/worlds/{world}/render.png`, the splat sheets
+//! `/region`, `/series`), OGC API – EDR under `/v1/edr` (position, area and cube
+//! queries answered as CoverageJSON), `/v1/worlds/{world}/render.png`, the splat sheets
 //! `/v1/splats.{png,json}`, `/v1/sky.json`, and the operator routes `/healthz`, `/readyz`,
 //! `/metrics`, `/openapi.json`.
 //!
@@ -26,6 +27,7 @@ pub mod config;
 mod conn;
 mod cors;
 mod discovery;
+mod edr;
 mod encode;
 mod error;
 mod extract;
@@ -212,6 +214,13 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/worlds/{world}/series", get(queries::series))
         .route("/v1/worlds/{world}/lightning", get(lightning::lightning))
         .route("/v1/worlds/{world}/render.png", get(render::render_png))
+        .route("/v1/edr", get(edr::landing))
+        .route("/v1/edr/conformance", get(edr::conformance))
+        .route("/v1/edr/collections", get(edr::collections))
+        .route("/v1/edr/collections/{world}", get(edr::collection))
+        .route("/v1/edr/collections/{world}/position", get(edr::position))
+        .route("/v1/edr/collections/{world}/area", get(edr::area))
+        .route("/v1/edr/collections/{world}/cube", get(edr::cube))
         .route("/v1/splats.png", get(render::splats_png))
         .route("/v1/splats.json", get(render::splats_json))
         .route("/v1/sky.json", get(render::sky_json))

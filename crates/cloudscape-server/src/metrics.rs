@@ -146,7 +146,7 @@ impl CloseReason {
 pub const REDIS_OPS: [&str; 2] = ["get", "set"];
 
 /// The `kind` label values: what a computation produces.
-pub const KINDS: [&str; 11] = [
+pub const KINDS: [&str; 12] = [
     "tile_density",
     "tile_coverage",
     "tile_precipitation",
@@ -155,6 +155,7 @@ pub const KINDS: [&str; 11] = [
     "region",
     "series",
     "lightning",
+    "edr",
     "render",
     "splats",
     "sky",

@@ -10,7 +10,7 @@ use utoipa::OpenApi;
 
 use crate::extract::TileProduct;
 use crate::params::QualityName;
-use crate::{discovery, error, lightning, ops, queries, render, tilejson, tiles};
+use crate::{discovery, edr, error, lightning, ops, queries, render, tilejson, tiles};
 
 #[derive(OpenApi)]
 #[openapi(
@@ -28,6 +28,13 @@ use crate::{discovery, error, lightning, ops, queries, render, tilejson, tiles};
         queries::region,
         queries::series,
         lightning::lightning,
+        edr::landing,
+        edr::conformance,
+        edr::collections,
+        edr::collection,
+        edr::position,
+        edr::area,
+        edr::cube,
         render::render_png,
         render::splats_png,
         render::splats_json,

@@ -26,7 +26,7 @@ use crate::params::Params;
 use crate::respond::{Cached, Freshness, Representation, cache_control};
 use crate::state::AppState;
 
-fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
+pub(crate) fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
     serde_json::to_vec(value)
         .map(Bytes::from)
         .map_err(|e| ApiError::Internal(e.to_string()))

@@ -10,6 +10,7 @@
 
 bin=target/release/cloudscape
 server_pid=""
+server_log=""
 
 stop_server() {
   if [ -n "$server_pid" ] && kill -0 "$server_pid" 2>/dev/null; then
@@ -30,6 +31,7 @@ start_server() {
   mkdir -p "$out"
   local port
   port=$(node -e 'const s=require("net").createServer().listen(0,"127.0.0.1",()=>{console.log(s.address().port);s.close()})')
+  server_log="$out/server.log"
   trap stop_server EXIT
   # A cold tile may take a while on a loaded CI machine: give computations time rather
   # than shedding them.
@@ -50,6 +52,15 @@ start_server() {
   done
   echo "error: the server did not answer /healthz; see $out/server.log" >&2
   exit 1
+}
+
+# check_no_panic: fails (showing the log) when the server logged a panic.
+check_no_panic() {
+  if [ -n "$server_log" ] && grep -q "panicked" "$server_log"; then
+    echo "error: the server panicked; see $server_log" >&2
+    cat "$server_log" >&2
+    exit 1
+  fi
 }
 
 # npm_ci DIR: installs DIR's locked npm packages unless they are there already.

@@ -8,7 +8,7 @@ mod region;
 pub mod stats;
 
 pub use region::{Cell, Grid, MAX_CELL_INDEX, Region, SimError, check_time};
-pub use stats::{CLOUD_THRESHOLD, RegionStats, region_stats};
+pub use stats::{CLOUD_THRESHOLD, ColumnStats, RegionStats, column_stats, region_stats};
 
 use crate::automaton::LayerSim;
 use crate::cancel::Cancel;

@@ -8,6 +8,12 @@
 //! - `cloud_base` / `cloud_top` are the altitudes (metres) of the bottom of the lowest
 //!   and the top of the highest cloudy cell, absent when nothing is cloudy;
 //! - `clusters` counts 4-connected groups of covered columns.
+//!
+//! [`column_stats`] states the same definitions for one column (what the EDR
+//! coverages of the server answer per column): a region's `coverage` is the mean of
+//! its columns' `covered`, its `mean_density` the mean of their `mean_density` (every
+//! column has the layer's depth), its `cloud_base` the lowest column base and its
+//! `cloud_top` the highest column top.
 
 use serde::Serialize;
 
@@ -74,6 +80,40 @@ pub fn region_stats(grid: &Grid<f32>, layer: &Layer) -> RegionStats {
     }
 }
 
+/// Statistics of one column of a region: the [`RegionStats`] definitions for a
+/// region of that one column.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ColumnStats {
+    /// Whether any cell of the column is cloudy (density >= [`CLOUD_THRESHOLD`]).
+    pub covered: bool,
+    /// Mean density over the column's cells, in [0, 1].
+    pub mean_density: f64,
+    /// Altitude of the bottom of the column's lowest cloudy cell, metres.
+    pub cloud_base: Option<f64>,
+    /// Altitude of the top of the column's highest cloudy cell, metres.
+    pub cloud_top: Option<f64>,
+}
+
+/// The statistics of column (`row`, `col`) of `grid` (a region of `layer`).
+pub fn column_stats(grid: &Grid<f32>, layer: &Layer, row: usize, col: usize) -> ColumnStats {
+    let mut sum = 0.0f64;
+    let (mut lowest, mut highest) = (None::<usize>, None::<usize>);
+    for k in 0..grid.depth {
+        let v = grid.get(k, row, col);
+        sum += v as f64;
+        if v >= CLOUD_THRESHOLD {
+            lowest = lowest.or(Some(k));
+            highest = Some(k);
+        }
+    }
+    ColumnStats {
+        covered: highest.is_some(),
+        mean_density: if grid.depth > 0 { sum / grid.depth as f64 } else { 0.0 },
+        cloud_base: lowest.map(|k| layer.base + k as f64 * layer.cell_height),
+        cloud_top: highest.map(|k| layer.base + (k + 1) as f64 * layer.cell_height),
+    }
+}
+
 /// 4-connected components of `true` cells in a row-major `rows × cols` mask.
 fn count_clusters(mask: &[bool], rows: usize, cols: usize) -> u64 {
     let mut seen = vec![false; mask.len()];
@@ -134,6 +174,30 @@ mod tests {
         assert_eq!(s.cloud_base, Some(layer.base));
         assert_eq!(s.cloud_top, Some(layer.base + 2.0 * layer.cell_height));
         assert_eq!(s.clusters, 2);
+    }
+
+    #[test]
+    fn columns_aggregate_to_the_region() {
+        let layer = Config::embedded().worlds["default"].layers[0].clone();
+        let mut g = Grid::<f32>::new(3, 2, 4);
+        for (i, v) in g.data.iter_mut().enumerate() {
+            *v = ((i * 37 % 11) as f32) / 10.0;
+        }
+        let r = region_stats(&g, &layer);
+        let columns: Vec<ColumnStats> = (0..2)
+            .flat_map(|row| (0..4).map(move |col| (row, col)))
+            .map(|(row, col)| column_stats(&g, &layer, row, col))
+            .collect();
+        let n = columns.len() as f64;
+        let covered = columns.iter().filter(|c| c.covered).count() as f64;
+        assert_eq!(r.coverage, covered / n);
+        let mean = columns.iter().map(|c| c.mean_density).sum::<f64>() / n;
+        assert!((r.mean_density - mean).abs() < 1e-12);
+        let base = columns.iter().filter_map(|c| c.cloud_base).min_by(f64::total_cmp);
+        let top = columns.iter().filter_map(|c| c.cloud_top).max_by(f64::total_cmp);
+        assert_eq!((r.cloud_base, r.cloud_top), (base, top));
+        let clear = column_stats(&Grid::<f32>::new(3, 1, 1), &layer, 0, 0);
+        assert_eq!((clear.covered, clear.cloud_base, clear.cloud_top), (false, None, None));
     }
 
     #[test]

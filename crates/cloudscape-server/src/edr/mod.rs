@@ -1,0 +1,700 @@
+//! OGC API – Environmental Data Retrieval (EDR) over the same density as `/sample`,
+//! `/region` and `/series`: a landing page, the conformance declaration, one
+//! collection per world (configured worlds are listed; any decimal u64 seed also
+//! names one), and the `position`, `area` and `cube` queries answered as CoverageJSON.
+//!
+//! Implemented: those three query types with `coords` (WKT POINT / POLYGON), `bbox`,
+//! `z`, `datetime` (ISO 8601 instants and closed intervals; world time t = 0 is
+//! 1970-01-01T00:00:00Z), `parameter-name`, `f`, `crs` (the one local CRS), and the
+//! cloudscape extras `layer` and `level`. Not implemented: radius, trajectory,
+//! corridor, items, locations, instances, other output formats.
+//!
+//! The values are those of the other queries, by construction: a position's density
+//! and precipitation rate are `/sample`'s, an area's or cube's per-column values
+//! aggregate to `/region`'s statistics (`cloudscape_core::density::column_stats`).
+
+mod covjson;
+mod metadata;
+mod query;
+
+use std::sync::Arc;
+
+use axum::extract::State;
+use axum::http::HeaderMap;
+use axum::response::Response;
+use rayon::prelude::*;
+use serde_json::json;
+
+use cloudscape_core::cancel::Cancel;
+use cloudscape_core::cost::{self, Work};
+use cloudscape_core::density::{self, CLOUD_THRESHOLD, Cell, Grid, Region, column_stats};
+use cloudscape_core::weather::column_rate;
+use cloudscape_core::world::{Layer, SnappedTime};
+
+use crate::discovery::json_response;
+use crate::error::ApiError;
+use crate::extract::{WorldPath, layer};
+use crate::key::{CacheKey, ResolvedWorld, stable_hash_hex};
+use crate::params::Params;
+use crate::queries::json_bytes;
+use crate::respond::{Cached, Freshness};
+use crate::state::AppState;
+
+use self::covjson::{Axes, Axis, Coverage, MEDIA_TYPE, Values};
+use self::query::{
+    Datetime, Polygon, Quantity, check_crs, check_format, parse_datetime, parse_levels, parse_point, parse_polygon,
+    parse_quantities,
+};
+
+/// `f=` values of the metadata routes and of the queries.
+const JSON: &[&str] = &["json"];
+const COVERAGE: &[&str] = &["CoverageJSON", "covjson", "json"];
+
+/// Bytes a value takes in a CoverageJSON answer, on average (for the size check
+/// before any work; the exact size is checked again when the bytes exist).
+const BYTES_PER_VALUE: u64 = 12;
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr",
+    tag = "edr",
+    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    responses(
+        (status = 200, content_type = "application/json", body = Object, description = "The EDR landing page: title and links to the conformance declaration and the collections"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+    )
+)]
+pub async fn landing(State(s): State<Arc<AppState>>, params: Params, headers: HeaderMap) -> Result<Response, ApiError> {
+    check_format(&params, JSON)?;
+    json_response(&headers, &s.settings.cache_control_other, &metadata::landing())
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/conformance",
+    tag = "edr",
+    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    responses(
+        (status = 200, content_type = "application/json", body = Object, description = "conformsTo: OGC API – Common core and collections; EDR core, collections, queries, json and covjson"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+    )
+)]
+pub async fn conformance(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, JSON)?;
+    json_response(&headers, &s.settings.cache_control_other, &metadata::conformance())
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections",
+    tag = "edr",
+    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    responses(
+        (status = 200, content_type = "application/json", body = Object, description = "One collection per configured world (id = the world's name); a decimal u64 seed also names a collection, unlisted"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+    )
+)]
+pub async fn collections(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, JSON)?;
+    let collections: Vec<_> = s.worlds.config().worlds.values().map(metadata::collection).collect();
+    let body = json!({
+        "links": [{ "href": "/v1/edr/collections", "rel": "self", "type": "application/json", "title": "The collections" }],
+        "collections": collections,
+    });
+    json_response(&headers, &s.settings.cache_control_other, &body)
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}",
+    tag = "edr",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("f" = Option<String>, Query, description = "Format: json (the only one)"),
+    ),
+    responses(
+        (status = 200, content_type = "application/json", body = Object, description = "The world's collection: extent (spatial in world metres, temporal from 1970-01-01T00:00:00Z = world time 0, vertical = the layer bands), data_queries (position, area, cube), parameter_names, crs, output_formats"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed path or f other than json"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
+    )
+)]
+pub async fn collection(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    WorldPath(resolved): WorldPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, JSON)?;
+    json_response(
+        &headers,
+        &s.settings.cache_control_other,
+        &metadata::collection(&resolved.world),
+    )
+}
+
+/// Final when every frame computed is exactly a time asked, else snapped.
+fn freshness(exact: bool) -> Freshness {
+    if exact { Freshness::Final } else { Freshness::Snapped }
+}
+
+fn join<T: ToString>(items: impl IntoIterator<Item = T>) -> String {
+    items.into_iter().map(|i| i.to_string()).collect::<Vec<_>>().join(",")
+}
+
+/// The 413 for an answer whose estimated size is over `limits.max_response_bytes`,
+/// before any work.
+fn check_answer_size(s: &AppState, values: u64) -> Result<(), ApiError> {
+    let max = s.worlds.config().limits.max_response_bytes;
+    let bytes = values.saturating_mul(BYTES_PER_VALUE);
+    if bytes > max {
+        return Err(ApiError::ResponseTooLarge(format!(
+            "the answer would hold {values} values, about {} MiB; the limit is {} MiB (limits.max_response_bytes): \
+             ask for fewer parameters, times or columns, or a higher level",
+            bytes >> 20,
+            max >> 20
+        )));
+    }
+    Ok(())
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}/position",
+    tag = "edr",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("coords" = String, Query, description = "WKT POINT(x y) in world metres (x east, y north)", example = "POINT(150 150)"),
+        ("z" = Option<f64>, Query, description = "Altitude above sea level, metres (default 0)", example = 1050),
+        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:20Z"),
+        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)", example = "density,precipitation_rate"),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the layer holding z for density, every layer above z for the rest, as /sample)"),
+        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
+        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+    ),
+    responses(
+        (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage: domainType Point for an instant, PointSeries for an interval; density and precipitation_rate equal /sample's at the same point and time"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed coords, datetime (or an open interval), parameter-name, f or crs"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "More time steps than server.max_series, or over the work limits"),
+        (status = 422, body = crate::error::ErrorBody, description = "datetime or coordinates out of range"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn position(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    WorldPath(resolved): WorldPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, COVERAGE)?;
+    check_crs(&params)?;
+    let [x, y] = parse_point(params.required("coords")?)?;
+    let z = params.f64("z")?.unwrap_or(0.0);
+    let datetime = parse_datetime(&params)?;
+    let quantities = parse_quantities(&params, &Quantity::ALL)?;
+    let world = &resolved.world;
+    // The layers of /sample: the one named or holding z (its cell's density), and
+    // those whose column is above the point (the one named, else every layer whose
+    // top is above z).
+    let chosen = match params.get("layer") {
+        Some(name) => Some(layer(world, Some(name))?.0),
+        None => world.layers.iter().position(|l| l.base <= z && z < l.top()),
+    };
+    let above: Vec<usize> = match params.get("layer") {
+        Some(_) => chosen.into_iter().collect(),
+        None => (0..world.layers.len()).filter(|&i| world.layers[i].top() > z).collect(),
+    };
+    let primary = chosen.or(above.first().copied()).unwrap_or(0);
+    let times = datetime.times(world.layers[primary].dt, s.settings.max_series)?;
+    let limits = &s.worlds.config().limits;
+    let columns = above
+        .iter()
+        .map(|&i| {
+            let l = &world.layers[i];
+            let c = Cell::at(l, x, y, z)?;
+            c.region().check(0, l.depth, limits)?;
+            Ok((i, c))
+        })
+        .collect::<Result<Vec<(usize, Cell)>, ApiError>>()?;
+    let cell = Cell::at(&world.layers[primary], x, y, z)?;
+    let fps = s.settings.frames_per_step;
+    let axis: Vec<SnappedTime> = times
+        .iter()
+        .map(|&t| SnappedTime::snap(t, &world.layers[primary], fps))
+        .collect();
+    // frames[time][column]
+    let frames: Vec<Vec<SnappedTime>> = times
+        .iter()
+        .map(|&t| {
+            columns
+                .iter()
+                .map(|(i, _)| SnappedTime::snap(t, &world.layers[*i], fps))
+                .collect()
+        })
+        .collect();
+    check_answer_size(&s, (times.len() * quantities.len()) as u64)?;
+    let exact = times.iter().zip(&axis).all(|(&t, f)| f.is_exact(t))
+        && times
+            .iter()
+            .zip(&frames)
+            .all(|(&t, fs)| fs.iter().all(|f| f.is_exact(t)));
+    let key = CacheKey::new("edr-position", &resolved, primary)
+        .with("p", format!("{x},{y},{z}"))
+        .with("in", chosen.map_or(-1, |i| i as i64))
+        .with("above", join(&above))
+        .with("q", join(quantities.iter().map(|q| q.name())))
+        .with("i", datetime.interval)
+        .with("t", join(&times));
+    let cached = Cached {
+        kind: "edr",
+        key,
+        content_type: MEDIA_TYPE,
+        time: (times.len() == 1).then(|| axis[0].into()),
+        freshness: freshness(exact),
+        content_location: None,
+    };
+    let world = resolved.world;
+    cached
+        .respond(&s, &headers, move || {
+            let mut work = Work::default();
+            for fs in &frames {
+                for (f, (i, c)) in fs.iter().zip(&columns) {
+                    let w = cost::density(&world, *i, 0, c.region(), f.t)?;
+                    work.cpu_s += w.cpu_s;
+                    work.bytes = work.bytes.saturating_add(w.bytes);
+                }
+            }
+            Ok((work, move |cancel: &Cancel| {
+                let at: Vec<PositionValues> = frames
+                    .par_iter()
+                    .map(|fs| position_values(&world, &columns, fs, chosen.map(|_| cell.k), primary, cancel))
+                    .collect::<Result<_, ApiError>>()?;
+                let ranges = quantities
+                    .iter()
+                    .map(|&q| (q, PositionValues::series(&at, q)))
+                    .collect();
+                let axes = Axes {
+                    x: Axis::Numbers { values: vec![x] },
+                    y: Axis::Numbers { values: vec![y] },
+                    z: Some(Axis::Numbers { values: vec![z] }),
+                    t: Axis::times(&axis.iter().map(|f| f.t).collect::<Vec<_>>()),
+                };
+                let coverage = if datetime.interval {
+                    Coverage::new("PointSeries", axes, vec!["t"], vec![at.len()], ranges)
+                } else {
+                    Coverage::new("Point", axes, vec![], vec![], ranges)
+                };
+                json_bytes(&coverage)
+            }))
+        })
+        .await
+}
+
+/// A position's values at one time.
+struct PositionValues {
+    density: f32,
+    covered: bool,
+    cloud_base: Option<f64>,
+    cloud_top: Option<f64>,
+    rate: f64,
+}
+
+impl PositionValues {
+    fn series(at: &[PositionValues], q: Quantity) -> Values {
+        match q {
+            Quantity::Density => Values::F32(at.iter().map(|v| Some(v.density)).collect()),
+            _ => Values::F64(
+                at.iter()
+                    .map(|v| match q {
+                        Quantity::CloudCover => Some(if v.covered { 1.0 } else { 0.0 }),
+                        Quantity::CloudBase => v.cloud_base,
+                        Quantity::CloudTop => v.cloud_top,
+                        _ => Some(v.rate),
+                    })
+                    .collect(),
+            ),
+        }
+    }
+}
+
+/// The values at one time from the columns above the point (each layer at its own
+/// frame), computed as `/sample` computes them; `k` is the level of the point's cell
+/// in `primary` when the point is in a layer.
+fn position_values(
+    world: &cloudscape_core::world::World,
+    columns: &[(usize, Cell)],
+    frames: &[SnappedTime],
+    k: Option<usize>,
+    primary: usize,
+    cancel: &Cancel,
+) -> Result<PositionValues, ApiError> {
+    let mut v = PositionValues {
+        density: 0.0,
+        covered: false,
+        cloud_base: None,
+        cloud_top: None,
+        rate: 0.0,
+    };
+    // Layer by layer in configuration order, as /sample sums its rate.
+    for ((i, c), f) in columns.iter().zip(frames) {
+        let layer = &world.layers[*i];
+        let grid = density::density_cancellable(world, *i, 0, c.region(), f.t, cancel)?;
+        if *i == primary
+            && let Some(k) = k
+        {
+            v.density = grid.get(k, 0, 0);
+        }
+        let column = column_stats(&grid, layer, 0, 0);
+        v.covered |= column.covered;
+        v.cloud_base = min_option(v.cloud_base, column.cloud_base);
+        v.cloud_top = max_option(v.cloud_top, column.cloud_top);
+        v.rate += column_rate(layer, &grid, 0, 0);
+    }
+    Ok(v)
+}
+
+fn min_option(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.min(b)),
+        _ => a.or(b),
+    }
+}
+
+fn max_option(a: Option<f64>, b: Option<f64>) -> Option<f64> {
+    match (a, b) {
+        (Some(a), Some(b)) => Some(a.max(b)),
+        _ => a.or(b),
+    }
+}
+
+/// An `area` or `cube` asked: the columns of one layer at one level over times.
+struct GridQuery {
+    kind: &'static str,
+    resolved: ResolvedWorld,
+    layer: usize,
+    level: u32,
+    region: Region,
+    /// The area's polygon: columns whose centres lie outside it are null.
+    polygon: Option<Polygon>,
+    /// The cube's vertical levels: values per cell of these levels.
+    levels: Option<Vec<usize>>,
+    quantities: Vec<Quantity>,
+    times: Vec<f64>,
+}
+
+/// The common part of a grid query's parameters: layer, level, datetime.
+fn grid_times(s: &AppState, params: &Params, layer: &Layer) -> Result<(Datetime, Vec<f64>, u32), ApiError> {
+    let datetime = parse_datetime(params)?;
+    let times = datetime.times(layer.dt, s.settings.max_series)?;
+    let level = params.level(s.worlds.config().limits.max_level)?;
+    Ok((datetime, times, level))
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}/area",
+    tag = "edr",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("coords" = String, Query, description = "WKT POLYGON((x y, …), (hole …)) in world metres, at most 256 vertices; the columns whose centres lie inside (its bbox is limit-checked like /region's)", example = "POLYGON((0 0, 1000 0, 1000 1000, 0 1000, 0 0))"),
+        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z"),
+        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)", example = "cloud_cover,density"),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
+        ("level" = Option<u32>, Query, description = "Level of the columns (default 0), as /region"),
+        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
+        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+    ),
+    responses(
+        (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (column centres); values per column, null outside the polygon; their means are /region's coverage, mean_density and mean_precipitation_mm_h"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed coords (WKT), datetime (or an open interval), parameter-name, f or crs"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "Polygon, time steps or answer over the limits"),
+        (status = 422, body = crate::error::ErrorBody, description = "datetime, level or coordinates out of range; no column centre inside"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn area(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    WorldPath(resolved): WorldPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, COVERAGE)?;
+    check_crs(&params)?;
+    let polygon = parse_polygon(params.required("coords")?)?;
+    let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
+    let quantities = parse_quantities(&params, &Quantity::ALL)?;
+    let (_, times, level) = grid_times(&s, &params, layer)?;
+    let region = Region::from_bbox(layer, level, polygon.bbox(), &s.worlds.config().limits)?;
+    let query = GridQuery {
+        kind: "edr-area",
+        layer: layer_index,
+        level,
+        region,
+        polygon: Some(polygon),
+        levels: None,
+        quantities,
+        times,
+        resolved,
+    };
+    grid_coverage(&s, &headers, query).await
+}
+
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}/cube",
+    tag = "edr",
+    params(
+        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; the columns whose centres lie inside", example = "0,0,1000,1000"),
+        ("z" = Option<String>, Query, description = "Vertical levels: an interval a/b (levels centred within it) or a list a,b (the levels holding each altitude); absent: whole columns", example = "1000/1200"),
+        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z/1970-01-01T00:00:20Z"),
+        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all; with z only density and cloud_cover, per cell)", example = "density"),
+        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
+        ("level" = Option<u32>, Query, description = "Level of the columns (default 0), as /region"),
+        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
+        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+    ),
+    responses(
+        (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (and z with z levels): per column as area, or per cell of the selected levels; one time step per layer dt, each equal to the /series point of that time"),
+        (status = 304, description = "If-None-Match matched"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed or inverted bbox, z, datetime (or an open interval), parameter-name, f or crs"),
+        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
+        (status = 413, body = crate::error::ErrorBody, description = "bbox, time steps or answer over the limits"),
+        (status = 422, body = crate::error::ErrorBody, description = "datetime, level or coordinates out of range; empty region"),
+        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+    )
+)]
+pub async fn cube(
+    State(s): State<Arc<AppState>>,
+    params: Params,
+    WorldPath(resolved): WorldPath,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    check_format(&params, COVERAGE)?;
+    check_crs(&params)?;
+    let bbox = params.bbox()?;
+    let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
+    let levels = parse_levels(&params, layer)?;
+    let per_cell: Vec<Quantity> = Quantity::ALL.into_iter().filter(|q| q.per_cell()).collect();
+    let quantities = parse_quantities(&params, if levels.is_some() { &per_cell } else { &Quantity::ALL })?;
+    if levels.is_some()
+        && let Some(q) = quantities.iter().find(|q| !q.per_cell())
+    {
+        return Err(ApiError::InvalidParameter {
+            name: "parameter-name".into(),
+            message: format!(
+                "`{}` is a per-column parameter; with z only density and cloud_cover (per cell) are answered",
+                q.name()
+            ),
+        });
+    }
+    let (_, times, level) = grid_times(&s, &params, layer)?;
+    let region = Region::from_bbox(layer, level, bbox, &s.worlds.config().limits)?;
+    let query = GridQuery {
+        kind: "edr-cube",
+        layer: layer_index,
+        level,
+        region,
+        polygon: None,
+        levels,
+        quantities,
+        times,
+        resolved,
+    };
+    grid_coverage(&s, &headers, query).await
+}
+
+/// Answers a grid query through the cache: one density grid per frame.
+async fn grid_coverage(s: &Arc<AppState>, headers: &HeaderMap, q: GridQuery) -> Result<Response, ApiError> {
+    let layer = &q.resolved.world.layers[q.layer];
+    let frames: Vec<SnappedTime> = q
+        .times
+        .iter()
+        .map(|&t| SnappedTime::snap(t, layer, s.settings.frames_per_step))
+        .collect();
+    let r = q.region;
+    let cells_per_frame = r.cols as u64 * r.rows as u64 * q.levels.as_ref().map_or(1, |l| l.len() as u64);
+    let values = cells_per_frame * frames.len() as u64 * q.quantities.len() as u64;
+    check_answer_size(s, values)?;
+    let mut key = CacheKey::new(q.kind, &q.resolved, q.layer)
+        .with("z", q.level)
+        .with("r", format!("{},{},{},{}", r.x0, r.y0, r.cols, r.rows))
+        .with("q", join(q.quantities.iter().map(|q| q.name())))
+        .with("t", join(&q.times));
+    if let Some(p) = &q.polygon {
+        key = key.with("poly", stable_hash_hex(format!("{:?}", p.rings).as_bytes()));
+    }
+    if let Some(levels) = &q.levels {
+        key = key.with("k", join(levels));
+    }
+    let cached = Cached {
+        kind: "edr",
+        key,
+        content_type: MEDIA_TYPE,
+        time: (frames.len() == 1).then(|| frames[0].into()),
+        freshness: freshness(frames.iter().zip(&q.times).all(|(f, &t)| f.is_exact(t))),
+        content_location: None,
+    };
+    cached
+        .respond(s, headers, move || {
+            let world = &q.resolved.world;
+            let mut work = Work::default();
+            for f in &frames {
+                let w = cost::density(world, q.layer, q.level, r, f.t)?;
+                work.cpu_s += w.cpu_s;
+                work.bytes = work.bytes.max(w.bytes);
+            }
+            // At most one grid per compute thread at once, and the values.
+            work.bytes = work
+                .bytes
+                .saturating_mul(frames.len().min(rayon::current_num_threads().max(1)) as u64)
+                .saturating_add(values.saturating_mul(16));
+            if let Some(p) = &q.polygon {
+                work.cpu_s += (r.cols * r.rows * p.vertices()) as f64 * 2e-9;
+            }
+            Ok((work, move |cancel: &Cancel| grid_answer(&q, &frames, cancel)))
+        })
+        .await
+}
+
+/// The CoverageJSON of a grid query.
+fn grid_answer(q: &GridQuery, frames: &[SnappedTime], cancel: &Cancel) -> Result<axum::body::Bytes, ApiError> {
+    let world = &q.resolved.world;
+    let layer = &world.layers[q.layer];
+    let r = q.region;
+    let w = layer.cell_size * (q.level as f64).exp2();
+    let inside: Option<Vec<bool>> = q.polygon.as_ref().map(|p| {
+        (0..r.rows)
+            .flat_map(|row| (0..r.cols).map(move |col| (row, col)))
+            .map(|(row, col)| {
+                p.contains(
+                    (r.x0 as f64 + col as f64 + 0.5) * w,
+                    (r.y0 as f64 + row as f64 + 0.5) * w,
+                )
+            })
+            .collect()
+    });
+    let per_frame: Vec<Vec<Values>> = frames
+        .par_iter()
+        .map(|f| {
+            let grid = density::density_cancellable(world, q.layer, q.level, r, f.t, cancel)?;
+            Ok(q.quantities
+                .iter()
+                .map(|&quantity| frame_values(&grid, layer, quantity, q.levels.as_deref(), inside.as_deref()))
+                .collect())
+        })
+        .collect::<Result<_, ApiError>>()?;
+    let ranges = q
+        .quantities
+        .iter()
+        .enumerate()
+        .map(|(i, &quantity)| (quantity, concat(per_frame.iter().map(|f| &f[i]))))
+        .collect();
+    let (axis_names, shape, z) = match &q.levels {
+        Some(levels) => (
+            vec!["t", "z", "y", "x"],
+            vec![frames.len(), levels.len(), r.rows, r.cols],
+            Some(Axis::Numbers {
+                values: levels
+                    .iter()
+                    .map(|&k| layer.base + (k as f64 + 0.5) * layer.cell_height)
+                    .collect(),
+            }),
+        ),
+        None => (vec!["t", "y", "x"], vec![frames.len(), r.rows, r.cols], None),
+    };
+    let axes = Axes {
+        x: Axis::columns(r.x0, r.cols, w),
+        y: Axis::columns(r.y0, r.rows, w),
+        z,
+        t: Axis::times(&frames.iter().map(|f| f.t).collect::<Vec<_>>()),
+    };
+    json_bytes(&Coverage::new("Grid", axes, axis_names, shape, ranges))
+}
+
+/// One quantity of one frame, row-major over (levels,) rows, columns; `None`
+/// outside the polygon.
+fn frame_values(
+    grid: &Grid<f32>,
+    layer: &Layer,
+    q: Quantity,
+    levels: Option<&[usize]>,
+    inside: Option<&[bool]>,
+) -> Values {
+    let columns = grid.rows * grid.cols;
+    let kept = |i: usize| inside.is_none_or(|m| m[i]);
+    if let Some(levels) = levels {
+        let cells = levels.iter().flat_map(|&k| (0..columns).map(move |i| (k, i)));
+        return match q {
+            Quantity::Density => Values::F32(
+                cells
+                    .map(|(k, i)| kept(i).then(|| grid.get(k, i / grid.cols, i % grid.cols)))
+                    .collect(),
+            ),
+            _ => Values::F64(
+                cells
+                    .map(|(k, i)| {
+                        kept(i)
+                            .then(|| f64::from(u8::from(grid.get(k, i / grid.cols, i % grid.cols) >= CLOUD_THRESHOLD)))
+                    })
+                    .collect(),
+            ),
+        };
+    }
+    Values::F64(
+        (0..columns)
+            .map(|i| {
+                if !kept(i) {
+                    return None;
+                }
+                let (row, col) = (i / grid.cols, i % grid.cols);
+                let c = column_stats(grid, layer, row, col);
+                match q {
+                    Quantity::CloudCover => Some(f64::from(u8::from(c.covered))),
+                    Quantity::Density => Some(c.mean_density),
+                    Quantity::CloudBase => c.cloud_base,
+                    Quantity::CloudTop => c.cloud_top,
+                    Quantity::PrecipitationRate => Some(column_rate(layer, grid, row, col)),
+                }
+            })
+            .collect(),
+    )
+}
+
+/// The frames' values of one quantity, one after the other.
+fn concat<'a>(parts: impl Iterator<Item = &'a Values>) -> Values {
+    let mut parts = parts.peekable();
+    match parts.peek() {
+        Some(Values::F32(_)) => Values::F32(
+            parts
+                .flat_map(|p| match p {
+                    Values::F32(v) => v.clone(),
+                    Values::F64(_) => Vec::new(),
+                })
+                .collect(),
+        ),
+        _ => Values::F64(
+            parts
+                .flat_map(|p| match p {
+                    Values::F64(v) => v.clone(),
+                    Values::F32(_) => Vec::new(),
+                })
+                .collect(),
+        ),
+    }
+}

@@ -2,8 +2,9 @@
 
 use clap::Args;
 
-use cloudscape_core::density::{self, FieldKind, Region, check_time};
+use cloudscape_core::density::{self, FieldKind, Grid, Region, check_time};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
+use cloudscape_core::weather::column_rate;
 
 #[derive(Args)]
 pub struct DensityArgs {
@@ -22,7 +23,8 @@ pub struct DensityArgs {
     /// Layer name (default: the world's first layer).
     #[arg(long)]
     layer: Option<String>,
-    /// density (continuous, [0,1]) or cld (the automaton's cloud bit; level 0 only).
+    /// density (continuous, [0,1]), cld (the automaton's cloud bit; level 0 only) or
+    /// precipitation (each column's rate in mm/h, one level; npy or f32 only).
     #[arg(long, default_value = "density")]
     field: String,
     /// npy, f32 (raw little-endian) or u8.
@@ -57,22 +59,36 @@ pub fn run(a: DensityArgs) -> Result<(), String> {
     let b = super::parse_numbers("--bbox", &a.bbox, 4)?;
     let bbox = [b[0], b[1], b[2], b[3]];
     let field = match a.field.as_str() {
-        "density" => FieldKind::Density,
-        "cld" => FieldKind::Cld,
-        other => return Err(format!("--field must be density or cld, got `{other}`")),
+        "density" => Some(FieldKind::Density),
+        "cld" => Some(FieldKind::Cld),
+        "precipitation" => None,
+        other => return Err(format!("--field must be density, cld or precipitation, got `{other}`")),
     };
     let format =
         GridFormat::parse(&a.format).ok_or_else(|| format!("--format must be npy, f32 or u8, got `{}`", a.format))?;
-    if field == FieldKind::Cld && a.level != 0 {
+    if field.is_none() && format == GridFormat::U8 {
+        return Err("--field precipitation is in mm/h: --format npy or f32".into());
+    }
+    if field == Some(FieldKind::Cld) && a.level != 0 {
         return Err("--field cld exists only at level 0 (the automaton's own cells)".into());
     }
     let region = Region::from_bbox(layer, a.level, bbox, &config.limits).map_err(|e| e.to_string())?;
     let bytes = match field {
-        FieldKind::Density => {
+        None => {
+            let g = density::density(&world, layer_index, a.level, region, t).map_err(|e| e.to_string())?;
+            let mut rates = Grid::new(1, g.rows, g.cols);
+            for r in 0..g.rows {
+                for c in 0..g.cols {
+                    rates.data[r * g.cols + c] = column_rate(layer, &g, r, c) as f32;
+                }
+            }
+            encode_density(&rates, format)
+        }
+        Some(FieldKind::Density) => {
             let g = density::density(&world, layer_index, a.level, region, t).map_err(|e| e.to_string())?;
             encode_density(&g, format)
         }
-        FieldKind::Cld => {
+        Some(FieldKind::Cld) => {
             let g = density::cloud_cells(&world, layer_index, region, t).map_err(|e| e.to_string())?;
             encode_cells(&g, format)
         }

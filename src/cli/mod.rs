@@ -10,6 +10,7 @@ mod out;
 mod probe;
 mod render;
 mod serve;
+mod weather;
 
 use std::io::Write;
 use std::process::ExitCode;
@@ -46,6 +47,10 @@ enum Command {
     Serve(serve::ServeArgs),
     /// Send generated hostile requests to a running server and judge every answer.
     Fuzz(fuzz::FuzzArgs),
+    /// Print a region's weather over time as CSV (the numbers of `/series`).
+    Weather(weather::WeatherArgs),
+    /// Print the lightning strikes of a box and span as CSV (those of `/lightning`).
+    Lightning(weather::LightningArgs),
 }
 
 /// Runs the command line and returns the process exit code.
@@ -67,6 +72,8 @@ pub fn main() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Serve(args) => serve::run(args),
         Command::Fuzz(args) => fuzz::run(args),
+        Command::Weather(args) => weather::run_weather(args),
+        Command::Lightning(args) => weather::run_lightning(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -172,6 +172,71 @@ async fn a_storm_crosses_from_one_play_area_to_the_other_on_time_and_seamlessly(
     assert_eq!(high["coverage"], 0.0, "{high}");
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_regional_override_fades_in_without_a_pop() {
+    // The clear world, and then a box where the preset's cloud is pushed to the full
+    // from t = 400 s over a ramp of 400 s.
+    let regions = "[{ box = [-1.0e8, -1.0e8, 1.0e8, 1.0e8], blend = 0.0, mix = { puffy = -1.0 } }, \
+                   { box = [0.0, 0.0, 10000.0, 10000.0], blend = 1000.0, mix = { puffy = 2.0e-0 }, start = 400.0, ramp = 400.0 }]";
+    // Pushes add up: -1 + 1 = the preset's own climate inside the box; +2 is refused.
+    let err = cloudscape_core::world::Config::parse(&common::test_config(&[("worlds.default.regions", regions)]))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("worlds.default.regions[1].mix.puffy"), "{err}");
+    let regions = regions.replace("puffy = 2.0e-0", "puffy = 1.0");
+    let s = TestServer::start(&common::test_config(&[("worlds.default.regions", &regions)])).await;
+    let series: serde_json::Value = serde_json::from_slice(
+        &s.bytes("/v1/worlds/default/series?bbox=2000,2000,8000,8000&t0=300&t1=1000&dt=10&layer=low")
+            .await,
+    )
+    .unwrap();
+    let density: Vec<f64> = series["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["mean_density"].as_f64().unwrap())
+        .collect();
+    // The test layer's epochs are 4 steps (40 s) and its cloud swings within each
+    // (every run starts from an empty grid a few steps earlier): compare epoch means,
+    // from the epoch that starts at step 32 (t = 320).
+    let epochs: Vec<f64> = density[2..]
+        .chunks_exact(4)
+        .map(|e| e.iter().sum::<f64>() / 4.0)
+        .collect();
+    let (first, last) = (epochs[0], *epochs.last().unwrap());
+    assert_eq!(first, 0.0, "cleared before the override starts");
+    assert!(last > 0.05, "the box's own climate after the ramp: {last}");
+    let biggest = epochs.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
+    assert!(
+        biggest < 0.3 * (last - first),
+        "no epoch changes the mean density by 30 % of the whole fade: {biggest} of {} ({epochs:?})",
+        last - first
+    );
+    // And the same override without a ramp does jump (what the ramp is for).
+    let abrupt = regions.replace("ramp = 400.0", "ramp = 0.0");
+    let s = TestServer::start(&common::test_config(&[("worlds.default.regions", &abrupt)])).await;
+    let series: serde_json::Value = serde_json::from_slice(
+        &s.bytes("/v1/worlds/default/series?bbox=2000,2000,8000,8000&t0=300&t1=1000&dt=10&layer=low")
+            .await,
+    )
+    .unwrap();
+    let density: Vec<f64> = series["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["mean_density"].as_f64().unwrap())
+        .collect();
+    let epochs: Vec<f64> = density[2..]
+        .chunks_exact(4)
+        .map(|e| e.iter().sum::<f64>() / 4.0)
+        .collect();
+    let jump = epochs.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
+    assert!(
+        jump > 2.0 * biggest,
+        "without a ramp the override arrives in one go: {jump} vs {biggest}"
+    );
+}
+
 #[test]
 fn the_storm_has_the_same_bytes_on_every_thread_count() {
     let config = Config::parse(&config()).unwrap();

@@ -35,7 +35,8 @@ pub enum Effort {
     Smoke,
     /// About a minute on the 2-core project machine.
     Quick,
-    /// The published figures (about 3 minutes on the 2-core project machine).
+    /// The published figures (about 5 minutes on the 2-core project machine, 2 of
+    /// them the precipitation day's 1441 `/series` points).
     Full,
 }
 

@@ -530,6 +530,26 @@ float detailNoise(vec3 p, int octaves) {
 }
 `;
 
+// Extinction of rain and snow, per km, at a rate R (mm/h, water equivalent). Rain:
+// σ = 0.25·R^0.63 (Atlas 1953, optical extinction by rainfall; geometric optics on a
+// Marshall–Palmer drop spectrum gives the same exponent, π·N0/Λ³ = 0.37·R^0.63).
+// Snow: σ = 3·R^0.7 (snow hides far more per mm of water). By Koschmieder's
+// visibility V = 3.9/σ that is 6.5 km at 4 mm/h, 2 km at 27 mm/h, 0.9 km at 100 mm/h
+// of rain. The haze the drops make is lit by the light under the clouds; drops
+// scatter mostly forward (geometric optics, asymmetry g ≈ 0.87), so the haze carries
+// much of the light of what lies behind it: looking down, the ground (albedo well
+// under 1), so it is darker there than toward the horizon (dz: the view ray's z).
+const PRECIPITATION = `
+  float precipitationPerKm(float rate, bool snow) {
+    return snow ? 3.0 * pow(rate, 0.7) : 0.25 * pow(rate, 0.63);
+  }
+  vec3 precipitationHaze(vec3 hazeRgb, float dz) { return hazeRgb * (1.0 - 0.4 * max(-dz, 0.0)); }`;
+
+/** The rain law of PRECIPITATION on the CPU: extinction per metre at `rate` mm/h. */
+function precipitationPerMetre(rate, snow) {
+  return (snow ? 3 * rate ** 0.7 : 0.25 * rate ** 0.63) * 1e-3;
+}
+
 // Camera-facing billboards textured with their splat (premultiplied `over`). The colour
 // is the pre-shaded (isotropic) colour plus the phase correction of the scattering
 // octaves (Lighting::phase_correction, src/render/light.rs):
@@ -566,6 +586,10 @@ const billboardProgram = compile(
   uniform float pixelAngle; // radians per pixel
   uniform bool detail;      // whether the erosion pass runs
   uniform vec4 flashAt;     // a lightning flash: its light relative to the eye (xyz), gain (w)
+  // Rain or snow where the eye stands: extinction per metre (0 when dry), the
+  // altitude of its streak top (no precipitation above) and the lit haze colour.
+  uniform float rainSigma, rainTop;
+  uniform vec3 rainHaze;
   out vec2 corner;
   out vec2 cellOrigin;
   out vec3 radiance;
@@ -575,6 +599,7 @@ const billboardProgram = compile(
   flat out int detailOctaves;
   float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
   ${ATMOSPHERE}
+  ${PRECIPITATION}
   void main() {
     corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
     float span = motion.w;
@@ -621,6 +646,15 @@ const billboardProgram = compile(
     vec3 T, L;
     aerial(c, eye.z, centreRadius.z, 1.0, T, L);
     radiance = radiance * T + L;
+    // The eye stands in rain: the billboard is seen through the rain between them, as
+    // far as it lies below the streak top (the rate at the eye stands for the whole
+    // stretch; the boxes haze what lies behind). Beer–Lambert, lit by the rain's haze.
+    if (rainSigma > 0.0) {
+      float d = length(c);
+      float below = c.z > 0.0 ? clamp((rainTop - eye.z) / c.z, 0.0, 1.0) : 1.0;
+      float tr = exp(-rainSigma * d * below);
+      radiance = radiance * tr + precipitationHaze(rainHaze, c.z / max(d, 1e-6)) * (1.0 - tr);
+    }
   }`,
   `#version 300 es
   precision highp float;
@@ -695,8 +729,10 @@ const FULL_SCREEN = `#version 300 es
 // is a box from the ground up to its layer's top. Its back faces ray-march the view
 // ray's stretch inside the box through precipitation.png: below each column's streak
 // top (B) the air holds rain or snow of the column's rate (R), extinction after
-// Marshall–Palmer-type visibility laws (rain σ = 0.25·R^0.63 /km, snow σ = 3·R^0.7
-// /km with R the water-equivalent rate in mm/h), lit by the sky under the clouds.
+// PRECIPITATION, lit by the sky under the clouds. The march ends at the ground or
+// where the ray leaves the box, so it hazes the sky and the ground by their own
+// distance; it is drawn before the billboards, which take the rain between the eye
+// and themselves on their own (billboardProgram's rain uniforms).
 const rainProgram = compile(
   `#version 300 es
   uniform mat4 viewProj;
@@ -719,6 +755,7 @@ const rainProgram = compile(
   uniform vec3 hazeRgb;
   out vec4 colour;
   ${TONE}
+  ${PRECIPITATION}
   void main() {
     vec3 d = normalize(rel);
     vec3 inv = 1.0 / mix(d, vec3(1e-9), lessThan(abs(d), vec3(1e-9)));
@@ -743,11 +780,10 @@ const rainProgram = compile(
       if (z > layerBase + v.b * layerThickness) continue; // above the streak top
       float r = v.r / max(v.a, 1e-3); // un-blended from dry neighbours by the filter
       float rate = 100.0 * r * r;
-      float perKm = z >= snowLevel ? 3.0 * pow(rate, 0.7) : 0.25 * pow(rate, 0.63);
-      tau += v.a * perKm * 1e-3 * ds;
+      tau += v.a * precipitationPerKm(rate, z >= snowLevel) * 1e-3 * ds;
     }
     float alpha = 1.0 - exp(-tau);
-    colour = vec4(tone(hazeRgb) * alpha, alpha);
+    colour = vec4(tone(precipitationHaze(hazeRgb, d.z)) * alpha, alpha);
   }`,
 );
 
@@ -770,7 +806,7 @@ const streakProgram = compile(
     float a = 0.0;
     for (int layer = 0; layer < 3; layer++) {
       float l = float(layer);
-      float columns = (snow > 0.5 ? 40.0 : 90.0) * (1.0 + 0.6 * l);
+      float columns = (snow > 0.5 ? 40.0 : 50.0) * (1.0 + 0.8 * l);
       vec2 q = uv * columns;
       if (snow < 0.5) q.x += q.y * 0.12; // rain slants with the wind
       float col = floor(q.x);
@@ -779,7 +815,8 @@ const streakProgram = compile(
       float speed = snow > 0.5 ? 0.12 + 0.04 * l : 1.6 + 0.5 * l; // screen heights per second
       float y = fract(uv.y * (snow > 0.5 ? 3.0 : 1.0) + time * speed + 7.0 * h);
       float x = fract(q.x) - 0.5 + (snow > 0.5 ? 0.3 * sin(time * 1.3 + 6.0 * h) : 0.0);
-      float w = snow > 0.5 ? 0.18 : 0.06;
+      // At least about a pixel across (thinner lines alias into dots).
+      float w = max(snow > 0.5 ? 0.18 : 0.05, 0.7 * columns / viewport.y);
       float across = 1.0 - smoothstep(0.0, w, abs(x));
       float along = snow > 0.5 ? 1.0 - smoothstep(0.0, 0.02, abs(y - 0.5))
                                : smoothstep(0.0, 0.05, y) * (1.0 - smoothstep(0.05, 0.25, y));
@@ -1426,12 +1463,14 @@ function resize() {
 
 /**
  * Rain or snow where the eye is: the heaviest rate of the drawn precipitation maps
- * whose column holds the eye below its streak top (the finest tile of each layer).
+ * whose column holds the eye below its streak top (the finest tile of each layer),
+ * and that column's streak top (altitude, m).
  */
 function eyePrecipitation() {
   const cam = state.camera;
   let rate = 0;
   let snow = false;
+  let streakTop = 0;
   const finest = new Map();
   for (const t of drawnTiles()) {
     if (!t.rainPixels) continue;
@@ -1456,9 +1495,10 @@ function eyePrecipitation() {
     if (r > rate) {
       rate = r;
       snow = cam.z >= worldInfo.snow_level;
+      streakTop = top;
     }
   }
-  return { rate, snow };
+  return { rate, snow, top: streakTop };
 }
 
 /** Strikes around the view (the last /lightning answer), sorted by time. */
@@ -1695,15 +1735,14 @@ function draw() {
     }
   }
 
-  // Rain and snow under the clouds: before the billboards (clouds in front of a
-  // distant shaft hide it), but after them when the eye stands in it (then the rain
-  // is in front of everything, the clouds above included).
+  // Rain and snow under the clouds, hazing the sky and the ground by their distance:
+  // before the billboards (clouds in front of a distant shaft hide it). When the eye
+  // stands in it, each billboard takes the rain in front of it (billboardProgram).
   const wet = drawn.filter((t) => t.rain);
   stats.precipitationTiles = wet.length;
   const haze = hazeRgb(light);
-  const eye = eyePrecipitation();
-  const drawRain = () => {
-    if (!wet.length) return;
+  const atEye = eyePrecipitation();
+  if (wet.length) {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(rainProgram.program);
@@ -1726,8 +1765,7 @@ function draw() {
       gl.drawArrays(gl.TRIANGLES, 0, 36);
       calls++;
     }
-  };
-  if (eye.rate === 0) drawRain();
+  }
 
   // Lightning: the bolts of cloud-to-ground flashes; the brightest flash lights the
   // clouds around it, and every flash the air (the veil, last).
@@ -1796,6 +1834,9 @@ function draw() {
     gl.uniform3f(bu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
     gl.uniform1f(bu.pixelAngle, (2 * tanH) / canvas.width);
     gl.uniform1i(bu.detail, target ? 1 : 0);
+    gl.uniform1f(bu.rainSigma, atEye.rate > 0 ? precipitationPerMetre(atEye.rate, atEye.snow) : 0);
+    gl.uniform1f(bu.rainTop, atEye.top);
+    gl.uniform3fv(bu.rainHaze, haze);
     if (brightest) {
       // A cloud-to-ground stroke lights the cloud base above it; an intra-cloud one, its own height.
       const s = brightest.strike;
@@ -1829,19 +1870,18 @@ function draw() {
       gl.activeTexture(gl.TEXTURE0);
     }
   }
-  // In rain: its haze over everything, streaks where the eye stands, then the flashes' veil.
-  if (eye.rate > 0) drawRain();
-  stats.eyeRate = eye.rate;
-  stats.eyeSnow = eye.snow;
-  if (eye.rate > 0) {
+  // Streaks where the eye stands in rain or snow, then the flashes' veil.
+  stats.eyeRate = atEye.rate;
+  stats.eyeSnow = atEye.snow;
+  if (atEye.rate > 0) {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(streakProgram.program);
     const zu = streakProgram.u;
     gl.uniform2f(zu.viewport, canvas.width, canvas.height);
     gl.uniform1f(zu.time, (now / 1000) % 1000);
-    gl.uniform1f(zu.rate, eye.rate);
-    gl.uniform1f(zu.snow, eye.snow ? 1 : 0);
+    gl.uniform1f(zu.rate, atEye.rate);
+    gl.uniform1f(zu.snow, atEye.snow ? 1 : 0);
     gl.uniform3fv(zu.hazeRgb, haze);
     gl.bindVertexArray(emptyVao);
     gl.drawArrays(gl.TRIANGLES, 0, 3);

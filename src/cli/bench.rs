@@ -23,7 +23,8 @@ pub struct BenchArgs {
     #[arg(long)]
     plots: Option<String>,
     /// Measure only these sections (comma-separated: machine, automaton, fields,
-    /// tiles, encoders, quality, http, rosa, scaling); the others are left as they are.
+    /// tiles, encoders, quality, http, rosa, scaling, keyframes, precipitation-day);
+    /// the others are left as they are.
     #[arg(long, value_delimiter = ',')]
     only: Option<Vec<String>>,
 }
@@ -68,7 +69,7 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
         .collect();
     for p in &run.plots {
         let path = plots.join(&p.file);
-        super::write_out(&path.to_string_lossy(), &p.png)?;
+        super::write_out(&path.to_string_lossy(), &p.bytes)?;
     }
     // Read again just before writing: prose edited while the run measured (minutes)
     // is kept. If an edit broke the markers, the measured sections go to a file of

@@ -10,7 +10,8 @@
 // keyframe URLs (never a per-t URL), draws the clouds, prefetches the next keyframe
 // and crosses into it without asking again; the default view's ground has no
 // seam; under the storm-front's storm it finds the rain /sample gives at the eye,
-// hazes the view (against weather=off), holds the strikes /lightning lists and
+// hazes the view (against weather=off) by distance (clouds a few hundred metres away
+// show through heavy rain; the streaks show), holds the strikes /lightning lists and
 // flashes, also when the drawn time passes a strike (issue 24); the sky (the
 // server's /v1/sky.json) is blue above and brighter at the horizon
 // at noon, reddish toward a low sun; at the far horizon `fast` shows no brighter band
@@ -360,6 +361,36 @@ try {
     );
     const off = await w.page.evaluate(() => ({ wet: window.cloudscape.stats.precipitationTiles, strikes: window.cloudscape.stats.strikes }));
     check('weather=off draws no precipitation and lists no strikes', off.wet === 0 && off.strikes === 0, JSON.stringify(off));
+    // The streaks in front show as lines (mean change between horizontally adjacent
+    // pixels; about 0.004 when they aliased into dots, 0.0001 with weather=off).
+    const across = (img) => {
+      let sum = 0;
+      for (let y = 0; y < img.height; y++) for (let x = 0; x + 1 < img.width; x++) sum += Math.abs(img.lum[y * img.width + x + 1] - img.lum[y * img.width + x]);
+      return sum / (img.height * (img.width - 1));
+    };
+    check('the streaks of the rain at the eye show', across(rainy) > 0.008, `mean |Δluminance| across ${across(rainy).toFixed(4)}, weather=off ${across(dry).toFixed(4)}`);
+    // Rain hazes by distance, not the whole picture: 50 m under the cloud base (in the
+    // rain's streaks, 27 mm/h), the clouds a few hundred metres away show through it.
+    // Rain σ ≈ 2 /km lets through e^(-2·0.5) ≈ 0.37 at 500 m, so the clouds move at
+    // most ~0.6 of the way from their dry look to the haze (the under view's upper
+    // half: clouds ≥ 1.3 km away, hidden). Before, the haze of the whole ray through
+    // the rain was laid over them (0.9 of the way; the picture a uniform grey).
+    const nearBase = '5000,30000,750,0,8,75';
+    await w.page.goto(`${base}${wscene(nearBase)}`);
+    await settle(w.page);
+    const baseEye = await w.page.evaluate(() => window.cloudscape.eyePrecipitation());
+    const baseRain = await canvasLuminance(w.page);
+    await shot('storm-rain-cloud-base.png');
+    await w.page.goto(`${base}${wscene(nearBase, '&weather=off')}`);
+    await settle(w.page);
+    const baseDry = await canvasLuminance(w.page);
+    const haze = mean(rainy.lum.slice(0, rainy.lum.length / 2));
+    const moved = (mean(baseRain.lum) - mean(baseDry.lum)) / (haze - mean(baseDry.lum));
+    check(
+      'in heavy rain the clouds a few hundred metres away show through it (no uniform haze)',
+      baseEye.rate > 10 && moved < 0.7,
+      `${baseEye.rate.toFixed(1)} mm/h at the eye; mean luminance ${mean(baseDry.lum).toFixed(3)} dry, ${mean(baseRain.lum).toFixed(3)} in rain, haze ${haze.toFixed(3)}: ${moved.toFixed(2)} of the way to the haze`,
+    );
 
     // Lightning: the viewer lists the strikes /lightning gives around it and flashes.
     const near = '5000,16000,300,0,6,75';

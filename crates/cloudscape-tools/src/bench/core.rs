@@ -373,7 +373,7 @@ pub fn scaling(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     )?;
     out.plots.push(Plot {
         file: "scaling.png".into(),
-        png,
+        bytes: png,
     });
     out.sections.push(Section {
         id: "scaling",

@@ -11,14 +11,17 @@ use cloudscape_server::{Server, ServerConfig};
 use super::{BenchRun, Effort, Section, fmt_s};
 
 /// A running in-process server; stopped when dropped.
-struct LocalServer {
-    base: String,
+pub(super) struct LocalServer {
+    /// `http://127.0.0.1:PORT`.
+    pub(super) base: String,
     stop: cloudscape_server::ShutdownHandle,
     thread: Option<std::thread::JoinHandle<()>>,
 }
 
 impl LocalServer {
-    fn start() -> Result<LocalServer, String> {
+    /// The embedded config (every built-in world) with the default `[server]`
+    /// settings, on a free loopback port; returns once `/readyz` answers 200.
+    pub(super) fn start() -> Result<LocalServer, String> {
         let config = Config::embedded();
         let server = ServerConfig {
             listen: "127.0.0.1:0".into(),
@@ -66,7 +69,7 @@ impl Drop for LocalServer {
     }
 }
 
-fn client() -> Result<reqwest::blocking::Client, String> {
+pub(super) fn client() -> Result<reqwest::blocking::Client, String> {
     reqwest::blocking::Client::builder()
         .no_proxy()
         .timeout(Duration::from_secs(120))

@@ -11,7 +11,8 @@
 //! Sections: the machine, automaton (packed vs naive), fields (ours vs the `noise`
 //! crate), tile pipeline per quality preset (cold and warm), encoders, speed against
 //! accuracy of the presets, HTTP (warm and cold, in-process server on loopback), the
-//! grid sizes of Rosa 2013 Table 5.1, and scaling (region area, level, t).
+//! grid sizes of Rosa 2013 Table 5.1, scaling (region area, level, t), keyframes, and
+//! the precipitation of a storm over a day as a user's `/series` queries answer it.
 //!
 //! Times are wall-clock medians over repeated runs (at least one) within a budget per
 //! measurement; [`Effort`] sets sizes and budgets. Ratios in a table are measured in
@@ -23,6 +24,7 @@ mod http;
 mod keyframes;
 mod pipeline;
 pub mod quality;
+mod weather;
 
 use std::time::{Duration, Instant};
 
@@ -33,7 +35,8 @@ pub enum Effort {
     Smoke,
     /// About a minute on the 2-core project machine.
     Quick,
-    /// The published figures (about 3 minutes on the 2-core project machine).
+    /// The published figures (about 5 minutes on the 2-core project machine, 2 of
+    /// them the precipitation day's 1441 `/series` points).
     Full,
 }
 
@@ -75,11 +78,11 @@ pub struct Section {
     pub markdown: String,
 }
 
-/// A PNG plot: file name (in the plots directory) and bytes.
+/// A file written to the plots directory: a PNG plot, or the data behind one (CSV).
 #[derive(Clone, Debug)]
 pub struct Plot {
     pub file: String,
-    pub png: Vec<u8>,
+    pub bytes: Vec<u8>,
 }
 
 /// Everything one `cloudscape bench` run produced.
@@ -160,7 +163,7 @@ pub fn fmt_rate(r: f64) -> String {
 type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
 
 /// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
-pub const SECTION_NAMES: [&str; 10] = [
+pub const SECTION_NAMES: [&str; 11] = [
     "machine",
     "automaton",
     "fields",
@@ -171,6 +174,7 @@ pub const SECTION_NAMES: [&str; 10] = [
     "rosa",
     "scaling",
     "keyframes",
+    "precipitation-day",
 ];
 
 /// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names) and
@@ -185,7 +189,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ));
     }
     let mut out = BenchRun::default();
-    let steps: [(&str, SectionFn); 10] = [
+    let steps: [(&str, SectionFn); 11] = [
         ("machine", |e, o| {
             o.sections.push(machine(e));
             Ok(())
@@ -199,6 +203,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ("rosa 2013", pipeline::rosa),
         ("scaling", core::scaling),
         ("keyframes", keyframes::keyframes),
+        ("precipitation over a day", weather::precipitation_day),
     ];
     for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {
         if only.is_some_and(|names| !names.iter().any(|n| n == id)) {

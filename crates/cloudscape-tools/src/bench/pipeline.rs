@@ -339,7 +339,7 @@ pub fn rosa(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     )?;
     out.plots.push(Plot {
         file: "rosa.png".into(),
-        png,
+        bytes: png,
     });
     out.sections.push(Section {
         id: "rosa",

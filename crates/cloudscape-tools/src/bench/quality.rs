@@ -466,7 +466,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
     )?;
     out.plots.push(Plot {
         file: "quality.png".into(),
-        png,
+        bytes: png,
     });
     out.sections.push(Section {
         id: "quality",

@@ -72,6 +72,22 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
         "the front advances: {ahead_now} then {ahead_later}"
     );
 
+    // The far-field levels place the band where level 0 does (Dobashi ellipsoids
+    // drift with the wind at every level): at t = 11 h it is 59 km farther north.
+    let url = |level: u32, bbox: &str| {
+        format!(
+            "{}/v1/worlds/storm-front/region?bbox={bbox}&t=39600&layer=cumulonimbus&level={level}",
+            server.base
+        )
+    };
+    for level in [0, 1, 3] {
+        for (bbox, covered) in [("0,90000,10000,100000", true), ("0,25000,10000,35000", false)] {
+            let v: serde_json::Value =
+                serde_json::from_slice(&client().get(url(level, bbox)).send().unwrap().bytes().unwrap()).unwrap();
+            let c = v["coverage"].as_f64().unwrap();
+            assert_eq!(c > 0.8, covered, "level {level} {bbox} at 11 h: {c}");
+        }
+    }
     // Archipelago: the authored thunderstorm (centre x = 5000 + 8 (t − 1800), y = 4000)
     // is over the harbour at t = 2400 and over the highlands at t = 5550; nothing
     // convects anywhere else.

@@ -164,7 +164,8 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     // with an anvil the spread of humidity and activation (from `margin` more columns
     // on each side, as `automaton::run` widens its window).
     let which = Event::ALL;
-    type Fields = ([Vec<f32>; 3], Option<[Vec<f32>; 2]>);
+    /// A run's brightness, anvil spread, and column and row centres in the reference frame.
+    type Fields = ([Vec<f32>; 3], Option<[Vec<f32>; 2]>, Vec<(i64, f64)>, Vec<(i64, f64)>);
     let brightness: Vec<Fields> = plan
         .runs
         .iter()
@@ -199,7 +200,11 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                     .collect()
             };
             let spread = (margin > 0).then(|| [0, 1].map(|i| inner(&max_filter(&wide[i], w, h, margin))));
-            (wide.each_ref().map(|v| inner(v)), spread)
+            let (cols, rows) = (
+                xs[margin..margin + region.cols].to_vec(),
+                ys[margin..margin + region.rows].to_vec(),
+            );
+            (wide.each_ref().map(|v| inner(v)), spread, cols, rows)
         })
         .collect();
     // Each run's authored weather (`world::authored`) at every column centre, pushed
@@ -209,20 +214,12 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     } else {
         plan.runs
             .iter()
-            .map(|run| {
+            .zip(&brightness)
+            .map(|(run, (_, _, cols, rows))| {
                 let (t_a, o_a) = sim.authored_at(run.reference);
-                let r_off = sim.frames.reference_offset(run.reference);
-                let o0 = sim.frames.offset(0, run.reference);
-                let metres = |i: i64, d: &Coord, o: i64, r: i64, a: i64| {
-                    let c = Coord::new(i * span - d.int + o - r + a, span as f64 * 0.5 - d.frac);
-                    (c.int as f64 + c.frac) * layer.cell_size
-                };
-                let xs: Vec<f64> = (0..region.cols as i64)
-                    .map(|c| metres(region.x0 + c, &dx, o0.0, r_off.0, o_a.0))
-                    .collect();
-                let ys: Vec<f64> = (0..region.rows as i64)
-                    .map(|r| metres(region.y0 + r, &dy, o0.1, r_off.1, o_a.1))
-                    .collect();
+                let metres = |c: &(i64, f64), a: i64| ((c.0 + a) as f64 + c.1) * layer.cell_size;
+                let xs: Vec<f64> = cols.iter().map(|c| metres(c, o_a.0)).collect();
+                let ys: Vec<f64> = rows.iter().map(|r| metres(r, o_a.1)).collect();
                 let mut out = vec![0f32; plane * depth];
                 out.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
                     let z = layer.level_altitude(k as u32);
@@ -238,12 +235,13 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
     grid.data.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
         for (i, v) in out.iter_mut().enumerate() {
             let (r, c) = (i / region.cols, i % region.cols);
-            let xm = ((region.x0 + c as i64) as f64 + 0.5) * span as f64 * layer.cell_size;
-            let ym = ((region.y0 + r as i64) as f64 + 0.5) * span as f64 * layer.cell_size;
-            let ew = f.ellipsoid_weight(xm, ym, k as u32);
             let mut d = 0.0;
             let anvil = f.anvil_weight(k as u32);
-            for (run, ((b, spread), w)) in brightness.iter().zip(&weights).enumerate() {
+            for (run, ((b, spread, cols, rows), w)) in brightness.iter().zip(&weights).enumerate() {
+                // Dobashi ellipsoids drift with the wind: placed in the reference frame,
+                // as `automaton::run` places them.
+                let frame_metres = |c: (i64, f64)| (c.0 as f64 + c.1) * layer.cell_size;
+                let ew = f.ellipsoid_weight(frame_metres(cols[c]), frame_metres(rows[r]), k as u32);
                 let (mut hum, mut act) = (b[0][i], b[1][i]);
                 if let Some(m) = spread.as_ref().filter(|_| anvil > 0.0) {
                     hum += (m[0][i] - hum) * anvil;

@@ -100,3 +100,25 @@ fn the_showcase_worlds_are_listed_and_have_their_weather() {
     assert!(g1 > 0.5 && h1 == 0.0, "then over the highlands: {h1} {g1}");
     assert_eq!(storm("60000,-1000,70000,9000", 5550.0), 0.0, "no convection elsewhere");
 }
+
+/// `default` (seed 1) and the seed world `1` compute the same bytes, but the JSON
+/// answers that print the world's name print the name asked for, whichever was asked
+/// first (they do not share those cache entries).
+#[test]
+fn answers_name_the_world_they_were_asked_for() {
+    let server = ServeProcess::start(&[], &[]);
+    for (route, query) in [
+        ("region", "bbox=0,0,1000,1000&t=0"),
+        ("series", "bbox=0,0,1000,1000&t0=0&t1=20"),
+        ("sample", "x=50&y=50&z=1300&t=0"),
+        ("lightning", "bbox=0,0,1000,1000&t0=0&t1=60"),
+    ] {
+        for world in ["default", "1", "default", "01"] {
+            let url = format!("{}/v1/worlds/{world}/{route}?{query}", server.base);
+            let v: serde_json::Value =
+                serde_json::from_slice(&client().get(&url).send().unwrap().bytes().unwrap()).unwrap();
+            let want = if world == "default" { "default" } else { "1" };
+            assert_eq!(v["world"], want, "{url}: {v}");
+        }
+    }
+}

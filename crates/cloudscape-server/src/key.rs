@@ -113,6 +113,12 @@ impl CacheKey {
         CacheKey(format!("{kind}|a{ALGORITHM_VERSION}|w{}|l{layer}", world.fingerprint))
     }
 
+    /// As [`CacheKey::new`], for answers that print the world's name: `default` and
+    /// `1` share every other key (same seed, same climate, same bytes), not these.
+    pub fn naming(kind: &str, world: &ResolvedWorld, layer: usize) -> CacheKey {
+        CacheKey::new(kind, world, layer).with("name", &world.world.name)
+    }
+
     /// A key that depends on no world (splat sheets).
     pub fn global(kind: &str) -> CacheKey {
         CacheKey(format!("{kind}|a{ALGORITHM_VERSION}"))

@@ -82,7 +82,7 @@ pub async fn lightning(
     if plans.is_empty() {
         LightningPlan::new(world, 0, bbox, t0, t1, &limits)?;
     }
-    let key = CacheKey::new("lightning", &resolved, 0)
+    let key = CacheKey::naming("lightning", &resolved, 0)
         .with("b", format!("{},{},{},{}", bbox[0], bbox[1], bbox[2], bbox[3]))
         .with("t", format!("{t0},{t1}"))
         .with("l", layers.iter().map(usize::to_string).collect::<Vec<_>>().join(","));

@@ -220,7 +220,7 @@ pub async fn sample(
     region.check(0, layer.depth, limits)?;
     let frame = SnappedTime::snap(t, layer, fps);
     let snow = kind_at(1.0, layer.freezing_level, z) == PrecipitationKind::Snow;
-    let mut key = CacheKey::new("sample", &resolved, primary)
+    let mut key = CacheKey::naming("sample", &resolved, primary)
         .with("c", cell.col)
         .with("r", cell.row)
         .with("k", cell.k)
@@ -309,7 +309,7 @@ pub async fn region(
     let level = params.level(limits.max_level)?;
     let region = Region::from_bbox(layer, level, bbox, limits)?;
     let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
-    let key = CacheKey::new("region", &resolved, layer_index)
+    let key = CacheKey::naming("region", &resolved, layer_index)
         .with("z", level)
         .with(
             "r",
@@ -398,7 +398,7 @@ pub async fn series(
     let times: Vec<f64> = (0..points as u64).map(|i| (t0 + i as f64 * step).min(t1)).collect();
     let frames: Vec<SnappedTime> = times.iter().map(|&t| SnappedTime::snap(t, layer, fps)).collect();
     let frame_list = frames.iter().map(|f| f.index.to_string()).collect::<Vec<_>>().join(",");
-    let key = CacheKey::new("series", &resolved, layer_index)
+    let key = CacheKey::naming("series", &resolved, layer_index)
         .with("z", level)
         .with(
             "r",

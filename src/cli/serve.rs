@@ -8,6 +8,7 @@
 
 use clap::Args;
 
+use cloudscape_core::world::authored::{Area, Influence, Shape};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG};
 use cloudscape_server::{Server, ServerConfig};
 
@@ -168,6 +169,8 @@ pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<S
             if l.ellipsoids.is_empty() {
                 t.remove("ellipsoids");
             }
+            // A copy of the world's authored weather, printed once below.
+            t.remove("authored");
             layers.push(toml::Value::Table(t));
         }
         let mut wt = toml::Table::new();
@@ -176,10 +179,77 @@ pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<S
             wt.insert("freezing_level".into(), toml::Value::Float(l.freezing_level));
         }
         wt.insert("layers".into(), toml::Value::Array(layers));
+        let (mut events, mut regions) = (Vec::new(), Vec::new());
+        for (preset, influence) in &w.authored {
+            let (is_region, entry) = authored_entry(preset, influence)?;
+            if is_region { &mut regions } else { &mut events }.push(toml::Value::Table(entry));
+        }
+        for (key, list) in [("events", events), ("regions", regions)] {
+            if !list.is_empty() {
+                wt.insert(key.into(), toml::Value::Array(list));
+            }
+        }
         worlds.insert(name.clone(), toml::Value::Table(wt));
     }
     doc.insert("worlds".into(), toml::Value::Table(worlds));
     toml::to_string(&doc).map_err(|e| format!("cannot print config: {e}"))
+}
+
+/// One `[[worlds.NAME.events]]` entry (false) or `[[worlds.NAME.regions]]` entry
+/// (true, a region with a one-preset mix) that parses back to `influence` on `preset`.
+fn authored_entry(preset: &str, influence: &Influence) -> Result<(bool, toml::Table), String> {
+    let mut t = toml::Table::new();
+    let mut put = |k: &str, v: toml::Value| {
+        t.insert(k.into(), v);
+    };
+    let is_region = match &influence.shape {
+        Shape::Storm(st) => {
+            put("kind", "storm".into());
+            put("preset", preset.into());
+            put("centre", value(&st.centre)?);
+            put("radii", value(&st.radii)?);
+            if st.path.is_empty() {
+                put("velocity", value(&st.velocity)?);
+            } else {
+                put("path", value(&st.path)?);
+            }
+            false
+        }
+        Shape::Front(f) => {
+            put("kind", "front".into());
+            put("preset", preset.into());
+            put("origin", value(&f.origin)?);
+            put("velocity", value(&f.velocity)?);
+            put("width", f.width.into());
+            put("behind", f.behind.into());
+            if let Some(l) = f.length {
+                put("length", l.into());
+            }
+            false
+        }
+        Shape::Region { area, blend } => {
+            match area {
+                Area::Box(b) => put("box", value(b)?),
+                Area::Polygon(p) => put("polygon", value(p)?),
+            }
+            put("blend", (*blend).into());
+            let mut mix = toml::Table::new();
+            mix.insert(preset.into(), influence.intensity.into());
+            put("mix", toml::Value::Table(mix));
+            true
+        }
+    };
+    if !is_region {
+        put("intensity", influence.intensity.into());
+    }
+    if let Some(start) = influence.start {
+        put("start", start.into());
+    }
+    if let Some(end) = influence.end {
+        put("end", end.into());
+    }
+    put("ramp", influence.ramp.into());
+    Ok((is_region, t))
 }
 
 fn value<T: serde::Serialize>(v: &T) -> Result<toml::Value, String> {
@@ -250,6 +320,17 @@ mod tests {
         let text = config_to_toml(&c, &s).unwrap();
         assert_eq!(Config::parse(&text).unwrap(), c);
         assert_eq!(ServerConfig::parse(&text).unwrap(), s);
+        // Authored weather of every form: a storm on a path, a region of two presets.
+        let more = format!(
+            "{DEFAULT_CONFIG}\n[[worlds.storm-front.events]]\nkind = \"storm\"\npreset = \"cumulonimbus\"\n\
+             centre = [0.0, 0.0, 3000.0]\nradii = [1000.0, 1000.0, 1000.0]\npath = [[0.0, 0.0, 0.0], [100.0, 50.0, 0.0]]\n\
+             [[worlds.storm-front.regions]]\nbox = [0.0, 0.0, 10.0, 10.0]\nmix = {{ cumulonimbus = 0.5, stratocumulus = -0.5 }}\nend = 500.0\n"
+        );
+        let c = Config::parse(&more).unwrap();
+        assert_eq!(c.worlds["storm-front"].authored.len(), 3);
+        let text = config_to_toml(&c, &s).unwrap();
+        assert_eq!(Config::parse(&text).unwrap(), c);
+        assert!(!c.worlds["archipelago"].authored.is_empty());
     }
 
     #[test]

@@ -353,6 +353,7 @@ impl Config {
                     Err(invalid(key, format!("no layer of this world places preset `{preset}`")))
                 }
             };
+            let mut authored = Vec::new();
             for (i, re) in rw.events.into_iter().enumerate() {
                 let key = format!("worlds.{wname}.events[{i}]");
                 drives(&format!("{key}.preset"), &re.preset, &layers)?;
@@ -361,6 +362,7 @@ impl Config {
                 for l in layers.iter_mut().filter(|l| l.preset_name == preset) {
                     l.authored.push(influence.clone());
                 }
+                authored.push((preset, influence));
             }
             for (i, rr) in rw.regions.into_iter().enumerate() {
                 let key = format!("worlds.{wname}.regions[{i}]");
@@ -371,6 +373,7 @@ impl Config {
                     for l in layers.iter_mut().filter(|l| l.preset_name == preset) {
                         l.authored.push(influence.clone());
                     }
+                    authored.push((preset, influence));
                 }
             }
             worlds.insert(
@@ -379,6 +382,7 @@ impl Config {
                     name: wname,
                     seed: rw.seed,
                     layers,
+                    authored,
                 },
             );
         }

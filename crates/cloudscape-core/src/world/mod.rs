@@ -392,6 +392,11 @@ pub struct World {
     pub seed: u64,
     /// The cloud layers, in configuration order.
     pub layers: Vec<Layer>,
+    /// The world's authored weather as configured (`worlds.NAME.events`, then
+    /// `worlds.NAME.regions` one entry per preset of each mix), each with the preset it
+    /// drives; every layer placing that preset holds a copy in [`Layer::authored`].
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub authored: Vec<(String, authored::Influence)>,
 }
 
 impl World {

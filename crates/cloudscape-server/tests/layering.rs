@@ -1,6 +1,6 @@
 //! The server's modules form no import circle, and no handler imports another.
 //!
-//! Reads every `src/*.rs` and collects the modules each names through `crate::` or
+//! Reads every `src/*.rs` (and `src/*/` folder module) and collects the modules each names through `crate::` or
 //! `super::` (in `use` lines and inline paths alike, test modules excluded); a name
 //! that is no module is something the crate root defines, so an edge to `lib`.
 
@@ -10,18 +10,36 @@ use std::path::Path;
 /// The route handlers: each stands alone on the shared modules.
 const HANDLERS: [&str; 6] = ["discovery", "ops", "queries", "render", "tiles", "web"];
 
+/// Every module's code by name: `src/NAME.rs`, or for a folder module `src/NAME/` its
+/// `mod.rs` followed by its submodules, whose `super::` paths name the folder module
+/// itself (so they are left out) and whose `crate::` paths count as the folder's.
 fn sources() -> BTreeMap<String, String> {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
-    std::fs::read_dir(&dir)
+    let read = |p: &Path| code(&std::fs::read_to_string(p).expect("a source file"));
+    let mut out = BTreeMap::new();
+    for path in std::fs::read_dir(&dir)
         .expect("src/ is readable")
         .map(|e| e.expect("a directory entry").path())
-        .filter(|p| p.extension().is_some_and(|e| e == "rs"))
-        .map(|p| {
-            let name = p.file_stem().unwrap().to_string_lossy().into_owned();
-            let text = std::fs::read_to_string(&p).expect("a source file");
-            (name, text)
-        })
-        .collect()
+    {
+        let name = path.file_stem().unwrap().to_string_lossy().into_owned();
+        if path.extension().is_some_and(|e| e == "rs") {
+            out.insert(name, read(&path));
+        } else if path.join("mod.rs").is_file() {
+            let mut text = read(&path.join("mod.rs"));
+            let mut subs: Vec<_> = std::fs::read_dir(&path)
+                .expect("a module folder is readable")
+                .map(|e| e.expect("a directory entry").path())
+                .filter(|p| p.extension().is_some_and(|e| e == "rs") && p.file_name().is_some_and(|f| f != "mod.rs"))
+                .collect();
+            subs.sort();
+            for sub in subs {
+                text.push('\n');
+                text.push_str(&read(&sub).replace("super::", "parent_module::"));
+            }
+            out.insert(name, text);
+        }
+    }
+    out
 }
 
 /// The code of a file without its test module and comment lines.
@@ -79,7 +97,7 @@ fn graph() -> BTreeMap<String, BTreeSet<String>> {
     sources
         .iter()
         .map(|(module, text)| {
-            let targets = named(&code(text))
+            let targets = named(text)
                 .into_iter()
                 .map(|n| if modules.contains(&n) { n } else { "lib".to_string() })
                 .filter(|n| n != module)

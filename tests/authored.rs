@@ -8,6 +8,7 @@ mod common;
 
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::world::Config;
+use common::InProcess;
 use reqwest::StatusCode;
 
 /// The storm: centre (20 km, 12.8 km, 1.1 km) at t = 0, moving east at 6 m/s, so its
@@ -29,60 +30,25 @@ fn config() -> String {
     common::test_config(&[("worlds.default.regions", CLEAR), ("worlds.default.events", STORM)])
 }
 
-struct TestServer {
-    base: String,
-    client: reqwest::Client,
+/// `/region` of the `low` layer.
+async fn region(s: &InProcess, bbox: &str, t: f64) -> serde_json::Value {
+    s.json(&format!("/v1/worlds/default/region?bbox={bbox}&t={t}&layer=low"))
+        .await
 }
 
-impl TestServer {
-    async fn start(text: &str) -> TestServer {
-        let (base, client) = common::start_in_process(text).await;
-        TestServer { base, client }
-    }
+/// The ETag of a density tile far from the storm (its bytes are those of the cleared world).
+async fn etag(s: &InProcess) -> String {
+    let r = s.get("/v1/worlds/default/tiles/0/-3/-3/density.u8?t=0&layer=low").await;
+    assert_eq!(r.status(), StatusCode::OK);
+    r.headers()["etag"].to_str().unwrap().to_string()
+}
 
-    async fn get(&self, path: &str) -> reqwest::Response {
-        self.client
-            .get(format!("{}{path}", self.base))
-            .send()
-            .await
-            .expect("request")
-    }
-
-    async fn bytes(&self, path: &str) -> Vec<u8> {
-        let r = self.get(path).await;
-        assert_eq!(r.status(), StatusCode::OK, "{path}");
-        r.bytes().await.unwrap().to_vec()
-    }
-
-    async fn region(&self, bbox: &str, t: f64) -> serde_json::Value {
-        serde_json::from_slice(
-            &self
-                .bytes(&format!("/v1/worlds/default/region?bbox={bbox}&t={t}&layer=low"))
-                .await,
-        )
-        .unwrap()
-    }
-
-    /// The ETag of a density tile far from the storm (its bytes are those of the cleared world).
-    async fn etag(&self) -> String {
-        let r = self
-            .get("/v1/worlds/default/tiles/0/-3/-3/density.u8?t=0&layer=low")
-            .await;
-        assert_eq!(r.status(), StatusCode::OK);
-        r.headers()["etag"].to_str().unwrap().to_string()
-    }
-
-    /// The level-0 `low` density tile (tx, 0): `(2, 256, 256)` row-major.
-    async fn tile(&self, tx: i64, t: f64) -> Vec<f32> {
-        let b = self
-            .bytes(&format!(
-                "/v1/worlds/default/tiles/0/{tx}/0/density.f32?t={t}&layer=low"
-            ))
-            .await;
-        b.chunks_exact(4)
-            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-            .collect()
-    }
+/// The level-0 `low` density tile (tx, 0): `(2, 256, 256)` row-major.
+async fn tile(s: &InProcess, tx: i64, t: f64) -> Vec<f32> {
+    s.f32s(&format!(
+        "/v1/worlds/default/tiles/0/{tx}/0/density.f32?t={t}&layer=low"
+    ))
+    .await
 }
 
 /// The density summed over each column x of tiles 0 and 1 side by side (512 columns
@@ -103,9 +69,9 @@ fn column_mass(left: &[f32], right: &[f32], rows: std::ops::Range<usize>) -> Vec
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_storm_crosses_from_one_play_area_to_the_other_on_time_and_seamlessly() {
-    let s = TestServer::start(&config()).await;
+    let s = InProcess::start(&config()).await;
     for t in [0.0, 1000.0, 2000.0] {
-        let (left, right) = (s.tile(0, t).await, s.tile(1, t).await);
+        let (left, right) = (tile(&s, 0, t).await, tile(&s, 1, t).await);
         // Where the cloud is: the mass-weighted mean x of the two tiles' columns.
         let mass = column_mass(&left, &right, 0..256);
         let total: f64 = mass.iter().sum();
@@ -131,7 +97,7 @@ async fn a_storm_crosses_from_one_play_area_to_the_other_on_time_and_seamlessly(
         assert_eq!(far, 0.0, "t = {t}: cloud more than 1.4 radii from the storm");
 
         // A /region straddling the seam equals the two tiles' cells inside it.
-        let region = s.region("20000,7800,32000,17800", t).await;
+        let region = region(&s, "20000,7800,32000,17800", t).await;
         let (mut sum, mut n) = (0.0f64, 0usize);
         for (half, tile) in [&left, &right].iter().enumerate() {
             for k in 0..2 {
@@ -156,8 +122,8 @@ async fn a_storm_crosses_from_one_play_area_to_the_other_on_time_and_seamlessly(
     }
 
     // The play areas: A is stormy and B clear at t = 0; the other way round at 2000 s.
-    let (a0, b0) = (s.region(AREA_A, 0.0).await, s.region(AREA_B, 0.0).await);
-    let (a1, b1) = (s.region(AREA_A, 2000.0).await, s.region(AREA_B, 2000.0).await);
+    let (a0, b0) = (region(&s, AREA_A, 0.0).await, region(&s, AREA_B, 0.0).await);
+    let (a1, b1) = (region(&s, AREA_A, 2000.0).await, region(&s, AREA_B, 2000.0).await);
     let cover = |v: &serde_json::Value| v["coverage"].as_f64().unwrap();
     assert!(cover(&a0) > 0.2 && cover(&b1) > 0.2, "storm over A then B: {a0} {b1}");
     assert_eq!(cover(&b0), 0.0, "B before the storm: {b0}");
@@ -172,6 +138,27 @@ async fn a_storm_crosses_from_one_play_area_to_the_other_on_time_and_seamlessly(
     assert_eq!(high["coverage"], 0.0, "{high}");
 }
 
+/// The mean density of a box under `regions` from t = 320 s to 1000 s, averaged over each
+/// epoch: the test layer's epochs are 4 steps (40 s) and its cloud swings within each
+/// (every run starts from an empty grid a few steps earlier).
+async fn epoch_means(regions: &str) -> Vec<f64> {
+    let s = InProcess::start(&common::test_config(&[("worlds.default.regions", regions)])).await;
+    let series = s
+        .json("/v1/worlds/default/series?bbox=2000,2000,8000,8000&t0=300&t1=1000&dt=10&layer=low")
+        .await;
+    let density: Vec<f64> = series["points"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p["mean_density"].as_f64().unwrap())
+        .collect();
+    // From the epoch that starts at step 32 (t = 320).
+    density[2..]
+        .chunks_exact(4)
+        .map(|e| e.iter().sum::<f64>() / 4.0)
+        .collect()
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_regional_override_fades_in_without_a_pop() {
     // The clear world, and then a box where the preset's cloud is pushed to the full
@@ -184,25 +171,7 @@ async fn a_regional_override_fades_in_without_a_pop() {
         .to_string();
     assert!(err.contains("worlds.default.regions[1].mix.puffy"), "{err}");
     let regions = regions.replace("puffy = 2.0e-0", "puffy = 1.0");
-    let s = TestServer::start(&common::test_config(&[("worlds.default.regions", &regions)])).await;
-    let series: serde_json::Value = serde_json::from_slice(
-        &s.bytes("/v1/worlds/default/series?bbox=2000,2000,8000,8000&t0=300&t1=1000&dt=10&layer=low")
-            .await,
-    )
-    .unwrap();
-    let density: Vec<f64> = series["points"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| p["mean_density"].as_f64().unwrap())
-        .collect();
-    // The test layer's epochs are 4 steps (40 s) and its cloud swings within each
-    // (every run starts from an empty grid a few steps earlier): compare epoch means,
-    // from the epoch that starts at step 32 (t = 320).
-    let epochs: Vec<f64> = density[2..]
-        .chunks_exact(4)
-        .map(|e| e.iter().sum::<f64>() / 4.0)
-        .collect();
+    let epochs = epoch_means(&regions).await;
     let (first, last) = (epochs[0], *epochs.last().unwrap());
     assert_eq!(first, 0.0, "cleared before the override starts");
     assert!(last > 0.05, "the box's own climate after the ramp: {last}");
@@ -214,22 +183,7 @@ async fn a_regional_override_fades_in_without_a_pop() {
     );
     // And the same override without a ramp does jump (what the ramp is for).
     let abrupt = regions.replace("ramp = 400.0", "ramp = 0.0");
-    let s = TestServer::start(&common::test_config(&[("worlds.default.regions", &abrupt)])).await;
-    let series: serde_json::Value = serde_json::from_slice(
-        &s.bytes("/v1/worlds/default/series?bbox=2000,2000,8000,8000&t0=300&t1=1000&dt=10&layer=low")
-            .await,
-    )
-    .unwrap();
-    let density: Vec<f64> = series["points"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|p| p["mean_density"].as_f64().unwrap())
-        .collect();
-    let epochs: Vec<f64> = density[2..]
-        .chunks_exact(4)
-        .map(|e| e.iter().sum::<f64>() / 4.0)
-        .collect();
+    let epochs = epoch_means(&abrupt).await;
     let jump = epochs.windows(2).map(|w| (w[1] - w[0]).abs()).fold(0.0, f64::max);
     assert!(
         jump > 2.0 * biggest,
@@ -279,9 +233,9 @@ fn the_storm_has_the_same_bytes_on_every_thread_count() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn events_are_part_of_the_fingerprint() {
-    let a = TestServer::start(&config()).await;
-    let same = TestServer::start(&config()).await;
-    let slower = TestServer::start(&common::test_config(&[
+    let a = InProcess::start(&config()).await;
+    let same = InProcess::start(&config()).await;
+    let slower = InProcess::start(&common::test_config(&[
         ("worlds.default.regions", CLEAR),
         (
             "worlds.default.events",
@@ -289,7 +243,7 @@ async fn events_are_part_of_the_fingerprint() {
         ),
     ]))
     .await;
-    let (ea, esame, eslower) = (a.etag().await, same.etag().await, slower.etag().await);
+    let (ea, esame, eslower) = (etag(&a).await, etag(&same).await, etag(&slower).await);
     assert_eq!(ea, esame, "replicas with the same events agree");
     assert_ne!(
         ea, eslower,

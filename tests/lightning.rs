@@ -6,40 +6,19 @@
 mod common;
 
 use cloudscape_core::world::DEFAULT_CONFIG;
+use common::InProcess;
 
-struct TestServer {
-    base: String,
-    client: reqwest::Client,
-}
-
-async fn start() -> TestServer {
+async fn start() -> InProcess {
     let text = DEFAULT_CONFIG.replacen("listen = \"127.0.0.1:8080\"", "listen = \"127.0.0.1:0\"", 1);
-    let (base, client) = common::start_in_process(&text).await;
-    TestServer { base, client }
+    InProcess::start(&text).await
 }
 
-impl TestServer {
-    async fn get(&self, path: &str) -> (u16, serde_json::Value) {
-        let r = self
-            .client
-            .get(format!("{}{path}", self.base))
-            .send()
-            .await
-            .expect("request");
-        let status = r.status().as_u16();
-        let body = serde_json::from_slice(&r.bytes().await.unwrap()).unwrap();
-        (status, body)
-    }
-
-    async fn strikes(&self, world: &str, bbox: [f64; 4], t0: f64, t1: f64) -> Vec<serde_json::Value> {
-        let path = format!(
-            "/v1/worlds/{world}/lightning?bbox={},{},{},{}&t0={t0}&t1={t1}",
-            bbox[0], bbox[1], bbox[2], bbox[3]
-        );
-        let (status, body) = self.get(&path).await;
-        assert_eq!(status, 200, "{path}: {body}");
-        body["strikes"].as_array().unwrap().clone()
-    }
+async fn strikes(s: &InProcess, world: &str, bbox: [f64; 4], t0: f64, t1: f64) -> Vec<serde_json::Value> {
+    let path = format!(
+        "/v1/worlds/{world}/lightning?bbox={},{},{},{}&t0={t0}&t1={t1}",
+        bbox[0], bbox[1], bbox[2], bbox[3]
+    );
+    s.json(&path).await["strikes"].as_array().unwrap().clone()
 }
 
 fn sorted(mut v: Vec<serde_json::Value>) -> Vec<String> {
@@ -53,7 +32,7 @@ async fn strikes_are_deterministic_and_a_box_is_the_union_of_its_halves() {
     let s = start().await;
     // The storm band is centred on y = 30 km (+1.5 m/s · t).
     let bbox = [-10_000.0, 20_000.0, 10_000.0, 40_000.0];
-    let all = s.strikes("storm-front", bbox, 0.0, 900.0).await;
+    let all = strikes(&s, "storm-front", bbox, 0.0, 900.0).await;
     assert!(all.len() > 5, "the storm should flash: {} strikes", all.len());
     let mut last = f64::MIN;
     for st in &all {
@@ -78,20 +57,16 @@ async fn strikes_are_deterministic_and_a_box_is_the_union_of_its_halves() {
     let kinds: Vec<&str> = all.iter().map(|s| s["kind"].as_str().unwrap()).collect();
     assert!(kinds.contains(&"cg") && kinds.contains(&"ic"), "{kinds:?}");
     // Space: west and east of x = 1234.5; time: before and after t = 456.7.
-    let west = s
-        .strikes("storm-front", [bbox[0], bbox[1], 1234.5, bbox[3]], 0.0, 900.0)
-        .await;
-    let east = s
-        .strikes("storm-front", [1234.5, bbox[1], bbox[2], bbox[3]], 0.0, 900.0)
-        .await;
-    let early = s.strikes("storm-front", bbox, 0.0, 456.7).await;
-    let late = s.strikes("storm-front", bbox, 456.7, 900.0).await;
+    let west = strikes(&s, "storm-front", [bbox[0], bbox[1], 1234.5, bbox[3]], 0.0, 900.0).await;
+    let east = strikes(&s, "storm-front", [1234.5, bbox[1], bbox[2], bbox[3]], 0.0, 900.0).await;
+    let early = strikes(&s, "storm-front", bbox, 0.0, 456.7).await;
+    let late = strikes(&s, "storm-front", bbox, 456.7, 900.0).await;
     assert!(!west.is_empty() && !east.is_empty() && !early.is_empty() && !late.is_empty());
     assert_eq!(sorted([west, east].concat()), sorted(all.clone()));
     assert_eq!(sorted([early, late].concat()), sorted(all.clone()));
     // A fair-weather world has no lightning; the same query again gives the same list.
-    assert!(s.strikes("default", bbox, 0.0, 900.0).await.is_empty());
-    assert_eq!(s.strikes("storm-front", bbox, 0.0, 900.0).await, all);
+    assert!(strikes(&s, "default", bbox, 0.0, 900.0).await.is_empty());
+    assert_eq!(strikes(&s, "storm-front", bbox, 0.0, 900.0).await, all);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -151,7 +126,7 @@ async fn lightning_limits_and_bad_input_get_clear_errors() {
             "region_too_large",
         ),
     ] {
-        let (got, body) = s.get(path).await;
+        let (got, body) = s.status_json(path).await;
         assert_eq!(got, status, "{path}: {body}");
         assert!(
             body["message"].as_str().is_some_and(|m| !m.is_empty()),
@@ -161,6 +136,6 @@ async fn lightning_limits_and_bad_input_get_clear_errors() {
             assert_eq!(body["error"], code, "{path}");
         }
     }
-    let (_, doc) = s.get("/openapi.json").await;
+    let (_, doc) = s.status_json("/openapi.json").await;
     assert!(doc["paths"]["/v1/worlds/{world}/lightning"].is_object());
 }

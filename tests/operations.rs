@@ -127,12 +127,7 @@ fn json_logs_are_one_object_a_line() {
 #[test]
 fn metrics_include_process_and_build_info() {
     let (_config, s) = serve(&[], &[("RUST_LOG", "warn")]);
-    let text = client()
-        .get(format!("{}/metrics", s.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
+    let text = s.get("/metrics").text().unwrap();
     let m = |name: &str| common::parse_metric(&text, name, &[]);
     assert!(m("process_resident_memory_bytes") > 1e6, "{text}");
     assert!(m("process_open_fds") >= 3.0);

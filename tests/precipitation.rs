@@ -7,7 +7,7 @@
 
 mod common;
 
-use reqwest::StatusCode;
+use common::InProcess;
 
 /// The test world with a preset wet enough to rain from its two thin layers, and a
 /// freezing level of 1200 m (snow level 900 m: snow inside the low layer at 1000 m
@@ -20,67 +20,37 @@ const FREEZING_LEVEL: f64 = 1200.0;
 const LOW: (f64, f64, usize) = (100.0, 100.0, 2);
 const HIGH: (f64, f64, usize) = (200.0, 200.0, 1);
 
-struct TestServer {
-    base: String,
-    client: reqwest::Client,
-}
-
-async fn start() -> TestServer {
+async fn start() -> InProcess {
     let text = common::test_config(&[
         ("server.max_series", "8"),
         ("presets.puffy.precipitation", WET),
         ("worlds.default.freezing_level", &FREEZING_LEVEL.to_string()),
     ]);
-    let (base, client) = common::start_in_process(&text).await;
-    TestServer { base, client }
+    InProcess::start(&text).await
 }
 
-impl TestServer {
-    async fn get(&self, path: &str) -> reqwest::Response {
-        self.client
-            .get(format!("{}{path}", self.base))
-            .send()
-            .await
-            .expect("request")
-    }
+/// A level-0 density tile of `layer`, `(depth, 256, 256)` row-major.
+async fn density(s: &InProcess, layer: &str, tx: i64, ty: i64, t: f64) -> Vec<f32> {
+    s.f32s(&format!(
+        "/v1/worlds/default/tiles/0/{tx}/{ty}/density.f32?t={t}&layer={layer}"
+    ))
+    .await
+}
 
-    async fn bytes(&self, path: &str) -> Vec<u8> {
-        let r = self.get(path).await;
-        assert_eq!(r.status(), StatusCode::OK, "{path}");
-        r.bytes().await.unwrap().to_vec()
-    }
-
-    async fn json(&self, path: &str) -> serde_json::Value {
-        serde_json::from_slice(&self.bytes(path).await).unwrap()
-    }
-
-    /// A level-0 density tile of `layer`, `(depth, 256, 256)` row-major.
-    async fn density(&self, layer: &str, tx: i64, ty: i64, t: f64) -> Vec<f32> {
-        let b = self
-            .bytes(&format!(
-                "/v1/worlds/default/tiles/0/{tx}/{ty}/density.f32?t={t}&layer={layer}"
-            ))
-            .await;
-        b.chunks_exact(4)
-            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
-            .collect()
-    }
-
-    /// The RGBA pixels of a level-0 precipitation tile of `layer`.
-    async fn precipitation(&self, layer: &str, tx: i64, ty: i64, t: f64) -> Vec<u8> {
-        let b = self
-            .bytes(&format!(
-                "/v1/worlds/default/tiles/0/{tx}/{ty}/precipitation.png?t={t}&layer={layer}"
-            ))
-            .await;
-        let mut reader = png::Decoder::new(std::io::Cursor::new(b)).read_info().unwrap();
-        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-        let info = reader.next_frame(&mut buf).unwrap();
-        assert_eq!((info.width, info.height), (256, 256));
-        assert_eq!(info.color_type, png::ColorType::Rgba);
-        buf.truncate(info.buffer_size());
-        buf
-    }
+/// The RGBA pixels of a level-0 precipitation tile of `layer`.
+async fn precipitation(s: &InProcess, layer: &str, tx: i64, ty: i64, t: f64) -> Vec<u8> {
+    let b = s
+        .bytes(&format!(
+            "/v1/worlds/default/tiles/0/{tx}/{ty}/precipitation.png?t={t}&layer={layer}"
+        ))
+        .await;
+    let mut reader = png::Decoder::new(std::io::Cursor::new(b)).read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!((info.width, info.height), (256, 256));
+    assert_eq!(info.color_type, png::ColorType::Rgba);
+    buf.truncate(info.buffer_size());
+    buf
 }
 
 /// The rule by hand: LWP = Σ ρ · 3 g/m³ · Δz; R = 0.0156 ((LWP − 100) / 50)^1.75 mm/h.
@@ -118,8 +88,8 @@ async fn precipitation_tiles_follow_the_rule_and_the_queries_agree_with_them() {
     let mut wet_columns = 0;
     let (mut sum, mut max, mut wet_in_bbox, mut n_bbox) = (0.0, 0.0f64, 0, 0);
     for tx in [-1i64, 0] {
-        let density = s.density("low", tx, 0, t).await;
-        let png = s.precipitation("low", tx, 0, t).await;
+        let density = density(&s, "low", tx, 0, t).await;
+        let png = precipitation(&s, "low", tx, 0, t).await;
         for row in 0..256 {
             for col in 0..256 {
                 let c = column(&density, depth, row, col);
@@ -190,11 +160,11 @@ async fn a_sample_reads_the_tile_pixel_on_both_sides_of_a_seam() {
     let s = start().await;
     let t = 40.0;
     let (cell, height, depth) = LOW;
-    let d_left = s.density("low", -1, 0, t).await;
-    let d_right = s.density("low", 0, 0, t).await;
-    let p_left = s.precipitation("low", -1, 0, t).await;
-    let p_right = s.precipitation("low", 0, 0, t).await;
-    let high_tile = s.density("high", 0, 0, t).await;
+    let d_left = density(&s, "low", -1, 0, t).await;
+    let d_right = density(&s, "low", 0, 0, t).await;
+    let p_left = precipitation(&s, "low", -1, 0, t).await;
+    let p_right = precipitation(&s, "low", 0, 0, t).await;
+    let high_tile = density(&s, "high", 0, 0, t).await;
     let mut wet = 0;
     // Columns −1 and 0 (either side of the seam at x = 0) and the far edge, rows 0..256
     // in steps: each /sample (a one-column computation) gives the tile's rate.
@@ -349,7 +319,7 @@ async fn a_shading_leaves_the_tiles_precipitation_map_in_the_cache() {
     );
     let computed =
         |s: String| common::parse_metric(&s, "cloudscape_computations_total", &[("kind", "tile_precipitation")]);
-    let text = |s: &TestServer| {
+    let text = |s: &InProcess| {
         let url = format!("{}/metrics", s.base);
         let c = s.client.clone();
         async move { c.get(url).send().await.unwrap().text().await.unwrap() }

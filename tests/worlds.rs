@@ -20,13 +20,7 @@ fn coverage(server: &ServeProcess, world: &str, layer: &str, bbox: &str, t: f64)
 #[test]
 fn the_showcase_worlds_are_listed_and_have_their_weather() {
     let server = ServeProcess::start(&[], &[]);
-    let body = client()
-        .get(format!("{}/v1/worlds", server.base))
-        .send()
-        .unwrap()
-        .bytes()
-        .unwrap();
-    let list: serde_json::Value = serde_json::from_slice(&body).unwrap();
+    let list: serde_json::Value = serde_json::from_slice(&server.get("/v1/worlds").bytes().unwrap()).unwrap();
     let names = common::world_names(&list);
     for w in ["default", "overcast", "storm-front", "archipelago"] {
         assert!(names.iter().any(|n| n == w), "{w} missing from {names:?}");

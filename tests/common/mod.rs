@@ -122,6 +122,14 @@ impl ServeProcess {
         panic!("cloudscape serve on {} was not ready within {limit:?}", self.base);
     }
 
+    /// GET `path` (`/v1/worlds`, `/metrics`, …) with [`client`].
+    pub fn get(&self, path: &str) -> reqwest::blocking::Response {
+        client()
+            .get(format!("{}{path}", self.base))
+            .send()
+            .unwrap_or_else(|e| panic!("GET {path}: {e}"))
+    }
+
     /// Sends SIGTERM and waits for the process; returns whether it exited with success.
     pub fn terminate(mut self) -> bool {
         let _ = Command::new("kill")
@@ -150,13 +158,7 @@ pub fn client() -> reqwest::blocking::Client {
 /// Sum of every sample of the Prometheus metric `name` on `server` whose labels include
 /// all of `labels`.
 pub fn metric(server: &ServeProcess, name: &str, labels: &[(&str, &str)]) -> f64 {
-    let text = client()
-        .get(format!("{}/metrics", server.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
-    parse_metric(&text, name, labels)
+    parse_metric(&server.get("/metrics").text().unwrap(), name, labels)
 }
 
 /// Sum of every sample of the metric `name` in a Prometheus text exposition whose
@@ -239,5 +241,20 @@ impl InProcess {
         let (status, body) = self.status_json(path).await;
         assert_eq!(status, 200, "{path}: {body}");
         body
+    }
+
+    /// The body of `path`, which must answer 200.
+    pub async fn bytes(&self, path: &str) -> Vec<u8> {
+        let r = self.get(path).await;
+        assert_eq!(r.status(), reqwest::StatusCode::OK, "{path}");
+        r.bytes().await.unwrap().to_vec()
+    }
+
+    /// The body of `path` (200) as little-endian f32s: a `density.f32` tile, row-major.
+    pub async fn f32s(&self, path: &str) -> Vec<f32> {
+        let b = self.bytes(path).await;
+        b.chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+            .collect()
     }
 }

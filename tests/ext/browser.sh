@@ -8,12 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 source tests/ext/lib/server.sh
 
-chromium=${CHROMIUM:-/usr/bin/chromium}
+need_chromium
 out=target/browser
-if [ ! -x "$chromium" ]; then
-  echo "error: $chromium is missing; install the Debian package 'chromium'" >&2
-  exit 1
-fi
-npm_ci tests/browser
 start_server "$out"
 CHROMIUM="$chromium" node tests/browser/viewer.test.mjs "$base" "$out"

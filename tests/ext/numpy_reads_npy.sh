@@ -3,12 +3,14 @@
 # f32 file holds the same numbers (the overcast world: its stratocumulus has depth 10).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
-bin=target/release/cloudscape
+source tests/ext/lib/server.sh
+need_binary
+need_python numpy
 d=$(mktemp -d); trap 'rm -rf "$d"' EXIT
 $bin density --world overcast --bbox 0,0,6400,3200 --t 500 --out "$d/a.npy"
 $bin density --world overcast --bbox 0,0,6400,3200 --t 500 --format f32 --out "$d/a.f32"
 $bin density --world overcast --bbox 0,0,6400,3200 --t 500 --field cld --out "$d/c.npy"
-python3 - "$d" <<'PY'
+"$PY" - "$d" <<'PY'
 import sys, numpy as np
 d = sys.argv[1]
 a = np.load(f"{d}/a.npy")

@@ -8,17 +8,12 @@ set -euo pipefail
 cd "$(dirname "$0")/../.."
 source tests/ext/lib/server.sh
 
-chromium=${CHROMIUM:-/usr/bin/chromium}
+need_chromium
 out=target/browser
-if [ ! -x "$chromium" ]; then
-  echo "error: $chromium is missing; install the Debian package 'chromium'" >&2
-  exit 1
-fi
-npm_ci tests/browser
 npm_ci examples/threejs
 start_server target/threejs
 
-example_port=$(node -e 'const s=require("net").createServer().listen(0,"127.0.0.1",()=>{console.log(s.address().port);s.close()})')
+example_port=$(free_port)
 node examples/threejs/serve.mjs --port "$example_port" --cloudscape "$base" >target/threejs/example-server.log 2>&1 &
 example_pid=$!
 trap 'kill "$example_pid" 2>/dev/null || true; stop_server' EXIT

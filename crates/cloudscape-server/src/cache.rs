@@ -341,17 +341,7 @@ impl ResponseCache {
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
             let init = this.fill(&m, kind, key.clone(), work, cancel, job, false);
-            let result = this
-                .cache
-                .try_get_with(key.clone(), init)
-                .await
-                .map_err(|e| (*e).clone());
-            if let Ok(bytes) = &result
-                && bytes.len() > this.max_entry
-            {
-                this.cache.invalidate(&key).await;
-            }
-            result
+            this.get_with(&key, init).await
         });
         let result = match tokio::time::timeout(self.budget, task).await {
             Ok(Ok(result)) => result,
@@ -424,15 +414,27 @@ impl ResponseCache {
             return true;
         }
         let init = self.fill(metrics, kind, key.clone(), work, Cancel::never(), job, true);
-        match self.cache.try_get_with(key.clone(), init).await {
-            Ok(bytes) => {
-                if bytes.len() > self.max_entry {
-                    self.cache.invalidate(&key).await;
-                }
-                true
-            }
-            Err(_) => false,
+        self.get_with(&key, init).await.is_ok()
+    }
+
+    /// The bytes of `key` from the cache, or from `init` (run once for all concurrent
+    /// callers); bytes over `max_entry` are answered but not kept.
+    async fn get_with(
+        &self,
+        key: &CacheKey,
+        init: impl Future<Output = Result<Bytes, ApiError>>,
+    ) -> Result<Bytes, ApiError> {
+        let result = self
+            .cache
+            .try_get_with(key.clone(), init)
+            .await
+            .map_err(|e| (*e).clone());
+        if let Ok(bytes) = &result
+            && bytes.len() > self.max_entry
+        {
+            self.cache.invalidate(key).await;
         }
+        result
     }
 
     /// The `coding` variant of `bytes`, the cached bytes of `key`: compressed once and

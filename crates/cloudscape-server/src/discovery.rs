@@ -15,6 +15,7 @@ use cloudscape_core::world::{ALGORITHM_VERSION, MAX_KEYFRAME_DOUBLINGS, MAX_TIME
 use crate::error::ApiError;
 use crate::extract::WorldPath;
 use crate::key::stable_hash_hex;
+use crate::openapi::{NotModified, WorldName};
 use crate::respond::Representation;
 use crate::state::AppState;
 
@@ -130,7 +131,7 @@ pub(crate) fn json_response(
     get,
     path = "/v1/worlds",
     tag = "discovery",
-    responses((status = 200, body = WorldList, description = "Configured worlds"), (status = 304, description = "If-None-Match matched"))
+    responses((status = 200, body = WorldList, description = "Configured worlds"), NotModified)
 )]
 pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<Response, ApiError> {
     let worlds = s
@@ -159,12 +160,12 @@ pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<
     get,
     path = "/v1/worlds/{world}",
     tag = "discovery",
-    params(("world" = String, Path, description = "Configured world name, or a decimal u64 seed (default climate)", example = "default")),
+    params(WorldName),
     responses(
         (status = 200, body = WorldInfo, description = "Layers, cell sizes, tile size, levels, dt, algorithm version, URL templates"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed path"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
+        NotModified,
     )
 )]
 pub async fn world(

@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use axum::extract::rejection::PathRejection;
 use axum::extract::{FromRequestParts, Path};
+use axum::http::HeaderMap;
 use axum::http::request::Parts;
 use utoipa::openapi::RefOr;
 use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
@@ -16,7 +17,7 @@ use cloudscape_core::world::{Layer, World};
 
 use crate::error::ApiError;
 use crate::key::ResolvedWorld;
-use crate::params::{parse_level, parse_tile_coordinate};
+use crate::params::{Params, parse_level, parse_tile_coordinate};
 use crate::state::AppState;
 
 /// A rejected path (bad percent-encoding) in our error shape.
@@ -47,6 +48,32 @@ impl FromRequestParts<Arc<AppState>> for WorldPath {
     }
 }
 
+/// What a query on one world arrives with: the state, its query parameters, the world
+/// of its path and its headers. Extracted in that order, so a malformed query is
+/// refused before the world is looked up.
+pub struct WorldQuery {
+    pub s: Arc<AppState>,
+    pub params: Params,
+    pub resolved: ResolvedWorld,
+    pub headers: HeaderMap,
+}
+
+impl FromRequestParts<Arc<AppState>> for WorldQuery {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
+        let params = Params::from_request_parts(parts, s).await?;
+        let WorldPath(resolved) = WorldPath::from_request_parts(parts, s).await?;
+        let (s, headers) = (Arc::clone(s), parts.headers.clone());
+        Ok(WorldQuery {
+            s,
+            params,
+            resolved,
+            headers,
+        })
+    }
+}
+
 /// `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}`, checked in that order. The
 /// segments are taken as text and parsed here, so a malformed one gets its own error
 /// code: a level beyond `limits.max_level` or a coordinate beyond 64 bits is out of
@@ -61,13 +88,25 @@ impl FromRequestParts<Arc<AppState>> for TilePath {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
+        TilePath::parse(parts, s, parse_level).await
+    }
+}
+
+impl TilePath {
+    /// The path's segments `{world}/…/{z}/{x}/{y}/{product}`, checked in that order;
+    /// `level` reads the level segment given `limits.max_level` (a level, or a zoom).
+    pub async fn parse(
+        parts: &mut Parts,
+        s: &Arc<AppState>,
+        level: impl FnOnce(&str, u32) -> Result<u32, ApiError>,
+    ) -> Result<TilePath, ApiError> {
         let Path((world, z, x, y, product)) =
             Path::<(String, String, String, String, String)>::from_request_parts(parts, s)
                 .await
                 .map_err(path_error)?;
         let world = s.worlds.resolve(&world)?;
         let product = parse_product(&product)?;
-        let z = parse_level(&z, s.worlds.config().limits.max_level)?;
+        let z = level(&z, s.worlds.config().limits.max_level)?;
         let x = parse_tile_coordinate("x", &x)?;
         let y = parse_tile_coordinate("y", &y)?;
         Ok(TilePath {

@@ -1,11 +1,7 @@
 //! `GET /v1/worlds/{world}/lightning?bbox=&t0=&t1=`: the strikes of
 //! `cloudscape_core::weather::lightning` in a box and span.
 
-use std::sync::Arc;
-
 use axum::body::Bytes;
-use axum::extract::State;
-use axum::http::HeaderMap;
 use axum::response::Response;
 use serde::Serialize;
 
@@ -14,11 +10,10 @@ use cloudscape_core::cost::{self, Work};
 use cloudscape_core::weather::lightning::{self, LightningLimits, LightningPlan, Strike};
 
 use crate::error::ApiError;
-use crate::extract::{WorldPath, layer};
+use crate::extract::{WorldQuery, layer};
 use crate::key::CacheKey;
-use crate::params::Params;
+use crate::openapi::ComputedResponses;
 use crate::respond::{Cached, Freshness};
-use crate::state::AppState;
 
 /// `/lightning`: the strikes in a box and span.
 #[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
@@ -36,6 +31,10 @@ pub struct LightningAnswer {
     pub strikes: Vec<Strike>,
 }
 
+/// The lightning strikes in a box and span.
+///
+/// 400: Malformed parameter, inverted bbox or t1 <= t0. 413: Span over 3600 s or bbox
+/// side over 50 km (checked before any work). 422: Times or coordinates out of range.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/lightning",
@@ -49,19 +48,16 @@ pub struct LightningAnswer {
     ),
     responses(
         (status = 200, body = LightningAnswer, description = "Strikes (t, x, y, z, kind cg|ic) by time. A deterministic counter-based point process: the strikes of a box are the union of those of its halves; cloud-to-ground strikes have z = 0 (the ground contact), intra-cloud ones z inside the cloud"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 <= t0"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "Span over 3600 s or bbox side over 50 km (checked before any work)"),
-        (status = 422, body = crate::error::ErrorBody, description = "Times or coordinates out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn lightning(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     let world = &resolved.world;
     let bbox = params.bbox()?;

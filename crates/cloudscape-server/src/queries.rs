@@ -4,11 +4,7 @@
 //! They read the same density the tiles serve (same function, same canonical frames),
 //! so a region's answer equals what is computed from the tiles it spans.
 
-use std::sync::Arc;
-
 use axum::body::Bytes;
-use axum::extract::State;
-use axum::http::HeaderMap;
 use axum::response::Response;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -20,11 +16,10 @@ use cloudscape_core::weather::{PrecipitationKind, PrecipitationStats, column_rat
 use cloudscape_core::world::SnappedTime;
 
 use crate::error::ApiError;
-use crate::extract::{WorldPath, layer};
+use crate::extract::{WorldQuery, layer};
 use crate::key::{CacheKey, stable_hash_hex};
-use crate::params::Params;
+use crate::openapi::{ComputedResponses, WorldName};
 use crate::respond::{Cached, Freshness, Representation, cache_control};
-use crate::state::AppState;
 
 pub(crate) fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
     serde_json::to_vec(value)
@@ -121,12 +116,16 @@ pub struct SeriesAnswer {
     pub points: Vec<SeriesPoint>,
 }
 
+/// The density, cloud flag and precipitation at a point.
+///
+/// 400: Malformed parameter. 413: Over the configured limits. 422: t or coordinates out
+/// of range.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/sample",
     tag = "queries",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("x" = f64, Query, description = "East, metres", example = 150),
         ("y" = f64, Query, description = "North, metres", example = 150),
         ("z" = f64, Query, description = "Altitude above sea level, metres", example = 1050),
@@ -135,19 +134,16 @@ pub struct SeriesAnswer {
     ),
     responses(
         (status = 200, body = SampleAnswer, description = "Density and cloud flag of the level-0 cell holding the point; precipitation rate (mm/h) and kind at the point"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "Over the configured limits"),
-        (status = 422, body = crate::error::ErrorBody, description = "t or coordinates out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn sample(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     let (x, y, z) = (
         params.required_f64("x")?,
@@ -275,12 +271,16 @@ pub async fn sample(
         .await
 }
 
+/// Cloud and precipitation statistics of a region at one time.
+///
+/// 400: Malformed parameter or inverted bbox. 413: bbox over the configured limits (use a
+/// higher level). 422: t, level or coordinates out of range; empty region.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/region",
     tag = "queries",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; columns whose centres lie inside", example = "0,0,1000,1000"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the layer's frame grid)", example = 0),
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
@@ -288,19 +288,16 @@ pub async fn sample(
     ),
     responses(
         (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count; precipitating fraction, mean and max precipitation rate (mm/h)"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter or inverted bbox"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "bbox over the configured limits (use a higher level)"),
-        (status = 422, body = crate::error::ErrorBody, description = "t, level or coordinates out of range; empty region"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn region(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let limits = &s.worlds.config().limits;
@@ -339,12 +336,16 @@ pub async fn region(
         .await
 }
 
+/// The `/region` statistics over a span of time.
+///
+/// 400: Malformed parameter, inverted bbox or t1 < t0. 413: bbox or number of points over
+/// the configured limits. 422: Times, level or coordinates out of range.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/series",
     tag = "queries",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1", example = "0,0,1000,1000"),
         ("t0" = f64, Query, description = "First time, seconds", example = 0),
         ("t1" = f64, Query, description = "Last time (inclusive when on the step grid), seconds, t1 >= t0", example = 20),
@@ -354,19 +355,16 @@ pub async fn region(
     ),
     responses(
         (status = 200, body = SeriesAnswer, description = "The /region statistics at t0, t0+dt, … <= t1"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter, inverted bbox or t1 < t0"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "bbox or number of points over the configured limits"),
-        (status = 422, body = crate::error::ErrorBody, description = "Times, level or coordinates out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn series(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let limits = &s.worlds.config().limits;

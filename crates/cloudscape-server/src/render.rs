@@ -21,8 +21,9 @@ use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 use cloudscape_core::world::SnappedTime;
 
 use crate::error::ApiError;
-use crate::extract::WorldPath;
+use crate::extract::WorldQuery;
 use crate::key::CacheKey;
+use crate::openapi::{ComputedResponses, NotModified, Overloaded, WorldName};
 use crate::params::{Params, parse_quality, parse_sun};
 use crate::respond::Cached;
 use crate::state::AppState;
@@ -30,12 +31,17 @@ use crate::state::AppState;
 /// Image size when a request gives none.
 const DEFAULT_SIZE: &str = "640x360";
 
+/// What a client would see from a camera, as a PNG.
+///
+/// 400: Malformed parameter. 413: Too many pixels, tiles in view or samples × pixels, or
+/// more work than the time budget on the compute threads or the memory limit allow. 422:
+/// t out of range.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/render.png",
     tag = "render",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("camera" = String, Query, description = "X,Y,Z,YAW,PITCH,FOV: metres; yaw clockwise from north; pitch above the horizon; horizontal field of view; degrees", example = "0,0,1200,0,10,60"),
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the first layer's frame grid)", example = 0),
         ("size" = Option<String>, Query, description = "WxH pixels (default 640x360)", example = "64x36"),
@@ -45,19 +51,16 @@ const DEFAULT_SIZE: &str = "640x360";
     ),
     responses(
         (status = 200, description = "The rendered view. For quality=reference, X-Cloudscape-Samples (samples per pixel) and X-Cloudscape-Noise (the path tracer's stated noise: mean over pixels of the standard error of linear luminance, radiance units; the same values are in the PNG's tEXt chunks cloudscape:samples, cloudscape:noise, cloudscape:mean-luminance).", content_type = "image/png", body = Vec<u8>),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
-        (status = 413, body = crate::error::ErrorBody, description = "Too many pixels, tiles in view or samples × pixels, or more work than the time budget on the compute threads or the memory limit allow"),
-        (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded or over the time budget; Retry-After is the queue's wait"),
+        ComputedResponses,
     )
 )]
 pub async fn render_png(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     let camera_text = params.required("camera")?;
     let camera = Camera::parse(camera_text).map_err(|m| ApiError::InvalidParameter {
@@ -206,9 +209,8 @@ async fn serve_global(
     params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        NotModified, Overloaded,
     )
 )]
 pub async fn splats_png(
@@ -226,9 +228,8 @@ pub async fn splats_png(
     params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
     responses(
         (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        NotModified, Overloaded,
     )
 )]
 pub async fn splats_json(
@@ -249,10 +250,9 @@ pub async fn splats_json(
     ),
     responses(
         (status = 200, description = "The clear sky of the sun: radiance table over view elevation x azimuth from the sun, sun colour, sky ambients, ground albedo and the aerial-perspective constants and tables (src/products/sky.rs)", content_type = "application/json", body = Object),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Neither sun nor t, or a malformed one"),
         (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        NotModified, Overloaded,
     )
 )]
 pub async fn sky_json(

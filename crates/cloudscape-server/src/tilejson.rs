@@ -17,22 +17,21 @@
 
 use std::sync::Arc;
 
-use axum::extract::rejection::PathRejection;
-use axum::extract::{FromRequestParts, Path, State};
+use axum::extract::{FromRequestParts, State};
 use axum::http::request::Parts;
 use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
 use serde::Serialize;
 
 use cloudscape_core::products::Product;
-use cloudscape_core::render::TileId;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::world::ALGORITHM_VERSION;
 
 use crate::discovery::json_response;
 use crate::error::ApiError;
-use crate::extract::{TilePath, WorldPath, layer, parse_product, path_error};
-use crate::params::{Params, parse_level, parse_quality, parse_sun, parse_tile_coordinate};
+use crate::extract::{TilePath, WorldPath, layer, parse_product};
+use crate::openapi::{ComputedResponses, NotModified, WorldName};
+use crate::params::{Params, parse_level, parse_quality, parse_sun};
 use crate::state::AppState;
 use crate::tiles;
 
@@ -142,7 +141,7 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
     path = "/v1/worlds/{world}/tilejson.json",
     tag = "discovery",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed (default climate)", example = "default"),
+        WorldName,
         ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
         ("product" = Option<crate::extract::TileProduct>, Query, description = "Tile product (default coverage.png)"),
         ("t" = Option<f64>, Query, description = "World time baked into the tile URLs; without it they keep a {t} placeholder"),
@@ -151,10 +150,10 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
     ),
     responses(
         (status = 200, body = TileJson, description = "TileJSON 3.0.0. zoom = max_level - level (our level 0 is the finest); scheme tms (y counts north); absolute URLs from server.public_url or the request's Host"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter or Host"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world, layer or product"),
         (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
+        NotModified,
     )
 )]
 pub async fn tilejson(
@@ -232,21 +231,8 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
     type Rejection = ApiError;
 
     async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
-        let Path((world, zoom, x, y, product)) =
-            Path::<(String, String, String, String, String)>::from_request_parts(parts, s)
-                .await
-                .map_err(|e: PathRejection| path_error(e))?;
-        let world = s.worlds.resolve(&world)?;
-        let product = parse_product(&product)?;
-        let max = s.worlds.config().limits.max_level;
-        let zoom = parse_level(&zoom, max)?;
-        let x = parse_tile_coordinate("x", &x)?;
-        let y = parse_tile_coordinate("y", &y)?;
-        Ok(ZoomTilePath(TilePath {
-            world,
-            tile: TileId { z: max - zoom, x, y },
-            product,
-        }))
+        let level = |zoom: &str, max: u32| parse_level(zoom, max).map(|zoom| max - zoom);
+        TilePath::parse(parts, s, level).await.map(ZoomTilePath)
     }
 }
 
@@ -255,7 +241,7 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
     path = "/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}",
     tag = "tiles",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed (default climate)", example = "default"),
+        WorldName,
         ("zoom" = u32, Path, description = "TileJSON zoom: the tile of level max_level - zoom (zoom max_level is level 0, the finest)", minimum = 0, example = 16),
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north, TileJSON scheme tms); negative allowed", example = 0),
@@ -272,12 +258,7 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
             (Vec<u8> = "image/ktx2"),
             (Object = "application/json"),
         )),
-        (status = 304, description = "If-None-Match matched; nothing computed"),
-        (status = 400, description = "Malformed parameter", body = crate::error::ErrorBody),
-        (status = 404, description = "Unknown world, layer or product", body = crate::error::ErrorBody),
-        (status = 413, description = "Over the limits", body = crate::error::ErrorBody),
-        (status = 422, description = "t, zoom or tile coordinates out of range", body = crate::error::ErrorBody),
-        (status = 503, description = "Overloaded or over the time budget; Retry-After", body = crate::error::ErrorBody),
+        ComputedResponses,
     )
 )]
 pub async fn zoom_tile(

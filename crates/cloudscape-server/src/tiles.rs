@@ -25,6 +25,7 @@ use cloudscape_core::world::{Keyframe, Limits, SunConfig};
 use crate::error::ApiError;
 use crate::extract::{TilePath, layer};
 use crate::key::{CacheKey, ResolvedWorld};
+use crate::openapi::{ComputedResponses, WorldName};
 use crate::params::{Params, parse_quality, parse_sun};
 use crate::respond::Cached;
 use crate::state::AppState;
@@ -38,12 +39,17 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
     }
 }
 
+/// One product of one tile.
+///
+/// 400: Malformed parameter. 413: Over the limits: region size, estimated work (CPU
+/// within the time budget, memory), or response size (billboards.json over it: use
+/// billboards.bin). 422: t, level or tile coordinates out of range.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}",
     tag = "tiles",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed (default climate)", example = "default"),
+        WorldName,
         ("z" = u32, Path, description = "Level: a level-z column is 2^z level-0 cells wide", minimum = 0, example = 0),
         ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
         ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
@@ -60,12 +66,7 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
             (Vec<u8> = "image/ktx2"),
             (Object = "application/json"),
         )),
-        (status = 304, description = "If-None-Match matched; nothing computed"),
-        (status = 400, description = "Malformed parameter", body = crate::error::ErrorBody),
-        (status = 404, description = "Unknown world, layer or product", body = crate::error::ErrorBody),
-        (status = 413, description = "Over the limits: region size, estimated work (CPU within the time budget, memory), or response size (billboards.json over it: use billboards.bin)", body = crate::error::ErrorBody),
-        (status = 422, description = "t, level or tile coordinates out of range", body = crate::error::ErrorBody),
-        (status = 503, description = "Overloaded (queue, compute memory or reply memory full) or over the time budget; Retry-After is the queue's wait", body = crate::error::ErrorBody),
+        ComputedResponses,
     )
 )]
 pub async fn tile(

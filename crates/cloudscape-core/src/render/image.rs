@@ -38,35 +38,32 @@ impl Image {
 
     /// An opaque 8-bit PNG of the display values, marked sRGB.
     pub fn to_png(&self) -> Vec<u8> {
-        let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
-        encode_png_with_text(
-            self.width,
-            self.height,
-            png::ColorType::Rgb,
-            PngSpace::Srgb,
-            &bytes,
-            &[],
-        )
+        self.to_png_with_text(&[])
     }
 
     /// As [`Image::to_png`], with the path tracer's stated noise in tEXt chunks
     /// (`cloudscape:samples`, `cloudscape:noise`, `cloudscape:mean-luminance`), so the
     /// file says how converged it is; [`png_noise`] reads them back.
     pub fn to_png_with_noise(&self, noise: &Noise) -> Vec<u8> {
-        let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
         let values = [
             noise.samples.to_string(),
             format!("{:e}", noise.std_error),
             format!("{:e}", noise.mean_luminance),
         ];
         let text: Vec<(&str, String)> = NOISE_KEYS.into_iter().zip(values).collect();
+        self.to_png_with_text(&text)
+    }
+
+    /// The opaque 8-bit sRGB PNG of the display values with `text` in tEXt chunks.
+    fn to_png_with_text(&self, text: &[(&str, String)]) -> Vec<u8> {
+        let bytes: Vec<u8> = self.display().iter().flat_map(|c| c.map(to_u8)).collect();
         encode_png_with_text(
             self.width,
             self.height,
             png::ColorType::Rgb,
             PngSpace::Srgb,
             &bytes,
-            &text,
+            text,
         )
     }
 

@@ -33,8 +33,9 @@ use cloudscape_core::world::{Layer, SnappedTime};
 
 use crate::discovery::json_response;
 use crate::error::ApiError;
-use crate::extract::{WorldPath, layer};
+use crate::extract::{WorldQuery, layer};
 use crate::key::{CacheKey, ResolvedWorld, stable_hash_hex};
+use crate::openapi::{ComputedResponses, NotModified, WorldName};
 use crate::params::Params;
 use crate::queries::json_bytes;
 use crate::respond::{Cached, Freshness};
@@ -61,8 +62,8 @@ const BYTES_PER_VALUE: u64 = 12;
     params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "The EDR landing page: title and links to the conformance declaration and the collections"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotModified,
     )
 )]
 pub async fn landing(State(s): State<Arc<AppState>>, params: Params, headers: HeaderMap) -> Result<Response, ApiError> {
@@ -77,8 +78,8 @@ pub async fn landing(State(s): State<Arc<AppState>>, params: Params, headers: He
     params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "conformsTo: OGC API – Common core and collections; EDR core, collections, queries, json and covjson"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotModified,
     )
 )]
 pub async fn conformance(
@@ -97,8 +98,8 @@ pub async fn conformance(
     params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "One collection per configured world (id = the world's name); a decimal u64 seed also names a collection, unlisted"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotModified,
     )
 )]
 pub async fn collections(
@@ -120,21 +121,23 @@ pub async fn collections(
     path = "/v1/edr/collections/{world}",
     tag = "edr",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("f" = Option<String>, Query, description = "Format: json (the only one)"),
     ),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "The world's collection: extent (spatial in world metres, temporal from 1970-01-01T00:00:00Z = world time 0, vertical = the layer bands), data_queries (position, area, cube), parameter_names, crs, output_formats"),
-        (status = 304, description = "If-None-Match matched"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed path or f other than json"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
+        NotModified,
     )
 )]
 pub async fn collection(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     check_format(&params, JSON)?;
     json_response(
@@ -169,12 +172,17 @@ fn check_answer_size(s: &AppState, values: u64) -> Result<(), ApiError> {
     Ok(())
 }
 
+/// EDR position query: the values at a point.
+///
+/// 400: Malformed coords, datetime (or an open interval), parameter-name, f or crs. 413:
+/// More time steps than server.max_series, or over the work limits. 422: datetime or
+/// coordinates out of range.
 #[utoipa::path(
     get,
     path = "/v1/edr/collections/{world}/position",
     tag = "edr",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("coords" = String, Query, description = "WKT POINT(x y) in world metres (x east, y north)", example = "POINT(150 150)"),
         ("z" = Option<f64>, Query, description = "Altitude above sea level, metres (default 0)", example = 1050),
         ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:20Z"),
@@ -185,19 +193,16 @@ fn check_answer_size(s: &AppState, values: u64) -> Result<(), ApiError> {
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage: domainType Point for an instant, PointSeries for an interval; density and precipitation_rate equal /sample's at the same point and time"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed coords, datetime (or an open interval), parameter-name, f or crs"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "More time steps than server.max_series, or over the work limits"),
-        (status = 422, body = crate::error::ErrorBody, description = "datetime or coordinates out of range"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn position(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     check_format(&params, COVERAGE)?;
     check_crs(&params)?;
@@ -403,12 +408,17 @@ fn grid_times(s: &AppState, params: &Params, layer: &Layer) -> Result<(Datetime,
     Ok((datetime, times, level))
 }
 
+/// EDR area query: the columns inside a polygon.
+///
+/// 400: Malformed coords (WKT), datetime (or an open interval), parameter-name, f or crs.
+/// 413: Polygon, time steps or answer over the limits. 422: datetime, level or
+/// coordinates out of range; no column centre inside.
 #[utoipa::path(
     get,
     path = "/v1/edr/collections/{world}/area",
     tag = "edr",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("coords" = String, Query, description = "WKT POLYGON((x y, …), (hole …)) in world metres, at most 256 vertices; the columns whose centres lie inside (its bbox is limit-checked like /region's)", example = "POLYGON((0 0, 1000 0, 1000 1000, 0 1000, 0 0))"),
         ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z"),
         ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)", example = "cloud_cover,density"),
@@ -419,19 +429,16 @@ fn grid_times(s: &AppState, params: &Params, layer: &Layer) -> Result<(Datetime,
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (column centres); values per column, null outside the polygon; their means are /region's coverage, mean_density and mean_precipitation_mm_h"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed coords (WKT), datetime (or an open interval), parameter-name, f or crs"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "Polygon, time steps or answer over the limits"),
-        (status = 422, body = crate::error::ErrorBody, description = "datetime, level or coordinates out of range; no column centre inside"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn area(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     check_format(&params, COVERAGE)?;
     check_crs(&params)?;
@@ -454,12 +461,17 @@ pub async fn area(
     grid_coverage(&s, &headers, query).await
 }
 
+/// EDR cube query: the columns, or the cells of some levels, inside a bbox.
+///
+/// 400: Malformed or inverted bbox, z, datetime (or an open interval), parameter-name, f
+/// or crs. 413: bbox, time steps or answer over the limits. 422: datetime, level or
+/// coordinates out of range; empty region.
 #[utoipa::path(
     get,
     path = "/v1/edr/collections/{world}/cube",
     tag = "edr",
     params(
-        ("world" = String, Path, description = "Configured world name, or a decimal u64 seed", example = "default"),
+        WorldName,
         ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; the columns whose centres lie inside", example = "0,0,1000,1000"),
         ("z" = Option<String>, Query, description = "Vertical levels: an interval a/b (levels centred within it) or a list a,b (the levels holding each altitude); absent: whole columns", example = "1000/1200"),
         ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z/1970-01-01T00:00:20Z"),
@@ -471,19 +483,16 @@ pub async fn area(
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (and z with z levels): per column as area, or per cell of the selected levels; one time step per layer dt, each equal to the /series point of that time"),
-        (status = 304, description = "If-None-Match matched"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed or inverted bbox, z, datetime (or an open interval), parameter-name, f or crs"),
-        (status = 404, body = crate::error::ErrorBody, description = "Unknown world or layer"),
-        (status = 413, body = crate::error::ErrorBody, description = "bbox, time steps or answer over the limits"),
-        (status = 422, body = crate::error::ErrorBody, description = "datetime, level or coordinates out of range; empty region"),
-        (status = 503, body = crate::error::ErrorBody, description = "Overloaded; see Retry-After"),
+        ComputedResponses,
     )
 )]
 pub async fn cube(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    WorldPath(resolved): WorldPath,
-    headers: HeaderMap,
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
 ) -> Result<Response, ApiError> {
     check_format(&params, COVERAGE)?;
     check_crs(&params)?;

@@ -43,7 +43,7 @@ queries = [
 def axis_length(axis):
     return axis["num"] if "num" in axis else len(axis["values"])
 
-checked, failures = 0, []
+report = schema_check.Report()
 for q in queries:
     path = f"{collection}/{q}"
     url = base + urllib.parse.quote(path, safe="/?&=,:")
@@ -69,9 +69,7 @@ for q in queries:
                 errors.append(f"{name}: axis {axis} of length {n} does not match the domain")
         if set(doc["parameters"]) != set(doc["ranges"]):
             errors.append("parameters and ranges differ")
-    if errors:
-        failures.append((path, errors))
-    checked += 1
-schema_check.report(checked, failures, "EDR answers checked against the CoverageJSON 1.0 schema")
+    report.add(path, errors)
+report.close("EDR answers checked against the CoverageJSON 1.0 schema")
 EOF
 check_server

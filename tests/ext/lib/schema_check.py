@@ -1,6 +1,6 @@
 """Shared by the external suites that validate answers against a published JSON
-schema (tilejson_schema.sh, coveragejson_schema.sh): the validator, and the closing
-report. Imported with tests/ext/lib on sys.path."""
+schema (tilejson_schema.sh, coveragejson_schema.sh): the validator, and the report of
+what was checked. Imported with tests/ext/lib on sys.path."""
 import json
 import sys
 
@@ -19,9 +19,22 @@ def validator(schema_path, refused, what):
     return v
 
 
-def report(checked, failures, what):
-    """Prints each failure and the count; exits 1 when any failed or none was checked."""
-    for path, errors in failures:
-        print(f"FAILED {path}: {errors}")
-    print(f"{checked} {what}, {len(failures)} failed")
-    sys.exit(1 if failures or checked == 0 else 0)
+class Report:
+    """The documents checked so far and those that failed."""
+
+    def __init__(self):
+        self.checked = 0
+        self.failures = []
+
+    def add(self, path, errors):
+        """One document checked: `errors` says what is wrong with it (empty: nothing)."""
+        self.checked += 1
+        if errors:
+            self.failures.append((path, errors))
+
+    def close(self, what):
+        """Prints each failure and the count; exits 1 when any failed or none was checked."""
+        for path, errors in self.failures:
+            print(f"FAILED {path}: {errors}")
+        print(f"{self.checked} {what}, {len(self.failures)} failed")
+        sys.exit(1 if self.failures or self.checked == 0 else 0)

@@ -358,31 +358,20 @@ mod tests {
 
     #[test]
     fn unknown_or_invalid_overrides_are_named() {
-        let e = effective_config(None, None, vec![("CLOUDSCAPE_SERVER_BOGUS".into(), "1".into())]).unwrap_err();
-        assert!(
-            e.starts_with("unknown environment variable CLOUDSCAPE_SERVER_BOGUS:"),
-            "{e}"
-        );
-        assert!(e.contains("`bogus`") && e.contains("cors_origins"), "{e}");
-        let e = effective_config(None, None, vec![("CLOUDSCAPE_LIMITS_MAX_LEVLE".into(), "3".into())]).unwrap_err();
-        assert!(
-            e.starts_with("unknown environment variable CLOUDSCAPE_LIMITS_MAX_LEVLE:"),
-            "{e}"
-        );
-        assert!(e.contains("max_level"), "{e}");
-        let e = effective_config(
-            None,
-            None,
-            vec![("CLOUDSCAPE_SERVER_FRAMES_PER_STEP".into(), "0".into())],
-        )
-        .unwrap_err();
+        let refused =
+            |name: &str, value: &str| effective_config(None, None, vec![(name.into(), value.into())]).unwrap_err();
+        // An unknown name is named, with the keys it may have meant.
+        for (name, value, meant) in [
+            ("CLOUDSCAPE_SERVER_BOGUS", "1", &["`bogus`", "cors_origins"][..]),
+            ("CLOUDSCAPE_LIMITS_MAX_LEVLE", "3", &["max_level"]),
+        ] {
+            let e = refused(name, value);
+            assert!(e.starts_with(&format!("unknown environment variable {name}:")), "{e}");
+            assert!(meant.iter().all(|key| e.contains(key)), "{e}");
+        }
+        let e = refused("CLOUDSCAPE_SERVER_FRAMES_PER_STEP", "0");
         assert!(e.contains("frames_per_step"), "{e}");
-        let e = effective_config(
-            None,
-            None,
-            vec![("CLOUDSCAPE_SERVER_REDIS_URL".into(), "http://cache:6379".into())],
-        )
-        .unwrap_err();
+        let e = refused("CLOUDSCAPE_SERVER_REDIS_URL", "http://cache:6379");
         assert!(e.contains("redis_url"), "{e}");
     }
 }

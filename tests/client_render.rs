@@ -9,6 +9,8 @@
 //! steps where many billboards overlap; the mean over the image stays far below one
 //! step. Asserted: mean |Δ| ≤ 1/255 and max |Δ| ≤ 12/255 per channel.
 
+mod common;
+
 use std::net::SocketAddr;
 use std::process::Command;
 use std::sync::mpsc;
@@ -255,12 +257,7 @@ fn between_keyframes_the_client_draws_the_servers_picture_and_prefetches() {
 #[test]
 fn remote_errors_are_one_clear_sentence() {
     // Nothing listens on a port we just released.
-    let port = std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port();
-    let url = format!("http://127.0.0.1:{port}");
+    let url = format!("http://127.0.0.1:{}", common::free_port());
     let mut client = TileClient::new(&url).unwrap();
     assert!(matches!(client.world("default"), Err(ClientError::Transport { .. })));
 

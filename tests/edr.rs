@@ -606,10 +606,7 @@ async fn bad_edr_requests_get_clear_errors_before_any_work() {
         ("/v1/edr?f=html".to_string(), 400, "invalid_parameter"),
         ("/v1/edr/conformance?f=xml".to_string(), 400, "invalid_parameter"),
     ] {
-        let (got, body) = s.status_json(&path).await;
-        assert_eq!(got, status, "{path}: {body}");
-        assert_eq!(body["error"], code, "{path}: {body}");
-        assert!(body["message"].as_str().is_some_and(|m| !m.is_empty()), "{path}");
+        s.assert_error(&path, status, code).await;
     }
     // The unknown parameter is named.
     let (_, body) = s

@@ -805,33 +805,26 @@ async fn graceful_shutdown_drains_and_finishes_in_flight_requests() {
 
 #[test]
 fn serve_command_prints_config_and_stops_on_sigterm() {
-    use std::process::Command;
-    let exe = env!("CARGO_BIN_EXE_cloudscape");
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("test.toml");
     let test_config = test_config(&[]);
     std::fs::write(&config, &test_config).unwrap();
 
-    let out = Command::new(exe)
-        .args(["serve", "--print-config", "--config", config.to_str().unwrap()])
-        .env("CLOUDSCAPE_SERVER_CACHE_BYTES", "12345")
-        .output()
-        .unwrap();
+    let out = common::print_config(
+        &["--config", config.to_str().unwrap()],
+        &[("CLOUDSCAPE_SERVER_CACHE_BYTES", "12345")],
+    );
     assert!(out.status.success());
     let text = String::from_utf8(out.stdout).unwrap();
     let printed = Config::parse(&text).expect("printed config parses");
     assert_eq!(ServerConfig::parse(&text).unwrap().cache_bytes, 12345);
     assert_eq!(printed.worlds, Config::parse(&test_config).unwrap().worlds);
 
-    let out = Command::new(exe).args(["serve", "--print-config"]).output().unwrap();
+    let out = common::print_config(&[], &[]);
     let printed = ServerConfig::parse(&String::from_utf8(out.stdout).unwrap()).unwrap();
     assert_eq!(printed.listen, "127.0.0.1:8080", "default listen address");
 
-    let bad = Command::new(exe)
-        .args(["serve", "--print-config"])
-        .env("CLOUDSCAPE_SERVER_NOPE", "1")
-        .output()
-        .unwrap();
+    let bad = common::print_config(&[], &[("CLOUDSCAPE_SERVER_NOPE", "1")]);
     assert!(!bad.status.success());
     assert!(String::from_utf8_lossy(&bad.stderr).contains("nope"));
 

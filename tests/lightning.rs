@@ -126,15 +126,7 @@ async fn lightning_limits_and_bad_input_get_clear_errors() {
             "region_too_large",
         ),
     ] {
-        let (got, body) = s.status_json(path).await;
-        assert_eq!(got, status, "{path}: {body}");
-        assert!(
-            body["message"].as_str().is_some_and(|m| !m.is_empty()),
-            "{path}: {body}"
-        );
-        if !code.is_empty() {
-            assert_eq!(body["error"], code, "{path}");
-        }
+        s.assert_error(path, status, code).await;
     }
     let (_, doc) = s.status_json("/openapi.json").await;
     assert!(doc["paths"]["/v1/worlds/{world}/lightning"].is_object());

@@ -3,26 +3,9 @@
 
 mod common;
 
-use std::process::{Command, Output};
+use std::process::Command;
 
-use common::ServeProcess;
-
-fn cloudscape(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args(args)
-        .output()
-        .expect("run cloudscape")
-}
-
-fn ok(out: &Output) {
-    assert!(
-        out.status.success(),
-        "exit {:?}\nstdout: {}\nstderr: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::{ServeProcess, assert_success, cloudscape};
 
 /// Decodes a PNG and returns its size.
 fn png_size(path: &std::path::Path) -> (u32, u32) {
@@ -131,7 +114,7 @@ fn bench_only_rewrites_the_sections_it_names() {
         "--plots",
         plots.to_str().unwrap(),
     ]);
-    ok(&out);
+    assert_success(&out);
     let text = std::fs::read_to_string(&md).unwrap();
     assert!(
         text.contains("<!-- bench:http:begin -->\nkept\n<!-- bench:http:end -->"),
@@ -214,7 +197,7 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
         "--plot",
         plot.to_str().unwrap(),
     ]);
-    ok(&out);
+    assert_success(&out);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("latency ms: p50"), "{stdout}");
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
@@ -261,7 +244,7 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
         "--json",
         json.to_str().unwrap(),
     ]);
-    ok(&out);
+    assert_success(&out);
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
     assert_eq!(r["mode"], "open");
     let requests = f(&r, &["totals", "requests"]);

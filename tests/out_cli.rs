@@ -2,9 +2,13 @@
 //! symlinks followed and kept, FIFOs and devices written in place, `-` for stdout,
 //! `/dev/full` a clean error, and no stray temporary files after a kill -9.
 
+mod common;
+
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
+
+use common::assert_success;
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 
@@ -29,18 +33,10 @@ fn density(out: &str) -> Output {
         .expect("run cloudscape density")
 }
 
-fn ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "density failed: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
 /// The bytes `density` writes to a fresh regular file (the reference for the rest).
 fn reference(dir: &Path) -> Vec<u8> {
     let p = dir.join("reference.npy");
-    ok(&density(p.to_str().unwrap()));
+    assert_success(&density(p.to_str().unwrap()));
     let bytes = std::fs::read(&p).unwrap();
     assert!(bytes.starts_with(b"\x93NUMPY"), "an .npy file");
     bytes
@@ -63,7 +59,7 @@ fn symlink_stays_a_link_and_its_target_gets_the_bytes() {
     std::fs::write(&target, b"old").unwrap();
     let link = d.path().join("link.npy");
     std::os::unix::fs::symlink("target.npy", &link).unwrap();
-    ok(&density(link.to_str().unwrap()));
+    assert_success(&density(link.to_str().unwrap()));
     assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
     assert_eq!(std::fs::read_link(&link).unwrap(), Path::new("target.npy"));
     assert_eq!(std::fs::read(&target).unwrap(), want);
@@ -80,7 +76,7 @@ fn fifo_is_written_in_place_for_its_reader() {
         let fifo = fifo.clone();
         std::thread::spawn(move || std::fs::read(fifo).unwrap())
     };
-    ok(&density(fifo.to_str().unwrap()));
+    assert_success(&density(fifo.to_str().unwrap()));
     assert_eq!(reader.join().unwrap(), want);
     let kind = std::fs::symlink_metadata(&fifo).unwrap().file_type();
     use std::os::unix::fs::FileTypeExt;
@@ -90,7 +86,7 @@ fn fifo_is_written_in_place_for_its_reader() {
 
 #[test]
 fn dev_null_works_and_dev_full_is_a_clean_error() {
-    ok(&density("/dev/null"));
+    assert_success(&density("/dev/null"));
     let o = density("/dev/full");
     assert!(!o.status.success(), "writing to /dev/full must fail");
     let err = String::from_utf8_lossy(&o.stderr);
@@ -107,7 +103,7 @@ fn dash_writes_the_npy_to_stdout() {
     let d = tempfile::tempdir().unwrap();
     let want = reference(d.path());
     let o = density("-");
-    ok(&o);
+    assert_success(&o);
     assert_eq!(o.stdout, want, "stdout carries exactly the .npy bytes");
     // Redirected to a file, as a shell would: the file is a whole .npy.
     let f = std::fs::File::create(d.path().join("redirected.npy")).unwrap();
@@ -145,7 +141,7 @@ fn no_stray_temporaries_after_kill_9() {
         let _ = child.kill(); // SIGKILL
         let _ = child.wait();
     }
-    ok(&density(out.to_str().unwrap()));
+    assert_success(&density(out.to_str().unwrap()));
     assert_eq!(entries(d.path()), ["grid.npy"], "only the product is left");
     assert!(std::fs::read(&out).unwrap().starts_with(b"\x93NUMPY"));
 }

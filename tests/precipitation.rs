@@ -269,16 +269,7 @@ async fn bad_precipitation_requests_get_clear_errors() {
             "region_too_large",
         ),
     ] {
-        let r = s.get(path).await;
-        assert_eq!(r.status().as_u16(), status, "{path}");
-        let body: serde_json::Value = serde_json::from_slice(&r.bytes().await.unwrap()).unwrap();
-        assert!(
-            body["message"].as_str().is_some_and(|m| !m.is_empty()),
-            "{path}: {body}"
-        );
-        if !code.is_empty() {
-            assert_eq!(body["error"], code, "{path}");
-        }
+        s.assert_error(path, status, code).await;
     }
     // Discovery states where snow starts, so a client can read the tile at its altitude.
     let world = s.json("/v1/worlds/default").await;

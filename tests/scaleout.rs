@@ -11,7 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use common::{ServeProcess, client, free_port, metric};
+use common::{ServeProcess, client, free_port, metric, wait_until_ok};
 
 const SMALL_CONFIG: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/data/small.toml");
 const NGINX_CONF: &str = include_str!("../docker/nginx.conf");
@@ -86,28 +86,12 @@ impl Nginx {
             base: format!("http://127.0.0.1:{port}"),
             dir,
         };
-        let start = Instant::now();
-        loop {
-            if let Ok(Some(status)) = nginx.child.try_wait() {
-                panic!("nginx exited ({status}): {}", nginx.error_log());
-            }
-            if let Ok(r) = client().get(format!("{}/healthz", nginx.base)).send()
-                && r.status() == 200
-            {
-                break;
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(20),
-                "nginx never answered: {}",
-                nginx.error_log()
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+        let healthz = format!("{}/healthz", nginx.base);
+        let error_log = nginx.dir.path().join("error.log");
+        wait_until_ok(&mut nginx.child, &healthz, Duration::from_secs(20), |_| {
+            format!("nginx: {}", std::fs::read_to_string(error_log).unwrap_or_default())
+        });
         nginx
-    }
-
-    fn error_log(&self) -> String {
-        std::fs::read_to_string(self.dir.path().join("error.log")).unwrap_or_default()
     }
 }
 

@@ -263,11 +263,7 @@ fn a_redis_that_accepts_connections_but_never_answers_does_not_stall_requests() 
 
 #[test]
 fn an_invalid_redis_url_is_refused_at_start() {
-    let out = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-        .args(["serve", "--print-config"])
-        .env("CLOUDSCAPE_SERVER_REDIS_URL", "http://cache:6379")
-        .output()
-        .unwrap();
+    let out = common::print_config(&[], &[("CLOUDSCAPE_SERVER_REDIS_URL", "http://cache:6379")]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("redis_url"));
 }

@@ -3,7 +3,7 @@
 //! port, ready once `/readyz` answers 200, stopped when dropped.
 #![allow(dead_code)]
 
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 /// The test world every server test starts from: two thin layers, so a cold tile costs
@@ -46,6 +46,37 @@ fn child<'a>(node: &'a mut toml::Value, key: &str, path: &str) -> &'a mut toml::
         }
         _ => panic!("override {path}: {key} would be under a plain value"),
     }
+}
+
+/// Runs the built `cloudscape` binary with `args` to its end.
+pub fn cloudscape(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(args)
+        .output()
+        .expect("run cloudscape")
+}
+
+/// Asserts that a run of the binary exited with success; if not, the message shows
+/// its exit status, stdout and stderr.
+pub fn assert_success(out: &Output) {
+    assert!(
+        out.status.success(),
+        "exit {:?}\nstdout: {}\nstderr: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Runs `cloudscape serve --print-config` with `args` and `env` added: the config it
+/// would serve on stdout, or its refusal on stderr.
+pub fn print_config(args: &[&str], env: &[(&str, &str)]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["serve", "--print-config"])
+        .args(args)
+        .envs(env.iter().copied())
+        .output()
+        .expect("run cloudscape serve --print-config")
 }
 
 /// A `cloudscape serve` child process on 127.0.0.1; killed when dropped.
@@ -97,29 +128,16 @@ impl ServeProcess {
     }
 
     fn wait_ready(&mut self, limit: Duration) {
-        let client = reqwest::blocking::Client::builder()
-            .no_proxy()
-            .timeout(Duration::from_secs(5))
-            .build()
-            .unwrap();
-        let start = Instant::now();
-        while start.elapsed() < limit {
-            if let Ok(Some(status)) = self.child.try_wait() {
-                let mut err = String::new();
-                if let Some(mut e) = self.child.stderr.take() {
-                    use std::io::Read;
-                    let _ = e.read_to_string(&mut err);
-                }
-                panic!("cloudscape serve exited before it was ready ({status}): {err}");
+        wait_until_ok(&mut self.child, &format!("{}/readyz", self.base), limit, |child| {
+            // Its stderr ends once it is gone.
+            let _ = child.kill();
+            let mut err = String::new();
+            if let Some(mut e) = child.stderr.take() {
+                use std::io::Read;
+                let _ = e.read_to_string(&mut err);
             }
-            if let Ok(r) = client.get(format!("{}/readyz", self.base)).send()
-                && r.status().as_u16() == 200
-            {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        panic!("cloudscape serve on {} was not ready within {limit:?}", self.base);
+            format!("cloudscape serve: {err}")
+        });
     }
 
     /// GET `path` (`/v1/worlds`, `/metrics`, …) with [`client`].
@@ -143,6 +161,35 @@ impl Drop for ServeProcess {
     fn drop(&mut self) {
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+/// Polls `url` every 50 ms until it answers 200, for at most `limit`. Panics if `child`
+/// (the process that serves `url`) exits first or the time runs out, with what
+/// `log(child)` gives: the process's own account (its stderr, its error log).
+pub fn wait_until_ok(child: &mut Child, url: &str, limit: Duration, log: impl FnOnce(&mut Child) -> String) {
+    let client = reqwest::blocking::Client::builder()
+        .no_proxy()
+        .timeout(Duration::from_secs(5))
+        .build()
+        .unwrap();
+    let start = Instant::now();
+    loop {
+        if let Ok(Some(status)) = child.try_wait() {
+            panic!(
+                "{url}: the process exited ({status}) before it answered; {}",
+                log(child)
+            );
+        }
+        if let Ok(r) = client.get(url).send()
+            && r.status() == reqwest::StatusCode::OK
+        {
+            return;
+        }
+        if start.elapsed() >= limit {
+            panic!("{url} did not answer 200 within {limit:?}; {}", log(child));
+        }
+        std::thread::sleep(Duration::from_millis(50));
     }
 }
 
@@ -234,6 +281,20 @@ impl InProcess {
         let body = serde_json::from_slice(&bytes)
             .unwrap_or_else(|e| panic!("{path}: {status}, not JSON ({e}): {}", String::from_utf8_lossy(&bytes)));
         (status, body)
+    }
+
+    /// Asserts that `path` answers `status` with a JSON error whose message says
+    /// something and whose `error` is `code` (any code when `code` is empty).
+    pub async fn assert_error(&self, path: &str, status: u16, code: &str) {
+        let (got, body) = self.status_json(path).await;
+        assert_eq!(got, status, "{path}: {body}");
+        assert!(
+            body["message"].as_str().is_some_and(|m| !m.is_empty()),
+            "{path}: {body}"
+        );
+        if !code.is_empty() {
+            assert_eq!(body["error"], code, "{path}: {body}");
+        }
     }
 
     /// The JSON body of `path`, which must answer 200.

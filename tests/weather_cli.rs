@@ -6,18 +6,10 @@
 
 mod common;
 
-use std::process::{Command, Output};
-
-use common::{ServeProcess, client};
-
-const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
-
-fn run(args: &[&str]) -> Output {
-    Command::new(BIN).args(args).output().expect("run cloudscape")
-}
+use common::{ServeProcess, client, cloudscape};
 
 fn stdout_of(args: &[&str]) -> String {
-    let o = run(args);
+    let o = cloudscape(args);
     assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
     String::from_utf8(o.stdout).unwrap()
 }
@@ -158,119 +150,26 @@ fn density_field_precipitation_is_the_rule_applied_to_the_density() {
 
 #[test]
 fn bad_weather_requests_get_one_clear_line() {
-    for (args, says) in [
+    // The command, its world and box, the rest of its arguments, and what the line says.
+    for (command, world, bbox, rest, says) in [
+        ("weather", "nope", BBOX, "--t0 0 --t1 1", "unknown world"),
+        ("weather", "storm-front", BBOX, "--t0 10 --t1 1", "--t1"),
+        ("weather", "storm-front", BBOX, "--t0 0 --t1 1e9 --dt 1", "--dt"),
+        ("weather", "storm-front", BBOX, "--t0 0 --t1 1 --dt 0", "--dt"),
+        ("weather", "storm-front", "0,0,1e9,1e9", "--t0 0 --t1 1", "column"),
+        ("lightning", "storm-front", BBOX, "--t0 0 --t1 4000", "3600"),
+        ("lightning", "storm-front", "0,0,60000,1000", "--t0 0 --t1 10", "50"),
         (
-            vec!["weather", "--world", "nope", "--bbox", BBOX, "--t0", "0", "--t1", "1"],
-            "unknown world",
-        ),
-        (
-            vec![
-                "weather",
-                "--world",
-                "storm-front",
-                "--bbox",
-                BBOX,
-                "--t0",
-                "10",
-                "--t1",
-                "1",
-            ],
-            "--t1",
-        ),
-        (
-            vec![
-                "weather",
-                "--world",
-                "storm-front",
-                "--bbox",
-                BBOX,
-                "--t0",
-                "0",
-                "--t1",
-                "1e9",
-                "--dt",
-                "1",
-            ],
-            "--dt",
-        ),
-        (
-            vec![
-                "weather",
-                "--world",
-                "storm-front",
-                "--bbox",
-                BBOX,
-                "--t0",
-                "0",
-                "--t1",
-                "1",
-                "--dt",
-                "0",
-            ],
-            "--dt",
-        ),
-        (
-            vec![
-                "weather",
-                "--world",
-                "storm-front",
-                "--bbox",
-                "0,0,1e9,1e9",
-                "--t0",
-                "0",
-                "--t1",
-                "1",
-            ],
-            "column",
-        ),
-        (
-            vec![
-                "lightning",
-                "--world",
-                "storm-front",
-                "--bbox",
-                BBOX,
-                "--t0",
-                "0",
-                "--t1",
-                "4000",
-            ],
-            "3600",
-        ),
-        (
-            vec![
-                "lightning",
-                "--world",
-                "storm-front",
-                "--bbox",
-                "0,0,60000,1000",
-                "--t0",
-                "0",
-                "--t1",
-                "10",
-            ],
-            "50",
-        ),
-        (
-            vec![
-                "density",
-                "--world",
-                "storm-front",
-                "--bbox",
-                BBOX,
-                "--t",
-                "0",
-                "--field",
-                "precipitation",
-                "--format",
-                "u8",
-                "--out",
-                "-",
-            ],
+            "density",
+            "storm-front",
+            BBOX,
+            "--t 0 --field precipitation --format u8 --out -",
             "mm/h",
         ),
     ] {
-        let o = run(&args);
+        let mut args = vec![command, "--world", world, "--bbox", bbox];
+        args.extend(rest.split(' '));
+        let o = cloudscape(&args);
         assert!(!o.status.success(), "{args:?}");
         let err = String::from_utf8_lossy(&o.stderr);
         assert_eq!(err.trim().lines().count(), 1, "{args:?}: {err}");

@@ -287,6 +287,12 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
         })
         .unwrap();
 
+    // A world's route with a query, checked against the route's product type.
+    let check_route = |w: &[u8], route: &str, pairs: Vec<(&str, Option<Vec<u8>>)>, product_type: &str| {
+        let target = format!("/v1/worlds/{}/{route}?{}", encode(w), query(pairs));
+        check(&target, &get(&server, &target), product_type)
+    };
+
     // /sample, /region, /series.
     let sample = (
         world(),
@@ -298,9 +304,8 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     );
     runner(40)
         .run(&sample, |(w, x, y, z, t, layer)| {
-            let q = query(vec![("x", x), ("y", y), ("z", z), ("t", t), ("layer", layer)]);
-            let target = format!("/v1/worlds/{}/sample?{q}", encode(&w));
-            check(&target, &get(&server, &target), "application/json")
+            let pairs = vec![("x", x), ("y", y), ("z", z), ("t", t), ("layer", layer)];
+            check_route(&w, "sample", pairs, "application/json")
         })
         .unwrap();
     let region = (
@@ -312,9 +317,8 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     );
     runner(40)
         .run(&region, |(w, bbox, t, level, layer)| {
-            let q = query(vec![("bbox", bbox), ("t", t), ("level", level), ("layer", layer)]);
-            let target = format!("/v1/worlds/{}/region?{q}", encode(&w));
-            check(&target, &get(&server, &target), "application/json")
+            let pairs = vec![("bbox", bbox), ("t", t), ("level", level), ("layer", layer)];
+            check_route(&w, "region", pairs, "application/json")
         })
         .unwrap();
     let series = (
@@ -327,15 +331,8 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     );
     runner(32)
         .run(&series, |(w, bbox, t0, t1, dt, level)| {
-            let q = query(vec![
-                ("bbox", bbox),
-                ("t0", t0),
-                ("t1", t1),
-                ("dt", dt),
-                ("level", level),
-            ]);
-            let target = format!("/v1/worlds/{}/series?{q}", encode(&w));
-            check(&target, &get(&server, &target), "application/json")
+            let pairs = vec![("bbox", bbox), ("t0", t0), ("t1", t1), ("dt", dt), ("level", level)];
+            check_route(&w, "series", pairs, "application/json")
         })
         .unwrap();
 
@@ -357,15 +354,14 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     );
     runner(24)
         .run(&render, |(w, camera, t, size, quality, sun)| {
-            let q = query(vec![
+            let pairs = vec![
                 ("camera", camera),
                 ("t", t),
                 ("size", size),
                 ("quality", quality),
                 ("sun", sun),
-            ]);
-            let target = format!("/v1/worlds/{}/render.png?{q}", encode(&w));
-            check(&target, &get(&server, &target), "image/png")
+            ];
+            check_route(&w, "render.png", pairs, "image/png")
         })
         .unwrap();
     runner(12)
@@ -433,6 +429,11 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
     assert!(server.terminate(), "the server exits cleanly after all of that");
 }
 
+/// Whether a failed run's stderr is the one clear sentence every refusal must be.
+fn one_sentence(stderr: &str) -> bool {
+    stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1
+}
+
 /// One CLI run: exit code 0 with the product written, or a one-sentence error on stderr
 /// and a non-zero exit; never a panic or a signal.
 fn check_cli(args: &[String], out: &std::path::Path, magic: &[u8]) -> Result<(), TestCaseError> {
@@ -449,10 +450,7 @@ fn check_cli(args: &[String], out: &std::path::Path, magic: &[u8]) -> Result<(),
             prop_assert!(bytes.starts_with(magic), "{args:?}: wrong product");
         }
         1 => {
-            prop_assert!(
-                stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1,
-                "{args:?}: not one sentence: {stderr}"
-            );
+            prop_assert!(one_sentence(&stderr), "{args:?}: not one sentence: {stderr}");
             prop_assert!(!out.exists(), "{args:?}: failed but left a file");
         }
         // clap's own usage errors.
@@ -467,6 +465,28 @@ fn check_cli(args: &[String], out: &std::path::Path, magic: &[u8]) -> Result<(),
 fn arg(v: Vec<u8>) -> String {
     // An OS argument cannot hold NUL.
     String::from_utf8_lossy(&v).replace('\0', "")
+}
+
+/// `COMMAND --config CONFIG`, each flag with its value, each optional flag with its
+/// value when one was drawn, and `--out OUT`.
+fn cli_args(
+    command: &str,
+    config: &str,
+    flags: Vec<(&str, Vec<u8>)>,
+    optional: Vec<(&str, Option<Vec<u8>>)>,
+    out: &str,
+) -> Vec<String> {
+    let mut args: Vec<String> = vec![command.into(), "--config".into(), config.into()];
+    for (flag, v) in flags {
+        args.extend([flag.to_string(), arg(v)]);
+    }
+    for (flag, v) in optional {
+        if let Some(v) = v {
+            args.extend([flag.to_string(), arg(v)]);
+        }
+    }
+    args.extend(["--out".into(), out.into()]);
+    args
 }
 
 #[test]
@@ -489,25 +509,19 @@ fn every_cli_argument_gets_a_product_or_one_clear_error() {
     );
     runner(32)
         .run(&density, |(w, bbox, t, level, layer, field, format)| {
-            let mut args: Vec<String> = vec!["density".into(), "--config".into(), config.clone()];
-            args.extend([
-                "--world".into(),
-                arg(w),
-                "--bbox".into(),
-                arg(bbox),
-                "--t".into(),
-                arg(t),
-            ]);
-            for (flag, v) in [("--level", level), ("--layer", layer), ("--field", field)] {
-                if let Some(v) = v {
-                    args.extend([flag.to_string(), arg(v)]);
-                }
-            }
             let npy = format.is_none();
-            if let Some(f) = format {
-                args.extend(["--format".to_string(), arg(f)]);
-            }
-            args.extend(["--out".into(), out_s.clone()]);
+            let args = cli_args(
+                "density",
+                &config,
+                vec![("--world", w), ("--bbox", bbox), ("--t", t)],
+                vec![
+                    ("--level", level),
+                    ("--layer", layer),
+                    ("--field", field),
+                    ("--format", format),
+                ],
+                &out_s,
+            );
             check_cli(&args, &out, if npy { b"\x93NUMPY" } else { b"" })
         })
         .unwrap();
@@ -523,23 +537,13 @@ fn every_cli_argument_gets_a_product_or_one_clear_error() {
     );
     runner(20)
         .run(&render, |(w, camera, t, size, quality, sun, phase)| {
-            let mut args: Vec<String> = vec!["render".into(), "--config".into(), config.clone()];
-            args.extend([
-                "--world".into(),
-                arg(w),
-                "--camera".into(),
-                arg(camera),
-                "--t".into(),
-                arg(t),
-                "--size".into(),
-                arg(size),
-            ]);
-            for (flag, v) in [("--quality", quality), ("--sun", sun), ("--phase", phase)] {
-                if let Some(v) = v {
-                    args.extend([flag.to_string(), arg(v)]);
-                }
-            }
-            args.extend(["--out".into(), out_s.clone()]);
+            let args = cli_args(
+                "render",
+                &config,
+                vec![("--world", w), ("--camera", camera), ("--t", t), ("--size", size)],
+                vec![("--quality", quality), ("--sun", sun), ("--phase", phase)],
+                &out_s,
+            );
             check_cli(&args, &out, b"\x89PNG")
         })
         .unwrap();
@@ -573,10 +577,7 @@ fn every_cli_argument_gets_a_product_or_one_clear_error() {
             prop_assert!(!stderr.contains("panicked"), "{stderr}");
             match o.status.code() {
                 Some(0) => prop_assert!(String::from_utf8_lossy(&o.stdout).contains("[worlds.default]")),
-                Some(1) => prop_assert!(
-                    stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1,
-                    "{stderr}"
-                ),
+                Some(1) => prop_assert!(one_sentence(&stderr), "{stderr}"),
                 // clap's own usage errors (a `--listen` value that starts with '-'), as
                 // `check_cli` accepts them for every other command.
                 Some(2) => prop_assert!(stderr.starts_with("error: "), "{stderr}"),
@@ -596,10 +597,7 @@ fn every_cli_argument_gets_a_product_or_one_clear_error() {
         let o = Command::new(BIN).args(&args).output().unwrap();
         let stderr = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{args:?}: {stderr}");
-        assert!(
-            stderr.starts_with("error: ") && stderr.trim_end().lines().count() == 1,
-            "{stderr}"
-        );
+        assert!(one_sentence(&stderr), "{stderr}");
     }
 
     // Arguments that are not UTF-8 at all.

@@ -55,17 +55,29 @@ fn render(base: &str, i: u64, size: &str, quality: &str) -> String {
 /// (budgets, queue times) mean nothing while another test's server competes.
 static SERIAL: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
-fn start(env: &[(&str, &str)]) -> ServeProcess {
+/// Once no other test's server runs: a server with `env` (and quiet logs) and a client
+/// for it. Hold the guard for the whole test.
+async fn start(env: &[(&str, &str)]) -> (tokio::sync::MutexGuard<'static, ()>, ServeProcess, reqwest::Client) {
+    let serial = SERIAL.lock().await;
     let mut all = vec![("RUST_LOG", "error")];
     all.extend_from_slice(env);
-    ServeProcess::start(&[], &all)
+    (serial, ServeProcess::start(&[], &all), client())
+}
+
+/// Checks `ready` every 100 ms until it holds or `deadline` passes; whether it held.
+async fn poll_until(deadline: Instant, ready: impl Fn() -> bool) -> bool {
+    while Instant::now() < deadline {
+        if ready() {
+            return true;
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    false
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn work_that_cannot_fit_the_budget_or_the_memory_limit_is_refused_up_front() {
-    let _serial = SERIAL.lock().await;
-    let server = start(&[("CLOUDSCAPE_LIMITS_MAX_REQUEST_BYTES", "134217728")]);
-    let c = client();
+    let (_serial, server, c) = start(&[("CLOUDSCAPE_LIMITS_MAX_REQUEST_BYTES", "134217728")]).await;
     // The request: ~55 CPU-seconds against 10 s × 2 threads.
     let started = Instant::now();
     let a = get(&c, render(&server.base, 0, "4096x4096", "accurate")).await;
@@ -98,14 +110,13 @@ async fn work_that_cannot_fit_the_budget_or_the_memory_limit_is_refused_up_front
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
-    let _serial = SERIAL.lock().await;
     let budget_ms = 2000;
-    let server = start(&[
+    let (_serial, server, c) = start(&[
         ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", &budget_ms.to_string()),
         ("CLOUDSCAPE_SERVER_COMPUTE_QUEUE", "16"),
         ("CLOUDSCAPE_SERVER_COMPUTE_MEMORY_BYTES", "17179869184"),
-    ]);
-    let c = client();
+    ])
+    .await;
     // 12 distinct renders, each within the limits (~1.5 CPU-s), ~18 CPU-s together:
     // far more than 2 s on 2 threads. Without cancellation the queue stays busy
     // until all of them are done.
@@ -132,15 +143,12 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
     // Every request is answered by its budget; the stopped jobs give their slots back
     // within a few seconds of that (one tile or band to finish each).
     let limit = Duration::from_millis(budget_ms) + Duration::from_secs(6);
-    let mut free_after = None;
-    while started.elapsed() < limit + Duration::from_secs(30) {
-        if metric(&server, "cloudscape_compute_queue_depth", &[]) == 0.0 {
-            free_after = Some(started.elapsed());
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
-    let free_after = free_after.expect("the queue empties");
+    let emptied = poll_until(started + limit + Duration::from_secs(30), || {
+        metric(&server, "cloudscape_compute_queue_depth", &[]) == 0.0
+    })
+    .await;
+    let free_after = started.elapsed();
+    assert!(emptied, "the queue empties");
     assert!(
         free_after <= limit,
         "queue free after {free_after:?} (answered after {answered:?}); budget {budget_ms} ms"
@@ -161,12 +169,11 @@ async fn get_owned(c: reqwest::Client, url: String) -> Answer {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn retry_after_follows_the_queue_not_a_constant() {
-    let _serial = SERIAL.lock().await;
-    let server = start(&[
+    let (_serial, server, c) = start(&[
         ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "60000"),
         ("CLOUDSCAPE_SERVER_COMPUTE_QUEUE", "4"),
-    ]);
-    let c = client();
+    ])
+    .await;
     // Two renders one after the other teach the queue its job time (~1.5 s or more).
     for i in 0..2 {
         assert_eq!(
@@ -206,9 +213,7 @@ async fn retry_after_follows_the_queue_not_a_constant() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billboards_bin() {
-    let _serial = SERIAL.lock().await;
-    let server = start(&[("CLOUDSCAPE_LIMITS_MAX_RESPONSE_BYTES", "1048576")]);
-    let c = client();
+    let (_serial, server, c) = start(&[("CLOUDSCAPE_LIMITS_MAX_RESPONSE_BYTES", "1048576")]).await;
     let tile = |p: &str| format!("{}/v1/worlds/default/tiles/0/0/0/{p}?t=43200&quality=fast", server.base);
     let a = get(&c, tile("billboards.json")).await;
     assert_eq!(a.status, 413, "{}", a.json);
@@ -232,16 +237,15 @@ async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billbo
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
-    let _serial = SERIAL.lock().await;
     // 4 MiB of cache: at most 1 MiB an entry. density.f32 of a tile is 2.6 MB,
     // density.u8 0.66 MB.
     // The growth of the cache is measured below: nothing computed ahead of the clock
     // (tests/keyframes.rs) adds its entries meanwhile.
-    let server = start(&[
+    let (_serial, server, c) = start(&[
         ("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304"),
         ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
-    ]);
-    let c = client();
+    ])
+    .await;
     let tile = |p: &str| format!("{}/v1/worlds/overcast/tiles/0/3/4/{p}?t=40", server.base);
     let before = metric(&server, "cloudscape_cache_bytes", &[]);
     for _ in 0..2 {
@@ -268,11 +272,9 @@ fn stalled_request(port: u16, path: &str) -> std::net::TcpStream {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn replies_held_by_clients_that_do_not_read_stay_within_the_reply_budget() {
-    let _serial = SERIAL.lock().await;
     // A 48 MiB reply budget; balanced billboards.json of a cloudy tile is ~15 MB, so
     // three unread replies (beyond what the sockets' buffers absorb) fill it.
-    let server = start(&[("CLOUDSCAPE_SERVER_REPLY_BYTES", "50331648")]);
-    let c = client();
+    let (_serial, server, c) = start(&[("CLOUDSCAPE_SERVER_REPLY_BYTES", "50331648")]).await;
     let path = "/v1/worlds/overcast/tiles/0/0/0/billboards.json?t=43200&quality=balanced";
     let full = get(&c, format!("{}{path}", server.base)).await;
     assert_eq!(full.status, 200);
@@ -381,22 +383,16 @@ fn the_attack_scenario_holds_against_the_real_binary() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_computation_whose_client_went_away_is_stopped_before_its_budget_ends() {
-    let _serial = SERIAL.lock().await;
-    let server = start(&[("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "60000")]);
+    let (_serial, server, _) = start(&[("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "60000")]).await;
     // ~5 CPU-seconds of work; the client hangs up after half a second.
     let path = "/v1/worlds/default/render.png?camera=12000,-20000,1200,0,8,70&t=43200&size=2048x2048&quality=balanced";
     let s = stalled_request(server.port, path);
     tokio::time::sleep(Duration::from_millis(500)).await;
     drop(s);
-    let started = Instant::now();
-    let mut stopped = false;
-    while started.elapsed() < Duration::from_secs(30) {
-        if metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) >= 1.0 {
-            stopped = true;
-            break;
-        }
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    let stopped = poll_until(Instant::now() + Duration::from_secs(30), || {
+        metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) >= 1.0
+    })
+    .await;
     assert!(stopped, "the job was not stopped when its client went away");
     assert_eq!(metric(&server, "cloudscape_compute_queue_depth", &[]), 0.0);
 }
@@ -408,12 +404,11 @@ async fn a_shaded_tile_at_the_coarsest_level_costs_what_a_fine_one_does() {
     // summed them all (a level-19 billboards.bin ran for minutes on both threads,
     // found by schemathesis); it is now bounded by the layer's depth. Every level
     // answers within a budget a level-0 tile needs a small part of.
-    let _serial = SERIAL.lock().await;
-    let server = start(&[
+    let (_serial, server, c) = start(&[
         ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "10000"),
         ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
-    ]);
-    let c = client();
+    ])
+    .await;
     // config/default.toml: limits.max_level = 16.
     for z in [0, 9, 13, 16] {
         for product in ["billboards.bin", "atlas.png"] {

@@ -15,7 +15,7 @@ use std::net::TcpStream;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use cloudscape_tools::soak::http::Connection;
+use cloudscape_tools::soak::http::{Answer, Connection};
 use cloudscape_tools::soak::process_memory_kb;
 use common::{ServeProcess, free_port, metric};
 
@@ -69,6 +69,14 @@ fn get_on(s: &TcpStream, path: &str) -> u16 {
     let mut body = vec![0u8; len];
     c.read_exact(&mut body).unwrap();
     head[9..12].parse().unwrap()
+}
+
+/// A `/healthz` on a new keep-alive connection to `port`: the answer and whether the
+/// server keeps the connection open. Panics if no answer comes (a hang).
+fn healthz_on_a_new_connection(port: u16) -> (Answer, bool) {
+    let mut c = Connection::open(&format!("127.0.0.1:{port}"), Duration::from_secs(10)).unwrap();
+    c.exchange(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n", false)
+        .expect("an answer, not a hang")
 }
 
 fn open_connections(server: &ServeProcess) -> f64 {
@@ -259,10 +267,7 @@ fn the_connection_cap_answers_503_at_once_and_recovers() {
     }
     for _ in 0..5 {
         let start = Instant::now();
-        let mut over = Connection::open(&format!("127.0.0.1:{}", server.port), Duration::from_secs(10)).unwrap();
-        let (answer, keep) = over
-            .exchange(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n", false)
-            .expect("an answer, not a hang");
+        let (answer, keep) = healthz_on_a_new_connection(server.port);
         assert_eq!(answer.status, 503);
         assert_eq!(answer.header("retry-after"), Some("1"));
         let body: serde_json::Value = serde_json::from_slice(&answer.body).unwrap();
@@ -419,10 +424,7 @@ fn the_automatic_cap_follows_the_file_limit_and_refuses_instead_of_hanging() {
     // their refusals are done (a second at most), the next client gets one too.
     std::thread::sleep(Duration::from_millis(1500));
     let start = Instant::now();
-    let mut c = Connection::open(&format!("127.0.0.1:{}", server.port), Duration::from_secs(10)).unwrap();
-    let (a, _) = c
-        .exchange(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n", false)
-        .expect("an answer, not a hang");
+    let (a, _) = healthz_on_a_new_connection(server.port);
     assert_eq!(a.status, 503);
     assert!(start.elapsed() < Duration::from_secs(5));
     drop(held);
@@ -500,12 +502,7 @@ fn sigterm_with_slow_connections_exits_within_drain_plus_two_seconds() {
 #[test]
 fn metric_labels_stay_in_a_fixed_set_under_random_methods_and_paths() {
     let server = ServeProcess::start(&[], &[QUIET]);
-    let before = common::client()
-        .get(format!("{}/metrics", server.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
+    let before = server.get("/metrics").text().unwrap();
     // 3,000 requests with random 16 KB method names, half of them on random paths.
     let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
     let mut next = move || {
@@ -534,12 +531,7 @@ fn metric_labels_stay_in_a_fixed_set_under_random_methods_and_paths() {
             Err(e) => panic!("request {i}: {e:?}"),
         }
     }
-    let after = common::client()
-        .get(format!("{}/metrics", server.base))
-        .send()
-        .unwrap()
-        .text()
-        .unwrap();
+    let after = server.get("/metrics").text().unwrap();
     assert!(
         after.len() < before.len() + 16 * 1024,
         "/metrics grew from {} to {} bytes",

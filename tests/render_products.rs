@@ -38,7 +38,13 @@ fn blob_grid(l: &Layer, halo: usize) -> Grid<f32> {
     g
 }
 
-fn shaded(quality: Quality, sun: Sun, params: ShadingParams) -> ShadedTile {
+/// The blob tile shaded at `quality` with the default shading, the sun at `azimuth`
+/// and `elevation` (degrees).
+fn shaded(quality: Quality, azimuth: f64, elevation: f64) -> ShadedTile {
+    shaded_with(quality, Sun::new(azimuth, elevation).unwrap(), ShadingParams::default())
+}
+
+fn shaded_with(quality: Quality, sun: Sun, params: ShadingParams) -> ShadedTile {
     let l = layer();
     let tile = TileId { z: 0, x: 3, y: -2 };
     let halo = tile_halo(&l, 0, quality, sun);
@@ -76,11 +82,7 @@ fn all_numbers_finite(v: &serde_json::Value) -> bool {
 
 #[test]
 fn billboards_json_matches_its_documented_shape() {
-    let t = shaded(
-        Quality::Balanced,
-        Sun::new(135.0, 40.0).unwrap(),
-        ShadingParams::default(),
-    );
+    let t = shaded(Quality::Balanced, 135.0, 40.0);
     assert!(t.billboards.len() > 100, "{}", t.billboards.len());
     let v: serde_json::Value = serde_json::from_slice(&billboards::encode_json(&t)).unwrap();
     assert!(all_numbers_finite(&v));
@@ -130,7 +132,7 @@ fn billboards_json_matches_its_documented_shape() {
 
 #[test]
 fn billboards_bin_round_trips() {
-    let t = shaded(Quality::Fast, Sun::new(10.0, 60.0).unwrap(), ShadingParams::default());
+    let t = shaded(Quality::Fast, 10.0, 60.0);
     let bytes = billboards::encode_bin(&t);
     assert_eq!(
         bytes.len(),
@@ -171,11 +173,7 @@ fn billboards_bin_round_trips() {
 #[test]
 fn shadow_and_coverage_pngs_decode_and_show_the_blobs() {
     // Sun straight overhead: shadows fall right under the blobs.
-    let t = shaded(
-        Quality::Balanced,
-        Sun::new(0.0, 90.0).unwrap(),
-        ShadingParams::default(),
-    );
+    let t = shaded(Quality::Balanced, 0.0, 90.0);
     let (info, px) = decode_png(&shadow::encode_png_map(&t));
     assert_eq!(
         (info.width, info.height, info.color_type),
@@ -215,7 +213,7 @@ fn atlas_png_and_manifest_agree() {
         detail_erosion: 0.0,
         ..ShadingParams::default()
     };
-    let t = shaded(Quality::Fast, Sun::new(200.0, 25.0).unwrap(), params);
+    let t = shaded_with(Quality::Fast, Sun::new(200.0, 25.0).unwrap(), params);
     let a = atlas::build(&t);
     let m: serde_json::Value = serde_json::from_slice(&a.manifest).unwrap();
     assert!(all_numbers_finite(&m));
@@ -302,7 +300,7 @@ fn extremes_give_finite_products() {
     ];
     for params in extreme_params {
         for sun in suns {
-            let t = shaded(Quality::Fast, sun, params);
+            let t = shaded_with(Quality::Fast, sun, params);
             let v: serde_json::Value = serde_json::from_slice(&billboards::encode_json(&t)).unwrap();
             assert!(all_numbers_finite(&v));
             for b in &t.billboards {
@@ -344,11 +342,7 @@ fn products_do_not_depend_on_the_thread_count() {
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let t = shaded(
-                Quality::Balanced,
-                Sun::new(300.0, 20.0).unwrap(),
-                ShadingParams::default(),
-            );
+            let t = shaded(Quality::Balanced, 300.0, 20.0);
             (
                 billboards::encode_bin(&t),
                 atlas::build(&t).png,

@@ -15,7 +15,7 @@ use cloudscape_core::density::{self, Region};
 use cloudscape_core::fields::noise::Fbm;
 use cloudscape_core::world::{Config, World};
 
-use super::{BenchRun, Effort, Plot, Section, fmt_rate, fmt_s, time, time_batched};
+use super::{BenchRun, Effort, fmt_rate, fmt_s, time, time_batched};
 
 /// The world the automaton and density figures are measured on: `overcast`, whose
 /// first layer is the stratocumulus deck (10 cells deep) the published figures have
@@ -180,11 +180,7 @@ pub fn automaton(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         fmt_rate(naive_rate),
         packed_rate / naive_rate
     );
-    out.sections.push(Section {
-        id: "automaton",
-        title: "Automaton: packed against naive",
-        markdown,
-    });
+    out.add_section("automaton", "Automaton: packed against naive", markdown);
     Ok(())
 }
 
@@ -253,11 +249,7 @@ pub fn fields(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         r_ours / r_theirs,
         t_exact.median_s / t_coarse.median_s
     );
-    out.sections.push(Section {
-        id: "fields",
-        title: "Fields: ours against the noise crate",
-        markdown,
-    });
+    out.add_section("fields", "Fields: ours against the noise crate", markdown);
     Ok(())
 }
 
@@ -371,14 +363,7 @@ pub fn scaling(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         3,
         (420, 340),
     )?;
-    out.plots.push(Plot {
-        file: "scaling.png".into(),
-        bytes: png,
-    });
-    out.sections.push(Section {
-        id: "scaling",
-        title: "Scaling: area, level, t",
-        markdown: md,
-    });
+    out.add_plot("scaling.png", png);
+    out.add_section("scaling", "Scaling: area, level, t", md);
     Ok(())
 }

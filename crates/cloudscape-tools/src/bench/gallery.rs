@@ -90,23 +90,31 @@ pub const QUALITIES: [Quality; 4] = [Quality::Fast, Quality::Balanced, Quality::
 
 /// One picture of the gallery and how it compares with the reference of its view.
 pub struct Shot {
+    /// The view's name ([`GalleryView::name`]).
     pub view: &'static str,
+    /// The preset it was drawn with (or the reference).
     pub quality: Quality,
     /// Wall-clock seconds of the whole render (planning, density, shading, drawing).
     pub seconds: f64,
     /// The PNG, as `cloudscape render` writes it.
     pub png: Vec<u8>,
-    /// Against the reference of the same view; `None` for the reference itself.
+    /// RMSE of display RGB against the reference of the same view; `None` for the
+    /// reference itself.
     pub rmse: Option<f64>,
+    /// SSIM of luma against the same reference.
     pub ssim: Option<f64>,
+    /// The display image, 8-bit RGB, for the contact sheet.
     rgb: Vec<u8>,
 }
 
 /// Every shot (view-major, in [`QUALITIES`] order) and the contact sheet.
 pub struct Gallery {
+    /// Size of every picture, pixels.
     pub width: usize,
     pub height: usize,
+    /// Every picture, view-major, in [`QUALITIES`] order.
     pub shots: Vec<Shot>,
+    /// The labelled contact sheet, PNG.
     pub contact: Vec<u8>,
 }
 

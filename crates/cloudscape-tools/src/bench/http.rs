@@ -8,7 +8,7 @@ use hdrhistogram::Histogram;
 use cloudscape_core::world::Config;
 use cloudscape_server::{Server, ServerConfig};
 
-use super::{BenchRun, Effort, Section, fmt_s};
+use super::{BenchRun, Effort, fmt_s};
 
 /// A running in-process server; stopped when dropped.
 pub(super) struct LocalServer {
@@ -229,10 +229,6 @@ pub fn http(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     md += &load_row("revalidation: `If-None-Match` → 304", 8, &l);
     md += "\nClient and server share the machine's cores. For a comparison with nginx serving the same bytes \
            (wrk), see \"HTTP\" above; for a realistic mixed workload, `cloudscape loadtest`.\n";
-    out.sections.push(Section {
-        id: "http",
-        title: "HTTP: warm and cold",
-        markdown: md,
-    });
+    out.add_section("http", "HTTP: warm and cold", md);
     Ok(())
 }

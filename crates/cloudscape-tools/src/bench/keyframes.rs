@@ -13,7 +13,7 @@ use cloudscape_core::render::scene::{RenderRequest, draw_billboards, plan, prepa
 use cloudscape_core::render::{Camera, Quality, ShadedTile, ShadingParams, TileId, shade_tile};
 use cloudscape_core::world::{Config, Keyframe, MAX_KEYFRAME_DOUBLINGS, World, keyframe_span};
 
-use super::{BenchRun, Effort, Section, fmt_s, time};
+use super::{BenchRun, Effort, fmt_s, time};
 
 /// A view's tiles, each shaded for the very time of the request.
 fn instant_tiles(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<ShadedTile>, String> {
@@ -198,10 +198,10 @@ pub fn keyframes(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
             before / now
         );
     }
-    out.sections.push(Section {
-        id: "keyframes",
-        title: "Keyframes: the animation rule's error and compute per span",
-        markdown: md,
-    });
+    out.add_section(
+        "keyframes",
+        "Keyframes: the animation rule's error and compute per span",
+        md,
+    );
     Ok(())
 }

@@ -75,21 +75,41 @@ pub struct Section {
     pub id: &'static str,
     /// Heading shown when the section is appended for the first time.
     pub title: &'static str,
+    /// The generated fragment; `@plots@` stands for the plots directory.
     pub markdown: String,
 }
 
 /// A file written to the plots directory: a PNG plot, or the data behind one (CSV).
 #[derive(Clone, Debug)]
 pub struct Plot {
+    /// File name within the plots directory.
     pub file: String,
+    /// Its contents.
     pub bytes: Vec<u8>,
 }
 
 /// Everything one `cloudscape bench` run produced.
 #[derive(Clone, Debug, Default)]
 pub struct BenchRun {
+    /// The sections measured, in the order they ran.
     pub sections: Vec<Section>,
+    /// The files their fragments link to.
     pub plots: Vec<Plot>,
+}
+
+impl BenchRun {
+    /// Adds the section `id` (`<!-- bench:ID:begin -->`) with its heading and fragment.
+    pub fn add_section(&mut self, id: &'static str, title: &'static str, markdown: String) {
+        self.sections.push(Section { id, title, markdown });
+    }
+
+    /// Adds the file `file` to the plots directory.
+    pub fn add_plot(&mut self, file: &str, bytes: Vec<u8>) {
+        self.plots.push(Plot {
+            file: file.to_string(),
+            bytes,
+        });
+    }
 }
 
 /// A timed measurement.

@@ -20,7 +20,7 @@ use cloudscape_core::render::tile::{MIN_BALL_DENSITY, shade_density, tile_densit
 use cloudscape_core::render::{Camera, Quality, ShadedTile, ShadingParams, Sun, TileId, shade_tile};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, Keyframe, World};
 
-use super::{BenchRun, Effort, Plot, Section, fmt_s, time};
+use super::{BenchRun, Effort, fmt_s, time};
 
 const SUN: (f64, f64) = (150.0, 40.0);
 
@@ -98,11 +98,7 @@ pub fn tiles(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         );
     }
     md += "\n`reference` serves the billboards of `accurate`; its own cost is the ray marcher (\"Quality presets\").\n";
-    out.sections.push(Section {
-        id: "tiles",
-        title: "Tile pipeline per quality preset",
-        markdown: md,
-    });
+    out.add_section("tiles", "Tile pipeline per quality preset", md);
     Ok(())
 }
 
@@ -163,11 +159,7 @@ pub fn encoders(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         let a = atlas::build(&shaded);
         a.png.len() + a.manifest.len()
     });
-    out.sections.push(Section {
-        id: "encoders",
-        title: "Encoders",
-        markdown: md,
-    });
+    out.add_section("encoders", "Encoders", md);
     Ok(())
 }
 
@@ -337,14 +329,7 @@ pub fn rosa(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
         2,
         (480, 360),
     )?;
-    out.plots.push(Plot {
-        file: "rosa.png".into(),
-        bytes: png,
-    });
-    out.sections.push(Section {
-        id: "rosa",
-        title: "Rosa 2013, Table 5.1 sizes",
-        markdown: md,
-    });
+    out.add_plot("rosa.png", png);
+    out.add_section("rosa", "Rosa 2013, Table 5.1 sizes", md);
     Ok(())
 }

@@ -32,7 +32,7 @@ use cloudscape_core::render::tile::{ShadedTile, shade_density, tile_density};
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
-use super::{BenchRun, Effort, Plot, Section};
+use super::{BenchRun, Effort};
 
 /// Samples per pixel of the reference the presets are measured against.
 pub const REFERENCE_SAMPLES: u32 = 64;
@@ -464,15 +464,8 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         1,
         (560, 400),
     )?;
-    out.plots.push(Plot {
-        file: "quality.png".into(),
-        bytes: png,
-    });
-    out.sections.push(Section {
-        id: "quality",
-        title: "Quality presets: speed against accuracy",
-        markdown: md,
-    });
+    out.add_plot("quality.png", png);
+    out.add_section("quality", "Quality presets: speed against accuracy", md);
     Ok(())
 }
 

@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use serde::Deserialize;
 
 use super::http::{LocalServer, client};
-use super::{BenchRun, Effort, Plot, Section, fmt_s};
+use super::{BenchRun, Effort, fmt_s};
 use crate::chart::{Mark, PALETTE, Panel, Series, render};
 
 const WORLD: &str = "storm-front";
@@ -269,14 +269,8 @@ pub fn precipitation_day(effort: Effort, out: &mut BenchRun) -> Result<(), Strin
         y0 / 1e3,
         y1 / 1e3
     );
-    out.plots.push(Plot {
-        file: "precipitation-day.png".into(),
-        bytes: plot(&points, &title)?,
-    });
-    out.plots.push(Plot {
-        file: "precipitation-day.csv".into(),
-        bytes: csv(&points).into_bytes(),
-    });
+    out.add_plot("precipitation-day.png", plot(&points, &title)?);
+    out.add_plot("precipitation-day.csv", csv(&points).into_bytes());
     let column_m = 100.0 * f64::from(1u32 << level);
     let mut md = format!(
         "`cloudscape bench --only precipitation-day` ({} effort) started an in-process `cloudscape serve` \
@@ -329,11 +323,7 @@ pub fn precipitation_day(effort: Effort, out: &mut BenchRun) -> Result<(), Strin
         "| share of the box and the time precipitating (mean precipitating fraction) | {:.1} % |\n",
         100.0 * f.wet_area_time
     );
-    out.sections.push(Section {
-        id: "precipitation-day",
-        title: "Weather: precipitation over a day (`/series`)",
-        markdown: md,
-    });
+    out.add_section("precipitation-day", "Weather: precipitation over a day (`/series`)", md);
     Ok(())
 }
 

@@ -125,9 +125,13 @@ impl GroupPath {
 /// The world as the agents see it: from discovery, plus the clock.
 #[derive(Clone, Debug)]
 pub struct WorldView {
+    /// The world's name, as its URLs spell it.
     pub name: String,
+    /// The deepest level the server serves: the players' level choice stops there.
     pub maxzoom: u32,
+    /// Layer names, in the world's order.
     pub layers: Vec<String>,
+    /// Each layer's height band and cell size, for the level choice ([`plan_bands`]).
     pub bands: Vec<LayerBand>,
     /// Seconds per automaton step of each layer: its keyframe spans.
     pub dts: Vec<f64>,

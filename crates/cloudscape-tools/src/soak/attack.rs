@@ -24,7 +24,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::process_memory_kb;
+use super::ServerMemory;
 
 /// How to run the scenario.
 #[derive(Clone, Debug)]
@@ -54,6 +54,7 @@ pub struct AttackOptions {
 /// What one attack found.
 #[derive(Clone, Debug, Serialize)]
 pub struct AttackOutcome {
+    /// The attack's name ([`Attack::name`]).
     pub name: String,
     /// True when the server held: every answer within the contract and the
     /// attack's own target met.
@@ -69,13 +70,19 @@ pub struct AttackOutcome {
 /// The whole scenario's report.
 #[derive(Clone, Debug, Serialize)]
 pub struct AttackReport {
+    /// The server attacked and its request budget ([`AttackOptions`]).
     pub target: String,
     pub budget_s: f64,
+    /// Wall-clock time of the whole scenario.
     pub seconds: f64,
+    /// The attacks run, in order.
     pub attacks: Vec<AttackOutcome>,
-    pub rss_before_kb: Option<u64>,
-    pub peak_rss_kb: Option<u64>,
+    /// The server's resident memory before the scenario and its peak after.
+    #[serde(flatten)]
+    pub memory: ServerMemory,
+    /// The peak the server may reach.
     pub rss_limit_kb: u64,
+    /// Every attack held and the peak stayed within the limit.
     pub held: bool,
 }
 
@@ -99,15 +106,9 @@ impl AttackReport {
                 s += &format!("    {n}\n");
             }
         }
-        let mib = |kb: Option<u64>| {
-            kb.map_or("unknown (no --pid)".to_string(), |k| {
-                format!("{:.0} MiB", k as f64 / 1024.0)
-            })
-        };
         s += &format!(
-            "server RSS: before {}, peak {} (limit {:.0} MiB)\n",
-            mib(self.rss_before_kb),
-            mib(self.peak_rss_kb),
+            "server RSS: {} (limit {:.0} MiB)\n",
+            self.memory.describe(0),
             self.rss_limit_kb as f64 / 1024.0
         );
         s += if self.held {
@@ -176,7 +177,7 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
         .build()
         .map_err(|e| format!("cannot build an HTTP client: {e}"))?;
     let started = Instant::now();
-    let rss_before_kb = opts.pid.and_then(process_memory_kb).map(|m| m.0);
+    let memory = ServerMemory::before(opts.pid);
     let mut outcomes = Vec::new();
     let known: Vec<&'static str> = attacks().iter().map(|a| a.name).collect();
     if let Some(bad) = opts.only.iter().find(|n| !known.contains(&n.as_str())) {
@@ -191,17 +192,16 @@ pub fn run(opts: &AttackOptions) -> Result<AttackReport, String> {
         }
         outcomes.push((attack.run)(opts, &client));
     }
-    let peak_rss_kb = opts.pid.and_then(process_memory_kb).map(|m| m.1);
+    let memory = memory.with_peak(opts.pid);
     let rss_limit_kb = opts.rss_limit_mib * 1024;
-    let rss_ok = peak_rss_kb.is_none_or(|p| p <= rss_limit_kb);
+    let rss_ok = memory.peak_rss_kb.is_none_or(|p| p <= rss_limit_kb);
     Ok(AttackReport {
         target: opts.target.clone(),
         budget_s: opts.budget_s,
         seconds: started.elapsed().as_secs_f64(),
         held: rss_ok && outcomes.iter().all(|o| o.held),
         attacks: outcomes,
-        rss_before_kb,
-        peak_rss_kb,
+        memory,
         rss_limit_kb,
     })
 }

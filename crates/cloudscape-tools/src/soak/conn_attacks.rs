@@ -14,7 +14,9 @@ use super::process_memory_kb;
 /// How many of the attacker's connections the server still held at the end.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct Held {
+    /// Connections the attacker opened.
     pub opened: usize,
+    /// Of those, the ones the server had not closed.
     pub held: usize,
 }
 
@@ -138,15 +140,16 @@ pub fn sigterm_with_slow_clients(addr: &str, pid: u32, n: usize, limit: Duration
 /// What a new client saw while a flood of idle connections was open.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct Recovery {
-    /// Idle connections the attacker tried to open, and how many it could (a server
-    /// that stops accepting leaves the rest unable to connect); they stay open.
+    /// Idle connections the attacker tried to open; they stay open.
     pub flood: usize,
+    /// How many of them connected (a server that stops accepting leaves the rest
+    /// unable to connect).
     pub flood_connected: usize,
     /// How long opening the flood took (the server may close early ones meanwhile).
     pub flood_ms: u64,
-    /// Time until a new client got any answer, and its status (`None`: none within
-    /// the limit).
+    /// Time until a new client got any answer (`None`: none within the limit).
     pub first_answer_ms: Option<u64>,
+    /// The status of that first answer.
     pub first_status: Option<u16>,
     /// Time until a new client got a 200.
     pub first_ok_ms: Option<u64>,

@@ -25,7 +25,9 @@ use http::{Answer, Connection, Failure};
 pub struct SoakOptions {
     /// `http://HOST:PORT`
     pub target: String,
+    /// Requests to send, in all.
     pub requests: u64,
+    /// Seed of the [`Generator`]: the same seed sends the same requests.
     pub seed: u64,
     /// Connections sending at once.
     pub concurrency: usize,
@@ -44,7 +46,9 @@ pub struct SoakOptions {
 pub struct Violation {
     /// Request index: `Generator::new(seed).request(index)` regenerates it.
     pub index: u64,
+    /// How the answer broke the contract, one sentence.
     pub what: String,
+    /// The request method (truncated: generated methods may be garbage).
     pub method: String,
     /// The request target (lossy UTF-8, truncated).
     pub target: String,
@@ -55,20 +59,65 @@ pub struct Violation {
 /// The health checks after the soak.
 #[derive(Clone, Debug, Serialize)]
 pub struct Health {
+    /// Status of `/healthz` (`None`: no answer).
     pub healthz: Option<u16>,
+    /// Status of `/readyz`.
     pub readyz: Option<u16>,
     /// Status of the known-good product (retried while 503).
     pub good_product: Option<u16>,
+    /// All three answered 200.
     pub healthy: bool,
+}
+
+/// The server's resident memory around a run, from `/proc` (`VmRSS`, `VmHWM`), kB;
+/// `None` where no pid was given or `/proc` could not be read. The soak and the
+/// attack scenario both report it.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct ServerMemory {
+    /// Resident memory before the run.
+    pub rss_before_kb: Option<u64>,
+    /// Peak resident memory (`VmHWM`, the process's high-water mark) after the run.
+    pub peak_rss_kb: Option<u64>,
+}
+
+impl ServerMemory {
+    /// Reads the resident memory of process `pid` before a run (the peak is still unknown).
+    pub fn before(pid: Option<u32>) -> ServerMemory {
+        ServerMemory {
+            rss_before_kb: pid.and_then(process_memory_kb).map(|(rss, _)| rss),
+            peak_rss_kb: None,
+        }
+    }
+
+    /// Reads the peak of process `pid` after the run.
+    pub fn with_peak(self, pid: Option<u32>) -> ServerMemory {
+        ServerMemory {
+            peak_rss_kb: pid.and_then(process_memory_kb).map(|(_, hwm)| hwm),
+            ..self
+        }
+    }
+
+    /// `before 12.3 MiB, peak 45.6 MiB` with `decimals` decimals; `unknown (no --pid)`
+    /// for a figure not read.
+    pub fn describe(&self, decimals: usize) -> String {
+        let mib = |kb: Option<u64>| {
+            kb.map_or("unknown (no --pid)".to_string(), |k| {
+                format!("{:.*} MiB", decimals, k as f64 / 1024.0)
+            })
+        };
+        format!("before {}, peak {}", mib(self.rss_before_kb), mib(self.peak_rss_kb))
+    }
 }
 
 /// What a soak found.
 #[derive(Clone, Debug, Serialize)]
 pub struct SoakReport {
+    /// The options the soak ran with ([`SoakOptions`]).
     pub target: String,
     pub seed: u64,
     pub requests: u64,
     pub concurrency: usize,
+    /// Wall-clock time of the soak, health checks excluded.
     pub seconds: f64,
     /// Answers by status code; `closed` (connection closed without an answer) and
     /// `timeout` for the rest.
@@ -77,6 +126,7 @@ pub struct SoakReport {
     pub protocol_by_status: BTreeMap<String, u64>,
     /// 5xx answers other than 503, listed in `violations`.
     pub server_errors: u64,
+    /// Answers that broke the contract, in all.
     pub violation_count: u64,
     /// The first violations (at most 100).
     pub violations: Vec<Violation>,
@@ -84,9 +134,10 @@ pub struct SoakReport {
     pub latency_ms_p50: f64,
     pub latency_ms_p99: f64,
     pub latency_ms_max: f64,
-    /// The server's resident memory before the soak and its peak (`VmHWM`) after, kB.
-    pub rss_before_kb: Option<u64>,
-    pub peak_rss_kb: Option<u64>,
+    /// The server's resident memory before the soak and its peak after.
+    #[serde(flatten)]
+    pub memory: ServerMemory,
+    /// The health checks after the soak.
     pub health_after: Health,
 }
 
@@ -114,16 +165,7 @@ impl SoakReport {
             "latency (route requests): p50 {:.2} ms, p99 {:.2} ms, max {:.1} ms\n",
             self.latency_ms_p50, self.latency_ms_p99, self.latency_ms_max
         );
-        let kb = |v: Option<u64>| {
-            v.map_or("unknown (no --pid)".to_string(), |k| {
-                format!("{:.1} MiB", k as f64 / 1024.0)
-            })
-        };
-        s += &format!(
-            "server RSS: before {}, peak {}\n",
-            kb(self.rss_before_kb),
-            kb(self.peak_rss_kb)
-        );
+        s += &format!("server RSS: {}\n", self.memory.describe(1));
         let h = &self.health_after;
         let st = |v: Option<u16>| v.map_or("no answer".to_string(), |c| c.to_string());
         s += &format!(
@@ -296,7 +338,7 @@ pub fn soak(opts: &SoakOptions) -> Result<SoakReport, String> {
     if get_status(&addr, "/healthz", opts.timeout) != Some(200) {
         return Err(format!("{} does not answer /healthz with 200", opts.target));
     }
-    let rss_before = opts.pid.and_then(process_memory_kb).map(|(rss, _)| rss);
+    let memory = ServerMemory::before(opts.pid);
     let generator = Generator::new(opts.seed);
     let next = AtomicU64::new(0);
     let done = AtomicU64::new(0);
@@ -390,8 +432,7 @@ pub fn soak(opts: &SoakOptions) -> Result<SoakReport, String> {
         server_errors: tally.server_errors,
         violation_count: tally.violation_count,
         violations: tally.violations,
-        rss_before_kb: rss_before,
-        peak_rss_kb: opts.pid.and_then(process_memory_kb).map(|(_, hwm)| hwm),
+        memory: memory.with_peak(opts.pid),
         health_after,
     })
 }
@@ -415,5 +456,31 @@ pub fn health(addr: &str, good_path: &str, timeout: Duration) -> Health {
         readyz,
         good_product: good,
         healthy: healthz == Some(200) && readyz == Some(200) && good == Some(200),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn memory_figures_stay_top_level_fields_of_the_report() {
+        let memory = ServerMemory {
+            rss_before_kb: Some(1024),
+            peak_rss_kb: None,
+        };
+        let report = attack::AttackReport {
+            target: "http://127.0.0.1:1".into(),
+            budget_s: 1.0,
+            seconds: 0.0,
+            attacks: vec![],
+            memory,
+            rss_limit_kb: 2048,
+            held: true,
+        };
+        let v = serde_json::to_value(&report).unwrap();
+        assert_eq!(v["rss_before_kb"], 1024);
+        assert!(v["peak_rss_kb"].is_null() && v.get("memory").is_none());
+        assert_eq!(memory.describe(1), "before 1.0 MiB, peak unknown (no --pid)");
     }
 }

@@ -822,37 +822,42 @@ mod tests {
         assert!(c.world("nope").is_none());
     }
 
+    /// Parses the default config with the first `from` replaced by `to` and asserts
+    /// that the error names `named`.
+    #[track_caller]
+    fn assert_rejected_naming(from: &str, to: &str, named: &str) {
+        assert!(DEFAULT_CONFIG.contains(from), "{from:?} is not in the default config");
+        let e = Config::parse(&DEFAULT_CONFIG.replacen(from, to, 1))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(named), "{e}");
+    }
+
     #[test]
     fn unknown_key_is_named() {
-        let text = DEFAULT_CONFIG.replace("[limits]", "[limits]\nbogus_key = 3");
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("bogus_key"), "{e}");
+        assert_rejected_naming("[limits]", "[limits]\nbogus_key = 3", "bogus_key");
     }
 
     #[test]
     fn invalid_value_is_named() {
-        let text = DEFAULT_CONFIG.replacen("depth = 10", "depth = 0", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("depth"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("dt = 20.0", "dt = nan", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("dt"), "{e}");
+        assert_rejected_naming("depth = 10", "depth = 0", "depth");
+        assert_rejected_naming("dt = 20.0", "dt = nan", "dt");
     }
 
     #[test]
     fn invalid_weather_values_are_named() {
-        let text = DEFAULT_CONFIG.replacen("freezing_level = 3000.0", "freezing_level = nan", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("worlds.default.freezing_level"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("onset = 500.0, efficiency = 1.0", "onset = 500.0, efficiency = 1.5", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("presets.cumulonimbus.precipitation.efficiency"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("droplets = 100.0", "droplets = 0.0", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("precipitation.droplets"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("onset = 500.0,", "onset = 500.0, rain = 1,", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("rain"), "{e}");
+        assert_rejected_naming(
+            "freezing_level = 3000.0",
+            "freezing_level = nan",
+            "worlds.default.freezing_level",
+        );
+        assert_rejected_naming(
+            "onset = 500.0, efficiency = 1.0",
+            "onset = 500.0, efficiency = 1.5",
+            "presets.cumulonimbus.precipitation.efficiency",
+        );
+        assert_rejected_naming("droplets = 100.0", "droplets = 0.0", "precipitation.droplets");
+        assert_rejected_naming("onset = 500.0,", "onset = 500.0, rain = 1,", "rain");
         // A world without a freezing level gets the default one in every layer.
         let c = Config::embedded();
         assert!(

@@ -13,6 +13,7 @@ use std::time::Duration;
 use cloudscape_core::automaton::kernel::Rect;
 use cloudscape_core::automaton::naive;
 use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
+use cloudscape_core::cpu::Backend;
 use cloudscape_core::density::{self, Region, exact};
 use cloudscape_core::fields::noise::NoiseBackend;
 use cloudscape_core::world::{Config, Event, World};

@@ -15,6 +15,7 @@ use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
 use crate::automaton::run::millis;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
+use crate::cpu::Backend;
 use crate::fields::noise::{Coord, MIX_MUL, NoiseBackend, mix64};
 
 /// The epoch plans of `steps` and the snapshots of every run they name, each run
@@ -209,10 +210,7 @@ pub fn switch_hashes_on(backend: NoiseBackend, stream: u64, k: usize, w: Rect) -
     if cols == 0 {
         return out;
     }
-    assert!(
-        NoiseBackend::available().contains(&backend),
-        "{backend:?} hashes on a CPU without them"
-    );
+    assert!(backend.runs_here(), "{backend:?} hashes on a CPU without them");
     for (r, row) in out.chunks_exact_mut(cols).enumerate() {
         let my = mix64((w.y0 + r as i64) as u64);
         match backend {

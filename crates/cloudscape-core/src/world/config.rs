@@ -469,34 +469,37 @@ fn timing(
 
 /// A checked `[[worlds.NAME.events]]` entry.
 fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
-    let need = |name: &str, present: bool| {
-        if present {
-            Ok(())
-        } else {
-            Err(invalid(
+    // The shape fields given; each kind names those it requires and those it refuses
+    // (it may take or leave the others).
+    let given = [
+        ("centre", e.centre.is_some()),
+        ("radii", e.radii.is_some()),
+        ("velocity", e.velocity.is_some()),
+        ("path", e.path.is_some()),
+        ("origin", e.origin.is_some()),
+        ("width", e.width.is_some()),
+        ("behind", e.behind != 0.0),
+        ("length", e.length.is_some()),
+    ];
+    let fields = |required: &[&str], refused: &[&str]| {
+        let is_given = |name: &str| given.iter().any(|&(n, present)| n == name && present);
+        if let Some(name) = required.iter().find(|n| !is_given(n)) {
+            return Err(invalid(
                 format!("{key}.{name}"),
                 format!("is required for a {}", e.kind),
-            ))
+            ));
         }
-    };
-    let refuse = |name: &str, present: bool| {
-        if present {
-            Err(invalid(
+        if let Some(name) = refused.iter().find(|n| is_given(n)) {
+            return Err(invalid(
                 format!("{key}.{name}"),
                 format!("does not apply to a {}", e.kind),
-            ))
-        } else {
-            Ok(())
+            ));
         }
+        Ok(())
     };
     let shape = match e.kind.as_str() {
         "storm" => {
-            need("centre", e.centre.is_some())?;
-            need("radii", e.radii.is_some())?;
-            refuse("origin", e.origin.is_some())?;
-            refuse("width", e.width.is_some())?;
-            refuse("length", e.length.is_some())?;
-            refuse("behind", e.behind != 0.0)?;
+            fields(&["centre", "radii"], &["origin", "width", "length", "behind"])?;
             let (centre, radii) = (e.centre.unwrap_or_default(), e.radii.unwrap_or_default());
             bounded(&format!("{key}.centre"), &centre, MAX_AUTHORED, "metres")?;
             if !radii.iter().all(|r| r.is_finite() && *r >= 1.0 && *r <= MAX_AUTHORED) {
@@ -531,12 +534,7 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
             })
         }
         "front" => {
-            need("origin", e.origin.is_some())?;
-            need("velocity", e.velocity.is_some())?;
-            need("width", e.width.is_some())?;
-            refuse("centre", e.centre.is_some())?;
-            refuse("radii", e.radii.is_some())?;
-            refuse("path", e.path.is_some())?;
+            fields(&["origin", "velocity", "width"], &["centre", "radii", "path"])?;
             let (origin, velocity, width) = (
                 e.origin.unwrap_or_default(),
                 e.velocity.unwrap_or_default(),
@@ -842,6 +840,18 @@ mod tests {
     fn invalid_value_is_named() {
         assert_rejected_naming("depth = 10", "depth = 0", "depth");
         assert_rejected_naming("dt = 20.0", "dt = nan", "dt");
+    }
+
+    #[test]
+    fn event_fields_are_checked_against_the_kind() {
+        // A storm refuses a front's fields; a front requires its own.
+        let storm_radii = "radii = [7000.0, 7000.0, 8000.0]";
+        let with_width = format!("{storm_radii}\nwidth = 10.0");
+        assert_rejected_naming(storm_radii, &with_width, "worlds.archipelago.events[0].width");
+        assert_rejected_naming(storm_radii, &with_width, "does not apply to a storm");
+        let front_width = "width = 4000.0\nlength = 80000.0";
+        assert_rejected_naming(front_width, "length = 80000.0", "worlds.archipelago.events[1].width");
+        assert_rejected_naming(front_width, "length = 80000.0", "is required for a front");
     }
 
     #[test]

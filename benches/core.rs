@@ -13,11 +13,13 @@ use std::time::Duration;
 use cloudscape_core::automaton::kernel::Rect;
 use cloudscape_core::automaton::naive;
 use cloudscape_core::automaton::{LayerSim, RunSpec, plan_step};
+use cloudscape_core::cpu::Backend;
 use cloudscape_core::density::{self, Region, exact};
 use cloudscape_core::fields::noise::NoiseBackend;
 use cloudscape_core::world::{Config, Event, World};
 use cloudscape_tools::bench::core::{FIELDS_FBM, Grids, packed_steps, scene, step_grids, to_naive};
-use criterion::{BatchSize, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
+use criterion::measurement::WallTime;
+use criterion::{BatchSize, BenchmarkGroup, BenchmarkId, Criterion, Throughput, criterion_group, criterion_main};
 use noise::{MultiFractal, NoiseFn};
 
 /// The overcast world: its stratocumulus deck is the layer every figure here (and the
@@ -26,11 +28,18 @@ fn world() -> World {
     Config::embedded().world("overcast").unwrap()
 }
 
-fn automaton(c: &mut Criterion) {
-    let mut g = c.benchmark_group("automaton");
+/// A group of 10 samples after 1 s of warm-up, measured for `seconds`: every figure
+/// here times a whole, slow operation.
+fn group<'a>(c: &'a mut Criterion, name: &str, seconds: u64) -> BenchmarkGroup<'a, WallTime> {
+    let mut g = c.benchmark_group(name);
     g.sample_size(10)
-        .measurement_time(Duration::from_secs(4))
+        .measurement_time(Duration::from_secs(seconds))
         .warm_up_time(Duration::from_secs(1));
+    g
+}
+
+fn automaton(c: &mut Criterion) {
+    let mut g = group(c, "automaton", 4);
     let (sim, levels, drives) = scene(512);
     let cells = (512 * 512 * sim.depth()) as u64;
     g.throughput(Throughput::Elements(cells * 8));
@@ -62,10 +71,7 @@ fn automaton(c: &mut Criterion) {
 }
 
 fn fields(c: &mut Criterion) {
-    let mut g = c.benchmark_group("fields");
-    g.sample_size(10)
-        .measurement_time(Duration::from_secs(3))
-        .warm_up_time(Duration::from_secs(1));
+    let mut g = group(c, "fields", 3);
     let n = 64 * 64;
     g.throughput(Throughput::Elements(n));
     let ours = FIELDS_FBM;
@@ -103,10 +109,7 @@ fn fields(c: &mut Criterion) {
 }
 
 fn tiles(c: &mut Criterion) {
-    let mut g = c.benchmark_group("tile");
-    g.sample_size(10)
-        .measurement_time(Duration::from_secs(6))
-        .warm_up_time(Duration::from_secs(1));
+    let mut g = group(c, "tile", 6);
     let w = world();
     let mut t = 1234.5;
     for level in [0u32, 2, 4] {

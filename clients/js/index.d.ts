@@ -178,20 +178,29 @@ export interface BillboardHeader {
   algorithmVersion: number | null;
 }
 
-/** Records as columns; two-ended columns hold end 0 (t0) at 2i and end 1 (t1) at 2i + 1. */
-export interface BillboardRecords {
-  /** x, y from the tile origin at t0 and altitude, metres (3 per record). */
-  offset: Float32Array;
+/**
+ * How each billboard looks, as columns. In a tile's records the two-ended ones
+ * hold end 0 (t0) at 2i and end 1 (t1) at 2i + 1 (colour 6 per record); in a
+ * frame every column holds one value per billboard (colour 3). `radius` is one per
+ * billboard in both.
+ */
+export interface BillboardLooks {
   radius: Float32Array;
-  /** m/s, x east, y north (2 per record). */
-  velocity: Float32Array;
   splatTau: Float32Array;
   splat: Uint16Array;
-  /** Linear RGB at t0 then t1 (6 per record). */
+  /** Linear RGB (in records: at t0, then at t1). */
   colour: Float32Array;
   tauSun: Float32Array;
   opacity: Float32Array;
   sunTransmittance: Float32Array;
+}
+
+/** Records as columns: where each billboard is and how it moves, and its looks at both ends. */
+export interface BillboardRecords extends BillboardLooks {
+  /** x, y from the tile origin at t0 and altitude, metres (3 per record). */
+  offset: Float32Array;
+  /** m/s, x east, y north (2 per record). */
+  velocity: Float32Array;
 }
 
 export interface BillboardTile {
@@ -207,19 +216,12 @@ export function splatTauOf(k: number, count: number, tauMax?: number): number;
 export function splatForTau(tau: number, count: number, tauMax?: number): number;
 
 /** A tile's billboards at one time (the animation rule applied). */
-export interface BillboardFrame {
+export interface BillboardFrame extends BillboardLooks {
   count: number;
   t: number;
   f: number;
   /** World metres, x east, y north, z up (3 per billboard). */
   position: Float64Array;
-  radius: Float32Array;
-  splatTau: Float32Array;
-  splat: Uint16Array;
-  colour: Float32Array;
-  tauSun: Float32Array;
-  opacity: Float32Array;
-  sunTransmittance: Float32Array;
   /** 1 where the billboard exists at this time (τ > 0). */
   present: Uint8Array;
 }

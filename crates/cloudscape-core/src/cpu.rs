@@ -52,3 +52,21 @@ impl Features {
         self.avx512f && self.avx512bw && self.vaes
     }
 }
+
+/// A choice between a kernel's portable form and vector forms of it that give the
+/// same bits ([`crate::fields::noise::NoiseBackend`],
+/// [`crate::automaton::random::DrawBackend`]).
+pub trait Backend: Copy + PartialEq + 'static {
+    /// Every backend this CPU runs, slowest (the portable one, always there) first.
+    fn available() -> &'static [Self];
+
+    /// The fastest backend this CPU runs.
+    fn detect() -> Self {
+        *Self::available().last().expect("the portable backend is always there")
+    }
+
+    /// Whether this CPU runs `self` (a vector kernel is only sound where it does).
+    fn runs_here(self) -> bool {
+        Self::available().contains(&self)
+    }
+}

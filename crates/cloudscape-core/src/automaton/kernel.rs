@@ -23,6 +23,7 @@
 use std::ops::Range;
 
 use super::random::{DrawBackend, StepKeys, StochasticDrives, below_portable};
+use crate::cpu::Backend;
 
 /// A half-open rectangle of frame cells.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -200,10 +201,7 @@ pub fn step_level_on(
             match backend {
                 #[cfg(target_arch = "x86_64")]
                 DrawBackend::Avx512 => {
-                    assert!(
-                        DrawBackend::available().contains(&DrawBackend::Avx512),
-                        "AVX-512 draws on a CPU without them"
-                    );
+                    assert!(DrawBackend::Avx512.runs_here(), "AVX-512 draws on a CPU without them");
                     // SAFETY: the CPU has AVX-512 F, BW and VAES (asserted above).
                     unsafe {
                         if words.has_always() {

@@ -15,6 +15,7 @@ use super::frame::Frames;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level};
 use super::random::StochasticDrives;
 use crate::cancel::Cancel;
+use crate::cpu::Backend;
 use crate::fields::noise::NoiseBackend;
 use crate::fields::noise::mix64;
 use crate::fields::probability::{LevelMapping, max_filter};
@@ -383,10 +384,7 @@ fn lanes_above(lanes: &[f32; 64], threshold: f32) -> u64 {
 /// and appended ([`StochasticDrives::push`]), on `backend` (one of
 /// [`NoiseBackend::available`]).
 fn stochastic(conv: &Conversion, backend: NoiseBackend) -> StochasticDrives {
-    assert!(
-        NoiseBackend::available().contains(&backend),
-        "{backend:?} conversion on a CPU without it"
-    );
+    assert!(backend.runs_here(), "{backend:?} conversion on a CPU without it");
     match backend {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: the CPU has AVX-512 F (asserted above).

@@ -7,6 +7,7 @@ use proptest::prelude::*;
 use super::kernel::{Drives, Level, Rect, Rules, StepContext, step_level, step_level_on};
 use super::naive::{NaiveDrives, NaiveLevel, step};
 use super::random::{DrawBackend, StochasticDrives};
+use crate::cpu::Backend;
 use crate::fields::noise::mix64;
 
 /// Dobashi drives from per-cell thresholds q (0..=65536) of (hum, act, ext), 64 cells per word.

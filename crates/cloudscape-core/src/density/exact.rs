@@ -15,6 +15,7 @@ use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
 use crate::automaton::run::millis;
 use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
+use crate::cpu::Backend;
 use crate::fields::noise::{Coord, MIX_MUL, NoiseBackend, mix64};
 
 /// The epoch plans of `steps` and the snapshots of every run they name, each run
@@ -209,10 +210,7 @@ pub fn switch_hashes_on(backend: NoiseBackend, stream: u64, k: usize, w: Rect) -
     if cols == 0 {
         return out;
     }
-    assert!(
-        NoiseBackend::available().contains(&backend),
-        "{backend:?} hashes on a CPU without them"
-    );
+    assert!(backend.runs_here(), "{backend:?} hashes on a CPU without them");
     for (r, row) in out.chunks_exact_mut(cols).enumerate() {
         let my = mix64((w.y0 + r as i64) as u64);
         match backend {
@@ -379,6 +377,17 @@ fn sampling(sim: &LayerSim, region: Region, t: f64) -> Sampling {
     }
 }
 
+/// Bilinear taps along one axis of a frame displaced by `c`: the frame index of cell
+/// centre X is X − c, which lies between frame cells X − `c.int` − `o` and the next one,
+/// weighted `w`; returns (`o`, `w`).
+fn taps(c: Coord) -> (i64, f32) {
+    if c.frac > 0.0 {
+        (1, (1.0 - c.frac) as f32)
+    } else {
+        (0, 0.0)
+    }
+}
+
 /// The continuous density over `region` (level-0 cells).
 pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
     let depth = sim.depth();
@@ -398,10 +407,7 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
     grid.data.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
         let smoothed: Vec<Smoothed> = st.iter().map(|levels| Smoothed::new(&levels[k], windows[k])).collect();
         let (cx, cy) = disp[k];
-        // Bilinear weights: frame index of the cell centre is X − c.
-        let (ox, wx) = if cx.frac > 0.0 { (1, 1.0 - cx.frac) } else { (0, 0.0) };
-        let (oy, wy) = if cy.frac > 0.0 { (1, 1.0 - cy.frac) } else { (0, 0.0) };
-        let (wx, wy) = (wx as f32, wy as f32);
+        let ((ox, wx), (oy, wy)) = (taps(cx), taps(cy));
         let fx0 = region.x0 - cx.int - ox;
         let fy0 = region.y0 - cy.int - oy;
         // Frame rows fy and fy + 1 of each step, interpolated along x; output row
@@ -581,9 +587,7 @@ mod tests {
                 .map(|levels| SmoothedReference::new(&levels[k], windows[k]))
                 .collect();
             let (cx, cy) = disp[k];
-            let (ox, wx) = if cx.frac > 0.0 { (1, 1.0 - cx.frac) } else { (0, 0.0) };
-            let (oy, wy) = if cy.frac > 0.0 { (1, 1.0 - cy.frac) } else { (0, 0.0) };
-            let (wx, wy) = (wx as f32, wy as f32);
+            let ((ox, wx), (oy, wy)) = (taps(cx), taps(cy));
             for r in 0..region.rows {
                 let fy = region.y0 + r as i64 - cy.int - oy;
                 for c in 0..region.cols {

@@ -398,12 +398,7 @@ mod tests {
 
     #[test]
     fn uniform_density_is_collected_exactly_and_offsets_alternate() {
-        let grid = Grid {
-            depth: 10,
-            rows: 40,
-            cols: 40,
-            data: vec![0.6f32; 16_000],
-        };
+        let grid = Grid::filled(10, 40, 40, 0.6f32);
         let place = GridPlacement {
             x0: 0.0,
             y0: 0.0,

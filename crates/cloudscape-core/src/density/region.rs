@@ -228,11 +228,16 @@ pub struct Grid<T> {
 impl<T: Copy + Default> Grid<T> {
     /// A grid of the shape filled with `T::default()`.
     pub fn new(depth: usize, rows: usize, cols: usize) -> Grid<T> {
+        Grid::filled(depth, rows, cols, T::default())
+    }
+
+    /// A grid of the shape with `value` in every cell.
+    pub fn filled(depth: usize, rows: usize, cols: usize, value: T) -> Grid<T> {
         Grid {
             depth,
             rows,
             cols,
-            data: vec![T::default(); depth * rows * cols],
+            data: vec![value; depth * rows * cols],
         }
     }
 

@@ -12,6 +12,7 @@
 use rayon::prelude::*;
 
 use super::noise::{Coord, Fbm, FbmGrid, NoiseBackend, Octave, mix64, sample_table};
+use crate::cpu::Backend;
 use crate::world::{Event, FieldSpec, Layer, Mode, World};
 
 /// The noise fields of one layer of one world.
@@ -427,26 +428,27 @@ pub fn max_filter(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
     if r == 0 || src.is_empty() {
         return src.to_vec();
     }
-    let mut along = vec![0f32; w * h];
-    along
-        .par_chunks_mut(w)
+    // Rows, then columns: transpose, filter the rows, transpose back.
+    let along = max_rows(src, w, r);
+    let t = max_rows(&transpose(&along, w, h), h, r);
+    transpose(&t, h, w)
+}
+
+/// [`running_max`] over each row of `src` (row-major, rows of `w`), rows in parallel.
+fn max_rows(src: &[f32], w: usize, r: usize) -> Vec<f32> {
+    let mut out = vec![0f32; src.len()];
+    out.par_chunks_mut(w)
         .zip(src.par_chunks(w))
         .for_each_init(Vec::new, |scratch, (out, row)| running_max(row, r, out, scratch));
-    // Columns: transpose, filter the rows, transpose back.
-    let mut t = vec![0f32; w * h];
-    for (y, row) in along.chunks(w).enumerate() {
-        for (x, &v) in row.iter().enumerate() {
-            t[x * h + y] = v;
-        }
-    }
-    let mut t2 = vec![0f32; w * h];
-    t2.par_chunks_mut(h)
-        .zip(t.par_chunks(h))
-        .for_each_init(Vec::new, |scratch, (out, col)| running_max(col, r, out, scratch));
+    out
+}
+
+/// The transpose of `src` (row-major, `w × h`): row-major `h × w`.
+fn transpose(src: &[f32], w: usize, h: usize) -> Vec<f32> {
     let mut out = vec![0f32; w * h];
-    for (x, col) in t2.chunks(h).enumerate() {
-        for (y, &v) in col.iter().enumerate() {
-            out[y * w + x] = v;
+    for (y, row) in src.chunks(w).enumerate() {
+        for (x, &v) in row.iter().enumerate() {
+            out[x * h + y] = v;
         }
     }
     out

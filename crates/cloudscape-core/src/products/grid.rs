@@ -88,12 +88,7 @@ mod tests {
 
     #[test]
     fn npy_header_is_aligned_and_describes_shape() {
-        let g = Grid {
-            depth: 2,
-            rows: 3,
-            cols: 4,
-            data: vec![0.5f32; 24],
-        };
+        let g = Grid::filled(2, 3, 4, 0.5f32);
         let b = encode_density(&g, GridFormat::Npy);
         let hl = u16::from_le_bytes([b[8], b[9]]) as usize;
         assert_eq!((10 + hl) % 64, 0);

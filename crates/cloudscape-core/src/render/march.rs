@@ -13,6 +13,8 @@
 //! Early exit when the view transmittance drops below `min_transmittance` or the
 //! shadow optical depth exceeds `max_shadow_tau`.
 
+use std::ops::ControlFlow;
+
 use rayon::prelude::*;
 
 use crate::cancel::Cancel;
@@ -337,6 +339,29 @@ pub fn optical_depth(
     cap: f64,
 ) -> f64 {
     let mut tau = 0.0;
+    let walk = midpoints(volumes, o, d, t_max, step, |vol, p, dt| {
+        tau += extinction * vol.density(p) * dt;
+        if tau > cap {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    if walk.is_break() { cap } else { tau }
+}
+
+/// Walks the ray (`o`, `d`) over [0, `t_max`] through `volumes` in steps of at most
+/// `step` metres (empty bricks skipped), calling `sample(volume, point, dt)` at each
+/// step's midpoint until it breaks: the midpoint rule of [`optical_depth`] and
+/// [`march_ray`].
+fn midpoints(
+    volumes: &[Volume],
+    o: [f64; 3],
+    d: [f64; 3],
+    t_max: f64,
+    step: f64,
+    mut sample: impl FnMut(&Volume, [f64; 3], f64) -> ControlFlow<()>,
+) -> ControlFlow<()> {
     for (i, t0, t1) in intervals(volumes, o, d, 0.0, t_max) {
         let vol = &volumes[i];
         let mut t = t0;
@@ -347,14 +372,11 @@ pub fn optical_depth(
             }
             let dt = step.min(t1 - t);
             let m = t + 0.5 * dt;
-            tau += extinction * vol.density([o[0] + d[0] * m, o[1] + d[1] * m, o[2] + d[2] * m]) * dt;
-            if tau > cap {
-                return cap;
-            }
+            sample(vol, [o[0] + d[0] * m, o[1] + d[1] * m, o[2] + d[2] * m], dt)?;
             t += dt;
         }
     }
-    tau
+    ControlFlow::Continue(())
 }
 
 /// The optical depth of every pixel's view ray of `view` through `volumes`, up to the
@@ -396,41 +418,34 @@ pub fn march_ray(
     let sun_up = lighting.sun_rgb.iter().any(|&c| c > 0.0);
     let mut radiance = [0.0; 3];
     let mut trans = 1.0;
-    for (i, t0, t1) in intervals(volumes, o, d, 0.0, t_max) {
-        let vol = &volumes[i];
-        let mut t = t0;
-        while t < t1 {
-            if let Some(next) = vol.skip(o, d, t) {
-                t = next;
-                continue;
+    let walk = midpoints(volumes, o, d, t_max, params.step, |vol, p, dt| {
+        let rho = vol.density(p);
+        if rho > 0.0 {
+            let a = 1.0 - (-sigma_max * rho * dt).exp();
+            let t_sun = if sun_up {
+                (-shadow_tau(volumes, p, sun, sigma_max, params)).exp()
+            } else {
+                0.0
+            };
+            // Seen through the air between the eye and the sample (aerial
+            // perspective, as the compositor hazes each billboard by its distance).
+            let j = lighting.source_with_phase(t_sun, phase);
+            let j = if aerial { lighting.hazed(j, o, p) } else { j };
+            for c in 0..3 {
+                radiance[c] += trans * a * j[c];
             }
-            let dt = params.step.min(t1 - t);
-            let m = t + 0.5 * dt;
-            let p = [o[0] + d[0] * m, o[1] + d[1] * m, o[2] + d[2] * m];
-            let rho = vol.density(p);
-            if rho > 0.0 {
-                let a = 1.0 - (-sigma_max * rho * dt).exp();
-                let t_sun = if sun_up {
-                    (-shadow_tau(volumes, p, sun, sigma_max, params)).exp()
-                } else {
-                    0.0
-                };
-                // Seen through the air between the eye and the sample (aerial
-                // perspective, as the compositor hazes each billboard by its distance).
-                let j = lighting.source_with_phase(t_sun, phase);
-                let j = if aerial { lighting.hazed(j, o, p) } else { j };
-                for c in 0..3 {
-                    radiance[c] += trans * a * j[c];
-                }
-                trans *= 1.0 - a;
-                if trans < params.min_transmittance {
-                    return (radiance, 0.0);
-                }
+            trans *= 1.0 - a;
+            if trans < params.min_transmittance {
+                return ControlFlow::Break(());
             }
-            t += dt;
         }
+        ControlFlow::Continue(())
+    });
+    if walk.is_break() {
+        (radiance, 0.0)
+    } else {
+        (radiance, trans)
     }
-    (radiance, trans)
 }
 
 /// Renders `view` over `volumes`: clouds (hazed by the air in perspective views),

@@ -768,6 +768,34 @@ mod tests {
         volume([40, 40, 6], 1000.0, 100.0, 1000.0, move |_, _, _| rho)
     }
 
+    /// Extinction per metre at density 1 in the slab tests.
+    const SLAB_EXTINCTION: f64 = 0.01;
+
+    /// The optical thickness of [`slab`]`(rho)` lit with [`SLAB_EXTINCTION`].
+    fn slab_tau(rho: f32) -> f64 {
+        SLAB_EXTINCTION * rho as f64 * 500.0
+    }
+
+    /// The slab tests' lighting: the sun at zenith angle θs, [`SLAB_EXTINCTION`].
+    fn slab_lighting(theta_s_deg: f64, albedo: f64, phase: Phase) -> Lighting {
+        let params = ShadingParams {
+            extinction: SLAB_EXTINCTION,
+            albedo,
+            phase,
+            ..ShadingParams::default()
+        };
+        lighting(sun_at_zenith_angle(theta_s_deg), params)
+    }
+
+    /// Only the sun: a black sky and no ground.
+    fn sun_only(lighting: &Lighting) -> Environment<'_> {
+        Environment {
+            lighting,
+            sky: Sky::Uniform([0.0; 3]),
+            ground: false,
+        }
+    }
+
     fn slab_centre() -> [f64; 3] {
         [20_000.0, 20_000.0, 1550.0]
     }
@@ -787,22 +815,11 @@ mod tests {
                 },
             ),
         ] {
-            let params = ShadingParams {
-                extinction: 0.01,
-                albedo: 0.9,
-                phase,
-                ..ShadingParams::default()
-            };
-            let l = lighting(sun_at_zenith_angle(theta_s), params);
-            let env = Environment {
-                lighting: &l,
-                sky: Sky::Uniform([0.0; 3]),
-                ground: false,
-            };
+            let l = slab_lighting(theta_s, 0.9, phase);
             // Looking down toward the north-east, the sun behind-left in the south.
             let view = looking_down(slab_centre(), theta_v, 40.0, 6);
-            let traced = render(&[slab(rho)], env, &PathParams::single_scattering(512), &view);
-            let tau = 0.01 * rho as f64 * 500.0;
+            let traced = render(&[slab(rho)], sun_only(&l), &PathParams::single_scattering(512), &view);
+            let tau = slab_tau(rho);
             let d = view.ray(3.0, 3.0).1;
             let p = phase.eval(dot(d, l.sun_dir));
             for c in 0..3 {
@@ -871,19 +888,9 @@ mod tests {
             mix: 0.5,
         };
         let (rho, omega) = (0.6f32, 0.9);
-        let tau = 0.01 * rho as f64 * 500.0;
-        let params = ShadingParams {
-            extinction: 0.01,
-            albedo: omega,
-            phase: isotropic,
-            ..ShadingParams::default()
-        };
-        let l = lighting(sun_at_zenith_angle(theta_s), params);
-        let env = Environment {
-            lighting: &l,
-            sky: Sky::Uniform([0.0; 3]),
-            ground: false,
-        };
+        let tau = slab_tau(rho);
+        let l = slab_lighting(theta_s, omega, isotropic);
+        let env = sun_only(&l);
         let view = looking_down(slab_centre(), theta_v, 40.0, 6);
         let full = render(&[slab(rho)], env, &PathParams::new(1024), &view);
         let single = render(&[slab(rho)], env, &PathParams::single_scattering(256), &view);
@@ -936,12 +943,7 @@ mod tests {
         let step = MarchParams::with_step(50.0 / 16.0);
         let never = Cancel::never();
         let marched = march::render_with_air(std::slice::from_ref(&vol), &l, &step, &view, false, false, &never);
-        let env = Environment {
-            lighting: &l,
-            sky: Sky::Uniform([0.0; 3]),
-            ground: false,
-        };
-        let traced = render(&[vol], env, &PathParams::single_scattering(1024), &view);
+        let traced = render(&[vol], sun_only(&l), &PathParams::single_scattering(1024), &view);
         let (a, b) = (mean_luminance(&traced.image), mean_luminance(&marched));
         let n = traced.image.rgb.len() as f64;
         let se = traced.noise.std_error / n.sqrt();

@@ -469,34 +469,37 @@ fn timing(
 
 /// A checked `[[worlds.NAME.events]]` entry.
 fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
-    let need = |name: &str, present: bool| {
-        if present {
-            Ok(())
-        } else {
-            Err(invalid(
+    // The shape fields given; each kind names those it requires and those it refuses
+    // (it may take or leave the others).
+    let given = [
+        ("centre", e.centre.is_some()),
+        ("radii", e.radii.is_some()),
+        ("velocity", e.velocity.is_some()),
+        ("path", e.path.is_some()),
+        ("origin", e.origin.is_some()),
+        ("width", e.width.is_some()),
+        ("behind", e.behind != 0.0),
+        ("length", e.length.is_some()),
+    ];
+    let fields = |required: &[&str], refused: &[&str]| {
+        let is_given = |name: &str| given.iter().any(|&(n, present)| n == name && present);
+        if let Some(name) = required.iter().find(|n| !is_given(n)) {
+            return Err(invalid(
                 format!("{key}.{name}"),
                 format!("is required for a {}", e.kind),
-            ))
+            ));
         }
-    };
-    let refuse = |name: &str, present: bool| {
-        if present {
-            Err(invalid(
+        if let Some(name) = refused.iter().find(|n| is_given(n)) {
+            return Err(invalid(
                 format!("{key}.{name}"),
                 format!("does not apply to a {}", e.kind),
-            ))
-        } else {
-            Ok(())
+            ));
         }
+        Ok(())
     };
     let shape = match e.kind.as_str() {
         "storm" => {
-            need("centre", e.centre.is_some())?;
-            need("radii", e.radii.is_some())?;
-            refuse("origin", e.origin.is_some())?;
-            refuse("width", e.width.is_some())?;
-            refuse("length", e.length.is_some())?;
-            refuse("behind", e.behind != 0.0)?;
+            fields(&["centre", "radii"], &["origin", "width", "length", "behind"])?;
             let (centre, radii) = (e.centre.unwrap_or_default(), e.radii.unwrap_or_default());
             bounded(&format!("{key}.centre"), &centre, MAX_AUTHORED, "metres")?;
             if !radii.iter().all(|r| r.is_finite() && *r >= 1.0 && *r <= MAX_AUTHORED) {
@@ -531,12 +534,7 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
             })
         }
         "front" => {
-            need("origin", e.origin.is_some())?;
-            need("velocity", e.velocity.is_some())?;
-            need("width", e.width.is_some())?;
-            refuse("centre", e.centre.is_some())?;
-            refuse("radii", e.radii.is_some())?;
-            refuse("path", e.path.is_some())?;
+            fields(&["origin", "velocity", "width"], &["centre", "radii", "path"])?;
             let (origin, velocity, width) = (
                 e.origin.unwrap_or_default(),
                 e.velocity.unwrap_or_default(),
@@ -822,37 +820,54 @@ mod tests {
         assert!(c.world("nope").is_none());
     }
 
+    /// Parses the default config with the first `from` replaced by `to` and asserts
+    /// that the error names `named`.
+    #[track_caller]
+    fn assert_rejected_naming(from: &str, to: &str, named: &str) {
+        assert!(DEFAULT_CONFIG.contains(from), "{from:?} is not in the default config");
+        let e = Config::parse(&DEFAULT_CONFIG.replacen(from, to, 1))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(named), "{e}");
+    }
+
     #[test]
     fn unknown_key_is_named() {
-        let text = DEFAULT_CONFIG.replace("[limits]", "[limits]\nbogus_key = 3");
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("bogus_key"), "{e}");
+        assert_rejected_naming("[limits]", "[limits]\nbogus_key = 3", "bogus_key");
     }
 
     #[test]
     fn invalid_value_is_named() {
-        let text = DEFAULT_CONFIG.replacen("depth = 10", "depth = 0", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("depth"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("dt = 20.0", "dt = nan", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("dt"), "{e}");
+        assert_rejected_naming("depth = 10", "depth = 0", "depth");
+        assert_rejected_naming("dt = 20.0", "dt = nan", "dt");
+    }
+
+    #[test]
+    fn event_fields_are_checked_against_the_kind() {
+        // A storm refuses a front's fields; a front requires its own.
+        let storm_radii = "radii = [7000.0, 7000.0, 8000.0]";
+        let with_width = format!("{storm_radii}\nwidth = 10.0");
+        assert_rejected_naming(storm_radii, &with_width, "worlds.archipelago.events[0].width");
+        assert_rejected_naming(storm_radii, &with_width, "does not apply to a storm");
+        let front_width = "width = 4000.0\nlength = 80000.0";
+        assert_rejected_naming(front_width, "length = 80000.0", "worlds.archipelago.events[1].width");
+        assert_rejected_naming(front_width, "length = 80000.0", "is required for a front");
     }
 
     #[test]
     fn invalid_weather_values_are_named() {
-        let text = DEFAULT_CONFIG.replacen("freezing_level = 3000.0", "freezing_level = nan", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("worlds.default.freezing_level"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("onset = 500.0, efficiency = 1.0", "onset = 500.0, efficiency = 1.5", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("presets.cumulonimbus.precipitation.efficiency"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("droplets = 100.0", "droplets = 0.0", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("precipitation.droplets"), "{e}");
-        let text = DEFAULT_CONFIG.replacen("onset = 500.0,", "onset = 500.0, rain = 1,", 1);
-        let e = Config::parse(&text).unwrap_err().to_string();
-        assert!(e.contains("rain"), "{e}");
+        assert_rejected_naming(
+            "freezing_level = 3000.0",
+            "freezing_level = nan",
+            "worlds.default.freezing_level",
+        );
+        assert_rejected_naming(
+            "onset = 500.0, efficiency = 1.0",
+            "onset = 500.0, efficiency = 1.5",
+            "presets.cumulonimbus.precipitation.efficiency",
+        );
+        assert_rejected_naming("droplets = 100.0", "droplets = 0.0", "precipitation.droplets");
+        assert_rejected_naming("onset = 500.0,", "onset = 500.0, rain = 1,", "rain");
         // A world without a freezing level gets the default one in every layer.
         let c = Config::embedded();
         assert!(

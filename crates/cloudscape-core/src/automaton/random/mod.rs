@@ -39,7 +39,7 @@ pub use ars::{ROUNDS, StepKeys, ars5, counter, draw, fires};
 pub use drives::{Head, StochasticDrives, Thresholds, WordDrive, event_thresholds_scalar};
 pub use portable::below_portable;
 
-use crate::cpu::Features;
+use crate::cpu::{Backend, Features};
 
 /// An implementation of the per-word draws.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -50,16 +50,8 @@ pub enum DrawBackend {
     Portable,
 }
 
-impl DrawBackend {
-    /// The fastest backend this CPU runs.
-    pub fn detect() -> DrawBackend {
-        *DrawBackend::available()
-            .last()
-            .expect("the portable backend is always there")
-    }
-
-    /// Every backend this CPU runs, slowest first.
-    pub fn available() -> &'static [DrawBackend] {
+impl Backend for DrawBackend {
+    fn available() -> &'static [DrawBackend] {
         if Features::get().avx512_vaes() {
             &[DrawBackend::Portable, DrawBackend::Avx512]
         } else {

@@ -97,7 +97,7 @@ fn word_draws_equal_lane_draws_on_every_backend() {
                 .sum();
             assert_eq!(below_portable(&keys, y, wx, e, &d.t[e], d.shift[e]), want);
             #[cfg(target_arch = "x86_64")]
-            if DrawBackend::available().contains(&DrawBackend::Avx512) {
+            if DrawBackend::Avx512.runs_here() {
                 // SAFETY: the CPU has the features (just checked).
                 let got = unsafe {
                     avx512::below(
@@ -149,7 +149,7 @@ fn event_thresholds_equal_their_scalar_form() {
         // The baseline form: AVX2 on an x86-64-v3 build.
         check("baseline", &|m| event_thresholds(&q, m));
         #[cfg(target_arch = "x86_64")]
-        if crate::fields::noise::NoiseBackend::available().contains(&crate::fields::noise::NoiseBackend::Avx512) {
+        if crate::fields::noise::NoiseBackend::Avx512.runs_here() {
             // SAFETY: the CPU has AVX-512 F (just checked).
             check("AVX-512", &|m| unsafe { event_thresholds_avx512(&q, m) });
         }

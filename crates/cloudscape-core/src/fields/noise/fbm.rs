@@ -5,6 +5,7 @@ use super::NoiseBackend;
 use super::coord::Coord;
 use super::hash::mix64;
 use super::simplex::{simplex2, simplex3};
+use crate::cpu::Backend;
 
 /// Fractal Brownian motion over simplex noise.
 #[derive(Clone, Debug, PartialEq)]
@@ -125,10 +126,7 @@ impl<'a> FbmGrid<'a> {
     /// `octaves` of `table`, evaluated by `backend` (one of [`NoiseBackend::available`]).
     pub fn new(table: &'a [Octave], octaves: u32, xs: &[(i64, f64)], backend: NoiseBackend) -> FbmGrid<'a> {
         // The AVX-512 path is only sound on a CPU that has it.
-        assert!(
-            NoiseBackend::available().contains(&backend),
-            "{backend:?} is not available"
-        );
+        assert!(backend.runs_here(), "{backend:?} is not available");
         let octaves = &table[..table.len().min(octaves as usize)];
         let padded = xs.len().div_ceil(8) * 8;
         let mut ints = Vec::with_capacity(octaves.len());

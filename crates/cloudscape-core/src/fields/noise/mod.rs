@@ -27,7 +27,7 @@ pub(crate) use hash::MIX_MUL;
 pub use hash::mix64;
 pub use simplex::{simplex2, simplex3};
 
-use crate::cpu::Features;
+use crate::cpu::{Backend, Features};
 
 /// An implementation of [`FbmGrid::row`] (and of the other f64/i64 kernels that
 /// need the same AVX-512 F and DQ: switch hashes, drive conversion). Every backend
@@ -40,16 +40,8 @@ pub enum NoiseBackend {
     Avx512,
 }
 
-impl NoiseBackend {
-    /// The fastest backend this CPU runs.
-    pub fn detect() -> NoiseBackend {
-        *NoiseBackend::available()
-            .last()
-            .expect("the scalar backend is always there")
-    }
-
-    /// Every backend this CPU runs, slowest first.
-    pub fn available() -> &'static [NoiseBackend] {
+impl Backend for NoiseBackend {
+    fn available() -> &'static [NoiseBackend] {
         if Features::get().avx512_dq() {
             &[NoiseBackend::Scalar, NoiseBackend::Avx512]
         } else {

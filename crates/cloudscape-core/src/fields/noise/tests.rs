@@ -43,7 +43,7 @@ impl Draws {
 #[cfg(target_arch = "x86_64")]
 #[test]
 fn simplex_avx512_has_the_scalar_bits() {
-    if !NoiseBackend::available().contains(&NoiseBackend::Avx512) {
+    if !NoiseBackend::Avx512.runs_here() {
         eprintln!("skipped: this CPU has no AVX-512, so only the scalar noise runs here");
         return;
     }

@@ -12,13 +12,15 @@
 use std::time::Instant;
 
 use cloudscape_core::products::atlas;
+use cloudscape_core::render::Quality;
 use cloudscape_core::render::image::{Image, PngSpace, encode_png, rmse, ssim};
 use cloudscape_core::render::scene::{self, RenderRequest};
 use cloudscape_core::render::tile::ShadedTile;
-use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
-use cloudscape_tools::bench::quality::{REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, Scene, scene_density, shade_grids};
+use cloudscape_tools::bench::quality::{
+    REFERENCE_SAMPLES, SCENE_WORLDS, SCENES, StageTimes, request, scene_density, shade_grids,
+};
 
 const SIZE: usize = 512;
 const CONVERGENCE_SIZE: usize = 192;
@@ -26,9 +28,7 @@ const CONVERGENCE_SIZE: usize = 192;
 const CONVERGENCE_SAMPLES: [u32; 4] = [4, 16, 64, 128];
 
 struct Measured {
-    density_s: f64,
-    billboards_s: f64,
-    draw_s: f64,
+    times: StageTimes,
     image: Image,
     /// The path tracer's stated noise (0 for billboards).
     noise: f64,
@@ -43,19 +43,6 @@ struct PresetSummary {
     ssim: Vec<f64>,
 }
 
-fn request(s: &Scene, q: Quality, size: usize) -> RenderRequest {
-    RenderRequest {
-        camera: Camera::parse(s.camera).unwrap(),
-        width: size,
-        height: size,
-        t: 1800.0,
-        quality: q,
-        sun: Some(Sun::new(s.sun.0, s.sun.1).unwrap()),
-        params: ShadingParams::default(),
-        samples: REFERENCE_SAMPLES,
-    }
-}
-
 /// Plans, computes density, shades, and draws with the renderer of the preset (the
 /// billboard compositor, or the path tracer for `Reference`), timing each stage.
 fn measure(world: &World, config: &Config, req: &RenderRequest) -> Measured {
@@ -68,9 +55,11 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Measured {
     let (image, noise) = scene::draw(&tiles, req, sun);
     let draw_s = t2.elapsed().as_secs_f64();
     Measured {
-        density_s,
-        billboards_s,
-        draw_s,
+        times: StageTimes {
+            density_s,
+            billboards_s,
+            draw_s,
+        },
         image,
         noise: noise.map_or(0.0, |n| n.std_error),
         tiles,
@@ -109,38 +98,29 @@ fn main() {
         .into();
     for s in &SCENES {
         let world = config.world(s.world).unwrap();
-        let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE));
-        // The reference needs no billboards: its time is density + path tracing.
-        let ref_total = rref.density_s + rref.draw_s;
+        let rref = measure(&world, &config, &request(s, Quality::Reference, SIZE).unwrap());
         let ref_display = rref.image.display();
         write_png(&out_dir, s.name, "reference", &rref.image);
         for (qi, q) in [Quality::Fast, Quality::Balanced, Quality::Accurate]
             .into_iter()
             .enumerate()
         {
-            let m = measure(&world, &config, &request(s, q, SIZE));
-            let total = m.density_s + m.billboards_s + m.draw_s;
+            let m = measure(&world, &config, &request(s, q, SIZE).unwrap());
             let d = m.image.display();
             let (e, ss) = (rmse(&d, &ref_display), ssim(&d, &ref_display, SIZE, SIZE));
             let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
-            let speed = ref_total / total;
-            let speed_ex = rref.draw_s / (m.billboards_s + m.draw_s);
+            let (speed, speed_ex) = m.times.speed_up(q, &rref.times);
             println!(
-                "| {} | {} | {} | {} | {:.2} | {:.2} | {:.3} | {:.2} | {:.0}× / {:.0}× | {:.4} | {:.3} |",
+                "| {} | {} | {} | {} | {} | {:.4} | {:.3} |",
                 s.name,
                 q.as_str(),
                 m.tiles.len(),
                 n,
-                m.density_s,
-                m.billboards_s,
-                m.draw_s,
-                total,
-                speed,
-                speed_ex,
+                m.times.preset_cells(q, &rref.times, ""),
                 e,
                 ss
             );
-            points.push((q, m.billboards_s + m.draw_s, ss));
+            points.push((q, m.times.after_density(q), ss));
             summary[qi].speed_up.push(speed);
             summary[qi].speed_up_excl_density.push(speed_ex);
             summary[qi].ssim.push(ss);
@@ -151,16 +131,16 @@ fn main() {
                 atlas::build(tile);
             }
             let atlas_s = t.elapsed().as_secs_f64();
-            per_tile.push((q, m.billboards_s + atlas_s, m.tiles.len()));
+            per_tile.push((q, m.times.billboards_s + atlas_s, m.tiles.len()));
         }
-        points.push((Quality::Reference, rref.draw_s, 1.0));
+        points.push((Quality::Reference, rref.times.after_density(Quality::Reference), 1.0));
         println!(
             "| {} | reference | {} | – | {:.2} | – | {:.2} | {:.2} | 1× | 0 | 1 |",
             s.name,
             rref.tiles.len(),
-            rref.density_s,
-            rref.draw_s,
-            ref_total
+            rref.times.density_s,
+            rref.times.draw_s,
+            rref.times.total(Quality::Reference)
         );
     }
     println!("\nSummary over the scene set (geometric mean of speed-ups, minimum SSIM):\n");
@@ -201,7 +181,7 @@ fn main() {
     let mut convergence: Vec<(f64, f64)> = Vec::new();
     for s in [&SCENES[0], &SCENES[1]] {
         let world = config.world(s.world).unwrap();
-        let mut req = request(s, Quality::Reference, CONVERGENCE_SIZE);
+        let mut req = request(s, Quality::Reference, CONVERGENCE_SIZE).unwrap();
         req.samples = 256;
         let truth = measure(&world, &config, &req).image.display();
         for samples in CONVERGENCE_SAMPLES {
@@ -211,7 +191,7 @@ fn main() {
             let (e, ss) = (rmse(&d, &truth), ssim(&d, &truth, CONVERGENCE_SIZE, CONVERGENCE_SIZE));
             println!(
                 "| {} | {samples} | {:.2} | {:.5} | {:.4} | {:.4} |",
-                s.name, m.draw_s, m.noise, e, ss
+                s.name, m.times.draw_s, m.noise, e, ss
             );
             convergence.push((samples as f64, e));
         }

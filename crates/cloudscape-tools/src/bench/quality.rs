@@ -236,10 +236,63 @@ pub fn view_tau(tiles: &[ShadedTile], req: &RenderRequest) -> Vec<f64> {
     march::view_optical_depth(&vols, req.params.extinction, &view, step, 50.0)
 }
 
+/// Wall-clock seconds of each stage of one render: the time columns of the
+/// speed–accuracy table (`benches/render_trade.rs` prints the same).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StageTimes {
+    /// Density of the planned tiles: the simulation, shared by every preset.
+    pub density_s: f64,
+    /// Metaballs and shading (billboards).
+    pub billboards_s: f64,
+    /// Drawing: the billboard compositor, or the path tracer.
+    pub draw_s: f64,
+}
+
+impl StageTimes {
+    /// The time after density: billboards and drawing, or for a volumetric quality
+    /// (it draws the density volumes, not billboards) the drawing alone.
+    pub fn after_density(&self, quality: Quality) -> f64 {
+        if quality.is_volumetric() {
+            self.draw_s
+        } else {
+            self.billboards_s + self.draw_s
+        }
+    }
+
+    /// The whole render of `quality`.
+    pub fn total(&self, quality: Quality) -> f64 {
+        if quality.is_volumetric() {
+            self.density_s + self.draw_s
+        } else {
+            self.density_s + self.billboards_s + self.draw_s
+        }
+    }
+
+    /// How much faster `quality` drew than the `reference`: in total, and excluding
+    /// density.
+    pub fn speed_up(&self, quality: Quality, reference: &StageTimes) -> (f64, f64) {
+        (
+            reference.total(Quality::Reference) / self.total(quality),
+            reference.after_density(Quality::Reference) / self.after_density(quality),
+        )
+    }
+
+    /// A preset's cells of the table: density, billboards, draw and total (each time
+    /// followed by `unit`), and the speed-ups against `reference`.
+    pub fn preset_cells(&self, quality: Quality, reference: &StageTimes, unit: &str) -> String {
+        let (speed, speed_ex) = self.speed_up(quality, reference);
+        format!(
+            "{:.2}{unit} | {:.2}{unit} | {:.3}{unit} | {:.2}{unit} | {speed:.0}× / {speed_ex:.0}×",
+            self.density_s,
+            self.billboards_s,
+            self.draw_s,
+            self.total(quality)
+        )
+    }
+}
+
 struct Measured {
-    density_s: f64,
-    billboards_s: f64,
-    draw_s: f64,
+    times: StageTimes,
     image: Image,
     tiles: Vec<ShadedTile>,
     /// The reference's independent halves (the path tracer only).
@@ -277,9 +330,11 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
     };
     let draw_s = t2.elapsed().as_secs_f64();
     Ok(Measured {
-        density_s,
-        billboards_s,
-        draw_s,
+        times: StageTimes {
+            density_s,
+            billboards_s,
+            draw_s,
+        },
         image,
         tiles,
         halves,
@@ -396,10 +451,8 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
         let ceiling = ssim(&da, &db, size, size);
         let mut counts = [0usize; 4];
         tau.iter().for_each(|&t| counts[tau_bin(t)] += 1);
-        let ref_total = reference.density_s + reference.draw_s;
         for &q in presets {
             let m = measure(&world, &config, &request(s, q, size)?)?;
-            let total = m.density_s + m.billboards_s + m.draw_s;
             let mut c = compare(&m.image, &reference.image, &tau, size, size);
             let (bp, _, _) = binned(&m.image.display(), size, size, k);
             c.sharpness = high_frequency_energy(&bp, bw, bh) / hf_ref;
@@ -411,16 +464,11 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                 .collect();
             let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
             md += &format!(
-                "| {} | {} | {} | {n} | {:.2} s | {:.2} s | {:.3} s | {:.2} s | {:.0}× / {:.0}× | {e:.4} | {ss:.3} | {} | {} |\n",
+                "| {} | {} | {} | {n} | {} | {e:.4} | {ss:.3} | {} | {} |\n",
                 s.name,
                 q.as_str(),
                 m.tiles.len(),
-                m.density_s,
-                m.billboards_s,
-                m.draw_s,
-                total,
-                ref_total / total,
-                reference.draw_s / (m.billboards_s + m.draw_s),
+                m.times.preset_cells(q, &reference.times, " s"),
                 bins.join(" | "),
                 if c.sharpness.is_finite() {
                     format!("{:.2}", c.sharpness)
@@ -428,18 +476,22 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                     "– (noise)".into()
                 }
             );
-            points.push((q, m.billboards_s + m.draw_s, ss));
+            points.push((q, m.times.after_density(q), ss));
         }
         md += &format!(
             "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | – | half vs half {ceiling:.3} | {} | 1 |\n",
             s.name,
             reference.tiles.len(),
-            reference.density_s,
-            reference.draw_s,
-            ref_total,
+            reference.times.density_s,
+            reference.times.draw_s,
+            reference.times.total(Quality::Reference),
             counts.map(|n| format!("{n} px")).join(" | ")
         );
-        points.push((Quality::Reference, reference.draw_s, 1.0));
+        points.push((
+            Quality::Reference,
+            reference.times.after_density(Quality::Reference),
+            1.0,
+        ));
     }
     md += "\n![quality](@plots@/quality.png)\n";
     let series: Vec<Series> = Quality::ALL

@@ -678,15 +678,20 @@ pub const SWEEP_P99_MS: f64 = 50.0;
 /// One step of a capacity sweep.
 #[derive(Clone, Debug, Serialize)]
 pub struct SweepStep {
+    /// Players of the step.
     pub players: usize,
+    /// Answers per second (the step's [`Report::throughput_rps`]).
     pub throughput_rps: f64,
+    /// Latency of the step's measured requests, milliseconds.
     pub p50_ms: f64,
     pub p99_ms: f64,
     pub max_ms: f64,
+    /// Requests shed with 503.
     pub shed: u64,
     /// p99 in the first second after a level-0 keyframe boundary, and elsewhere.
     pub boundary_p99_ms: f64,
     pub elsewhere_p99_ms: f64,
+    /// What the server computed and how busy it was; `None` when /metrics could not be read.
     pub server: Option<ServerFigures>,
     /// Body bytes per second received.
     pub bytes_per_s: f64,
@@ -697,13 +702,18 @@ pub struct SweepStep {
 /// A capacity sweep: the steps run, and the most players a step held.
 #[derive(Clone, Debug, Serialize)]
 pub struct SweepReport {
+    /// The server, world, fetch mode and world clock every step ran with ([`LoadSpec`]).
     pub target: String,
     pub world: String,
     pub fetch: FetchMode,
     pub clock: f64,
+    /// Measured seconds of each step, after its warm-up.
     pub step_s: f64,
+    /// Warm-up seconds of each step.
     pub warmup_s: f64,
+    /// The steps run, in order.
     pub steps: Vec<SweepStep>,
+    /// The most players a step held; `None` when the first step did not.
     pub capacity: Option<usize>,
 }
 

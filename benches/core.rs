@@ -113,12 +113,7 @@ fn tiles(c: &mut Criterion) {
     let w = world();
     let mut t = 1234.5;
     for level in [0u32, 2, 4] {
-        let region = Region {
-            x0: 256 * 3,
-            y0: -256 * 2,
-            cols: 256,
-            rows: 256,
-        };
+        let region = Region::square(256 * 3, -256 * 2, 256);
         g.bench_function(
             BenchmarkId::new("cold density 256x256 stratocumulus, level", level),
             |b| {
@@ -129,12 +124,7 @@ fn tiles(c: &mut Criterion) {
             },
         );
     }
-    let region = Region {
-        x0: 0,
-        y0: 0,
-        cols: 256,
-        rows: 256,
-    };
+    let region = Region::square(0, 0, 256);
     for tt in [1e3, 1e12] {
         g.bench_function(BenchmarkId::new("density 256x256 at t", tt), |b| {
             b.iter(|| black_box(density::density(&w, 0, 0, region, tt).unwrap()))
@@ -164,21 +154,11 @@ fn accuracy() {
     for (seed, t) in [("1", 1000.0), ("99", 86_400.0 * 3.0 + 17.0)] {
         let mut wd = world();
         wd.seed = seed.parse().unwrap();
-        let region = Region {
-            x0: -512,
-            y0: 256,
-            cols: 512,
-            rows: 512,
-        };
+        let region = Region::square(-512, 256, 512);
         let full = density::density(&wd, 0, 0, region, t).unwrap();
         for level in [1u32, 2, 3, 4, 5] {
             let s = 1usize << level;
-            let lod_region = Region {
-                x0: region.x0 >> level,
-                y0: region.y0 >> level,
-                cols: 512 / s,
-                rows: 512 / s,
-            };
+            let lod_region = Region::square(region.x0 >> level, region.y0 >> level, 512 / s);
             let lod = density::density(&wd, 0, level, lod_region, t).unwrap();
             let (mut se, mut bias, mut n) = (0f64, 0f64, 0f64);
             for k in 0..full.depth {

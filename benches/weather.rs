@@ -24,12 +24,7 @@ fn weather(c: &mut Criterion) {
     let w = Config::embedded().world("storm-front").unwrap();
     let layer = &w.layers[0];
     // A tile inside the band (y ≈ 30 km at t ≈ 0): rain in most columns.
-    let region = Region {
-        x0: 0,
-        y0: 256,
-        cols: 256,
-        rows: 256,
-    };
+    let region = Region::square(0, 256, 256);
     let mut t = 1234.5;
     g.bench_function("cold density tile 256x256x30 cumulonimbus", |b| {
         b.iter(|| {

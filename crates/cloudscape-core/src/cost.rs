@@ -156,12 +156,11 @@ fn shaded_at(
     let halo = tile_halo(l, tile.z, q, sun);
     let region = tile.region()?;
     let h = halo as i64;
-    let halo_region = Region {
-        x0: region.x0.saturating_sub(h),
-        y0: region.y0.saturating_sub(h),
-        cols: TILE_COLUMNS + 2 * halo,
-        rows: TILE_COLUMNS + 2 * halo,
-    };
+    let halo_region = Region::square(
+        region.x0.saturating_sub(h),
+        region.y0.saturating_sub(h),
+        TILE_COLUMNS + 2 * halo,
+    );
     let d = density(world, layer, tile.z, halo_region, t)?;
     let balls = tile_balls(l, tile.z, q);
     let cells = (halo_region.cols * halo_region.rows) as u64 * l.depth as u64;
@@ -331,12 +330,7 @@ mod tests {
         assert!(est(Quality::Balanced, 512).cpu_s < est(Quality::Accurate, 512).cpu_s);
         // A density tile costs what its cone costs: more steps since the epoch's start
         // run, more work.
-        let region = Region {
-            x0: 0,
-            y0: 0,
-            cols: 64,
-            rows: 64,
-        };
+        let region = Region::square(0, 0, 64);
         let wide = Region {
             cols: 128,
             rows: 128,
@@ -366,12 +360,7 @@ mod tests {
             );
         };
         for (t, side) in [(43200.0, 256), (43213.0, 256), (1000.0, 512)] {
-            let region = Region {
-                x0: 0,
-                y0: 0,
-                cols: side,
-                rows: side,
-            };
+            let region = Region::square(0, 0, side);
             let cs = density::cell_steps(&world, 0, 0, region, t).unwrap();
             let est = density(&world, 0, 0, region, t).unwrap();
             measure(&format!("density {side}² t={t} ({cs} cell-steps)"), est, &mut || {

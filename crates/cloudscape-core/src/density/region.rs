@@ -101,16 +101,22 @@ impl Cell {
 
     /// The one-column region of the cell.
     pub fn region(&self) -> Region {
-        Region {
-            x0: self.col,
-            y0: self.row,
-            cols: 1,
-            rows: 1,
-        }
+        Region::square(self.col, self.row, 1)
     }
 }
 
 impl Region {
+    /// The square of `side × side` columns whose first column is (`x0`, `y0`): a tile,
+    /// a tile with its halo.
+    pub const fn square(x0: i64, y0: i64, side: usize) -> Region {
+        Region {
+            x0,
+            y0,
+            cols: side,
+            rows: side,
+        }
+    }
+
     /// The columns at `level` whose centres lie inside `bbox` = [x0, y0, x1, y1]
     /// (world metres, half-open on the high side).
     pub fn from_bbox(layer: &Layer, level: u32, bbox: [f64; 4], limits: &Limits) -> Result<Region, SimError> {

@@ -190,12 +190,7 @@ mod tests {
         let layer = &world.layers[0];
         let h = s.halo as i64 + 4;
         let n = crate::render::tile::TILE_COLUMNS as i64;
-        let region = Region {
-            x0: n - h,
-            y0: -h,
-            cols: (n + 2 * h) as usize,
-            rows: (n + 2 * h) as usize,
-        };
+        let region = Region::square(n - h, -h, (n + 2 * h) as usize);
         let g1: Grid<f32> = density::density(&world, 0, 0, region, s.keyframe.t1).unwrap();
         let place = crate::density::metaballs::GridPlacement {
             x0: region.x0 as f64 * layer.cell_size,
@@ -224,12 +219,7 @@ mod tests {
         let config = Config::embedded();
         let world = config.world("default").unwrap();
         let layer = &world.layers[0];
-        let region = Region {
-            x0: 0,
-            y0: 0,
-            cols: 64,
-            rows: 64,
-        };
+        let region = Region::square(0, 0, 64);
         let (t0, t1, t) = (43_200.0, 43_220.0, 43_207.0);
         let d0 = density::density(&world, 0, 0, region, t0).unwrap();
         let d1 = density::density(&world, 0, 0, region, t1).unwrap();

@@ -43,12 +43,7 @@ impl TileId {
                 .filter(|o| o.checked_add(n).is_some())
                 .ok_or_else(|| SimError::OutOfRange(format!("tile {name} = {v} overflows at level {}", self.z)))
         };
-        Ok(Region {
-            x0: origin(self.x, "x")?,
-            y0: origin(self.y, "y")?,
-            cols: TILE_COLUMNS,
-            rows: TILE_COLUMNS,
-        })
+        Ok(Region::square(origin(self.x, "x")?, origin(self.y, "y")?, TILE_COLUMNS))
     }
 }
 
@@ -225,12 +220,11 @@ fn density_around(
             .and_then(|v| v.checked_add(m))
             .ok_or_else(|| SimError::OutOfRange(format!("tile {tile:?} moved by {moved:?} columns overflows")))
     };
-    let halo_region = Region {
-        x0: shifted(region.x0, moved[0])?,
-        y0: shifted(region.y0, moved[1])?,
-        cols: TILE_COLUMNS + 2 * halo,
-        rows: TILE_COLUMNS + 2 * halo,
-    };
+    let halo_region = Region::square(
+        shifted(region.x0, moved[0])?,
+        shifted(region.y0, moved[1])?,
+        TILE_COLUMNS + 2 * halo,
+    );
     Ok(density::density_cancellable(
         world,
         layer,

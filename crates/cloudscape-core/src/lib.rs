@@ -10,6 +10,7 @@
 
 pub mod automaton;
 pub mod cancel;
+pub mod civil;
 pub mod cost;
 pub mod cpu;
 pub mod density;

@@ -12,10 +12,10 @@ use cloudscape_core::products::Product;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::world::{ALGORITHM_VERSION, MAX_KEYFRAME_DOUBLINGS, MAX_TIME, keyframe_span};
 
+use crate::annotations::{NotModified, WorldName};
 use crate::error::ApiError;
 use crate::extract::WorldPath;
 use crate::key::stable_hash_hex;
-use crate::openapi::{NotModified, WorldName};
 use crate::respond::Representation;
 use crate::state::AppState;
 

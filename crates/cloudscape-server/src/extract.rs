@@ -36,6 +36,42 @@ pub fn layer<'w>(world: &'w World, name: Option<&str>) -> Result<(usize, &'w Lay
     })
 }
 
+/// The layers a query at a point reads (`/sample`, EDR `position`).
+pub struct PointLayers {
+    /// The layer the point lies in: the one named, else the one whose altitude band
+    /// holds z (none between or above the bands).
+    pub holding: Option<usize>,
+    /// The layers whose precipitation reaches the point, in configuration order: the
+    /// one named, else every layer whose top is above z (what falls from a layer
+    /// crosses all of it).
+    pub above: Vec<usize>,
+}
+
+impl PointLayers {
+    /// The layers of the point at altitude `z`, given the request's `layer=`.
+    pub fn at(world: &World, name: Option<&str>, z: f64) -> Result<PointLayers, ApiError> {
+        Ok(match name {
+            Some(name) => {
+                let (i, _) = layer(world, Some(name))?;
+                PointLayers {
+                    holding: Some(i),
+                    above: vec![i],
+                }
+            }
+            None => PointLayers {
+                holding: world.layers.iter().position(|l| l.base <= z && z < l.top()),
+                above: (0..world.layers.len()).filter(|&i| world.layers[i].top() > z).collect(),
+            },
+        })
+    }
+
+    /// The layer whose frame grid the answer follows: the one holding the point, else
+    /// the first above it; `None` above every layer.
+    pub fn primary(&self) -> Option<usize> {
+        self.holding.or(self.above.first().copied())
+    }
+}
+
 /// `/v1/worlds/{world}…`: the world, resolved.
 pub struct WorldPath(pub ResolvedWorld);
 

@@ -9,6 +9,7 @@
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
 
+use cloudscape_core::density::Region;
 use cloudscape_core::world::{ALGORITHM_VERSION, Config, World};
 
 use crate::error::ApiError;
@@ -128,6 +129,14 @@ impl CacheKey {
     pub fn with(mut self, name: &str, value: impl std::fmt::Display) -> CacheKey {
         let _ = write!(self.0, "|{name}={value}");
         self
+    }
+
+    /// Appends the columns of `region` at `level` (`/region`, `/series`, EDR `area` and
+    /// `cube`): `|z=level|r=x0,y0,cols,rows`.
+    pub fn with_region(self, level: u32, region: Region) -> CacheKey {
+        let r = region;
+        self.with("z", level)
+            .with("r", format_args!("{},{},{},{}", r.x0, r.y0, r.cols, r.rows))
     }
 
     /// The strong ETag of the identity-encoded bytes of this key.

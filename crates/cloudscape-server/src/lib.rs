@@ -22,6 +22,7 @@
 //! names two different bodies.
 
 mod ahead;
+mod annotations;
 mod cache;
 pub mod config;
 mod conn;

@@ -1,7 +1,6 @@
 //! `GET /v1/worlds/{world}/lightning?bbox=&t0=&t1=`: the strikes of
 //! `cloudscape_core::weather::lightning` in a box and span.
 
-use axum::body::Bytes;
 use axum::response::Response;
 use serde::Serialize;
 
@@ -9,11 +8,12 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::weather::lightning::{self, LightningLimits, LightningPlan, Strike};
 
+use crate::annotations::ComputedResponses;
 use crate::error::ApiError;
 use crate::extract::{WorldQuery, layer};
 use crate::key::CacheKey;
-use crate::openapi::ComputedResponses;
-use crate::respond::{Cached, Freshness};
+use crate::queries::json_bytes;
+use crate::respond::Cached;
 
 /// `/lightning`: the strikes in a box and span.
 #[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
@@ -82,14 +82,7 @@ pub async fn lightning(
         .with("b", format!("{},{},{},{}", bbox[0], bbox[1], bbox[2], bbox[3]))
         .with("t", format!("{t0},{t1}"))
         .with("l", layers.iter().map(usize::to_string).collect::<Vec<_>>().join(","));
-    let cached = Cached {
-        kind: "lightning",
-        key,
-        content_type: "application/json",
-        time: None,
-        freshness: Freshness::Final,
-        content_location: None,
-    };
+    let cached = Cached::timeless("lightning", key, "application/json");
     let world = resolved.world;
     cached
         .respond(&s, &headers, move || {
@@ -116,9 +109,7 @@ pub async fn lightning(
                     layers: plans.iter().map(|(i, _)| world.layers[*i].name.clone()).collect(),
                     strikes,
                 };
-                serde_json::to_vec(&answer)
-                    .map(Bytes::from)
-                    .map_err(|e| ApiError::Internal(e.to_string()))
+                json_bytes(&answer)
             }))
         })
         .await

@@ -1,6 +1,5 @@
-//! The OpenAPI document (`/openapi.json`), generated from the handlers' annotations,
-//! and the pieces those annotations share: the answers many routes give in the same
-//! words ([`ComputedResponses`], [`NotModified`], [`Overloaded`]) and the `{world}` path parameter ([`WorldName`]).
+//! The OpenAPI document (`/openapi.json`), generated from the handlers' annotations
+//! (their shared pieces are in [`crate::annotations`]).
 
 use axum::http::{HeaderValue, header};
 use axum::response::{IntoResponse, Response};
@@ -13,72 +12,6 @@ use utoipa::OpenApi;
 use crate::extract::TileProduct;
 use crate::params::QualityName;
 use crate::{discovery, edr, error, lightning, ops, queries, render, tilejson, tiles};
-
-/// What a route that computes over a world (tiles, queries, EDR queries, renders)
-/// answers besides its 200: the refusals by status, each naming the error codes
-/// [`error::ApiError`] gives it. A route's own reasons for a 400, 413 or 422 are in its
-/// description.
-#[derive(utoipa::IntoResponses)]
-#[allow(
-    dead_code,
-    reason = "documentation: utoipa reads the variants, no handler builds them"
-)]
-pub enum ComputedResponses {
-    #[response(status = 304, description = "If-None-Match matched; nothing computed")]
-    NotModified,
-    #[response(
-        status = 400,
-        description = "Malformed request (invalid_number, not_finite, missing_parameter, invalid_parameter, invalid_bbox); the message names the parameter"
-    )]
-    Malformed(error::ErrorBody),
-    #[response(
-        status = 404,
-        description = "Unknown world, layer or product (unknown_world, unknown_layer, unknown_product)"
-    )]
-    Unknown(error::ErrorBody),
-    #[response(
-        status = 413,
-        description = "Over the limits (region_too_large, series_too_long, too_much_work, response_too_large)"
-    )]
-    TooLarge(error::ErrorBody),
-    #[response(
-        status = 422,
-        description = "Out of range (time_out_of_range, level_out_of_range, coordinates_out_of_range, empty_region)"
-    )]
-    OutOfRange(error::ErrorBody),
-    #[response(
-        status = 503,
-        description = "Overloaded (queue, compute memory or reply memory full: overloaded, reply_memory_full), over the time budget (timeout) or draining; Retry-After is the queue's wait"
-    )]
-    Unavailable(error::ErrorBody),
-}
-
-/// 304: the request's If-None-Match named the answer's ETag.
-#[derive(utoipa::IntoResponses)]
-#[response(status = 304, description = "If-None-Match matched")]
-pub struct NotModified;
-
-/// 503 of the routes that compute: the compute queue shed the request.
-#[derive(utoipa::IntoResponses)]
-#[response(status = 503, description = "Overloaded; see Retry-After")]
-#[allow(
-    dead_code,
-    reason = "documentation: utoipa reads the body's type, no handler builds it"
-)]
-pub struct Overloaded(error::ErrorBody);
-
-/// The `{world}` of `/v1/worlds/{world}/…` and `/v1/edr/collections/{world}/…`.
-#[derive(utoipa::IntoParams)]
-#[into_params(parameter_in = Path)]
-#[allow(
-    dead_code,
-    reason = "documentation: utoipa reads the field, the handlers take `WorldPath`"
-)]
-pub struct WorldName {
-    /// Configured world name, or a decimal u64 seed (default climate)
-    #[param(example = "default")]
-    pub world: String,
-}
 
 #[derive(OpenApi)]
 #[openapi(

@@ -15,10 +15,10 @@ use cloudscape_core::density::{self, Cell, Region, RegionStats, region_stats};
 use cloudscape_core::weather::{PrecipitationKind, PrecipitationStats, column_rate, kind_at, precipitation_stats};
 use cloudscape_core::world::SnappedTime;
 
+use crate::annotations::{ColumnLevel, ColumnsBbox, ComputedResponses, LayerName, WorldName};
 use crate::error::ApiError;
-use crate::extract::{WorldQuery, layer};
+use crate::extract::{PointLayers, WorldQuery, layer};
 use crate::key::{CacheKey, stable_hash_hex};
-use crate::openapi::{ComputedResponses, WorldName};
 use crate::respond::{Cached, Freshness, Representation, cache_control};
 
 pub(crate) fn json_bytes(value: &impl Serialize) -> Result<Bytes, ApiError> {
@@ -152,21 +152,8 @@ pub async fn sample(
     );
     let t = params.time("t")?;
     let world = &resolved.world;
-    let chosen = match params.get("layer") {
-        Some(name) => Some(layer(world, Some(name))?),
-        None => world
-            .layers
-            .iter()
-            .enumerate()
-            .find(|(_, l)| l.base <= z && z < l.top()),
-    };
-    // The layers whose precipitation reaches the point: the one asked for, else every
-    // layer whose top is above it (what falls from a layer crosses all of it).
-    let falling: Vec<usize> = match params.get("layer") {
-        Some(_) => chosen.iter().map(|(i, _)| *i).collect(),
-        None => (0..world.layers.len()).filter(|&i| world.layers[i].top() > z).collect(),
-    };
-    let Some(primary) = chosen.map(|(i, _)| i).or(falling.first().copied()) else {
+    let layers = PointLayers::at(world, params.get("layer"), z)?;
+    let Some(primary) = layers.primary() else {
         // Above every layer: clear sky, nothing falls, nothing to compute.
         let frame = SnappedTime::snap(t, &world.layers[0], s.settings.frames_per_step);
         let answer = SampleAnswer {
@@ -185,14 +172,7 @@ pub async fn sample(
                 "\"{}\"",
                 stable_hash_hex(&serde_json::to_vec(&answer).unwrap_or_default())
             ),
-            cache_control: cache_control(
-                &s,
-                if frame.is_exact(t) {
-                    Freshness::Final
-                } else {
-                    Freshness::Snapped
-                },
-            ),
+            cache_control: cache_control(&s, Freshness::of_frames(frame.is_exact(t))),
             time: Some(frame.into()),
             content_location: None,
         };
@@ -203,8 +183,8 @@ pub async fn sample(
     let limits = &s.worlds.config().limits;
     let fps = s.settings.frames_per_step;
     // Each falling layer's column at its own frame (layers differ in cell size and dt).
-    let mut columns = Vec::with_capacity(falling.len());
-    for &i in &falling {
+    let mut columns = Vec::with_capacity(layers.above.len());
+    for &i in &layers.above {
         let l = &world.layers[i];
         let column = Cell::at(l, x, y, z)?;
         column.region().check(0, l.depth, limits)?;
@@ -221,7 +201,7 @@ pub async fn sample(
         .with("r", cell.row)
         .with("k", cell.k)
         .with("f", frame.index)
-        .with("in", chosen.is_some())
+        .with("in", layers.holding.is_some())
         .with("snow", snow);
     for (i, c, f) in &columns {
         key = key.with(&format!("p{i}"), format_args!("{},{},{}", c.col, c.row, f.index));
@@ -230,7 +210,7 @@ pub async fn sample(
     if columns.iter().any(|(_, _, f)| !f.is_exact(t)) {
         cached.freshness = Freshness::Snapped;
     }
-    let inside = chosen.is_some();
+    let inside = layers.holding.is_some();
     let world = resolved.world;
     cached
         .respond(&s, &headers, move || {
@@ -281,10 +261,10 @@ pub async fn sample(
     tag = "queries",
     params(
         WorldName,
-        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; columns whose centres lie inside", example = "0,0,1000,1000"),
+        ColumnsBbox,
         ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12 (snapped to the layer's frame grid)", example = 0),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("level" = Option<u32>, Query, description = "Level of the columns (default 0); matches the tiles of that level"),
+        LayerName,
+        ColumnLevel,
     ),
     responses(
         (status = 200, body = RegionAnswer, description = "Coverage fraction, mean/max density, cloud base/top, cluster count; precipitating fraction, mean and max precipitation rate (mm/h)"),
@@ -307,11 +287,7 @@ pub async fn region(
     let region = Region::from_bbox(layer, level, bbox, limits)?;
     let frame = SnappedTime::snap(t, layer, s.settings.frames_per_step);
     let key = CacheKey::naming("region", &resolved, layer_index)
-        .with("z", level)
-        .with(
-            "r",
-            format!("{},{},{},{}", region.x0, region.y0, region.cols, region.rows),
-        )
+        .with_region(level, region)
         .with("f", frame.index);
     let world = resolved.world;
     let cached = Cached::at("region", key, "application/json", frame, t);
@@ -346,12 +322,12 @@ pub async fn region(
     tag = "queries",
     params(
         WorldName,
-        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1", example = "0,0,1000,1000"),
+        ColumnsBbox,
         ("t0" = f64, Query, description = "First time, seconds", example = 0),
         ("t1" = f64, Query, description = "Last time (inclusive when on the step grid), seconds, t1 >= t0", example = 20),
         ("dt" = Option<f64>, Query, description = "Step between points, seconds, > 0 (default: the layer's dt)"),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("level" = Option<u32>, Query, description = "Level of the columns (default 0)"),
+        LayerName,
+        ColumnLevel,
     ),
     responses(
         (status = 200, body = SeriesAnswer, description = "The /region statistics at t0, t0+dt, … <= t1"),
@@ -397,25 +373,11 @@ pub async fn series(
     let frames: Vec<SnappedTime> = times.iter().map(|&t| SnappedTime::snap(t, layer, fps)).collect();
     let frame_list = frames.iter().map(|f| f.index.to_string()).collect::<Vec<_>>().join(",");
     let key = CacheKey::naming("series", &resolved, layer_index)
-        .with("z", level)
-        .with(
-            "r",
-            format!("{},{},{},{}", region.x0, region.y0, region.cols, region.rows),
-        )
+        .with_region(level, region)
         .with("t", times.iter().map(f64::to_string).collect::<Vec<_>>().join(","))
         .with("f", frame_list);
-    let cached = Cached {
-        kind: "series",
-        key,
-        content_type: "application/json",
-        time: None,
-        freshness: if frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t)) {
-            Freshness::Final
-        } else {
-            Freshness::Snapped
-        },
-        content_location: None,
-    };
+    let mut cached = Cached::timeless("series", key, "application/json");
+    cached.freshness = Freshness::of_frames(frames.iter().zip(&times).all(|(f, &t)| f.is_exact(t)));
     let world = resolved.world;
     cached
         .respond(&s, &headers, move || {

@@ -20,11 +20,11 @@ use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
 
 use cloudscape_core::world::SnappedTime;
 
+use crate::annotations::{ComputedResponses, NotModified, Overloaded, WorldName};
 use crate::error::ApiError;
 use crate::extract::WorldQuery;
 use crate::key::CacheKey;
-use crate::openapi::{ComputedResponses, NotModified, Overloaded, WorldName};
-use crate::params::{Params, parse_quality, parse_sun};
+use crate::params::{Params, QualityName, parse_quality, parse_sun};
 use crate::respond::Cached;
 use crate::state::AppState;
 
@@ -188,6 +188,27 @@ async fn splats(s: Arc<AppState>, params: Params, headers: HeaderMap, json: bool
     serve_global(&s, &headers, cached, move || splats_bytes(quality, json)).await
 }
 
+/// `quality=` of the splat sheets.
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the field, the handlers read `Params`"
+)]
+struct SplatQuality {
+    /// fast | balanced (default) | accurate | reference | reference-single
+    quality: Option<QualityName>,
+}
+
+/// 400 of the splat sheets.
+#[derive(utoipa::IntoResponses)]
+#[response(status = 400, description = "Unknown quality")]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the body's type, no handler builds it"
+)]
+struct UnknownQuality(crate::error::ErrorBody);
+
 /// A product that depends on no world (splat sheets, the sky): no work to admit.
 async fn serve_global(
     s: &Arc<AppState>,
@@ -206,11 +227,10 @@ async fn serve_global(
     get,
     path = "/v1/splats.png",
     tag = "render",
-    params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    params(SplatQuality),
     responses(
         (status = 200, description = "The splat sprite sheet of the preset", content_type = "image/png", body = Vec<u8>),
-        (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
-        NotModified, Overloaded,
+        UnknownQuality, NotModified, Overloaded,
     )
 )]
 pub async fn splats_png(
@@ -225,11 +245,10 @@ pub async fn splats_png(
     get,
     path = "/v1/splats.json",
     tag = "render",
-    params(("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single")),
+    params(SplatQuality),
     responses(
         (status = 200, description = "Layout of the splat sprite sheet: count, size, the optical depth of each splat", content_type = "application/json", body = Object),
-        (status = 400, body = crate::error::ErrorBody, description = "Unknown quality"),
-        NotModified, Overloaded,
+        UnknownQuality, NotModified, Overloaded,
     )
 )]
 pub async fn splats_json(

@@ -80,11 +80,19 @@ pub enum Freshness {
     UntilNextKeyframe(u64),
 }
 
+impl Freshness {
+    /// Final when every time computed is exactly a time asked, else snapped.
+    pub fn of_frames(exact: bool) -> Freshness {
+        if exact { Freshness::Final } else { Freshness::Snapped }
+    }
+}
+
 /// The bytes of a key and of the sibling keys computed by the same work.
 pub type WithSiblings = (Bytes, Vec<(CacheKey, Bytes)>);
 
 impl Cached {
-    /// A response that depends on no time (splat sheets, the sky).
+    /// A response with no frame time of its own (splat sheets, the sky, the strikes of
+    /// the span asked).
     pub fn timeless(kind: &'static str, key: CacheKey, content_type: &'static str) -> Cached {
         Cached {
             kind,
@@ -109,11 +117,7 @@ impl Cached {
             key,
             content_type,
             time: Some(frame.into()),
-            freshness: if frame.is_exact(requested) {
-                Freshness::Final
-            } else {
-                Freshness::Snapped
-            },
+            freshness: Freshness::of_frames(frame.is_exact(requested)),
             content_location: None,
         }
     }

@@ -15,6 +15,7 @@
 //! a proxy or CDN), else `http://` (or `https://` when a proxy says so in
 //! `X-Forwarded-Proto`) and the request's `Host`.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::extract::{FromRequestParts, State};
@@ -22,18 +23,19 @@ use axum::http::request::Parts;
 use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
 use serde::Serialize;
+use utoipa::openapi::RefOr;
 
 use cloudscape_core::products::Product;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::world::ALGORITHM_VERSION;
 
+use crate::annotations::{ComputedResponses, LayerName, NotModified, WorldName};
 use crate::discovery::json_response;
 use crate::error::ApiError;
 use crate::extract::{TilePath, WorldPath, layer, parse_product};
-use crate::openapi::{ComputedResponses, NotModified, WorldName};
 use crate::params::{Params, parse_level, parse_quality, parse_sun};
 use crate::state::AppState;
-use crate::tiles;
+use crate::tiles::{self, TileCell, TileQuery, product_bytes};
 
 /// The TileJSON version written.
 pub const TILEJSON_VERSION: &str = "3.0.0";
@@ -142,7 +144,7 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
     tag = "discovery",
     params(
         WorldName,
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
+        LayerName,
         ("product" = Option<crate::extract::TileProduct>, Query, description = "Tile product (default coverage.png)"),
         ("t" = Option<f64>, Query, description = "World time baked into the tile URLs; without it they keep a {t} placeholder"),
         ("quality" = Option<crate::params::QualityName>, Query, description = "Passed on to the tile URLs"),
@@ -236,6 +238,15 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
     }
 }
 
+/// The 200 of `/zoom`.
+pub struct ZoomTileBytes;
+
+impl utoipa::IntoResponses for ZoomTileBytes {
+    fn responses() -> BTreeMap<String, RefOr<utoipa::openapi::response::Response>> {
+        product_bytes("The same bytes, ETag and headers as /tiles/{max_level - zoom}/{x}/{y}/{product}")
+    }
+}
+
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}",
@@ -243,23 +254,11 @@ impl FromRequestParts<Arc<AppState>> for ZoomTilePath {
     params(
         WorldName,
         ("zoom" = u32, Path, description = "TileJSON zoom: the tile of level max_level - zoom (zoom max_level is level 0, the finest)", minimum = 0, example = 16),
-        ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
-        ("y" = i64, Path, description = "Tile row (north, TileJSON scheme tms); negative allowed", example = 0),
-        ("product" = crate::extract::TileProduct, Path, description = "As for /tiles", example = "density.u8"),
-        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12, as for /tiles", example = 0),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("quality" = Option<crate::params::QualityName>, Query, description = "As for /tiles"),
-        ("sun" = Option<String>, Query, description = "As for /tiles"),
+        TileCell,
+        TileQuery,
+        LayerName,
     ),
-    responses(
-        (status = 200, description = "The same bytes, ETag and headers as /tiles/{max_level - zoom}/{x}/{y}/{product}", content(
-            (Vec<u8> = "application/octet-stream"),
-            (Vec<u8> = "image/png"),
-            (Vec<u8> = "image/ktx2"),
-            (Object = "application/json"),
-        )),
-        ComputedResponses,
-    )
+    responses(ZoomTileBytes, ComputedResponses)
 )]
 pub async fn zoom_tile(
     state: State<Arc<AppState>>,

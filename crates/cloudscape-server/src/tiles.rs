@@ -4,12 +4,18 @@
 //! (x·256, y·256); the world origin is the corner of tile (z, 0, 0). The products are
 //! those of [`cloudscape_core::products::catalogue`].
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::body::Bytes;
 use axum::extract::State;
 use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
+use utoipa::openapi::RefOr;
+use utoipa::openapi::content::Content;
+use utoipa::openapi::response::ResponseBuilder;
+use utoipa::openapi::schema::{ObjectBuilder, Type};
+use utoipa::{IntoResponses, PartialSchema};
 
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
@@ -22,11 +28,11 @@ use cloudscape_core::render::tile::shade_tile;
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
 use cloudscape_core::world::{Keyframe, Limits, SunConfig};
 
+use crate::annotations::{ComputedResponses, LayerName, WorldName};
 use crate::error::ApiError;
-use crate::extract::{TilePath, layer};
+use crate::extract::{TilePath, TileProduct, layer};
 use crate::key::{CacheKey, ResolvedWorld};
-use crate::openapi::{ComputedResponses, WorldName};
-use crate::params::{Params, parse_quality, parse_sun};
+use crate::params::{Params, QualityName, parse_quality, parse_sun};
 use crate::respond::Cached;
 use crate::state::AppState;
 
@@ -36,6 +42,69 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
     match shading {
         Some((q, bucket)) => key.with("q", q.as_str()).with("s", bucket.id()),
         None => key,
+    }
+}
+
+/// The column, row and product of a tile's path, after its level (`/tiles`) or zoom
+/// (`/zoom`).
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Path)]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the fields, the handlers take `TilePath`"
+)]
+pub struct TileCell {
+    /// Tile column (east); negative allowed
+    #[param(example = 0)]
+    x: i64,
+    /// Tile row (north; TileJSON scheme tms); negative allowed
+    #[param(example = 0)]
+    y: i64,
+    /// density.npy | density.f32 | density.u8 | density.ktx2 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png
+    #[param(example = "density.u8")]
+    product: TileProduct,
+}
+
+/// The query of `/tiles` and `/zoom` besides the layer.
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the fields, the handlers read `Params`"
+)]
+pub struct TileQuery {
+    /// World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL
+    #[param(example = 0)]
+    t: f64,
+    /// fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)
+    quality: Option<QualityName>,
+    /// AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)
+    sun: Option<String>,
+}
+
+/// A 200 of a tile route: the bytes of the product, in its media type
+/// ([`Product::content_type`]; the JSON products documented as objects).
+pub fn product_bytes(description: &str) -> BTreeMap<String, RefOr<utoipa::openapi::response::Response>> {
+    let mut ok = ResponseBuilder::new().description(description);
+    for content_type in Product::ALL.map(Product::content_type) {
+        let schema = if content_type == "application/json" {
+            ObjectBuilder::new().schema_type(Type::Object).into()
+        } else {
+            <Vec<u8> as PartialSchema>::schema()
+        };
+        ok = ok.content(content_type, Content::new(Some(schema)));
+    }
+    BTreeMap::from([("200".to_string(), ok.build().into())])
+}
+
+/// The 200 of `/tiles`.
+pub struct TileBytes;
+
+impl IntoResponses for TileBytes {
+    fn responses() -> BTreeMap<String, RefOr<utoipa::openapi::response::Response>> {
+        product_bytes(
+            "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded, `.ktx2` a KTX 2.0 R8 3D texture. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. billboards.json/.bin: shaded metaball instances at both ends of the keyframe. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map (R at t0, G at t1). precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top; A 255 where precipitating). docs/formats.md has every layout. Headers: ETag, X-Cloudscape-T and X-Cloudscape-T1 (the keyframe's span), X-Cloudscape-Frame.",
+        )
     }
 }
 
@@ -51,23 +120,11 @@ fn tile_key(base: &CacheKey, product: Product, shading: Option<(Quality, SunBuck
     params(
         WorldName,
         ("z" = u32, Path, description = "Level: a level-z column is 2^z level-0 cells wide", minimum = 0, example = 0),
-        ("x" = i64, Path, description = "Tile column (east); negative allowed", example = 0),
-        ("y" = i64, Path, description = "Tile row (north); negative allowed", example = 0),
-        ("product" = crate::extract::TileProduct, Path, description = "density.npy | density.f32 | density.u8 | density.ktx2 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png", example = "density.u8"),
-        ("t" = f64, Query, description = "World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL", example = 0),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("quality" = Option<crate::params::QualityName>, Query, description = "fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)"),
-        ("sun" = Option<String>, Query, description = "AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)"),
+        TileCell,
+        TileQuery,
+        LayerName,
     ),
-    responses(
-        (status = 200, description = "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded, `.ktx2` a KTX 2.0 R8 3D texture. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. billboards.json/.bin: shaded metaball instances at both ends of the keyframe. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map (R at t0, G at t1). precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top; A 255 where precipitating). docs/formats.md has every layout. Headers: ETag, X-Cloudscape-T and X-Cloudscape-T1 (the keyframe's span), X-Cloudscape-Frame.", content(
-            (Vec<u8> = "application/octet-stream"),
-            (Vec<u8> = "image/png"),
-            (Vec<u8> = "image/ktx2"),
-            (Object = "application/json"),
-        )),
-        ComputedResponses,
-    )
+    responses(TileBytes, ComputedResponses)
 )]
 pub async fn tile(
     State(s): State<Arc<AppState>>,

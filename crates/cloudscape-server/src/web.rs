@@ -26,33 +26,36 @@ struct Asset {
     body: &'static str,
 }
 
+impl Asset {
+    const fn new(path: &'static str, content_type: &'static str, body: &'static str) -> Asset {
+        Asset {
+            path,
+            content_type,
+            body,
+        }
+    }
+}
+
+const HTML: &str = "text/html; charset=utf-8";
+const JAVASCRIPT: &str = "text/javascript; charset=utf-8";
+const CSS: &str = "text/css; charset=utf-8";
+const TEXT: &str = "text/plain; charset=utf-8";
+
 /// Every file of the viewer and the JS client, by URL path.
 const ASSETS: [Asset; 5] = [
-    Asset {
-        path: "/",
-        content_type: "text/html; charset=utf-8",
-        body: include_str!("../../../web/index.html"),
-    },
-    Asset {
-        path: "/viewer.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_str!("../../../web/viewer.js"),
-    },
-    Asset {
-        path: "/viewer.css",
-        content_type: "text/css; charset=utf-8",
-        body: include_str!("../../../web/viewer.css"),
-    },
-    Asset {
-        path: "/client/cloudscape.js",
-        content_type: "text/javascript; charset=utf-8",
-        body: include_str!("../../../clients/js/cloudscape.js"),
-    },
-    Asset {
-        path: "/client/index.d.ts",
-        content_type: "text/plain; charset=utf-8",
-        body: include_str!("../../../clients/js/index.d.ts"),
-    },
+    Asset::new("/", HTML, include_str!("../../../web/index.html")),
+    Asset::new("/viewer.js", JAVASCRIPT, include_str!("../../../web/viewer.js")),
+    Asset::new("/viewer.css", CSS, include_str!("../../../web/viewer.css")),
+    Asset::new(
+        "/client/cloudscape.js",
+        JAVASCRIPT,
+        include_str!("../../../clients/js/cloudscape.js"),
+    ),
+    Asset::new(
+        "/client/index.d.ts",
+        TEXT,
+        include_str!("../../../clients/js/index.d.ts"),
+    ),
 ];
 
 fn serve(asset: &'static Asset, request: &HeaderMap) -> Response {

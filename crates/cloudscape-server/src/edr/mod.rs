@@ -19,8 +19,9 @@ mod query;
 
 use std::sync::Arc;
 
-use axum::extract::State;
+use axum::extract::FromRequestParts;
 use axum::http::HeaderMap;
+use axum::http::request::Parts;
 use axum::response::Response;
 use rayon::prelude::*;
 use serde_json::json;
@@ -31,11 +32,11 @@ use cloudscape_core::density::{self, CLOUD_THRESHOLD, Cell, Grid, Region, column
 use cloudscape_core::weather::column_rate;
 use cloudscape_core::world::{Layer, SnappedTime};
 
+use crate::annotations::{ColumnLevel, ColumnsBbox, ComputedResponses, LayerName, NotModified, WorldName};
 use crate::discovery::json_response;
 use crate::error::ApiError;
-use crate::extract::{WorldQuery, layer};
+use crate::extract::{PointLayers, WorldQuery, layer};
 use crate::key::{CacheKey, ResolvedWorld, stable_hash_hex};
-use crate::openapi::{ComputedResponses, NotModified, WorldName};
 use crate::params::Params;
 use crate::queries::json_bytes;
 use crate::respond::{Cached, Freshness};
@@ -55,75 +56,130 @@ const COVERAGE: &[&str] = &["CoverageJSON", "covjson", "json"];
 /// before any work; the exact size is checked again when the bytes exist).
 const BYTES_PER_VALUE: u64 = 12;
 
+/// `f=` of the metadata routes.
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the field, the handlers take `MetadataRequest`"
+)]
+struct JsonFormat {
+    /// Format: json (the only one)
+    f: Option<String>,
+}
+
+/// 400 of the metadata routes.
+#[derive(utoipa::IntoResponses)]
+#[response(status = 400, description = "f other than json")]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the body's type, no handler builds it"
+)]
+struct NotJson(crate::error::ErrorBody);
+
+/// What the `position`, `area` and `cube` queries share: the times, the parameters
+/// and the output asked for.
+#[derive(utoipa::IntoParams)]
+#[into_params(parameter_in = Query)]
+#[allow(
+    dead_code,
+    reason = "documentation: utoipa reads the fields, the handlers read `Params`"
+)]
+struct CoverageQuery {
+    /// ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused
+    #[param(example = "1970-01-01T00:00:00Z/1970-01-01T00:00:20Z")]
+    datetime: String,
+    /// Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)
+    #[param(rename = "parameter-name", example = "cloud_cover,density")]
+    parameter_name: Option<String>,
+    /// CoverageJSON (default) or json
+    f: Option<String>,
+    /// cloudscape-local-metres (the only CRS)
+    crs: Option<String>,
+}
+
+/// A request to a landing, conformance or collections route: its query parsed and
+/// its `f` checked (json only), in that order.
+pub struct MetadataRequest {
+    s: Arc<AppState>,
+    headers: HeaderMap,
+}
+
+impl FromRequestParts<Arc<AppState>> for MetadataRequest {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
+        let params = Params::from_request_parts(parts, s).await?;
+        check_format(&params, JSON)?;
+        Ok(MetadataRequest {
+            s: Arc::clone(s),
+            headers: parts.headers.clone(),
+        })
+    }
+}
+
+impl MetadataRequest {
+    /// The metadata document, cached as `server.cache_control_other` says.
+    fn answer(&self, document: &serde_json::Value) -> Result<Response, ApiError> {
+        json_response(&self.headers, &self.s.settings.cache_control_other, document)
+    }
+}
+
 #[utoipa::path(
     get,
     path = "/v1/edr",
     tag = "edr",
-    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    params(JsonFormat),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "The EDR landing page: title and links to the conformance declaration and the collections"),
-        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotJson,
         NotModified,
     )
 )]
-pub async fn landing(State(s): State<Arc<AppState>>, params: Params, headers: HeaderMap) -> Result<Response, ApiError> {
-    check_format(&params, JSON)?;
-    json_response(&headers, &s.settings.cache_control_other, &metadata::landing())
+pub async fn landing(request: MetadataRequest) -> Result<Response, ApiError> {
+    request.answer(&metadata::landing())
 }
 
 #[utoipa::path(
     get,
     path = "/v1/edr/conformance",
     tag = "edr",
-    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    params(JsonFormat),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "conformsTo: OGC API – Common core and collections; EDR core, collections, queries, json and covjson"),
-        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotJson,
         NotModified,
     )
 )]
-pub async fn conformance(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    headers: HeaderMap,
-) -> Result<Response, ApiError> {
-    check_format(&params, JSON)?;
-    json_response(&headers, &s.settings.cache_control_other, &metadata::conformance())
+pub async fn conformance(request: MetadataRequest) -> Result<Response, ApiError> {
+    request.answer(&metadata::conformance())
 }
 
 #[utoipa::path(
     get,
     path = "/v1/edr/collections",
     tag = "edr",
-    params(("f" = Option<String>, Query, description = "Format: json (the only one)")),
+    params(JsonFormat),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "One collection per configured world (id = the world's name); a decimal u64 seed also names a collection, unlisted"),
-        (status = 400, body = crate::error::ErrorBody, description = "f other than json"),
+        NotJson,
         NotModified,
     )
 )]
-pub async fn collections(
-    State(s): State<Arc<AppState>>,
-    params: Params,
-    headers: HeaderMap,
-) -> Result<Response, ApiError> {
-    check_format(&params, JSON)?;
-    let collections: Vec<_> = s.worlds.config().worlds.values().map(metadata::collection).collect();
-    let body = json!({
+pub async fn collections(request: MetadataRequest) -> Result<Response, ApiError> {
+    let worlds = request.s.worlds.config().worlds.values();
+    let collections: Vec<_> = worlds.map(metadata::collection).collect();
+    request.answer(&json!({
         "links": [{ "href": "/v1/edr/collections", "rel": "self", "type": "application/json", "title": "The collections" }],
         "collections": collections,
-    });
-    json_response(&headers, &s.settings.cache_control_other, &body)
+    }))
 }
 
 #[utoipa::path(
     get,
     path = "/v1/edr/collections/{world}",
     tag = "edr",
-    params(
-        WorldName,
-        ("f" = Option<String>, Query, description = "Format: json (the only one)"),
-    ),
+    params(WorldName, JsonFormat),
     responses(
         (status = 200, content_type = "application/json", body = Object, description = "The world's collection: extent (spatial in world metres, temporal from 1970-01-01T00:00:00Z = world time 0, vertical = the layer bands), data_queries (position, area, cube), parameter_names, crs, output_formats"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed path or f other than json"),
@@ -147,9 +203,17 @@ pub async fn collection(
     )
 }
 
-/// Final when every frame computed is exactly a time asked, else snapped.
-fn freshness(exact: bool) -> Freshness {
-    if exact { Freshness::Final } else { Freshness::Snapped }
+/// A CoverageJSON answer over the frames of its time axis: with the time headers of
+/// its frame when there is one, final when every frame is exactly a time asked.
+fn coverage_cached(key: CacheKey, axis: &[SnappedTime], exact: bool) -> Cached {
+    Cached {
+        kind: "edr",
+        key,
+        content_type: MEDIA_TYPE,
+        time: (axis.len() == 1).then(|| axis[0].into()),
+        freshness: Freshness::of_frames(exact),
+        content_location: None,
+    }
 }
 
 fn join<T: ToString>(items: impl IntoIterator<Item = T>) -> String {
@@ -185,11 +249,8 @@ fn check_answer_size(s: &AppState, values: u64) -> Result<(), ApiError> {
         WorldName,
         ("coords" = String, Query, description = "WKT POINT(x y) in world metres (x east, y north)", example = "POINT(150 150)"),
         ("z" = Option<f64>, Query, description = "Altitude above sea level, metres (default 0)", example = 1050),
-        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:20Z"),
-        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)", example = "density,precipitation_rate"),
         ("layer" = Option<String>, Query, description = "Layer name (default: the layer holding z for density, every layer above z for the rest, as /sample)"),
-        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
-        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+        CoverageQuery,
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage: domainType Point for an instant, PointSeries for an interval; density and precipitation_rate equal /sample's at the same point and time"),
@@ -211,18 +272,11 @@ pub async fn position(
     let datetime = parse_datetime(&params)?;
     let quantities = parse_quantities(&params, &Quantity::ALL)?;
     let world = &resolved.world;
-    // The layers of /sample: the one named or holding z (its cell's density), and
-    // those whose column is above the point (the one named, else every layer whose
-    // top is above z).
-    let chosen = match params.get("layer") {
-        Some(name) => Some(layer(world, Some(name))?.0),
-        None => world.layers.iter().position(|l| l.base <= z && z < l.top()),
-    };
-    let above: Vec<usize> = match params.get("layer") {
-        Some(_) => chosen.into_iter().collect(),
-        None => (0..world.layers.len()).filter(|&i| world.layers[i].top() > z).collect(),
-    };
-    let primary = chosen.or(above.first().copied()).unwrap_or(0);
+    // The layers of /sample: the one holding z (its cell's density), and those whose
+    // column is above the point.
+    let layers = PointLayers::at(world, params.get("layer"), z)?;
+    let primary = layers.primary().unwrap_or(0);
+    let PointLayers { holding: chosen, above } = layers;
     let times = datetime.times(world.layers[primary].dt, s.settings.max_series)?;
     let limits = &s.worlds.config().limits;
     let columns = above
@@ -263,14 +317,7 @@ pub async fn position(
         .with("q", join(quantities.iter().map(|q| q.name())))
         .with("i", datetime.interval)
         .with("t", join(&times));
-    let cached = Cached {
-        kind: "edr",
-        key,
-        content_type: MEDIA_TYPE,
-        time: (times.len() == 1).then(|| axis[0].into()),
-        freshness: freshness(exact),
-        content_location: None,
-    };
+    let cached = coverage_cached(key, &axis, exact);
     let world = resolved.world;
     cached
         .respond(&s, &headers, move || {
@@ -420,12 +467,9 @@ fn grid_times(s: &AppState, params: &Params, layer: &Layer) -> Result<(Datetime,
     params(
         WorldName,
         ("coords" = String, Query, description = "WKT POLYGON((x y, …), (hole …)) in world metres, at most 256 vertices; the columns whose centres lie inside (its bbox is limit-checked like /region's)", example = "POLYGON((0 0, 1000 0, 1000 1000, 0 1000, 0 0))"),
-        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z"),
-        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)", example = "cloud_cover,density"),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("level" = Option<u32>, Query, description = "Level of the columns (default 0), as /region"),
-        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
-        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+        LayerName,
+        ColumnLevel,
+        CoverageQuery,
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (column centres); values per column, null outside the polygon; their means are /region's coverage, mean_density and mean_precipitation_mm_h"),
@@ -472,14 +516,11 @@ pub async fn area(
     tag = "edr",
     params(
         WorldName,
-        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1; the columns whose centres lie inside", example = "0,0,1000,1000"),
-        ("z" = Option<String>, Query, description = "Vertical levels: an interval a/b (levels centred within it) or a list a,b (the levels holding each altitude); absent: whole columns", example = "1000/1200"),
-        ("datetime" = String, Query, description = "ISO 8601 instant (world time t = 1970-01-01T00:00:00Z + t s; plain seconds also accepted) or closed interval a/b stepping by the layer's dt (at most server.max_series steps); open ends refused", example = "1970-01-01T00:00:00Z/1970-01-01T00:00:20Z"),
-        ("parameter-name" = Option<String>, Query, description = "Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all; with z only density and cloud_cover, per cell)", example = "density"),
-        ("layer" = Option<String>, Query, description = "Layer name (default: the world's first layer)"),
-        ("level" = Option<u32>, Query, description = "Level of the columns (default 0), as /region"),
-        ("f" = Option<String>, Query, description = "CoverageJSON (default) or json"),
-        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+        ColumnsBbox,
+        ("z" = Option<String>, Query, description = "Vertical levels: an interval a/b (levels centred within it) or a list a,b (the levels holding each altitude); absent: whole columns. With z, parameter-name may name only density and cloud_cover (per cell)", example = "1000/1200"),
+        LayerName,
+        ColumnLevel,
+        CoverageQuery,
     ),
     responses(
         (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (and z with z levels): per column as area, or per cell of the selected levels; one time step per layer dt, each equal to the /series point of that time"),
@@ -541,8 +582,7 @@ async fn grid_coverage(s: &Arc<AppState>, headers: &HeaderMap, q: GridQuery) -> 
     let values = cells_per_frame * frames.len() as u64 * q.quantities.len() as u64;
     check_answer_size(s, values)?;
     let mut key = CacheKey::new(q.kind, &q.resolved, q.layer)
-        .with("z", q.level)
-        .with("r", format!("{},{},{},{}", r.x0, r.y0, r.cols, r.rows))
+        .with_region(q.level, r)
         .with("q", join(q.quantities.iter().map(|q| q.name())))
         .with("t", join(&q.times));
     if let Some(p) = &q.polygon {
@@ -551,14 +591,8 @@ async fn grid_coverage(s: &Arc<AppState>, headers: &HeaderMap, q: GridQuery) -> 
     if let Some(levels) = &q.levels {
         key = key.with("k", join(levels));
     }
-    let cached = Cached {
-        kind: "edr",
-        key,
-        content_type: MEDIA_TYPE,
-        time: (frames.len() == 1).then(|| frames[0].into()),
-        freshness: freshness(frames.iter().zip(&q.times).all(|(f, &t)| f.is_exact(t))),
-        content_location: None,
-    };
+    let exact = frames.iter().zip(&q.times).all(|(f, &t)| f.is_exact(t));
+    let cached = coverage_cached(key, &frames, exact);
     cached
         .respond(s, headers, move || {
             let world = &q.resolved.world;

@@ -7,6 +7,7 @@
 //! is the Unix epoch, no leap seconds), so the instants run from the epoch to
 //! 9999-12-31T23:59:59Z, the last second a four-digit year names.
 
+use cloudscape_core::civil::{civil_from_days, days_from_civil, month_days};
 use cloudscape_core::world::Layer;
 
 use crate::error::ApiError;
@@ -281,43 +282,6 @@ fn parse_iso(s: &str) -> Option<f64> {
         seconds += (h * 3600 + mi * 60 + whole - offset) as f64 + fraction;
     }
     Some(seconds)
-}
-
-fn is_leap(y: i64) -> bool {
-    (y % 4 == 0 && y % 100 != 0) || y % 400 == 0
-}
-
-fn month_days(y: i64, m: i64) -> i64 {
-    match m {
-        2 if is_leap(y) => 29,
-        2 => 28,
-        4 | 6 | 9 | 11 => 30,
-        _ => 31,
-    }
-}
-
-/// Days from 1970-01-01 to the proleptic Gregorian date (Hinnant, "chrono-Compatible
-/// Low-Level Date Algorithms", days_from_civil).
-fn days_from_civil(y: i64, m: i64, d: i64) -> i64 {
-    let y = if m <= 2 { y - 1 } else { y };
-    let era = y.div_euclid(400);
-    let yoe = y - era * 400;
-    let doy = (153 * (m + if m > 2 { -3 } else { 9 }) + 2) / 5 + d - 1;
-    let doe = yoe * 365 + yoe / 4 - yoe / 100 + doy;
-    era * 146_097 + doe - 719_468
-}
-
-/// The date of a day count from 1970-01-01 (Hinnant, civil_from_days).
-fn civil_from_days(z: i64) -> (i64, i64, i64) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    (yoe + era * 400 + i64::from(m <= 2), m, d)
 }
 
 /// World time `t` (0 <= t <= [`MAX_EDR_TIME`]) as the ISO 8601 instant it stands for,

@@ -28,6 +28,8 @@ mod weather;
 
 use std::time::{Duration, Instant};
 
+use cloudscape_core::civil::civil_from_days;
+
 /// How hard to measure.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Effort {
@@ -371,19 +373,10 @@ fn machine(effort: Effort) -> Section {
     }
 }
 
-/// `YYYY-MM-DD HH:MM` of Unix seconds (Hinnant's days-to-civil).
+/// `YYYY-MM-DD HH:MM` of Unix seconds.
 fn utc(secs: i64) -> String {
-    let days = secs.div_euclid(86_400);
+    let (y, m, d) = civil_from_days(secs.div_euclid(86_400));
     let rem = secs.rem_euclid(86_400);
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = doy - (153 * mp + 2) / 5 + 1;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 };
-    let y = yoe + era * 400 + (m <= 2) as i64;
     format!("{y:04}-{m:02}-{d:02} {:02}:{:02}", rem / 3600, rem % 3600 / 60)
 }
 

@@ -13,7 +13,7 @@
 
 import { mkdirSync } from 'node:fs';
 import { join } from 'node:path';
-import { chromium } from 'playwright-core';
+import { checks, launchChromium, mean } from './harness.mjs';
 
 const [example, tiles, outDir = 'target/browser'] = process.argv.slice(2);
 if (!example || !tiles) {
@@ -26,35 +26,9 @@ mkdirSync(outDir, { recursive: true });
 const VIEWPORT = { width: 480, height: 270 };
 const LOAD_TIMEOUT_MS = 600_000;
 
-let passed = 0;
-let failed = 0;
-let skipped = 0;
-function check(name, ok, detail = '') {
-  if (ok) passed++;
-  else failed++;
-  console.log(`${ok ? 'ok' : 'not ok'} - ${name}${detail ? ` (${detail})` : ''}`);
-}
-function skip(name, why) {
-  skipped++;
-  console.log(`ok - ${name} # SKIP ${why}`);
-}
-const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);
+const { check, skip, finish } = checks('threejs');
 
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-  headless: true,
-  args: [
-    '--no-sandbox',
-    '--disable-gpu',
-    '--no-first-run',
-    '--disable-background-networking',
-    '--disable-component-update',
-    '--enable-unsafe-swiftshader',
-    '--use-angle=swiftshader',
-    '--ignore-gpu-blocklist',
-    '--disable-gpu-watchdog',
-  ],
-});
+const browser = await launchChromium();
 
 // Between keyframes (level 0 spans 20 s): 60 % of the way from 43200 to 43220.
 const T = 43212;
@@ -194,5 +168,4 @@ try {
   await browser.close();
 }
 
-console.log(`threejs: ${passed} passed, ${failed} failed, ${skipped} skipped`);
-process.exit(failed === 0 ? 0 : 1);
+finish();

@@ -21,8 +21,8 @@
 
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
-import { chromium } from 'playwright-core';
 import { galleryScreenshots } from './gallery.mjs';
+import { checks, launchChromium, mean } from './harness.mjs';
 
 const base = process.argv[2];
 const outDir = process.argv[3] || 'target/browser';
@@ -44,42 +44,14 @@ const LOAD_TIMEOUT_MS = 600_000;
 /** SwiftShader draws a frame of ~100k billboards slowly. */
 const SCREENSHOT_TIMEOUT_MS = 300_000;
 
-let passed = 0;
-let failed = 0;
-function check(name, ok, detail = '') {
-  if (ok) {
-    passed++;
-    console.log(`ok - ${name}${detail ? ` (${detail})` : ''}`);
-  } else {
-    failed++;
-    console.log(`not ok - ${name}${detail ? `: ${detail}` : ''}`);
-  }
-}
+const { check, finish } = checks('browser');
 const figures = [];
 const figure = (name, value) => {
   figures.push(`${name}: ${value}`);
   console.log(`figure - ${name}: ${value}`);
 };
 
-const browser = await chromium.launch({
-  executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
-  headless: true,
-  args: [
-    '--no-sandbox',
-    '--disable-gpu',
-    '--disable-quic',
-    '--no-first-run',
-    '--disable-background-networking',
-    '--disable-component-update',
-    '--disable-sync',
-    '--enable-unsafe-swiftshader',
-    '--use-angle=swiftshader',
-    '--ignore-gpu-blocklist',
-    // A software-GL frame of a dense view can outlast the GPU watchdog's timeout, which
-    // then kills the GPU process and closes the page mid-screenshot.
-    '--disable-gpu-watchdog',
-  ],
-});
+const browser = await launchChromium(['--disable-quic', '--disable-sync']);
 
 /** A page with everything it logs and requests recorded. */
 async function openPage(context) {
@@ -141,7 +113,6 @@ const rowLum = (m) => 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
 /** Mean colour of rows [a, b). */
 const rowsMean = (rows, a, b) => [0, 1, 2].map((k) => rows.slice(a, b).reduce((s, m) => s + m[k], 0) / (b - a));
 
-const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);
 const std = (a) => {
   const m = mean(a);
   return Math.sqrt(mean(a.map((v) => (v - m) ** 2)));
@@ -548,5 +519,4 @@ try {
   await browser.close();
 }
 
-console.log(`browser: ${passed} passed, ${failed} failed`);
-process.exit(failed === 0 ? 0 : 1);
+finish();

@@ -1,0 +1,59 @@
+// Shared by the browser suites (viewer.test.mjs, threejs.test.mjs): the headless
+// Chromium they drive, the `ok` / `not ok` lines they print, and small statistics.
+
+import { chromium } from 'playwright-core';
+
+/** WebGL through SwiftShader in a headless browser run as root, without background traffic. */
+const FLAGS = [
+  '--no-sandbox',
+  '--disable-gpu',
+  '--no-first-run',
+  '--disable-background-networking',
+  '--disable-component-update',
+  '--enable-unsafe-swiftshader',
+  '--use-angle=swiftshader',
+  '--ignore-gpu-blocklist',
+  // A software-GL frame of a dense view can outlast the GPU watchdog's timeout, which
+  // then kills the GPU process and closes the page mid-screenshot.
+  '--disable-gpu-watchdog',
+];
+
+/** Headless Chromium (CHROMIUM, default Debian's /usr/bin/chromium) with FLAGS and `extraFlags`. */
+export function launchChromium(extraFlags = []) {
+  return chromium.launch({
+    executablePath: process.env.CHROMIUM || '/usr/bin/chromium',
+    headless: true,
+    args: [...FLAGS, ...extraFlags],
+  });
+}
+
+/**
+ * The checks of the suite `suite`: `check` and `skip` print one line each; `finish`
+ * prints the counts and exits, 1 when any check failed.
+ */
+export function checks(suite) {
+  let passed = 0;
+  let failed = 0;
+  let skipped = 0;
+  return {
+    check(name, ok, detail = '') {
+      if (ok) {
+        passed++;
+        console.log(`ok - ${name}${detail ? ` (${detail})` : ''}`);
+      } else {
+        failed++;
+        console.log(`not ok - ${name}${detail ? `: ${detail}` : ''}`);
+      }
+    },
+    skip(name, why) {
+      skipped++;
+      console.log(`ok - ${name} # SKIP ${why}`);
+    },
+    finish() {
+      console.log(`${suite}: ${passed} passed, ${failed} failed${skipped ? `, ${skipped} skipped` : ''}`);
+      process.exit(failed === 0 ? 0 : 1);
+    },
+  };
+}
+
+export const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);

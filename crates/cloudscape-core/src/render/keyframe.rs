@@ -26,6 +26,7 @@
 
 use super::shade::Billboard;
 use super::tile::{ShadedTile, shadow_lookup, shadow_shift};
+use crate::world::Keyframe;
 
 /// Linear interpolation `(1 − f) a + f b`.
 #[inline]
@@ -58,25 +59,19 @@ pub fn between(start: &Billboard, end: &Billboard, velocity: [f64; 2], dt: f64, 
 /// The density a client draws at a point and time inside a keyframe span, from the
 /// two keyframes' grids: `(1 − f) · D0(x − v (t − t0)) + f · D1(x + v (t1 − t))`, where
 /// `d0` and `d1` read a keyframe's grid (bilinearly) at a world point of the same
-/// height, and `v` is the wind at that height. At level 0, whose span is one
-/// automaton step, this is the model's own interpolation between steps
-/// (`density::exact`), up to the second bilinear resampling.
+/// height, `v` is the wind at that height and `f` is [`Keyframe::fraction`]. At
+/// level 0, whose span is one automaton step, this is the model's own interpolation
+/// between steps (`density::exact`), up to the second bilinear resampling.
 pub fn blend_density_at(
     d0: impl Fn(f64, f64) -> f64,
     d1: impl Fn(f64, f64) -> f64,
     x: [f64; 2],
     velocity: [f64; 2],
-    t0: f64,
-    t1: f64,
+    keyframe: &Keyframe,
     t: f64,
 ) -> f64 {
-    let span = t1 - t0;
-    let f = if span > 0.0 {
-        ((t - t0) / span).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    let (back, ahead) = (t - t0, t1 - t);
+    let f = keyframe.fraction(t);
+    let (back, ahead) = (t - keyframe.t0, keyframe.t1 - t);
     let a = d0(x[0] - velocity[0] * back, x[1] - velocity[1] * back);
     if f == 0.0 {
         return a;
@@ -124,7 +119,7 @@ mod tests {
     use crate::density::{self, Grid, Region};
     use crate::render::tile::{MIN_BALL_DENSITY, TileId, shade_tile};
     use crate::render::{Quality, ShadingParams, Sun};
-    use crate::world::{Config, Keyframe};
+    use crate::world::Config;
 
     fn keyframe_tile(t: f64) -> (crate::world::World, ShadedTile) {
         let config = Config::embedded();
@@ -221,6 +216,7 @@ mod tests {
         let layer = &world.layers[0];
         let region = Region::square(0, 0, 64);
         let (t0, t1, t) = (43_200.0, 43_220.0, 43_207.0);
+        let keyframe = Keyframe { index: 2160, t0, t1 };
         let d0 = density::density(&world, 0, 0, region, t0).unwrap();
         let d1 = density::density(&world, 0, 0, region, t1).unwrap();
         let truth = density::density(&world, 0, 0, region, t).unwrap();
@@ -244,7 +240,7 @@ mod tests {
             for r in 8..56 {
                 for col in 8..56 {
                     let x = [(col as f64 + 0.5) * c, (r as f64 + 0.5) * c];
-                    let blended = blend_density_at(read(&d0, k), read(&d1, k), x, v, t0, t1, t);
+                    let blended = blend_density_at(read(&d0, k), read(&d1, k), x, v, &keyframe, t);
                     let want = truth.get(k, r, col) as f64;
                     err += (blended - want).powi(2);
                     let f = (t - t0) / (t1 - t0);

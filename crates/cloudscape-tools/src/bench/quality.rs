@@ -42,9 +42,13 @@ pub const SCENE_WORLDS: &str = include_str!("scene_worlds.toml");
 
 /// A camera over one of [`SCENE_WORLDS`], with the sun (azimuth, elevation in degrees).
 pub struct Scene {
+    /// Row label in the tables and plots.
     pub name: &'static str,
+    /// The world of [`SCENE_WORLDS`] it looks at.
     pub world: &'static str,
+    /// `X,Y,Z,YAW,PITCH,FOV` (see `render --camera`).
     pub camera: &'static str,
+    /// Sun azimuth and elevation, degrees.
     pub sun: (f64, f64),
 }
 

@@ -32,18 +32,17 @@ use std::time::{Duration, Instant};
 
 use tokio::sync::Notify;
 
-use axum::body::Bytes;
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
 use cloudscape_core::world::Keyframe;
 
-use crate::cache::ResponseCache;
+use crate::cache::{Computation, ResponseCache, WithSiblings};
 use crate::error::ApiError;
 use crate::key::CacheKey;
 use crate::metrics::Metrics;
 
 /// A computation ahead: the bytes of a key and of its siblings.
-pub type AheadJob = Box<dyn FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send>;
+pub type AheadJob = Box<dyn FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send>;
 
 /// What compute-ahead needs of a watched tile variant (`tiles::TileRecipe`).
 pub trait Recipe: Send + Sync {
@@ -285,7 +284,17 @@ async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) ->
         return false;
     };
     tracing::debug!(variant = %job.variant, index = job.keyframe.index, bytes = work.bytes, "ahead: start");
-    let computed = cache.compute_ahead(m, kind, key, work, plan).await;
+    let computed = cache
+        .compute_ahead(
+            m,
+            Computation {
+                kind,
+                key,
+                work,
+                job: plan,
+            },
+        )
+        .await;
     tracing::debug!(variant = %job.variant, computed, "ahead: end");
     if computed {
         m.ahead_computed.inc();

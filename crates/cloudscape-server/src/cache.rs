@@ -274,6 +274,25 @@ impl AheadKeys {
 /// The share of the cache budget one entry may take at most.
 pub const MAX_ENTRY_FRACTION: u64 = 4;
 
+/// What a computation yields: the bytes of its key, and the bytes of sibling keys the
+/// same work produced (the other products of one shaded tile).
+pub type WithSiblings = (Bytes, Vec<(CacheKey, Bytes)>);
+
+/// The work of a computation, run once on the compute queue (the token fires when no
+/// one waits for it any more).
+pub trait Job: FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send + 'static {}
+
+impl<F: FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send + 'static> Job for F {}
+
+/// One computation the cache may run: the metric label of its kind, the key its
+/// bytes go under, its estimated work (admitted before) and its job.
+pub struct Computation<J> {
+    pub kind: &'static str,
+    pub key: CacheKey,
+    pub work: Work,
+    pub job: J,
+}
+
 impl ResponseCache {
     pub fn new(max_bytes: u64, queue: ComputeQueue, budget: Duration, shared: Option<SharedCache>) -> ResponseCache {
         let max_entry = (max_bytes / MAX_ENTRY_FRACTION).min(u32::MAX as u64) as usize;
@@ -321,11 +340,9 @@ impl ResponseCache {
     pub async fn get_or_compute_with_siblings(
         self: &Arc<Self>,
         metrics: &Arc<Metrics>,
-        kind: &'static str,
-        key: CacheKey,
-        work: Work,
-        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
+        computation: Computation<impl Job>,
     ) -> Result<Bytes, ApiError> {
+        let (kind, key) = (computation.kind, computation.key.clone());
         if let Some(bytes) = self.cache.get(&key).await {
             metrics.cache_hits.with_label_values(&[kind]).inc();
             if self.ahead.served(&key) {
@@ -340,7 +357,7 @@ impl ResponseCache {
         let this = Arc::clone(self);
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
-            let init = this.fill(&m, kind, key.clone(), work, cancel, job, false);
+            let init = this.fill(&m, computation, cancel, false);
             this.get_with(&key, init).await
         });
         let result = match tokio::time::timeout(self.budget, task).await {
@@ -365,17 +382,14 @@ impl ResponseCache {
     /// queue; the siblings the job yields go into both caches (the key itself is
     /// inserted by the caller's `try_get_with`). Keys computed `ahead` are remembered,
     /// so the first request that finds each counts as served from ahead.
-    #[allow(clippy::too_many_arguments)]
     async fn fill(
         &self,
         m: &Arc<Metrics>,
-        kind: &'static str,
-        key: CacheKey,
-        work: Work,
+        computation: Computation<impl Job>,
         cancel: Cancel,
-        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
         ahead: bool,
     ) -> Result<Bytes, ApiError> {
+        let Computation { kind, key, work, job } = computation;
         if let Some(shared) = &self.shared
             && let Lookup::Hit(bytes) = shared.get(m, kind, &key).await
         {
@@ -402,18 +416,12 @@ impl ResponseCache {
     /// Computes `key` ahead of any request (no time budget; requests asking for it
     /// meanwhile join the computation). True when the bytes are in the cache
     /// afterwards, computed now or before; false when the queue shed it or it failed.
-    pub async fn compute_ahead(
-        self: &Arc<Self>,
-        metrics: &Arc<Metrics>,
-        kind: &'static str,
-        key: CacheKey,
-        work: Work,
-        job: impl FnOnce(&Cancel) -> Result<(Bytes, Vec<(CacheKey, Bytes)>), ApiError> + Send + 'static,
-    ) -> bool {
+    pub async fn compute_ahead(self: &Arc<Self>, metrics: &Arc<Metrics>, computation: Computation<impl Job>) -> bool {
+        let key = computation.key.clone();
         if self.cache.contains_key(&key) {
             return true;
         }
-        let init = self.fill(metrics, kind, key.clone(), work, Cancel::never(), job, true);
+        let init = self.fill(metrics, computation, Cancel::never(), true);
         self.get_with(&key, init).await.is_ok()
     }
 

@@ -16,6 +16,7 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
 use cloudscape_core::world::{Keyframe, SnappedTime};
 
+use crate::cache::{Computation, Job};
 use crate::encode::{self, Coding};
 use crate::error::ApiError;
 use crate::key::{CacheKey, if_none_match};
@@ -86,9 +87,6 @@ impl Freshness {
         if exact { Freshness::Final } else { Freshness::Snapped }
     }
 }
-
-/// The bytes of a key and of the sibling keys computed by the same work.
-pub type WithSiblings = (Bytes, Vec<(CacheKey, Bytes)>);
 
 impl Cached {
     /// A response with no frame time of its own (splat sheets, the sky, the strikes of
@@ -174,7 +172,7 @@ impl Cached {
         finish: impl FnOnce(&Bytes) -> Result<HeaderMap, ApiError>,
     ) -> Result<Response, ApiError>
     where
-        J: FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send + 'static,
+        J: Job,
     {
         let repr = Representation {
             etag: self.key.etag(),
@@ -195,7 +193,15 @@ impl Cached {
         let work = s.admit(self.kind, work)?;
         let bytes = s
             .cache
-            .get_or_compute_with_siblings(&s.metrics, self.kind, self.key.clone(), work, job)
+            .get_or_compute_with_siblings(
+                &s.metrics,
+                Computation {
+                    kind: self.kind,
+                    key: self.key.clone(),
+                    work,
+                    job,
+                },
+            )
             .await?;
         let extra = finish(&bytes)?;
         repr.check_size(s, &bytes)?;

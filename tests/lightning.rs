@@ -72,60 +72,22 @@ async fn strikes_are_deterministic_and_a_box_is_the_union_of_its_halves() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn lightning_limits_and_bad_input_get_clear_errors() {
     let s = start().await;
-    for (path, status, code) in [
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0&t1=3601",
-            413,
-            "region_too_large",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,50001,1000&t0=0&t1=60",
-            413,
-            "region_too_large",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=60&t1=60",
-            400,
-            "invalid_parameter",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=-1&t1=60",
-            422,
-            "time_out_of_range",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=1000,0,0,1000&t0=0&t1=60",
-            400,
-            "invalid_bbox",
-        ),
+    #[rustfmt::skip] // one case a line: (path, status, error code)
+    let cases = [
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0&t1=3601", 413, "region_too_large"),
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,50001,1000&t0=0&t1=60", 413, "region_too_large"),
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=60&t1=60", 400, "invalid_parameter"),
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=-1&t1=60", 422, "time_out_of_range"),
+        ("/v1/worlds/storm-front/lightning?bbox=1000,0,0,1000&t0=0&t1=60", 400, "invalid_bbox"),
         ("/v1/worlds/storm-front/lightning?bbox=0,0,1000&t0=0&t1=60", 400, ""),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0",
-            400,
-            "missing_parameter",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=1e17,0,100000000000001000,1000&t0=0&t1=60",
-            422,
-            "coordinates_out_of_range",
-        ),
-        (
-            "/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0&t1=60&layer=nope",
-            404,
-            "unknown_layer",
-        ),
-        (
-            "/v1/worlds/nope/lightning?bbox=0,0,1000,1000&t0=0&t1=60",
-            404,
-            "unknown_world",
-        ),
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0", 400, "missing_parameter"),
+        ("/v1/worlds/storm-front/lightning?bbox=1e17,0,100000000000001000,1000&t0=0&t1=60", 422, "coordinates_out_of_range"),
+        ("/v1/worlds/storm-front/lightning?bbox=0,0,1000,1000&t0=0&t1=60&layer=nope", 404, "unknown_layer"),
+        ("/v1/worlds/nope/lightning?bbox=0,0,1000,1000&t0=0&t1=60", 404, "unknown_world"),
         // Checked even where nothing could flash.
-        (
-            "/v1/worlds/default/lightning?bbox=0,0,1000,1000&t0=0&t1=7200",
-            413,
-            "region_too_large",
-        ),
-    ] {
+        ("/v1/worlds/default/lightning?bbox=0,0,1000,1000&t0=0&t1=7200", 413, "region_too_large"),
+    ];
+    for (path, status, code) in cases {
         s.assert_error(path, status, code).await;
     }
     let (_, doc) = s.status_json("/openapi.json").await;

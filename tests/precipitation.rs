@@ -220,55 +220,21 @@ async fn a_sample_reads_the_tile_pixel_on_both_sides_of_a_seam() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_precipitation_requests_get_clear_errors() {
     let s = start().await;
-    for (path, status, code) in [
-        (
-            "/v1/worlds/default/tiles/0/0/0/precipitation.png?t=-1",
-            422,
-            "time_out_of_range",
-        ),
-        (
-            "/v1/worlds/default/tiles/0/0/0/precipitation.png?t=nan",
-            400,
-            "not_finite",
-        ),
-        (
-            "/v1/worlds/default/tiles/0/0/0/precipitation.png",
-            400,
-            "missing_parameter",
-        ),
-        (
-            "/v1/worlds/default/tiles/0/0/0/precipitation.png?t=0&layer=nope",
-            404,
-            "unknown_layer",
-        ),
-        (
-            "/v1/worlds/default/tiles/99/0/0/precipitation.png?t=0",
-            422,
-            "level_out_of_range",
-        ),
-        (
-            "/v1/worlds/nope/tiles/0/0/0/precipitation.png?t=0",
-            404,
-            "unknown_world",
-        ),
-        (
-            "/v1/worlds/default/tiles/0/0/0/precipitation.jpg?t=0",
-            404,
-            "unknown_product",
-        ),
+    #[rustfmt::skip] // one case a line: (path, status, error code)
+    let cases = [
+        ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=-1", 422, "time_out_of_range"),
+        ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=nan", 400, "not_finite"),
+        ("/v1/worlds/default/tiles/0/0/0/precipitation.png", 400, "missing_parameter"),
+        ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=0&layer=nope", 404, "unknown_layer"),
+        ("/v1/worlds/default/tiles/99/0/0/precipitation.png?t=0", 422, "level_out_of_range"),
+        ("/v1/worlds/nope/tiles/0/0/0/precipitation.png?t=0", 404, "unknown_world"),
+        ("/v1/worlds/default/tiles/0/0/0/precipitation.jpg?t=0", 404, "unknown_product"),
         ("/v1/worlds/default/sample?x=0&y=0&z=nan&t=0", 400, "not_finite"),
-        (
-            "/v1/worlds/default/sample?x=1e300&y=0&z=0&t=0",
-            422,
-            "coordinates_out_of_range",
-        ),
+        ("/v1/worlds/default/sample?x=1e300&y=0&z=0&t=0", 422, "coordinates_out_of_range"),
         ("/v1/worlds/default/sample?x=0&y=0&t=0", 400, "missing_parameter"),
-        (
-            "/v1/worlds/default/region?bbox=0,0,1e9,1e9&t=0",
-            413,
-            "region_too_large",
-        ),
-    ] {
+        ("/v1/worlds/default/region?bbox=0,0,1e9,1e9&t=0", 413, "region_too_large"),
+    ];
+    for (path, status, code) in cases {
         s.assert_error(path, status, code).await;
     }
     // Discovery states where snow starts, so a client can read the tile at its altitude.

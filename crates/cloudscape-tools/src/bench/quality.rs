@@ -53,31 +53,12 @@ pub struct Scene {
 }
 
 /// The speed–accuracy scene set.
+#[rustfmt::skip] // one scene a line
 pub const SCENES: [Scene; 4] = [
-    Scene {
-        name: "stratus deck from below",
-        world: "stratus",
-        camera: "12800,12800,20,0,35,70",
-        sun: (150.0, 45.0),
-    },
-    Scene {
-        name: "cumulus field at 45°",
-        world: "cumulus",
-        camera: "12800,6000,5000,0,-45,60",
-        sun: (200.0, 45.0),
-    },
-    Scene {
-        name: "altocumulus from above",
-        world: "altocumulus",
-        camera: "10240,10240,7000,30,-60,60",
-        sun: (120.0, 50.0),
-    },
-    Scene {
-        name: "low sun at the horizon",
-        world: "cumulus",
-        camera: "12800,3000,700,0,6,70",
-        sun: (5.0, 1.0),
-    },
+    Scene { name: "stratus deck from below", world: "stratus", camera: "12800,12800,20,0,35,70", sun: (150.0, 45.0) },
+    Scene { name: "cumulus field at 45°", world: "cumulus", camera: "12800,6000,5000,0,-45,60", sun: (200.0, 45.0) },
+    Scene { name: "altocumulus from above", world: "altocumulus", camera: "10240,10240,7000,30,-60,60", sun: (120.0, 50.0) },
+    Scene { name: "low sun at the horizon", world: "cumulus", camera: "12800,3000,700,0,6,70", sun: (5.0, 1.0) },
 ];
 
 /// Upper edges of the view optical-depth bins (the last bin is open).

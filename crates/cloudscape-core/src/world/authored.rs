@@ -52,8 +52,32 @@ pub struct Front {
 pub enum Area {
     /// `[x0, y0, x1, y1]`, world metres.
     Box([f64; 4]),
-    /// A simple polygon's vertices, world metres (even-odd rule).
-    Polygon(Vec<[f64; 2]>),
+    /// A simple polygon, world metres (even-odd rule).
+    Polygon(Polygon),
+}
+
+/// A simple polygon's vertices, world metres, and their bounding box: a point outside
+/// the box is outside the polygon, so its push is known without measuring every edge
+/// (up to 1024 of them, for every cell of every run).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(transparent)]
+pub struct Polygon {
+    vertices: Vec<[f64; 2]>,
+    /// `[x0, y0, x1, y1]`; derived from the vertices, so not serialised (a layer's
+    /// fingerprint is that of the vertices alone).
+    #[serde(skip)]
+    bounds: [f64; 4],
+}
+
+impl Polygon {
+    /// The polygon through `vertices` (implicitly closed).
+    pub fn new(vertices: Vec<[f64; 2]>) -> Polygon {
+        let mut bounds = [f64::INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::NEG_INFINITY];
+        for &[x, y] in &vertices {
+            bounds = [bounds[0].min(x), bounds[1].min(y), bounds[2].max(x), bounds[3].max(y)];
+        }
+        Polygon { vertices, bounds }
+    }
 }
 
 /// What an authored influence is.
@@ -141,13 +165,15 @@ impl Influence {
                 (self.intensity * band + f.behind * passed) * ends
             }
             Shape::Region { area, blend } => {
-                let inside = area.depth(x, y);
-                self.intensity
-                    * if *blend > 0.0 {
-                        smooth(inside / blend)
-                    } else {
-                        f64::from(inside >= 0.0)
-                    }
+                // Outside the bounds the depth is negative, where both ramps give 0.
+                let strength = if !area.bounds_hold(x, y) {
+                    0.0
+                } else if *blend > 0.0 {
+                    smooth(area.depth(x, y) / blend)
+                } else {
+                    f64::from(area.depth(x, y) >= 0.0)
+                };
+                self.intensity * strength
             }
         };
         w * e
@@ -181,11 +207,22 @@ impl Storm {
 }
 
 impl Area {
+    /// Whether (x, y) lies in the area's bounding box, edges included: outside it,
+    /// [`Area::depth`] is negative.
+    pub fn bounds_hold(&self, x: f64, y: f64) -> bool {
+        let [x0, y0, x1, y1] = match self {
+            Area::Box(b) => *b,
+            Area::Polygon(p) => p.bounds,
+        };
+        x0 <= x && x <= x1 && y0 <= y && y <= y1
+    }
+
     /// Signed distance from the edge, metres: positive inside, negative outside.
     pub fn depth(&self, x: f64, y: f64) -> f64 {
         match self {
             Area::Box([x0, y0, x1, y1]) => (x - x0).min(x1 - x).min(y - y0).min(y1 - y),
-            Area::Polygon(v) => {
+            Area::Polygon(p) => {
+                let v = &p.vertices;
                 let mut inside = false;
                 let mut nearest = f64::INFINITY;
                 for (i, &a) in v.iter().enumerate() {
@@ -297,20 +334,55 @@ mod tests {
         assert_eq!(b.depth(10.0, 25.0), 10.0);
         assert_eq!(b.depth(-10.0, 25.0), -10.0);
         // The same square as a polygon, and a concave L.
-        let p = Area::Polygon(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 50.0], [0.0, 50.0]]);
+        let p = Area::Polygon(Polygon::new(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 50.0], [0.0, 50.0]]));
         assert_eq!(p.depth(10.0, 25.0), 10.0);
         assert_eq!(p.depth(-10.0, 25.0), -10.0);
-        let l = Area::Polygon(vec![
+        let l = Area::Polygon(Polygon::new(vec![
             [0.0, 0.0],
             [100.0, 0.0],
             [100.0, 20.0],
             [20.0, 20.0],
             [20.0, 100.0],
             [0.0, 100.0],
-        ]);
+        ]));
         assert!(l.depth(10.0, 50.0) > 0.0);
         assert!(l.depth(50.0, 50.0) < 0.0, "the notch of the L is outside");
         assert_eq!(l.depth(50.0, 30.0), -10.0);
+    }
+
+    #[test]
+    fn outside_its_bounds_an_area_is_outside_and_a_polygon_serialises_as_its_vertices() {
+        let vertices = vec![
+            [0.0, 0.0],
+            [100.0, 0.0],
+            [100.0, 20.0],
+            [20.0, 20.0],
+            [20.0, 100.0],
+            [0.0, 100.0],
+        ];
+        let areas = [
+            Area::Box([0.0, 0.0, 100.0, 100.0]),
+            Area::Polygon(Polygon::new(vertices.clone())),
+        ];
+        for area in &areas {
+            // Every point of a grid around the area: outside the bounds, the depth is
+            // negative (the early-out in `push` skips only what would give 0); on the
+            // bounds' edges they hold.
+            for i in -20..=120 {
+                for j in -20..=120 {
+                    let (x, y) = (i as f64 * 1.25 - 12.5, j as f64 * 1.25 - 12.5);
+                    if !area.bounds_hold(x, y) {
+                        assert!(area.depth(x, y) < 0.0, "({x}, {y}) outside the bounds of {area:?}");
+                    }
+                }
+            }
+            assert!(area.bounds_hold(0.0, 0.0) && area.bounds_hold(100.0, 100.0));
+        }
+        // The fingerprint of a layer is that of the configured vertices alone.
+        assert_eq!(
+            serde_json::to_value(&areas[1]).unwrap(),
+            serde_json::json!({ "Polygon": vertices })
+        );
     }
 
     #[test]

@@ -4,7 +4,7 @@ use std::collections::BTreeMap;
 
 use serde::Deserialize;
 
-use super::authored::{Area, Front, Influence, Shape, Storm};
+use super::authored::{Area, Front, Influence, Polygon, Shape, Storm};
 use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, MAX_TIME, Preset, World};
 
 /// The embedded default configuration, the text of `config/default.toml`: the one
@@ -595,7 +595,7 @@ fn region(key: &str, r: RawRegion) -> Result<Vec<(String, Influence)>, ConfigErr
                 return Err(invalid(format!("{key}.polygon"), "needs 3 to 1024 vertices"));
             }
             bounded(&format!("{key}.polygon"), p.as_flattened(), MAX_AUTHORED, "metres")?;
-            Area::Polygon(p)
+            Area::Polygon(Polygon::new(p))
         }
         _ => return Err(invalid(key, "needs exactly one of `box` and `polygon`")),
     };

@@ -782,7 +782,15 @@ async fn graceful_shutdown_drains_and_finishes_in_flight_requests() {
             continue;
         }
         s.shutdown.trigger();
-        let ready = s.get("/readyz").await;
+        // The server's drain task marks it draining when it next runs, which on a
+        // loaded machine may be after a request or two: readiness must turn within
+        // the drain time, while the slow request is still being answered.
+        let mut ready = s.get("/readyz").await;
+        let since = std::time::Instant::now();
+        while ready.status() == StatusCode::OK && since.elapsed() < Duration::from_millis(1000) {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+            ready = s.get("/readyz").await;
+        }
         assert_eq!(ready.status(), StatusCode::SERVICE_UNAVAILABLE);
         assert_eq!(ready.json_body().await["status"], "draining");
         let response = slow.await.unwrap().expect("in-flight request completes");

@@ -328,6 +328,18 @@ mod tests {
         assert_eq!(f.push(30_000.0, 5000.0, 0.0, 1000.0), 0.0, "beyond its length");
     }
 
+    /// A concave L in the square [0, 100]²: its notch is outside.
+    fn l_shape() -> Vec<[f64; 2]> {
+        vec![
+            [0.0, 0.0],
+            [100.0, 0.0],
+            [100.0, 20.0],
+            [20.0, 20.0],
+            [20.0, 100.0],
+            [0.0, 100.0],
+        ]
+    }
+
     #[test]
     fn areas_measure_depth_inside_their_edge() {
         let b = Area::Box([0.0, 0.0, 100.0, 50.0]);
@@ -337,14 +349,7 @@ mod tests {
         let p = Area::Polygon(Polygon::new(vec![[0.0, 0.0], [100.0, 0.0], [100.0, 50.0], [0.0, 50.0]]));
         assert_eq!(p.depth(10.0, 25.0), 10.0);
         assert_eq!(p.depth(-10.0, 25.0), -10.0);
-        let l = Area::Polygon(Polygon::new(vec![
-            [0.0, 0.0],
-            [100.0, 0.0],
-            [100.0, 20.0],
-            [20.0, 20.0],
-            [20.0, 100.0],
-            [0.0, 100.0],
-        ]));
+        let l = Area::Polygon(Polygon::new(l_shape()));
         assert!(l.depth(10.0, 50.0) > 0.0);
         assert!(l.depth(50.0, 50.0) < 0.0, "the notch of the L is outside");
         assert_eq!(l.depth(50.0, 30.0), -10.0);
@@ -352,14 +357,7 @@ mod tests {
 
     #[test]
     fn outside_its_bounds_an_area_is_outside_and_a_polygon_serialises_as_its_vertices() {
-        let vertices = vec![
-            [0.0, 0.0],
-            [100.0, 0.0],
-            [100.0, 20.0],
-            [20.0, 20.0],
-            [20.0, 100.0],
-            [0.0, 100.0],
-        ];
+        let vertices = l_shape();
         let areas = [
             Area::Box([0.0, 0.0, 100.0, 100.0]),
             Area::Polygon(Polygon::new(vertices.clone())),

@@ -87,13 +87,25 @@ pub struct ServeProcess {
     pub port: u16,
 }
 
-/// A port nothing listens on right now (the OS picks it; the listener is closed again).
+/// A port nothing listens on right now (the OS picks it; the listener is closed again),
+/// and never one handed out before in this test process. The tests of one binary run
+/// at once: without the record two of them could be given the same port between
+/// `free_port` and their server's bind, and one test would then talk to the other's
+/// server (the loser exits with "address in use").
 pub fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .expect("bind 127.0.0.1:0")
-        .local_addr()
-        .unwrap()
-        .port()
+    static GIVEN: std::sync::Mutex<Vec<u16>> = std::sync::Mutex::new(Vec::new());
+    let mut given = GIVEN.lock().unwrap_or_else(|e| e.into_inner());
+    loop {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .expect("bind 127.0.0.1:0")
+            .local_addr()
+            .unwrap()
+            .port();
+        if !given.contains(&port) {
+            given.push(port);
+            return port;
+        }
+    }
 }
 
 impl ServeProcess {

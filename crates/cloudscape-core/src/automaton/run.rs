@@ -184,7 +184,19 @@ impl LayerSim {
         let fields_done = start.elapsed();
         let thresholds = layer.preset.rosa_thresholds.map(|v| v as f32);
         let mode = layer.preset.mode;
-        let authored = self.authored_at(reference_step);
+        // The authored weather over the window's cells, at the run's authored time and
+        // moved by the reference-frame offset into world metres.
+        let authored = (!layer.authored.is_empty()).then(|| {
+            let (t, (dx, dy)) = self.authored_at(reference_step);
+            let centres =
+                |from: i64, n: usize, d: i64| (0..n as i64).map(|c| metres(from + c + d, layer.cell_size)).collect();
+            authored::GridPushes::new(
+                &layer.authored,
+                t,
+                centres(hull.x0, window.w, dx),
+                centres(hull.y0, window.h, dy),
+            )
+        });
         let drives: Vec<Drives> = levels
             .par_iter()
             .enumerate()
@@ -197,7 +209,7 @@ impl LayerSim {
                     window: &window,
                     hull,
                     shift: shifts[k],
-                    authored,
+                    authored: authored.as_ref(),
                     spread: spread.as_ref(),
                 };
                 match mode {
@@ -295,6 +307,11 @@ pub(crate) fn millis(d: std::time::Duration) -> f64 {
     (d.as_secs_f64() * 1e5).round() / 100.0
 }
 
+/// The centre of cell `c` along one axis, world metres.
+fn metres(c: i64, cell_size: f64) -> f64 {
+    (c as f64 + 0.5) * cell_size
+}
+
 /// What turns one level's field window into drives: the level's grid, its frame
 /// shift from the reference frame, and the window.
 struct Conversion<'a> {
@@ -305,8 +322,8 @@ struct Conversion<'a> {
     window: &'a FieldWindow,
     hull: Rect,
     shift: (i64, i64),
-    /// Time and reference-frame offset of the authored weather ([`LayerSim::authored_at`]).
-    authored: (f64, (i64, i64)),
+    /// The authored weather's push over the window (with authored weather).
+    authored: Option<&'a authored::GridPushes<'a>>,
     /// The anvil's spread of humidity and activation over the window (with an anvil).
     spread: Option<&'a [Vec<f32>; 2]>,
 }
@@ -320,8 +337,7 @@ impl Conversion<'_> {
         let (sx, sy) = self.shift;
         let layer = &f.layer;
         let has_ellipsoids = !layer.ellipsoids.is_empty();
-        let has_authored = !layer.authored.is_empty();
-        let (t_authored, o_authored) = self.authored;
+        let authored = self.authored;
         let z = layer.level_altitude(self.k);
         let anvil = f.anvil_weight(self.k);
         let spread = self.spread.filter(|_| anvil > 0.0);
@@ -337,17 +353,15 @@ impl Conversion<'_> {
                 let at = row + (x0 - hull.x0) as usize;
                 let mut bright: [&[f32; 64]; 3] =
                     std::array::from_fn(|i| window.b[i][at..at + 64].try_into().expect("64 lanes"));
-                if has_authored || spread.is_some() {
-                    let ym = ((y + o_authored.1) as f64 + 0.5) * layer.cell_size;
+                if authored.is_some() || spread.is_some() {
                     for b in 0..64 {
                         let (mut h, mut a) = (bright[0][b], bright[1][b]);
                         if let Some(m) = spread {
                             h += (m[0][at + b] - h) * anvil;
                             a += (m[1][at + b] - a) * anvil;
                         }
-                        if has_authored {
-                            let xm = ((x0 + b as i64 + o_authored.0) as f64 + 0.5) * layer.cell_size;
-                            let s = authored::push(&layer.authored, xm, ym, z, t_authored);
+                        if let Some(pushes) = authored {
+                            let s = pushes.at((x0 - hull.x0) as usize + b, (y - hull.y0) as usize, z);
                             (h, a) = (authored::pushed(h, s), authored::pushed(a, s));
                         }
                         (hum[b], act[b]) = (h, a);

@@ -209,7 +209,9 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
         .collect();
     // Each run's authored weather (`world::authored`) at every column centre, pushed
     // as `automaton::run` pushes it: at the run's authored time, in world metres.
-    let pushes: Vec<Vec<f32>> = if layer.authored.is_empty() {
+    // Levels get a plane each only when a storm (which has an altitude) needs one;
+    // else every level reads the one plane (the stride between levels is 0).
+    let pushes: Vec<(Vec<f32>, usize)> = if layer.authored.is_empty() {
         Vec::new()
     } else {
         plan.runs
@@ -220,14 +222,16 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                 let metres = |c: &(i64, f64), a: i64| ((c.0 + a) as f64 + c.1) * layer.cell_size;
                 let xs: Vec<f64> = cols.iter().map(|c| metres(c, o_a.0)).collect();
                 let ys: Vec<f64> = rows.iter().map(|r| metres(r, o_a.1)).collect();
-                let mut out = vec![0f32; plane * depth];
+                let p = authored::GridPushes::new(&layer.authored, t_a, xs, ys);
+                let levels = if p.flat() { 1 } else { depth };
+                let mut out = vec![0f32; plane * levels];
                 out.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
                     let z = layer.level_altitude(k as u32);
                     for (i, s) in out.iter_mut().enumerate() {
-                        *s = authored::push(&layer.authored, xs[i % region.cols], ys[i / region.cols], z, t_a);
+                        *s = p.at(i % region.cols, i / region.cols, z);
                     }
                 });
-                out
+                (out, if p.flat() { 0 } else { plane })
             })
             .collect()
     };
@@ -247,8 +251,8 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                     hum += (m[0][i] - hum) * anvil;
                     act += (m[1][i] - act) * anvil;
                 }
-                if let Some(s) = pushes.get(run) {
-                    let s = s[k * plane + i];
+                if let Some((s, level_stride)) = pushes.get(run) {
+                    let s = s[k * level_stride + i];
                     (hum, act) = (authored::pushed(hum, s), authored::pushed(act, s));
                 }
                 let p = f.level_values(k as u32, [hum, act, b[2][i]], ew);

@@ -15,6 +15,7 @@
 //! the wind frame, see `automaton::run`), so between runs a storm moves with the
 //! wind and the epoch's fade carries it on; nothing pops.
 
+use rayon::prelude::*;
 use serde::Serialize;
 
 /// A storm: a moving Dobashi ellipsoid of more (or, with negative intensity, less) cloud.
@@ -242,11 +243,102 @@ impl Area {
 
 /// The summed push of `influences` at a point, clamped to [-1, 1] (0 with none).
 pub fn push(influences: &[Influence], x: f64, y: f64, z: f64, t: f64) -> f32 {
-    influences
-        .iter()
-        .map(|i| i.push(x, y, z, t))
-        .sum::<f64>()
-        .clamp(-1.0, 1.0) as f32
+    total(influences.iter().map(|i| i.push(x, y, z, t)))
+}
+
+/// The sum of pushes in their order, clamped to [-1, 1]. Every way of pushing sums
+/// through here, so the same terms give the same bits.
+fn total(terms: impl Iterator<Item = f64>) -> f32 {
+    // -0.0 is the identity of addition (and where `Iterator::sum` of f64 starts).
+    terms.fold(-0.0, |s, v| s + v).clamp(-1.0, 1.0) as f32
+}
+
+/// The push of `influences` at time `t` over a grid of columns (x along `xs`, y along
+/// `ys`, world metres) at any altitude. A polygon region (up to 1024 edges) is
+/// measured once per column of its bounding box, where [`push`] measures it at every
+/// point of every level; the other shapes cost a few operations and are measured at
+/// each point. The terms and their order are [`push`]'s, so the bits are too.
+pub struct GridPushes<'a> {
+    influences: &'a [Influence],
+    t: f64,
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    /// Per influence: a polygon region's push over the columns of its bounding box.
+    planes: Vec<Option<Plane>>,
+}
+
+/// One influence's push over the grid's columns `c0..c1` and rows `r0..r1`.
+struct Plane {
+    c0: usize,
+    c1: usize,
+    r0: usize,
+    r1: usize,
+    values: Vec<f64>,
+}
+
+impl Plane {
+    fn get(&self, c: usize, r: usize) -> Option<f64> {
+        let inside = (self.c0..self.c1).contains(&c) && (self.r0..self.r1).contains(&r);
+        inside.then(|| self.values[(r - self.r0) * (self.c1 - self.c0) + (c - self.c0)])
+    }
+}
+
+impl<'a> GridPushes<'a> {
+    /// Measures the polygon regions of `influences` over the grid `xs` × `ys`.
+    pub fn new(influences: &'a [Influence], t: f64, xs: Vec<f64>, ys: Vec<f64>) -> GridPushes<'a> {
+        let planes = influences
+            .iter()
+            .map(|i| {
+                let Shape::Region {
+                    area: Area::Polygon(p), ..
+                } = &i.shape
+                else {
+                    return None;
+                };
+                // The index span whose coordinates fall in the bounding box (every
+                // column in it is measured, so the coordinates need no order).
+                let span = |v: &[f64], lo: f64, hi: f64| {
+                    let first = v.iter().position(|&x| lo <= x && x <= hi)?;
+                    let last = v.iter().rposition(|&x| lo <= x && x <= hi)?;
+                    Some((first, last + 1))
+                };
+                let [x0, y0, x1, y1] = p.bounds;
+                let ((c0, c1), (r0, r1)) = (span(&xs, x0, x1)?, span(&ys, y0, y1)?);
+                let mut values = vec![0f64; (c1 - c0) * (r1 - r0)];
+                values.par_chunks_mut(c1 - c0).enumerate().for_each(|(r, row)| {
+                    for (c, v) in row.iter_mut().enumerate() {
+                        // A region does not depend on altitude.
+                        *v = i.push(xs[c0 + c], ys[r0 + r], 0.0, t);
+                    }
+                });
+                Some(Plane { c0, c1, r0, r1, values })
+            })
+            .collect();
+        GridPushes {
+            influences,
+            t,
+            xs,
+            ys,
+            planes,
+        }
+    }
+
+    /// Whether the push is the same at every altitude (no storm).
+    pub fn flat(&self) -> bool {
+        !self.influences.iter().any(|i| matches!(i.shape, Shape::Storm(_)))
+    }
+
+    /// The push at column `c`, row `r` and altitude `z`: what [`push`] gives at
+    /// (`xs[c]`, `ys[r]`, `z`).
+    pub fn at(&self, c: usize, r: usize, z: f64) -> f32 {
+        let (x, y) = (self.xs[c], self.ys[r]);
+        total(self.influences.iter().zip(&self.planes).map(
+            |(i, plane)| match plane.as_ref().and_then(|p| p.get(c, r)) {
+                Some(v) => v,
+                None => i.push(x, y, z, self.t),
+            },
+        ))
+    }
 }
 
 /// A brightness `b` pushed by `s` in [-1, 1]: toward 1 for `s > 0`, toward 0 for `s < 0`.
@@ -306,9 +398,8 @@ mod tests {
         assert_eq!(s.centre_at(0.0, 1e12), [1000.0, 2000.0]);
     }
 
-    #[test]
-    fn a_front_has_a_band_and_another_climate_behind() {
-        let f = Influence {
+    fn front() -> Influence {
+        Influence {
             shape: Shape::Front(Front {
                 origin: [0.0, 0.0],
                 velocity: [0.0, 5.0],
@@ -320,7 +411,12 @@ mod tests {
             start: None,
             end: None,
             ramp: 0.0,
-        };
+        }
+    }
+
+    #[test]
+    fn a_front_has_a_band_and_another_climate_behind() {
+        let f = front();
         // After 1000 s the line is at y = 5000.
         assert_eq!(f.push(0.0, 5000.0, 0.0, 1000.0), 1.0 - 0.5 * 0.5);
         assert_eq!(f.push(0.0, 9000.0, 0.0, 1000.0), 0.0, "ahead of the band");
@@ -381,6 +477,56 @@ mod tests {
             serde_json::to_value(&areas[1]).unwrap(),
             serde_json::json!({ "Polygon": vertices })
         );
+    }
+
+    #[test]
+    fn per_column_pushes_are_the_plain_sum_bit_for_bit() {
+        // Regions, a front and a storm overlapping around the origin: the L scaled to
+        // 20 km, a box across it, the front's band, the storm at its centre.
+        let region = |area, intensity| Influence {
+            shape: Shape::Region { area, blend: 1500.0 },
+            intensity,
+            start: None,
+            end: None,
+            ramp: 0.0,
+        };
+        let l = region(
+            Area::Polygon(Polygon::new(l_shape().iter().map(|v| v.map(|c| c * 200.0)).collect())),
+            0.7,
+        );
+        let b = region(Area::Box([-8000.0, 2000.0, 12_000.0, 9000.0]), -0.6);
+        let lists = [
+            vec![l.clone(), front(), storm(), b.clone()],
+            vec![storm(), l.clone(), b.clone()],
+            vec![l.clone(), b.clone(), front()],
+            vec![l.clone(), l.clone(), storm(), storm()],
+            vec![],
+        ];
+        // The sum as `push` always formed it: every influence at the point, in order.
+        let plain = |list: &[Influence], x, y, z, t| {
+            list.iter().map(|i| i.push(x, y, z, t)).sum::<f64>().clamp(-1.0, 1.0) as f32
+        };
+        let mut nonzero = 0;
+        let coordinates = |offset: f64| (-25..=25).map(|i| i as f64 * 1000.0 + offset).collect::<Vec<f64>>();
+        let (xs, ys) = (coordinates(0.25), coordinates(-0.5));
+        for list in &lists {
+            for t in [1500.0, 3000.0] {
+                let p = GridPushes::new(list, t, xs.clone(), ys.clone());
+                for (c, &x) in xs.iter().enumerate() {
+                    for (r, &y) in ys.iter().enumerate() {
+                        for z in [0.0, 1500.0, 3000.0, 5500.0] {
+                            let want = plain(list, x, y, z, t);
+                            assert_eq!(p.at(c, r, z).to_bits(), want.to_bits(), "{x} {y} {z} {t}");
+                            assert_eq!(push(list, x, y, z, t).to_bits(), want.to_bits());
+                            nonzero += usize::from(want != 0.0);
+                        }
+                    }
+                }
+            }
+        }
+        assert!(nonzero > 10_000, "the influences overlap the grid: {nonzero}");
+        let flat = |list: &[Influence]| GridPushes::new(list, 0.0, xs.clone(), ys.clone()).flat();
+        assert!(flat(&lists[2]) && !flat(&lists[0]) && flat(&lists[4]));
     }
 
     #[test]

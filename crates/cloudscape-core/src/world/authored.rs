@@ -284,8 +284,15 @@ impl Plane {
 }
 
 impl<'a> GridPushes<'a> {
-    /// Measures the polygon regions of `influences` over the grid `xs` × `ys`.
+    /// How many whole grids of polygon planes one `GridPushes` may hold.
+    pub const MOST_PLANES: usize = 4;
+
+    /// Measures the polygon regions of `influences` over the grid `xs` × `ys`. The
+    /// planes hold at most [`GridPushes::MOST_PLANES`] grids' worth of columns (8
+    /// bytes each), so memory stays within a few times the field window's (12 bytes
+    /// a column); polygons beyond that are measured at each point, as by [`push`].
     pub fn new(influences: &'a [Influence], t: f64, xs: Vec<f64>, ys: Vec<f64>) -> GridPushes<'a> {
+        let mut room = Self::MOST_PLANES * xs.len() * ys.len();
         let planes = influences
             .iter()
             .map(|i| {
@@ -304,6 +311,7 @@ impl<'a> GridPushes<'a> {
                 };
                 let [x0, y0, x1, y1] = p.bounds;
                 let ((c0, c1), (r0, r1)) = (span(&xs, x0, x1)?, span(&ys, y0, y1)?);
+                room = room.checked_sub((c1 - c0) * (r1 - r0))?;
                 let mut values = vec![0f64; (c1 - c0) * (r1 - r0)];
                 values.par_chunks_mut(c1 - c0).enumerate().for_each(|(r, row)| {
                     for (c, v) in row.iter_mut().enumerate() {
@@ -525,6 +533,24 @@ mod tests {
             }
         }
         assert!(nonzero > 10_000, "the influences overlap the grid: {nonzero}");
+        // Past the planes' room the last polygons are measured at each point: the
+        // same bits again.
+        // A triangle over the whole grid (so each plane is a whole grid), and a box
+        // (never a plane) among them.
+        let whole = region(
+            Area::Polygon(Polygon::new(vec![[-1e5, -1e5], [1e5, -1e5], [0.0, 1e5]])),
+            0.2,
+        );
+        let mut many = vec![whole; GridPushes::MOST_PLANES + 2];
+        many.insert(2, b.clone());
+        let p = GridPushes::new(&many, 0.0, xs.clone(), ys.clone());
+        let planes: Vec<bool> = p.planes.iter().map(Option::is_some).collect();
+        assert_eq!(planes, [true, true, false, true, true, false, false]);
+        for (c, &x) in xs.iter().enumerate() {
+            for (r, &y) in ys.iter().enumerate() {
+                assert_eq!(p.at(c, r, 0.0).to_bits(), plain(&many, x, y, 0.0, 0.0).to_bits());
+            }
+        }
         let flat = |list: &[Influence]| GridPushes::new(list, 0.0, xs.clone(), ys.clone()).flat();
         assert!(flat(&lists[2]) && !flat(&lists[0]) && flat(&lists[4]));
     }

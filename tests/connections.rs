@@ -17,7 +17,7 @@ use std::time::{Duration, Instant};
 
 use cloudscape_tools::soak::http::{Answer, Connection};
 use cloudscape_tools::soak::process_memory_kb;
-use common::{ServeProcess, free_port, metric};
+use common::{ServeProcess, eventually, free_port, metric};
 
 const BIN: &str = env!("CARGO_BIN_EXE_cloudscape");
 
@@ -83,33 +83,22 @@ fn open_connections(server: &ServeProcess) -> f64 {
     metric(server, "cloudscape_connections_open", &[])
 }
 
-/// Whether `check` holds within 5 s (tried every 100 ms). The server counts a
-/// connection until its task has seen the socket closed, a moment after the client
-/// sees the end of its stream or drops its own side; counts settle, they are not
-/// exact at every instant.
-fn within_5s(mut check: impl FnMut() -> bool) -> bool {
-    let start = Instant::now();
-    while !check() {
-        if start.elapsed() > Duration::from_secs(5) {
-            return false;
-        }
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    true
-}
-
-/// Whether the only connection left open is the metrics request's own, within 5 s.
+/// Whether the only connection left open is the metrics request's own, within 5 s
+/// (the server counts a connection until its task has seen the socket closed).
 fn settles_to_one_open(server: &ServeProcess) -> bool {
-    within_5s(|| open_connections(server) <= 1.0)
+    eventually(Duration::from_secs(5), || open_connections(server) <= 1.0)
 }
 
 fn closed(server: &ServeProcess, reason: &str) -> f64 {
     metric(server, "cloudscape_connections_closed_total", &[("reason", reason)])
 }
 
-/// Whether the connections the server closed for `reasons` add up to `n`, within 5 s.
+/// Whether the connections the server closed for `reasons` add up to `n`, within 5 s
+/// (it counts a close just after the socket closes).
 fn closed_reach(server: &ServeProcess, reasons: &[&str], n: f64) -> bool {
-    within_5s(|| reasons.iter().map(|r| closed(server, r)).sum::<f64>() >= n)
+    eventually(Duration::from_secs(5), || {
+        reasons.iter().map(|r| closed(server, r)).sum::<f64>() >= n
+    })
 }
 
 /// Opens kept-alive connections until `n` are served (a 200 on each), retrying while
@@ -475,11 +464,8 @@ fn the_automatic_cap_follows_the_file_limit_and_refuses_instead_of_hanging() {
     let start = Instant::now();
     let mut filled = Vec::new();
     loop {
-        let mut c = Connection::open(&format!("127.0.0.1:{}", server.port), Duration::from_secs(10)).unwrap();
-        let (a, _) = c
-            .exchange(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n", false)
-            .expect("an answer, not a hang");
-        match a.status {
+        let c = TcpStream::connect(("127.0.0.1", server.port)).unwrap();
+        match get_on(&c, "/healthz") {
             200 if filled.len() < 2 => filled.push(c),
             503 => break,
             status => panic!("client {} past {served} served got {status}", filled.len() + 1),

@@ -8,7 +8,7 @@ mod common;
 use std::io::Read;
 use std::time::{Duration, Instant};
 
-use common::{ServeProcess, client, metric, test_config};
+use common::{ServeProcess, client, eventually, metric, test_config};
 
 fn start(overrides: &[(&str, &str)]) -> (ServeProcess, tempfile::NamedTempFile) {
     let file = tempfile::NamedTempFile::new().unwrap();
@@ -17,16 +17,14 @@ fn start(overrides: &[(&str, &str)]) -> (ServeProcess, tempfile::NamedTempFile) 
     (server, file)
 }
 
-/// Waits up to `limit` for `metric >= at_least`.
+/// Waits up to `limit` for `metric >= at_least`; the metric's last value.
 fn wait_for(server: &ServeProcess, name: &str, at_least: f64, limit: Duration) -> f64 {
-    let start = Instant::now();
-    loop {
-        let v = metric(server, name, &[]);
-        if v >= at_least || start.elapsed() > limit {
-            return v;
-        }
-        std::thread::sleep(Duration::from_millis(50));
-    }
+    let mut v = 0.0;
+    eventually(limit, || {
+        v = metric(server, name, &[]);
+        v >= at_least
+    });
+    v
 }
 
 #[test]
@@ -115,8 +113,7 @@ fn compute_ahead_never_delays_a_request_past_its_budget() {
     // While compute-ahead still has some of those 12 to compute, 12 requests for
     // tiles nobody watched, 3 at a time. Requests keep priority, so compute-ahead
     // may get no turn until they are done.
-    let ahead = |server| metric(server, "cloudscape_ahead_computed_total", &[]);
-    let computed_before = ahead(&server);
+    let computed_before = metric(&server, "cloudscape_ahead_computed_total", &[]);
     assert!(computed_before < 12.0, "all 12 were computed ahead before the requests");
     let started = Instant::now();
     let mut worst = Duration::ZERO;

@@ -176,6 +176,20 @@ impl Drop for ServeProcess {
     }
 }
 
+/// Whether `check` holds within `limit`, tried every 50 ms. Counts a server keeps
+/// settle a moment after what the client sees (a socket closed, a request answered,
+/// work done in the background), so tests wait for them rather than read them once.
+pub fn eventually(limit: Duration, mut check: impl FnMut() -> bool) -> bool {
+    let start = Instant::now();
+    while !check() {
+        if start.elapsed() > limit {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    true
+}
+
 /// Polls `url` every 50 ms until it answers 200, for at most `limit`. Panics if `child`
 /// (the process that serves `url`) exits first or the time runs out, with what
 /// `log(child)` gives: the process's own account (its stderr, its error log).

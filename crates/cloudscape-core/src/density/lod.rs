@@ -223,7 +223,7 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                 let xs: Vec<f64> = cols.iter().map(|c| metres(c, o_a.0)).collect();
                 let ys: Vec<f64> = rows.iter().map(|r| metres(r, o_a.1)).collect();
                 let p = authored::GridPushes::new(&layer.authored, t_a, xs, ys);
-                let levels = if p.flat() { 1 } else { depth };
+                let (levels, stride) = if p.flat() { (1, 0) } else { (depth, plane) };
                 let mut out = vec![0f32; plane * levels];
                 out.par_chunks_mut(plane).enumerate().for_each(|(k, out)| {
                     let z = layer.level_altitude(k as u32);
@@ -231,7 +231,7 @@ pub fn density(sim: &LayerSim, level: u32, region: Region, t: f64) -> Grid<f32> 
                         *s = p.at(i % region.cols, i / region.cols, z);
                     }
                 });
-                (out, if p.flat() { 0 } else { plane })
+                (out, stride)
             })
             .collect()
     };

@@ -96,6 +96,20 @@ pub fn plan_step(layer: &Layer, m: i64) -> StepPlan {
     }
 }
 
+/// The first and last step whose plan ([`plan_step`]) names run `id`: Dobashi's run
+/// `j` serves epoch `j − 1` as the new run and the first `fade − 1` steps of epoch
+/// `j` as the old one; a Rosa run serves its own frame.
+pub fn served_steps(layer: &Layer, id: RunId) -> (i64, i64) {
+    match layer.preset.mode {
+        Mode::Rosa => (id.reference, id.reference),
+        Mode::Dobashi => {
+            let len = layer.epoch.length as i64;
+            let fade = layer.epoch.fade as i64;
+            (id.reference - len, id.reference + (fade - 1).max(0) - 1)
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -129,6 +143,28 @@ mod tests {
                 .collect();
             let switches = runs.windows(2).filter(|w| w[0] != w[1]).count();
             assert_eq!(switches, 3, "hash {h}");
+        }
+    }
+
+    #[test]
+    fn served_steps_are_the_plans_that_name_a_run() {
+        let config = Config::embedded();
+        for world in ["default", "overcast"] {
+            let w = config.world(world).unwrap();
+            for layer in &w.layers {
+                let mut seen: std::collections::BTreeMap<RunId, (i64, i64)> = Default::default();
+                for m in 100..300 {
+                    for r in plan_step(layer, m).runs {
+                        let e = seen.entry(r).or_insert((m, m));
+                        e.1 = m;
+                    }
+                }
+                // Runs seen whole (neither cut by the range's start nor its end).
+                for (id, steps) in seen.iter().filter(|(_, s)| s.0 > 100 && s.1 < 299) {
+                    assert_eq!(served_steps(layer, *id), *steps, "{world} {} {id:?}", layer.name);
+                }
+                assert!(seen.len() > 4, "{}", layer.name);
+            }
         }
     }
 }

@@ -153,6 +153,16 @@ pub enum Drives {
     },
 }
 
+impl Drives {
+    /// Bytes the drives hold.
+    pub fn bytes(&self) -> usize {
+        match self {
+            Drives::Stochastic(d) => d.bytes(),
+            Drives::Threshold { hum, act, keep } => 8 * (hum.len() + act.len() + keep.len()),
+        }
+    }
+}
+
 /// Which rule set a step applies.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Rules {

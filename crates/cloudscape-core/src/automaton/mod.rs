@@ -5,12 +5,14 @@
 pub mod epoch;
 pub mod frame;
 pub mod kernel;
+pub mod live;
 pub mod naive;
 pub mod random;
 pub mod run;
 
-pub use epoch::{StepPlan, plan_step};
+pub use epoch::{StepPlan, plan_step, served_steps};
 pub use kernel::{Level, Rect};
+pub use live::LiveRuns;
 pub use run::{LayerSim, RunSpec, Snapshot};
 
 #[cfg(test)]

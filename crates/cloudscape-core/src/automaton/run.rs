@@ -107,14 +107,31 @@ impl LayerSim {
     /// The cells of each level needed at each step from `start` to the last snapshot.
     fn cone(&self, spec: &RunSpec) -> Vec<Vec<Rect>> {
         let end = *spec.snapshots.last().expect("a run has a snapshot");
+        self.cone_of(spec.start, end, |n| {
+            spec.snapshots.contains(&n).then_some(spec.windows.as_slice())
+        })
+    }
+
+    /// The cells of each level needed at each step from `start` to `end` (index
+    /// `n − start`) for the windows `target(n)` of the steps that have them (`end`
+    /// must): the cells needed at n + 1 widened by 2 in x and y (the reach of
+    /// f_act), plus those the levels above and below read through their relative
+    /// frame shift, plus `target(n)`.
+    pub(crate) fn cone_of<'w>(
+        &self,
+        start: i64,
+        end: i64,
+        target: impl Fn(i64) -> Option<&'w [Rect]>,
+    ) -> Vec<Vec<Rect>> {
         let depth = self.depth();
-        let steps = (end - spec.start) as usize;
+        let steps = (end - start) as usize;
         let mut need = vec![vec![Rect::default(); depth]; steps + 1];
-        need[steps] = spec.windows.clone();
+        need[steps] = target(end).expect("the last step has windows").to_vec();
         let dobashi = self.rules() == Rules::Dobashi;
         for s in (0..steps).rev() {
-            let n = spec.start + s as i64;
+            let n = start + s as i64;
             let offsets = if dobashi { self.offsets(n) } else { Vec::new() };
+            let windows = target(n);
             for k in 0..depth {
                 let mut r = need[s + 1][k].expand(2);
                 if dobashi {
@@ -127,13 +144,32 @@ impl LayerSim {
                         }
                     }
                 }
-                if spec.snapshots.contains(&n) {
-                    r = r.hull(&spec.windows[k]);
+                if let Some(w) = windows {
+                    r = r.hull(&w[k]);
                 }
                 need[s][k] = r;
             }
         }
         need
+    }
+
+    /// One step of every level, from `levels` (at step `n`) into `next` (at n + 1),
+    /// computing the cells `need_next` of each level; skipped once cancelled (the
+    /// caller then discards the result).
+    pub(crate) fn step_all(&self, levels: &[Level], next: &mut [Level], drives: &[Drives], n: i64, need_next: &[Rect]) {
+        if self.cancel.is_fired() {
+            return;
+        }
+        let offsets = self.offsets(n);
+        let ctx = StepContext {
+            rules: self.rules(),
+            stream: self.stream,
+            n,
+            offsets: &offsets,
+        };
+        next.par_iter_mut()
+            .enumerate()
+            .for_each(|(k, o)| step_level(levels, k, &drives[k], &ctx, need_next[k], o));
     }
 
     /// Per-level drives over each level's grid, from fields aligned at the reference step.
@@ -258,7 +294,6 @@ impl LayerSim {
         let mut levels: Vec<Level> = need[0].iter().map(|r| Level::covering(*r)).collect();
         let drives = self.drives(&levels, spec.reference_step);
         let mut next = levels.clone();
-        let rules = self.rules();
         let start = std::time::Instant::now();
         let mut out = Vec::new();
         if spec.snapshots.contains(&spec.start) {
@@ -269,20 +304,9 @@ impl LayerSim {
         }
         for (s, need_next) in need.iter().enumerate().skip(1) {
             let n = spec.start + s as i64 - 1;
-            let offsets = self.offsets(n);
-            let ctx = StepContext {
-                rules,
-                stream: self.stream,
-                n,
-                offsets: &offsets,
-            };
             // Once cancelled, the remaining steps are skipped: the snapshots keep
             // their shape, their bits are meaningless and the caller discards them.
-            if !self.cancel.is_fired() {
-                next.par_iter_mut()
-                    .enumerate()
-                    .for_each(|(k, o)| step_level(&levels, k, &drives[k], &ctx, need_next[k], o));
-            }
+            self.step_all(&levels, &mut next, &drives, n, need_next);
             std::mem::swap(&mut levels, &mut next);
             if n + 1 == end {
                 // The steps' time, copies of earlier snapshots included.

@@ -13,8 +13,9 @@ use rayon::prelude::*;
 
 use super::{Grid, Region};
 use crate::automaton::epoch::RunId;
+use crate::automaton::live::sample_window;
 use crate::automaton::run::millis;
-use crate::automaton::{LayerSim, Level, Rect, RunSpec, Snapshot, StepPlan, plan_step};
+use crate::automaton::{LayerSim, Level, LiveRuns, Rect, RunSpec, Snapshot, StepPlan, plan_step};
 use crate::cpu::Backend;
 use crate::fields::noise::{Coord, MIX_MUL, NoiseBackend, mix64};
 
@@ -71,15 +72,25 @@ pub fn cell_steps(sim: &LayerSim, region: Region, t: f64) -> u64 {
 /// and returns for each step the cloud bits of each level's window (row-major).
 fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
     let (plans, results) = run_plans(sim, steps, windows);
-    let snaps: Vec<Vec<&Snapshot>> = plans
+    let snaps: Vec<Vec<&[Level]>> = plans
         .iter()
         .map(|p| {
             p.runs
                 .iter()
-                .map(|id| results[id].iter().find(|s| s.step == p.step).expect("snapshot planned"))
+                .map(|id| {
+                    let s = results[id].iter().find(|s| s.step == p.step).expect("snapshot planned");
+                    s.levels.as_slice()
+                })
                 .collect()
         })
         .collect();
+    blended(sim, &plans, &snaps, windows)
+}
+
+/// For each plan, the cloud bits of each level's window (row-major): each cell from
+/// the run its switch hash picks, among the grids `snaps` of the runs the plan names
+/// (at the plan's step).
+fn blended(sim: &LayerSim, plans: &[StepPlan], snaps: &[Vec<&[Level]>], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> {
     // Per level, every step: the switch hashes depend on the cell and not on the
     // step, so the steps of one level share them.
     let per_level: Vec<Vec<Vec<u8>>> = windows
@@ -97,7 +108,7 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
             let mut other = vec![0u8; cols];
             plans
                 .iter()
-                .zip(&snaps)
+                .zip(snaps)
                 .map(|(p, snaps)| {
                     let mut out = vec![0u8; cols * rows];
                     if cols == 0 {
@@ -106,10 +117,10 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
                     let switched = switched_below(p);
                     for (r, row) in out.chunks_exact_mut(cols).enumerate() {
                         let y = w.y0 + r as i64;
-                        cld_row(&snaps[0].levels[k], y, w.x0, row, &mut row_bytes);
+                        cld_row(&snaps[0][k], y, w.x0, row, &mut row_bytes);
                         if snaps.len() > 1 {
                             // `pick` names run 0 or 1 only.
-                            cld_row(&snaps[1].levels[k], y, w.x0, &mut other, &mut row_bytes);
+                            cld_row(&snaps[1][k], y, w.x0, &mut other, &mut row_bytes);
                             let h = &hashes[r * cols..(r + 1) * cols];
                             // A byte mask, not `if`: LLVM turns an `if` here into a load
                             // through a selected pointer, one byte at a time.
@@ -132,6 +143,21 @@ fn states(sim: &LayerSim, steps: &[i64], windows: &[Rect]) -> Vec<Vec<Vec<u8>>> 
         }
     }
     by_step
+}
+
+/// [`states`] from runs kept alive between calls: the same bits, advancing `live`
+/// to each step instead of running from the epochs' starts. `None` when `live` does
+/// not hold the windows or has gone past a step (the caller computes it cold).
+fn live_states(sim: &LayerSim, live: &mut LiveRuns, steps: &[i64], windows: &[Rect]) -> Option<Vec<Vec<Vec<u8>>>> {
+    if !steps.iter().all(|&m| live.covers(sim, m, windows) && live.can_give(m)) {
+        return None;
+    }
+    let mut out = Vec::with_capacity(steps.len());
+    for &m in steps {
+        let (plan, levels) = live.at(sim, m)?;
+        out.push(blended(sim, std::slice::from_ref(&plan), &[levels], windows).remove(0));
+    }
+    Some(out)
 }
 
 /// The number of switch hashes (from 0 up) whose cells `p.pick` sends to run 1:
@@ -360,15 +386,7 @@ fn sampling(sim: &LayerSim, region: Region, t: f64) -> Sampling {
     let disp: Vec<_> = (0..sim.depth() as u32)
         .map(|k| sim.frames.displacement(k, n, f))
         .collect();
-    let windows: Vec<Rect> = disp
-        .iter()
-        .map(|(cx, cy)| Rect {
-            x0: region.x0 - cx.int - 2,
-            x1: region.x0 + region.cols as i64 - cx.int + 2,
-            y0: region.y0 - cy.int - 2,
-            y1: region.y0 + region.rows as i64 - cy.int + 2,
-        })
-        .collect();
+    let windows: Vec<Rect> = disp.iter().map(|&d| sample_window(region, d)).collect();
     Sampling {
         steps,
         f,
@@ -390,16 +408,34 @@ fn taps(c: Coord) -> (i64, f32) {
 
 /// The continuous density over `region` (level-0 cells).
 pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
-    let depth = sim.depth();
-    let Sampling {
-        steps,
-        f,
-        disp,
-        windows,
-    } = sampling(sim, region, t);
+    let sampling = sampling(sim, region, t);
     let start = std::time::Instant::now();
-    let st = states(sim, &steps, &windows);
+    let st = states(sim, &sampling.steps, &sampling.windows);
     let states_done = start.elapsed();
+    let grid = smoothed(sim, region, sampling, &st);
+    // Where a cold tile's time goes (`RUST_LOG=cloudscape=debug`; BENCHMARKS.md "Cold tile").
+    tracing::debug!(
+        states_ms = millis(states_done),
+        smoothing_ms = millis(start.elapsed() - states_done),
+        "density"
+    );
+    grid
+}
+
+/// [`density`] from runs kept alive between calls (`live`, which must hold
+/// `region`'s windows at t): the same bits. `None` when `live` cannot give them
+/// (the caller computes the density cold).
+pub fn density_live(sim: &LayerSim, live: &mut LiveRuns, region: Region, t: f64) -> Option<Grid<f32>> {
+    let sampling = sampling(sim, region, t);
+    let st = live_states(sim, live, &sampling.steps, &sampling.windows)?;
+    Some(smoothed(sim, region, sampling, &st))
+}
+
+/// The density over `region` from the cloud bits `st` of the sampling's steps:
+/// smoothed, sampled at the wind displacement, interpolated in time.
+fn smoothed(sim: &LayerSim, region: Region, sampling: Sampling, st: &[Vec<Vec<u8>>]) -> Grid<f32> {
+    let depth = sim.depth();
+    let Sampling { f, disp, windows, .. } = sampling;
     let mut grid = Grid::new(depth, region.rows, region.cols);
     let plane = region.rows * region.cols;
     let cols = region.cols;
@@ -441,12 +477,6 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
             std::mem::swap(&mut top, &mut bot);
         }
     });
-    // Where a cold tile's time goes (`RUST_LOG=cloudscape=debug`; BENCHMARKS.md "Cold tile").
-    tracing::debug!(
-        states_ms = millis(states_done),
-        smoothing_ms = millis(start.elapsed() - states_done),
-        "density"
-    );
     grid
 }
 
@@ -776,6 +806,41 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// Runs kept alive give the bits of cold runs: a region watched keyframe after
+    /// keyframe (whole steps, and times between steps) across two epoch boundaries,
+    /// on a Dobashi layer whose levels shear apart and on a Rosa layer; a region
+    /// inside the kept one too; and a step the runs have passed is refused.
+    #[test]
+    fn live_runs_give_the_bits_of_cold_runs() {
+        let world = Config::embedded().world("default").unwrap();
+        for layer in [0, 2] {
+            let sim = LayerSim::new(&world, layer);
+            let dt = sim.fields.layer.dt;
+            let region = Region::square(-40, 30, 70);
+            let mut live = LiveRuns::new(region);
+            let inner = Region::square(-20, 40, 33);
+            // Phases 13..=37 of the 16-step epochs: two boundaries.
+            for m in 16 * 100 + 13..16 * 102 + 6 {
+                for t in [m as f64 * dt, (m as f64 + 0.25) * dt] {
+                    let cold = density(&sim, region, t);
+                    let warm = density_live(&sim, &mut live, region, t).expect("live covers its region");
+                    assert!(cold.data == warm.data, "layer {layer}, t = {t}");
+                }
+                if m % 5 == 0 {
+                    let t = m as f64 * dt + dt;
+                    let warm = density_live(&sim, &mut live, inner, t).expect("inside");
+                    assert!(density(&sim, inner, t).data == warm.data, "inner, t = {t}");
+                }
+            }
+            assert!(live.steps_run() > 0 && live.bytes() > 0);
+            // Gone past: refused, not wrong.
+            assert!(density_live(&sim, &mut live, region, 16.0 * 100.0 * dt).is_none());
+            // Outside the kept region: refused.
+            let outside = Region::square(-40, 30, 90);
+            assert!(density_live(&sim, &mut live, outside, 16.0 * 103.0 * dt).is_none());
         }
     }
 }

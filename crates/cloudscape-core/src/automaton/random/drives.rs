@@ -114,6 +114,14 @@ impl StochasticDrives {
         self.heads.is_empty()
     }
 
+    /// Bytes the drives hold.
+    pub fn bytes(&self) -> usize {
+        use std::mem::size_of;
+        self.mantissas.capacity() * size_of::<[Thresholds; 3]>()
+            + self.heads.capacity() * size_of::<Head>()
+            + self.always.capacity() * size_of::<[u64; 3]>()
+    }
+
     /// Keeps the first `words` words (and only their `always` masks).
     pub fn truncate(&mut self, words: usize) {
         self.mantissas.truncate(words);

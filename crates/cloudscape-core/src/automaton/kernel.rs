@@ -126,6 +126,27 @@ impl Level {
         }
     }
 
+    /// The level cut to the words and rows covering `r` (which must lie inside it),
+    /// the cells' bits kept, and where the cut lies in the old grid: (rows, words).
+    pub fn cropped(&self, r: Rect) -> (Level, std::ops::Range<usize>, std::ops::Range<usize>) {
+        let mut out = Level::covering(r);
+        let w0 = ((out.x0 - self.x0) / 64) as usize;
+        let r0 = (out.y0 - self.y0) as usize;
+        debug_assert!(
+            w0 + out.wpr <= self.wpr && r0 + out.rows <= self.rows,
+            "{r:?} inside the level"
+        );
+        for row in 0..out.rows {
+            let from = (r0 + row) * self.wpr + w0;
+            let to = row * out.wpr;
+            out.hum[to..to + out.wpr].copy_from_slice(&self.hum[from..from + out.wpr]);
+            out.act[to..to + out.wpr].copy_from_slice(&self.act[from..from + out.wpr]);
+            out.cld[to..to + out.wpr].copy_from_slice(&self.cld[from..from + out.wpr]);
+        }
+        let (rows, words) = (r0..r0 + out.rows, w0..w0 + out.wpr);
+        (out, rows, words)
+    }
+
     /// The cloud bit at a frame cell (false outside).
     #[inline]
     pub fn cld_at(&self, x: i64, y: i64) -> bool {
@@ -154,6 +175,24 @@ pub enum Drives {
 }
 
 impl Drives {
+    /// The drives of rows `rows` and word columns `words` of a level `wpr` words wide
+    /// (see [`Level::cropped`]).
+    pub fn cropped(&self, wpr: usize, rows: Range<usize>, words: Range<usize>) -> Drives {
+        let cut = |v: &Vec<u64>| -> Vec<u64> {
+            rows.clone()
+                .flat_map(|r| v[r * wpr + words.start..r * wpr + words.end].iter().copied())
+                .collect()
+        };
+        match self {
+            Drives::Stochastic(d) => Drives::Stochastic(d.crop(wpr, rows, words)),
+            Drives::Threshold { hum, act, keep } => Drives::Threshold {
+                hum: cut(hum),
+                act: cut(act),
+                keep: cut(keep),
+            },
+        }
+    }
+
     /// Bytes the drives hold.
     pub fn bytes(&self) -> usize {
         match self {

@@ -67,7 +67,8 @@ impl LiveRun {
         self.id.start + self.need.len() as i64 - 1
     }
 
-    /// Advances to step `to` (at most the run's last).
+    /// Advances to step `to` (at most the run's last), then drops what the steps left
+    /// can no longer read.
     fn advance(&mut self, sim: &LayerSim, to: i64) {
         debug_assert!(to <= self.last());
         while self.step < to && !sim.cancel.is_fired() {
@@ -75,6 +76,31 @@ impl LiveRun {
             sim.step_all(&self.levels, &mut self.next, &self.drives, self.step, &self.need[s + 1]);
             std::mem::swap(&mut self.levels, &mut self.next);
             self.step += 1;
+        }
+        self.crop();
+    }
+
+    /// Cuts each level whose grid is well over the words covering its cone at the
+    /// current step down to those words: the cone only shrinks from step to step
+    /// (each step's cells are read only from within the previous step's), so nothing
+    /// later reads the cut cells. Their drives go with them.
+    fn crop(&mut self) {
+        let s = (self.step - self.id.start) as usize;
+        for k in 0..self.levels.len() {
+            let lv = &self.levels[k];
+            let want = self.need[s][k];
+            if want.is_empty() {
+                continue;
+            }
+            let covering =
+                |r: Rect| ((r.x1 + 63).div_euclid(64) - r.x0.div_euclid(64)) as usize * (r.y1 - r.y0) as usize;
+            if 5 * covering(want) >= 4 * lv.wpr * lv.rows {
+                continue;
+            }
+            let (cut, rows, words) = lv.cropped(want);
+            self.drives[k] = self.drives[k].cropped(lv.wpr, rows, words);
+            self.next[k] = Level::covering(want);
+            self.levels[k] = cut;
         }
     }
 

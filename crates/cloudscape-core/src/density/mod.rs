@@ -2,6 +2,7 @@
 //! interpolation in time between steps, and the cheaper models for far levels.
 
 pub mod exact;
+pub mod kept;
 mod lod;
 pub mod metaballs;
 mod region;

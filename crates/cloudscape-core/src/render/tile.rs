@@ -2,9 +2,10 @@
 //! and the ground shadow map. Every tile product is encoded from a [`ShadedTile`].
 
 use crate::cancel::Cancel;
+use crate::density::kept::KeptDensity;
 use crate::density::metaballs::{GridPlacement, Lattice};
 use crate::density::{self, Grid, Region, SimError, check_time};
-use crate::world::{Keyframe, Layer, Limits, World};
+use crate::world::{Keyframe, Layer, Limits, World, keyframe_span};
 
 use super::light::{Lighting, ShadingParams};
 use super::shade::{Billboard, shade};
@@ -153,18 +154,96 @@ pub fn shade_tile(
     limits: &Limits,
     cancel: &Cancel,
 ) -> Result<ShadedTile, RenderError> {
-    let (grid, halo) = tile_density(world, layer, tile, keyframe.t0, quality, sun, limits, cancel)?;
-    let l = &world.layers[layer];
+    let density = |region, t| density::density_cancellable(world, layer, tile.z, region, t, cancel);
+    shade_tile_from(
+        world, layer, tile, keyframe, quality, sun, params, limits, cancel, density,
+    )
+}
+
+/// [`shade_tile`] from what the tile kept of its previous keyframes (`kept`, made
+/// for this layer and tile with [`kept_region`]), and keeping what the next keyframe
+/// can use: the same bytes, at the cost of what changed.
+#[allow(clippy::too_many_arguments)]
+pub fn shade_tile_kept(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    keyframe: Keyframe,
+    quality: Quality,
+    sun: Sun,
+    params: &ShadingParams,
+    limits: &Limits,
+    cancel: &Cancel,
+    kept: &mut KeptDensity,
+) -> Result<ShadedTile, RenderError> {
+    let density = |region, t| kept.density(world, region, t, true, cancel);
+    shade_tile_from(
+        world, layer, tile, keyframe, quality, sun, params, limits, cancel, density,
+    )
+}
+
+/// [`shade_tile`] with each density grid (a region of columns at the tile's level,
+/// at a time) from `density`.
+#[allow(clippy::too_many_arguments)]
+fn shade_tile_from(
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    keyframe: Keyframe,
+    quality: Quality,
+    sun: Sun,
+    params: &ShadingParams,
+    limits: &Limits,
+    cancel: &Cancel,
+    mut density: impl FnMut(Region, f64) -> Result<Grid<f32>, SimError>,
+) -> Result<ShadedTile, RenderError> {
+    check_time(keyframe.t0)?;
+    let l = checked_layer(world, layer)?;
+    tile.region()?.check(tile.z, l.depth, limits)?;
+    let halo = tile_halo(l, tile.z, quality, sun);
+    let grid = density(around(tile, halo, [0, 0])?, keyframe.t0)?;
     let mut shaded = shade_density(layer, l, tile, keyframe.t0, quality, sun, params, grid, halo);
     cancel.check().map_err(SimError::from)?;
     if keyframe.is_instant() {
         return Ok(shaded);
     }
     let moved = downwind_columns(l, shaded.column, keyframe.span());
-    let end_grid = density_around(world, layer, tile, keyframe.t1, halo, moved, cancel)?;
+    let end_grid = density(around(tile, halo, moved)?, keyframe.t1)?;
     shaded.shade_end(l, keyframe, end_grid, moved, params);
     cancel.check().map_err(SimError::from)?;
     Ok(shaded)
+}
+
+/// The columns a tile's kept density ([`KeptDensity`]) covers: the tile with the
+/// widest halo any quality or sun shades it with, and the same box moved downwind
+/// over one keyframe span of its level (the span's end), so that every keyframe's
+/// two ends, in every quality and sun bucket, are cut from it.
+pub fn kept_region(l: &Layer, tile: TileId) -> Result<Region, RenderError> {
+    let column = l.cell_size * (tile.z as f64).exp2();
+    let moved = downwind_columns(l, column, keyframe_span(l.dt, tile.z));
+    let (a, b) = (
+        around(tile, MAX_SHADOW_HALO, [0, 0])?,
+        around(tile, MAX_SHADOW_HALO, moved)?,
+    );
+    let (x0, y0) = (a.x0.min(b.x0), a.y0.min(b.y0));
+    let (x1, y1) = (
+        (a.x0 + a.cols as i64).max(b.x0 + b.cols as i64),
+        (a.y0 + a.rows as i64).max(b.y0 + b.rows as i64),
+    );
+    Ok(Region {
+        x0,
+        y0,
+        cols: (x1 - x0) as usize,
+        rows: (y1 - y0) as usize,
+    })
+}
+
+/// The layer `layer` of `world`, or a bad request naming it.
+fn checked_layer(world: &World, layer: usize) -> Result<&Layer, RenderError> {
+    world
+        .layers
+        .get(layer)
+        .ok_or_else(|| RenderError::BadRequest(format!("layer {layer} does not exist in world `{}`", world.name)))
 }
 
 /// Whole columns (x, y) the wind at the middle of `l` moves in `span` seconds.
@@ -191,28 +270,16 @@ pub fn tile_density(
     cancel: &Cancel,
 ) -> Result<(Grid<f32>, usize), RenderError> {
     check_time(t)?;
-    let l = world
-        .layers
-        .get(layer)
-        .ok_or_else(|| RenderError::BadRequest(format!("layer {layer} does not exist in world `{}`", world.name)))?;
+    let l = checked_layer(world, layer)?;
     let region = tile.region()?;
     region.check(tile.z, l.depth, limits)?;
     let halo = tile_halo(l, tile.z, quality, sun);
-    let grid = density_around(world, layer, tile, t, halo, [0, 0], cancel)?;
+    let grid = density::density_cancellable(world, layer, tile.z, around(tile, halo, [0, 0])?, t, cancel)?;
     Ok((grid, halo))
 }
 
-/// The density at `t` of the tile's columns plus `halo` on each side, moved by
-/// `moved` whole columns.
-fn density_around(
-    world: &World,
-    layer: usize,
-    tile: TileId,
-    t: f64,
-    halo: usize,
-    moved: [i64; 2],
-    cancel: &Cancel,
-) -> Result<Grid<f32>, RenderError> {
+/// The tile's columns plus `halo` on each side, moved by `moved` whole columns.
+fn around(tile: TileId, halo: usize, moved: [i64; 2]) -> Result<Region, RenderError> {
     let region = tile.region()?;
     let h = halo as i64;
     let shifted = |v: i64, m: i64| {
@@ -220,19 +287,11 @@ fn density_around(
             .and_then(|v| v.checked_add(m))
             .ok_or_else(|| SimError::OutOfRange(format!("tile {tile:?} moved by {moved:?} columns overflows")))
     };
-    let halo_region = Region::square(
+    Ok(Region::square(
         shifted(region.x0, moved[0])?,
         shifted(region.y0, moved[1])?,
         TILE_COLUMNS + 2 * halo,
-    );
-    Ok(density::density_cancellable(
-        world,
-        layer,
-        tile.z,
-        halo_region,
-        t,
-        cancel,
-    )?)
+    ))
 }
 
 /// What shading a tile of one layer at one level needs, whichever end of a span.
@@ -525,5 +584,72 @@ mod tests {
         assert!(region(0, 0, i64::MIN).is_err());
         assert!(region(0, i64::MAX / 256, 0).is_err());
         assert!(region(0, i64::MAX / 256 - 1, 0).is_ok());
+    }
+
+    /// A tile shaded keyframe after keyframe from what it kept gives the bytes of a
+    /// cold shading: at levels 0 to 3, across an epoch boundary (level 0's spans are
+    /// steps, so its runs switch inside the sequence), two qualities of one keyframe,
+    /// and a keyframe asked again after the state moved past it.
+    #[test]
+    fn kept_keyframes_equal_cold_ones() {
+        use crate::cancel::Cancel;
+        use crate::density::kept::KeptDensity;
+        use crate::products::Product;
+        use crate::products::catalogue::encode_shaded;
+        use crate::render::{Quality, ShadingParams, Sun};
+        use crate::world::Config;
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let layer = 1;
+        let l = &world.layers[layer];
+        let sun = Sun::new(200.0, 35.0).unwrap();
+        let params = ShadingParams::default();
+        let encode = |s: &ShadedTile| {
+            let mut all = encode_shaded(s, u64::MAX, Product::BillboardsBin);
+            all.sort_by_key(|(p, _)| p.name());
+            (all, s.density.data.clone())
+        };
+        for z in 0..=3u32 {
+            let tile = TileId { z, x: -1, y: 0 };
+            let mut kept = KeptDensity::new(layer, z, kept_region(l, tile).unwrap());
+            let span = keyframe_span(l.dt, z);
+            // Level 0: the steps 16·200 − 2 … 16·200 + 1 hold an epoch boundary.
+            let first = (16 * 200 - 2) / (1i64 << z.min(4));
+            let mut asked: Vec<(i64, Quality)> = (first..first + 4).map(|k| (k, Quality::Fast)).collect();
+            asked.insert(2, (first + 1, Quality::Balanced));
+            asked.push((first, Quality::Fast));
+            for (k, q) in asked {
+                let keyframe = Keyframe::containing(k as f64 * span, l, z);
+                let cold = shade_tile(
+                    &world,
+                    layer,
+                    tile,
+                    keyframe,
+                    q,
+                    sun,
+                    &params,
+                    &config.limits,
+                    &Cancel::never(),
+                )
+                .unwrap();
+                let warm = shade_tile_kept(
+                    &world,
+                    layer,
+                    tile,
+                    keyframe,
+                    q,
+                    sun,
+                    &params,
+                    &config.limits,
+                    &Cancel::never(),
+                    &mut kept,
+                )
+                .unwrap();
+                assert!(encode(&cold) == encode(&warm), "level {z}, keyframe {k}, {q:?}");
+            }
+            let c = kept.counts();
+            assert!(c.reused >= 4, "level {z}: {c:?}");
+            assert!(z > 0 || c.live >= 5, "level {z}: {c:?}");
+        }
     }
 }

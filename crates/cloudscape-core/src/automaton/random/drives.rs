@@ -131,6 +131,25 @@ impl StochasticDrives {
         self.always.truncate(kept + 1);
     }
 
+    /// The words of rows `rows` and word columns `words` of drives laid out `wpr`
+    /// words a row (a level cropped to a smaller window of its own grid).
+    pub fn crop(&self, wpr: usize, rows: std::ops::Range<usize>, words: std::ops::Range<usize>) -> StochasticDrives {
+        let mut out = StochasticDrives::with_capacity(rows.len() * words.len());
+        for r in rows {
+            for w in words.clone() {
+                let i = r * wpr + w;
+                let mut head = self.heads[i];
+                if head.slot != 0 {
+                    head.slot = u32::try_from(out.always.len()).expect("fewer than 2^32 words");
+                    out.always.push(self.always[self.heads[i].slot as usize]);
+                }
+                out.mantissas.push(self.mantissas[i]);
+                out.heads.push(head);
+            }
+        }
+        out
+    }
+
     /// Every word's three events' mantissas.
     #[inline]
     pub fn mantissas(&self) -> &[[Thresholds; 3]] {

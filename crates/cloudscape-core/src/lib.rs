@@ -17,5 +17,6 @@ pub mod density;
 pub mod fields;
 pub mod products;
 pub mod render;
+pub mod stages;
 pub mod weather;
 pub mod world;

@@ -456,9 +456,17 @@ impl ResponseCache {
         }
         metrics.encodings.with_label_values(&[coding.name(), "miss"]).inc();
         let init = async move {
-            tokio::task::spawn_blocking(move || coding.compress(&bytes))
-                .await
-                .map_err(|e| e.to_string())?
+            tokio::task::spawn_blocking(move || {
+                let start = std::time::Instant::now();
+                let out = coding.compress(&bytes);
+                (out, start.elapsed())
+            })
+            .await
+            .map_err(|e| e.to_string())
+            .and_then(|(out, took)| {
+                metrics.observe_stage("compression", took);
+                out
+            })
         };
         let b = self.cache.try_get_with(key.clone(), init).await.ok()?;
         if b.len() > self.max_entry {

@@ -16,8 +16,14 @@ fn invalid(key: &str, message: &str) -> ConfigError {
 pub struct ServerConfig {
     /// Address to listen on.
     pub listen: String,
-    /// Byte budget of the in-memory cache of encoded responses.
+    /// Byte budget of the in-memory caches: the encoded responses, and the state tiles
+    /// keep between keyframes (`kept_share` of it).
     pub cache_bytes: u64,
+    /// The share of `cache_bytes` that tiles may keep between keyframes (the density
+    /// grids of their latest keyframe ends and, at level 0, the automaton's runs:
+    /// `crate::kept`), in [0, 0.9]; the responses get the rest. 0 keeps nothing, and
+    /// every keyframe is computed as if the tile had never been seen.
+    pub kept_share: f64,
     /// Compute jobs that may be running or queued at once; 0 means 4 × cores.
     /// A request that finds the queue full is shed with 503.
     pub compute_queue: u32,
@@ -123,7 +129,8 @@ impl Default for ServerConfig {
     fn default() -> Self {
         ServerConfig {
             listen: default_listen(),
-            cache_bytes: 256 << 20,
+            cache_bytes: 1 << 30,
+            kept_share: 0.5,
             compute_queue: 0,
             request_timeout_ms: 10_000,
             frames_per_step: 4,
@@ -153,6 +160,16 @@ impl Default for ServerConfig {
 }
 
 impl ServerConfig {
+    /// Bytes the tiles' kept state may hold: `kept_share` of `cache_bytes`.
+    pub fn kept_bytes(&self) -> u64 {
+        (self.cache_bytes as f64 * self.kept_share) as u64
+    }
+
+    /// Bytes the encoded responses may hold: the rest of `cache_bytes`.
+    pub fn response_bytes(&self) -> u64 {
+        self.cache_bytes - self.kept_bytes()
+    }
+
     /// Checks the values that serde cannot (ranges, header syntax, URL schemes).
     pub fn validate(&self) -> Result<(), ConfigError> {
         if !(1..=64).contains(&self.frames_per_step) {
@@ -190,6 +207,9 @@ impl ServerConfig {
                 "server.redis_url",
                 "must start with redis:// or redis+unix:// (or be empty for no Redis)",
             ));
+        }
+        if !(0.0..=0.9).contains(&self.kept_share) {
+            return Err(invalid("server.kept_share", "must be within [0, 0.9]"));
         }
         if self.compute_memory_bytes < 1 << 20 {
             return Err(invalid("server.compute_memory_bytes", "must be at least 1 MiB"));

@@ -32,6 +32,7 @@ mod edr;
 mod encode;
 mod error;
 mod extract;
+mod kept;
 mod key;
 mod lightning;
 mod metrics;

@@ -4,10 +4,11 @@
 //! `other`), never tiles — so no request can add a series.
 
 use prometheus::{
-    Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry,
-    TextEncoder,
+    CounterVec, Encoder, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec,
+    Opts, Registry, TextEncoder,
 };
 
+use cloudscape_core::stages::{Stage, Stages};
 use cloudscape_core::world::ALGORITHM_VERSION;
 
 /// Every metric the service exports. Owned by `AppState`; handlers and the compute
@@ -79,6 +80,20 @@ pub struct Metrics {
     pub ahead_hot: IntGauge,
     /// Compressed variants served, by coding and whether the cache held them.
     pub encodings: IntCounterVec,
+    /// Bytes the tiles' kept state holds (`crate::kept`; updated when scraped).
+    pub kept_bytes: IntGauge,
+    /// Tiles with a kept state (updated when scraped).
+    pub kept_tiles: IntGauge,
+    /// Density grids tile jobs used, by source: `reused` (cut from a kept grid),
+    /// `live` (from kept automaton runs), `cold` (from scratch).
+    pub kept_grids: IntCounterVec,
+    /// Automaton steps advanced by kept runs.
+    pub kept_steps: IntCounter,
+    /// Tile jobs that found their tile's kept state held by another job.
+    pub kept_busy: IntCounter,
+    /// Wall time of tile jobs by stage (`cloudscape_core::stages`, plus `encoding`
+    /// and `compression`), seconds.
+    pub stage_seconds: CounterVec,
 }
 
 /// The `method` label values: the methods HTTP defines, then `other`.
@@ -349,8 +364,50 @@ impl Metrics {
                 "compressed variants served, by coding and cache outcome",
                 &["coding", "outcome"],
             ),
+            kept_bytes: gauge("cloudscape_kept_bytes", "bytes of state tiles keep between keyframes"),
+            kept_tiles: gauge("cloudscape_kept_tiles", "tiles with state kept between keyframes"),
+            kept_grids: counter(
+                "cloudscape_kept_grids_total",
+                "density grids of tile jobs, by source: reused (kept grid), live (kept runs), cold",
+                &["source"],
+            ),
+            kept_steps: plain_counter(
+                "cloudscape_kept_steps_total",
+                "automaton steps advanced by runs kept between keyframes",
+            ),
+            kept_busy: plain_counter(
+                "cloudscape_kept_busy_total",
+                "tile jobs that found their tile's kept state in use (computed cold)",
+            ),
+            stage_seconds: {
+                let c = CounterVec::new(
+                    Opts::new(
+                        "cloudscape_stage_seconds_total",
+                        "wall time of tile jobs by stage: automaton, steps, smoothing, far_field, reused, metaballs, shading, encoding, compression",
+                    ),
+                    &["stage"],
+                )
+                .expect("valid metric");
+                registry.register(Box::new(c.clone())).expect("unique metric");
+                c
+            },
             registry,
         }
+    }
+
+    /// Adds the time of each stage of a tile job.
+    pub fn observe_stages(&self, stages: &Stages) {
+        for stage in Stage::ALL {
+            let d = stages.get(stage);
+            if !d.is_zero() {
+                self.observe_stage(stage.name(), d);
+            }
+        }
+    }
+
+    /// Adds `d` to the time of stage `name`.
+    pub fn observe_stage(&self, name: &str, d: std::time::Duration) {
+        self.stage_seconds.with_label_values(&[name]).inc_by(d.as_secs_f64());
     }
 
     /// The text exposition format.

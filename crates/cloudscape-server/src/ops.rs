@@ -49,6 +49,10 @@ pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
     responses((status = 200, content_type = "text/plain", body = String, description = "Prometheus text exposition")))]
 pub async fn metrics(State(s): State<Arc<AppState>>) -> Response {
     s.metrics.cache_bytes.set(s.cache.weighted_size() as i64);
+    if let Some(kept) = &s.kept {
+        s.metrics.kept_bytes.set(kept.bytes() as i64);
+        s.metrics.kept_tiles.set(kept.tiles() as i64);
+    }
     s.metrics.queue_depth.set(s.cache.queue_depth() as i64);
     let mut r = s.metrics.render().into_response();
     r.headers_mut().insert(

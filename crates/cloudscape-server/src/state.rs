@@ -11,6 +11,7 @@ use crate::ahead::HotSet;
 use crate::cache::{ComputeQueue, ResponseCache};
 use crate::config::ServerConfig;
 use crate::error::ApiError;
+use crate::kept::KeptStates;
 use crate::key::Worlds;
 use crate::metrics::Metrics;
 use crate::reply::ReplyBudget;
@@ -64,6 +65,8 @@ pub struct AppState {
     pub readiness: Readiness,
     /// The tiles being watched, whose next keyframes are computed ahead.
     pub ahead: Arc<HotSet>,
+    /// What tiles keep between keyframes (`None` when `server.kept_share` is 0).
+    pub kept: Option<Arc<KeptStates>>,
     /// Source of request ids: a per-process prefix and a counter.
     request_ids: (u32, AtomicU64),
 }
@@ -75,12 +78,13 @@ impl AppState {
             n => n as usize,
         };
         let cache = ResponseCache::new(
-            settings.cache_bytes,
+            settings.response_bytes(),
             ComputeQueue::new(queue, settings.compute_memory_bytes),
             Duration::from_millis(settings.request_timeout_ms),
             SharedCache::new(&settings)?,
         );
         let metrics = Arc::new(Metrics::new());
+        let kept = KeptStates::new(settings.kept_bytes(), &metrics).map(Arc::new);
         let replies = ReplyBudget::new(settings.reply_bytes, metrics.reply_bytes.clone());
         let prefix = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
@@ -97,6 +101,7 @@ impl AppState {
             metrics,
             readiness: Readiness(AtomicU8::new(Lifecycle::Starting as u8)),
             ahead,
+            kept,
             request_ids: (prefix, AtomicU64::new(0)),
         })
     }

@@ -20,18 +20,22 @@ use utoipa::{IntoResponses, PartialSchema};
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::density;
+use cloudscape_core::density::kept::KeptDensity;
 use cloudscape_core::products::Product;
 use cloudscape_core::products::billboards;
 use cloudscape_core::products::catalogue::encode_shaded;
 use cloudscape_core::render::TileId;
-use cloudscape_core::render::tile::shade_tile;
+use cloudscape_core::render::tile::{kept_region, shade_tile_staged};
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
-use cloudscape_core::world::{Keyframe, Limits, SunConfig};
+use cloudscape_core::stages::Stages;
+use cloudscape_core::world::{Keyframe, Limits, SunConfig, World};
 
 use crate::annotations::{ComputedResponses, LayerName, WorldName};
 use crate::error::ApiError;
 use crate::extract::{TilePath, TileProduct, layer};
+use crate::kept::KeptStates;
 use crate::key::{CacheKey, ResolvedWorld};
+use crate::metrics::Metrics;
 use crate::params::{Params, QualityName, parse_quality, parse_sun};
 use crate::respond::Cached;
 use crate::state::AppState;
@@ -150,6 +154,8 @@ pub async fn tile(
         sun,
         sun_config: config.sun.clone(),
         limits: config.limits.clone(),
+        kept: s.kept.clone(),
+        metrics: Arc::clone(&s.metrics),
     });
     let canonical = || format!("{}?{}", uri.path(), params.query_with("t", &keyframe.t0.to_string()));
     let cached = Cached::keyframe(
@@ -194,6 +200,10 @@ pub struct TileRecipe {
     pub sun: Option<Sun>,
     pub sun_config: SunConfig,
     pub limits: Limits,
+    /// What tiles keep between keyframes (the job starts from it), if the server keeps any.
+    pub kept: Option<Arc<KeptStates>>,
+    /// Where the jobs' time goes is counted here.
+    pub metrics: Arc<Metrics>,
 }
 
 /// The job that computes a tile's bytes, and those of its siblings.
@@ -222,6 +232,15 @@ impl TileRecipe {
             .with("x", self.tile.x)
             .with("y", self.tile.y)
             .with("k", keyframe.index)
+    }
+
+    /// The key of what the tile keeps between keyframes: the same for every product,
+    /// quality and sun of the tile.
+    fn kept_key(&self) -> String {
+        format!(
+            "{}|l{}|{}/{}/{}",
+            self.world.fingerprint, self.layer, self.tile.z, self.tile.x, self.tile.y
+        )
     }
 
     /// The cache key of the product at `keyframe`.
@@ -261,54 +280,100 @@ impl TileRecipe {
         let world = world.clone();
         let limits = self.limits.clone();
         let base = self.base_key(keyframe);
-        let job: TileJob = Box::new(move |cancel: &Cancel| match shading {
-            None => {
-                let grid = density::density_cancellable(&world, layer, tile.z, region, keyframe.t0, cancel)?;
-                let bytes = product
-                    .encode_grid(&world.layers[layer], &grid)
-                    .ok_or_else(|| ApiError::Internal(format!("{} is not a grid product", product.name())))?;
-                Ok((Bytes::from(bytes), Vec::new()))
-            }
-            Some((q, sun)) => {
-                let shaded = shade_tile(
-                    &world,
-                    layer,
-                    tile,
-                    keyframe,
-                    q,
-                    sun,
-                    &ShadingParams::default(),
-                    &limits,
-                    cancel,
-                )?;
-                // Shading was the long part: stop here rather than encode for nobody.
-                cancel.check().map_err(|_| ApiError::Cancelled)?;
-                let mut all = encode_shaded(&shaded, limits.max_response_bytes, product);
-                let i = all
-                    .iter()
-                    .position(|(p, _)| *p == product)
-                    .ok_or_else(|| ApiError::Internal(format!("{} is not a shaded product", product.name())))?;
-                let (_, wanted) = all.swap_remove(i);
-                let bucket = Some((q, sun.bucket()));
-                let mut siblings: Vec<(CacheKey, Bytes)> = all
-                    .into_iter()
-                    .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
-                    .collect();
-                // The precipitation map from the density this shading was built from:
-                // the viewer asks for it beside the billboards of a layer that can
-                // precipitate, and it costs an encoding here instead of a second
-                // density computation.
-                let (l, rain) = (&world.layers[layer], Product::PrecipitationPng);
-                if l.preset.precipitates()
-                    && let Some(b) = rain.encode_grid(l, &shaded.tile_density())
-                {
-                    siblings.push((tile_key(&base, rain, None), Bytes::from(b)));
+        let kept = self.kept.clone().filter(|_| !keyframe.is_instant());
+        let kept_key = self.kept_key();
+        let metrics = Arc::clone(&self.metrics);
+        let job: TileJob = Box::new(move |cancel: &Cancel| {
+            let mut stages = Stages::default();
+            let out = match shading {
+                None => {
+                    let grid = with_kept(kept.as_deref(), &kept_key, &world, layer, tile, |state| match state {
+                        Some(state) => state.density(&world, region, keyframe.t0, true, cancel, &mut stages),
+                        None => {
+                            density::density_staged(&world, layer, tile.z, region, keyframe.t0, cancel, &mut stages)
+                        }
+                    })?;
+                    let bytes = product
+                        .encode_grid(&world.layers[layer], &grid)
+                        .ok_or_else(|| ApiError::Internal(format!("{} is not a grid product", product.name())))?;
+                    Ok((Bytes::from(bytes), Vec::new()))
                 }
-                Ok((Bytes::from(wanted), siblings))
-            }
+                Some((q, sun)) => {
+                    let params = ShadingParams::default();
+                    let shaded = with_kept(kept.as_deref(), &kept_key, &world, layer, tile, |state| {
+                        shade_tile_staged(
+                            &world,
+                            layer,
+                            tile,
+                            keyframe,
+                            q,
+                            sun,
+                            &params,
+                            &limits,
+                            cancel,
+                            state,
+                            &mut stages,
+                        )
+                    })?;
+                    // Shading was the long part: stop here rather than encode for nobody.
+                    cancel.check().map_err(|_| ApiError::Cancelled)?;
+                    let encoding = std::time::Instant::now();
+                    let mut all = encode_shaded(&shaded, limits.max_response_bytes, product);
+                    metrics.observe_stage("encoding", encoding.elapsed());
+                    let i = all
+                        .iter()
+                        .position(|(p, _)| *p == product)
+                        .ok_or_else(|| ApiError::Internal(format!("{} is not a shaded product", product.name())))?;
+                    let (_, wanted) = all.swap_remove(i);
+                    let bucket = Some((q, sun.bucket()));
+                    let mut siblings: Vec<(CacheKey, Bytes)> = all
+                        .into_iter()
+                        .map(|(p, b)| (tile_key(&base, p, bucket), Bytes::from(b)))
+                        .collect();
+                    // The precipitation map from the density this shading was built from:
+                    // the viewer asks for it beside the billboards of a layer that can
+                    // precipitate, and it costs an encoding here instead of a second
+                    // density computation.
+                    let (l, rain) = (&world.layers[layer], Product::PrecipitationPng);
+                    if l.preset.precipitates()
+                        && let Some(b) = rain.encode_grid(l, &shaded.tile_density())
+                    {
+                        siblings.push((tile_key(&base, rain, None), Bytes::from(b)));
+                    }
+                    Ok((Bytes::from(wanted), siblings))
+                }
+            };
+            metrics.observe_stages(&stages);
+            out
         });
         Ok((work, job))
     }
+}
+
+/// Runs `job` with the kept state of `tile` (see [`KeptStates::with`]), or with
+/// `None` when the server keeps none.
+fn with_kept<R>(
+    kept: Option<&KeptStates>,
+    key: &str,
+    world: &World,
+    layer: usize,
+    tile: TileId,
+    job: impl FnOnce(Option<&mut KeptDensity>) -> R,
+) -> R {
+    match kept {
+        Some(k) => k.with(key, || new_kept(world, layer, tile), job),
+        None => job(None),
+    }
+}
+
+/// A tile's kept state before its first keyframe: over the region every keyframe of
+/// it, in every quality and sun, is cut from (the tile's own columns if that region
+/// is out of range; the job then computes cold where it must).
+fn new_kept(world: &World, layer: usize, tile: TileId) -> KeptDensity {
+    let region = kept_region(&world.layers[layer], tile)
+        .or_else(|_| tile.region())
+        .unwrap_or(cloudscape_core::density::Region::square(0, 0, 0));
+    KeptDensity::new(layer, tile.z, region)
 }
 
 impl crate::ahead::Recipe for TileRecipe {

@@ -408,11 +408,10 @@ fn taps(c: Coord) -> (i64, f32) {
 
 /// The continuous density over `region` (level-0 cells).
 pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
-    let sampling = sampling(sim, region, t);
     let start = std::time::Instant::now();
-    let st = states(sim, &sampling.steps, &sampling.windows);
+    let states = cold_states(sim, region, t);
     let states_done = start.elapsed();
-    let grid = smoothed(sim, region, sampling, &st);
+    let grid = smooth(sim, region, states);
     // Where a cold tile's time goes (`RUST_LOG=cloudscape=debug`; BENCHMARKS.md "Cold tile").
     tracing::debug!(
         states_ms = millis(states_done),
@@ -426,9 +425,37 @@ pub fn density(sim: &LayerSim, region: Region, t: f64) -> Grid<f32> {
 /// `region`'s windows at t): the same bits. `None` when `live` cannot give them
 /// (the caller computes the density cold).
 pub fn density_live(sim: &LayerSim, live: &mut LiveRuns, region: Region, t: f64) -> Option<Grid<f32>> {
+    Some(smooth(sim, region, kept_states(sim, live, region, t)?))
+}
+
+/// The automaton's cloud bits that the density of a region at a time samples: each
+/// level's window of its frame at the step or two steps t falls between.
+pub struct CloudStates {
+    sampling: Sampling,
+    /// Per step, per level, the window's bits (row-major, 0 or 1).
+    bits: Vec<Vec<Vec<u8>>>,
+}
+
+/// The cloud bits [`density`] of `region` at `t` samples, from runs started at their
+/// epochs' empty grids.
+pub fn cold_states(sim: &LayerSim, region: Region, t: f64) -> CloudStates {
     let sampling = sampling(sim, region, t);
-    let st = live_states(sim, live, &sampling.steps, &sampling.windows)?;
-    Some(smoothed(sim, region, sampling, &st))
+    let bits = states(sim, &sampling.steps, &sampling.windows);
+    CloudStates { sampling, bits }
+}
+
+/// [`cold_states`] from runs kept alive between calls (the same bits); `None` when
+/// `live` does not hold the windows or has gone past a step.
+pub fn kept_states(sim: &LayerSim, live: &mut LiveRuns, region: Region, t: f64) -> Option<CloudStates> {
+    let sampling = sampling(sim, region, t);
+    let bits = live_states(sim, live, &sampling.steps, &sampling.windows)?;
+    Some(CloudStates { sampling, bits })
+}
+
+/// The density of `region` from its cloud bits (`states`, made for the same region):
+/// smoothed with the tent, sampled at the wind displacement, interpolated in time.
+pub fn smooth(sim: &LayerSim, region: Region, states: CloudStates) -> Grid<f32> {
+    smoothed(sim, region, states.sampling, &states.bits)
 }
 
 /// The density over `region` from the cloud bits `st` of the sampling's steps:

@@ -16,9 +16,10 @@
 //! the cold runs' bits (`automaton::live`). When it cannot (a time before the runs'
 //! latest step, a region outside the kept one) it computes cold.
 
-use super::{Grid, Region, SimError, exact, lod, prepare};
+use super::{Grid, Region, SimError, density_staged, exact, prepare};
 use crate::automaton::LiveRuns;
 use crate::cancel::Cancel;
+use crate::stages::{Stage, Stages};
 use crate::world::World;
 
 /// Grids kept: the two latest times (a keyframe's two ends).
@@ -86,14 +87,15 @@ impl KeptDensity {
         t: f64,
         keep: bool,
         cancel: &Cancel,
+        stages: &mut Stages,
     ) -> Result<Grid<f32>, SimError> {
         if let Some(g) = self.grids.iter().find(|g| g.t == t && contains(g.region, region)) {
             self.counts.reused += 1;
-            return Ok(cut(&g.grid, g.region, region));
+            return Ok(stages.time(Stage::Reused, || cut(&g.grid, g.region, region)));
         }
         let whole = keep && contains(self.region, region);
         let asked = if whole { self.region } else { region };
-        let grid = self.compute(world, asked, t, cancel)?;
+        let grid = self.compute(world, asked, t, cancel, stages)?;
         if !whole {
             return Ok(grid);
         }
@@ -119,26 +121,28 @@ impl KeptDensity {
 
     /// The density of `region` at `t`: from the live runs at level 0 where they can
     /// give it, else cold.
-    fn compute(&mut self, world: &World, region: Region, t: f64, cancel: &Cancel) -> Result<Grid<f32>, SimError> {
+    fn compute(
+        &mut self,
+        world: &World,
+        region: Region,
+        t: f64,
+        cancel: &Cancel,
+        stages: &mut Stages,
+    ) -> Result<Grid<f32>, SimError> {
+        if self.level > 0 {
+            self.counts.cold += 1;
+            return density_staged(world, self.layer, self.level, region, t, cancel, stages);
+        }
         let mut sim = prepare(world, self.layer, self.level, region, t)?;
         cancel.check()?;
         sim.cancel = cancel.clone();
-        let grid = if self.level == 0 {
-            let live = self.live.get_or_insert_with(|| LiveRuns::new(self.region));
-            match exact::density_live(&sim, live, region, t) {
-                Some(g) => {
-                    self.counts.live += 1;
-                    g
-                }
-                None => {
-                    self.counts.cold += 1;
-                    exact::density(&sim, region, t)
-                }
-            }
-        } else {
+        let live = self.live.get_or_insert_with(|| LiveRuns::new(self.region));
+        let Some(states) = stages.time(Stage::Steps, || exact::kept_states(&sim, live, region, t)) else {
             self.counts.cold += 1;
-            lod::density(&sim, self.level, region, t)
+            return density_staged(world, self.layer, self.level, region, t, cancel, stages);
         };
+        self.counts.live += 1;
+        let grid = stages.time(Stage::Smoothing, || exact::smooth(&sim, region, states));
         cancel.check()?;
         Ok(grid)
     }
@@ -202,14 +206,18 @@ mod tests {
             for i in 0..20 {
                 let (t0, t1) = ((2000 + i) as f64 * dt, (2001 + i) as f64 * dt);
                 for (r, t) in [(inner, t0), (moved, t1), (region, t1), (inner, t0)] {
-                    let got = kept.density(&world, r, t, true, &Cancel::never()).unwrap();
+                    let got = kept
+                        .density(&world, r, t, true, &Cancel::never(), &mut Stages::default())
+                        .unwrap();
                     let want = density(&world, 1, level, r, t).unwrap();
                     assert!(got.data == want.data, "level {level}, {r:?} at {t}");
                 }
             }
             // A time before the latest: cold, still equal.
             let back = 1990.0 * dt;
-            let got = kept.density(&world, inner, back, true, &Cancel::never()).unwrap();
+            let got = kept
+                .density(&world, inner, back, true, &Cancel::never(), &mut Stages::default())
+                .unwrap();
             assert!(got.data == density(&world, 1, level, inner, back).unwrap().data);
             let c = kept.counts();
             assert!(c.reused >= 40, "{c:?}");

@@ -13,6 +13,7 @@ pub use stats::{CLOUD_THRESHOLD, ColumnStats, RegionStats, column_stats, region_
 
 use crate::automaton::LayerSim;
 use crate::cancel::Cancel;
+use crate::stages::{Stage, Stages};
 use crate::world::{Limits, World};
 
 /// Which quantity a grid holds.
@@ -50,13 +51,27 @@ pub fn density_cancellable(
     t: f64,
     cancel: &Cancel,
 ) -> Result<Grid<f32>, SimError> {
+    density_staged(world, layer, level, region, t, cancel, &mut Stages::default())
+}
+
+/// [`density_cancellable`] adding the time of each stage to `stages`.
+pub fn density_staged(
+    world: &World,
+    layer: usize,
+    level: u32,
+    region: Region,
+    t: f64,
+    cancel: &Cancel,
+    stages: &mut Stages,
+) -> Result<Grid<f32>, SimError> {
     let mut sim = prepare(world, layer, level, region, t)?;
     cancel.check()?;
     sim.cancel = cancel.clone();
     let grid = if level == 0 {
-        exact::density(&sim, region, t)
+        let states = stages.time(Stage::Automaton, || exact::cold_states(&sim, region, t));
+        stages.time(Stage::Smoothing, || exact::smooth(&sim, region, states))
     } else {
-        lod::density(&sim, level, region, t)
+        stages.time(Stage::FarField, || lod::density(&sim, level, region, t))
     };
     cancel.check()?;
     Ok(grid)

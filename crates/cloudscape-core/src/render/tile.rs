@@ -5,6 +5,7 @@ use crate::cancel::Cancel;
 use crate::density::kept::KeptDensity;
 use crate::density::metaballs::{GridPlacement, Lattice};
 use crate::density::{self, Grid, Region, SimError, check_time};
+use crate::stages::{Stage, Stages};
 use crate::world::{Keyframe, Layer, Limits, World, keyframe_span};
 
 use super::light::{Lighting, ShadingParams};
@@ -154,9 +155,19 @@ pub fn shade_tile(
     limits: &Limits,
     cancel: &Cancel,
 ) -> Result<ShadedTile, RenderError> {
-    let density = |region, t| density::density_cancellable(world, layer, tile.z, region, t, cancel);
-    shade_tile_from(
-        world, layer, tile, keyframe, quality, sun, params, limits, cancel, density,
+    let mut stages = Stages::default();
+    shade_tile_staged(
+        world,
+        layer,
+        tile,
+        keyframe,
+        quality,
+        sun,
+        params,
+        limits,
+        cancel,
+        None,
+        &mut stages,
     )
 }
 
@@ -176,16 +187,26 @@ pub fn shade_tile_kept(
     cancel: &Cancel,
     kept: &mut KeptDensity,
 ) -> Result<ShadedTile, RenderError> {
-    let density = |region, t| kept.density(world, region, t, true, cancel);
-    shade_tile_from(
-        world, layer, tile, keyframe, quality, sun, params, limits, cancel, density,
+    let mut stages = Stages::default();
+    shade_tile_staged(
+        world,
+        layer,
+        tile,
+        keyframe,
+        quality,
+        sun,
+        params,
+        limits,
+        cancel,
+        Some(kept),
+        &mut stages,
     )
 }
 
-/// [`shade_tile`] with each density grid (a region of columns at the tile's level,
-/// at a time) from `density`.
+/// [`shade_tile`] (with `kept`, [`shade_tile_kept`]) adding the time of each stage to
+/// `stages`.
 #[allow(clippy::too_many_arguments)]
-fn shade_tile_from(
+pub fn shade_tile_staged(
     world: &World,
     layer: usize,
     tile: TileId,
@@ -195,21 +216,26 @@ fn shade_tile_from(
     params: &ShadingParams,
     limits: &Limits,
     cancel: &Cancel,
-    mut density: impl FnMut(Region, f64) -> Result<Grid<f32>, SimError>,
+    mut kept: Option<&mut KeptDensity>,
+    stages: &mut Stages,
 ) -> Result<ShadedTile, RenderError> {
     check_time(keyframe.t0)?;
     let l = checked_layer(world, layer)?;
     tile.region()?.check(tile.z, l.depth, limits)?;
+    let mut density = |region: Region, t: f64, stages: &mut Stages| match kept.as_deref_mut() {
+        Some(kept) => kept.density(world, region, t, true, cancel, stages),
+        None => density::density_staged(world, layer, tile.z, region, t, cancel, stages),
+    };
     let halo = tile_halo(l, tile.z, quality, sun);
-    let grid = density(around(tile, halo, [0, 0])?, keyframe.t0)?;
-    let mut shaded = shade_density(layer, l, tile, keyframe.t0, quality, sun, params, grid, halo);
+    let grid = density(around(tile, halo, [0, 0])?, keyframe.t0, stages)?;
+    let mut shaded = shade_density_staged(layer, l, tile, keyframe.t0, quality, sun, params, grid, halo, stages);
     cancel.check().map_err(SimError::from)?;
     if keyframe.is_instant() {
         return Ok(shaded);
     }
     let moved = downwind_columns(l, shaded.column, keyframe.span());
-    let end_grid = density(around(tile, halo, moved)?, keyframe.t1)?;
-    shaded.shade_end(l, keyframe, end_grid, moved, params);
+    let end_grid = density(around(tile, halo, moved)?, keyframe.t1, stages)?;
+    shaded.shade_end(l, keyframe, end_grid, moved, params, stages);
     cancel.check().map_err(SimError::from)?;
     Ok(shaded)
 }
@@ -349,6 +375,7 @@ impl TileShading {
         unmoved: &GridPlacement,
         place: &GridPlacement,
         shift: impl Fn(f64) -> [f64; 2] + Sync,
+        stages: &mut Stages,
     ) -> (Vec<Billboard>, Vec<f32>) {
         // Lattice points over the unmoved grid: every ball that may shadow the tile.
         let all = [
@@ -357,9 +384,16 @@ impl TileShading {
             unmoved.x0 + grid.cols as f64 * self.column,
             unmoved.y0 + grid.rows as f64 * self.column,
         ];
-        let balls = self.lattice.collect_moved(grid, place, all, MIN_BALL_DENSITY, shift);
+        let balls = stages.time(Stage::Metaballs, || {
+            self.lattice.collect_moved(grid, place, all, MIN_BALL_DENSITY, shift)
+        });
+        stages.time(Stage::Shading, || self.light(&balls))
+    }
+
+    /// The billboards of `balls` shaded toward the sun, and the ground shadow map.
+    fn light(&self, balls: &[crate::density::metaballs::Metaball]) -> (Vec<Billboard>, Vec<f32>) {
         let (billboards, buffer) = shade(
-            &balls,
+            balls,
             &self.lattice,
             &self.lighting,
             &self.sheet,
@@ -399,9 +433,27 @@ pub fn shade_density(
     grid: Grid<f32>,
     halo: usize,
 ) -> ShadedTile {
+    let mut stages = Stages::default();
+    shade_density_staged(layer, l, tile, t, quality, sun, params, grid, halo, &mut stages)
+}
+
+/// [`shade_density`] adding the time of each stage to `stages`.
+#[allow(clippy::too_many_arguments)]
+fn shade_density_staged(
+    layer: usize,
+    l: &Layer,
+    tile: TileId,
+    t: f64,
+    quality: Quality,
+    sun: Sun,
+    params: &ShadingParams,
+    grid: Grid<f32>,
+    halo: usize,
+    stages: &mut Stages,
+) -> ShadedTile {
     let shading = TileShading::new(l, tile, quality, sun, params);
     let place = shading.placement(l, halo, [0, 0]);
-    let (billboards, shadow) = shading.shade(&grid, &place, &place, |_| [0.0, 0.0]);
+    let (billboards, shadow) = shading.shade(&grid, &place, &place, |_| [0.0, 0.0], stages);
     let bucket = sun.bucket();
     ShadedTile {
         layer,
@@ -465,6 +517,7 @@ impl ShadedTile {
         end_grid: Grid<f32>,
         moved: [i64; 2],
         params: &ShadingParams,
+        stages: &mut Stages,
     ) {
         let shading = TileShading::new(l, self.tile, self.quality, self.sun, params);
         let place = shading.placement(l, self.halo, moved);
@@ -474,7 +527,7 @@ impl ShadedTile {
             let h = z - base;
             [(wind[0] + shear[0] * h) * span, (wind[1] + shear[1] * h) * span]
         };
-        let (end, shadow_end) = shading.shade(&end_grid, &self.place, &place, shift);
+        let (end, shadow_end) = shading.shade(&end_grid, &self.place, &place, shift, stages);
         let start = std::mem::take(&mut self.billboards);
         let (start, end) = pair_ends(start, end, shift);
         self.billboards = start;
@@ -597,6 +650,7 @@ mod tests {
         use crate::products::Product;
         use crate::products::catalogue::encode_shaded;
         use crate::render::{Quality, ShadingParams, Sun};
+        use crate::stages::{Stage, Stages};
         use crate::world::Config;
         let config = Config::embedded();
         let world = config.world("default").unwrap();

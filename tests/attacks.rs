@@ -237,12 +237,14 @@ async fn billboards_json_over_the_response_limit_is_refused_and_points_to_billbo
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_cache_keeps_no_entry_over_a_quarter_of_its_budget() {
-    // 4 MiB of cache: at most 1 MiB an entry. density.f32 of a tile is 2.6 MB,
+    // 4 MiB of response cache (none of it kept for keyframes): at most 1 MiB an
+    // entry. density.f32 of a tile is 2.6 MB,
     // density.u8 0.66 MB.
     // The growth of the cache is measured below: nothing computed ahead of the clock
     // (tests/keyframes.rs) adds its entries meanwhile.
     let (_serial, server, c) = start(&[
         ("CLOUDSCAPE_SERVER_CACHE_BYTES", "4194304"),
+        ("CLOUDSCAPE_SERVER_KEPT_SHARE", "0"),
         ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
     ])
     .await;

@@ -63,6 +63,11 @@ impl Stages {
         out
     }
 
+    /// Adds `d` to `stage`.
+    pub fn add(&mut self, stage: Stage, d: Duration) {
+        self.0[stage as usize] += d;
+    }
+
     /// The time spent in `stage`.
     pub fn get(&self, stage: Stage) -> Duration {
         self.0[stage as usize]

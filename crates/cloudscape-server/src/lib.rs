@@ -70,6 +70,7 @@ use cloudscape_core::render::Quality;
 use cloudscape_core::world::Config;
 
 pub use config::ServerConfig;
+pub use encode::Coding;
 pub use error::ApiError;
 pub use state::{Lifecycle, Readiness};
 

@@ -23,6 +23,7 @@ pub mod gallery;
 mod http;
 mod keyframes;
 mod pipeline;
+mod stages;
 pub mod quality;
 mod weather;
 
@@ -185,7 +186,7 @@ pub fn fmt_rate(r: f64) -> String {
 type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
 
 /// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
-pub const SECTION_NAMES: [&str; 11] = [
+pub const SECTION_NAMES: [&str; 12] = [
     "machine",
     "automaton",
     "fields",
@@ -196,6 +197,7 @@ pub const SECTION_NAMES: [&str; 11] = [
     "rosa",
     "scaling",
     "keyframes",
+    "stages",
     "precipitation-day",
 ];
 
@@ -211,7 +213,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ));
     }
     let mut out = BenchRun::default();
-    let steps: [(&str, SectionFn); 11] = [
+    let steps: [(&str, SectionFn); 12] = [
         ("machine", |e, o| {
             o.sections.push(machine(e));
             Ok(())
@@ -225,6 +227,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ("rosa 2013", pipeline::rosa),
         ("scaling", core::scaling),
         ("keyframes", keyframes::keyframes),
+        ("keyframe stages", stages::stages),
         ("precipitation over a day", weather::precipitation_day),
     ];
     for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {

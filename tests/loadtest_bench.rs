@@ -221,6 +221,38 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
         r["by_kind"]["tile"]["requests"].as_u64().unwrap() > 0,
         "players fetched tiles: {r}"
     );
+    // The generator's own CPU, beside the server's.
+    assert!(f(&r, &["generator", "cpu_seconds"]) > 0.0, "{}", r["generator"]);
+    assert!(f(&r, &["generator", "cpu_cores"]) > 0.0);
+    assert_eq!(r["generator"]["placement"]["mode"], "as is");
+    assert!(stdout.contains("CPU, share of one core: server "), "{stdout}");
+    // The default geometry: one group of 8 in a town, one distinct place.
+    assert_eq!(r["geometry"]["kind"], "towns");
+    assert_eq!(r["geometry"]["groups"], 1);
+    assert_eq!(r["distinct_places"], 1);
+    // Sharing per level: one group, so no keyframe is asked by two; every level the
+    // players asked for is listed once, finest first.
+    let sharing = r["sharing"].as_array().unwrap();
+    assert!(!sharing.is_empty(), "{r}");
+    let levels: Vec<u64> = sharing.iter().map(|l| l["level"].as_u64().unwrap()).collect();
+    assert!(levels.windows(2).all(|w| w[0] < w[1]), "{levels:?}");
+    for l in sharing {
+        assert_eq!(l["shared_by_2_groups"], 0.0, "{l}");
+        assert!(f(l, &["requests"]) >= f(l, &["keyframes"]) && f(l, &["keyframes"]) > 0.0);
+    }
+    // Without --t the run starts at the server's clock when discovery has one.
+    let d: serde_json::Value = serde_json::from_str(&server.get("/v1/worlds/default").text().unwrap()).unwrap();
+    match d.get("clock") {
+        Some(c) => {
+            assert_eq!(r["clock_source"], "server");
+            let now = f(c, &["now"]);
+            assert!((f(&r, &["t0"]) - now).abs() < 120.0, "t0 {} against now {now}", r["t0"]);
+        }
+        None => {
+            assert_eq!(r["clock_source"], "default");
+            assert_eq!(f(&r, &["t0"]), 43_200.0);
+        }
+    }
     // The server's cache counters moved: every answered request looked the cache up or revalidated.
     let hits = f(&r, &["cache", "hits"]);
     let misses = f(&r, &["cache", "misses"]);
@@ -253,10 +285,80 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
     assert!(f(&r, &["latency", "p50_ms"]) <= f(&r, &["latency", "max_ms"]));
 }
 
+/// A core this process may run on (the last of them).
+fn an_allowed_core() -> usize {
+    // SAFETY: sched_getaffinity fills the zeroed set; CPU_ISSET reads it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        assert_eq!(libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set), 0);
+        (0..libc::CPU_SETSIZE as usize).rev().find(|&c| libc::CPU_ISSET(c, &set)).unwrap()
+    }
+}
+
+#[test]
+fn a_niced_and_pinned_sweep_reports_where_the_generator_ran() {
+    let server = ServeProcess::start(&[], &[("RUST_LOG", "warn")]);
+    let dir = tempfile::tempdir().unwrap();
+    let (json, md, plot) = (dir.path().join("sweep.json"), dir.path().join("B.md"), dir.path().join("c.png"));
+    std::fs::write(&md, "# Benchmarks\n").unwrap();
+    let core = an_allowed_core().to_string();
+    let out = cloudscape(&[
+        "loadtest",
+        "--target",
+        &server.base,
+        "--sweep",
+        "--steps",
+        "8",
+        "--duration",
+        "2s",
+        "--geometry",
+        "spread",
+        "--nice",
+        "7",
+        "--cpu",
+        &core,
+        "--json",
+        json.to_str().unwrap(),
+        "--markdown",
+        md.to_str().unwrap(),
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
+    assert_success(&out);
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    // Read back from the kernel, every thread of the generator.
+    let p = &r["placement"];
+    assert_eq!(p["mode"], format!("nice 7, core {core}"), "{r}");
+    assert_eq!(p["nice"], 7);
+    assert_eq!(p["cpus"], serde_json::json!([core.parse::<u64>().unwrap()]));
+    assert!(p["threads"].as_u64().unwrap() >= 3, "the runtime's threads were read: {p}");
+    let step = &r["steps"][0];
+    assert_eq!(step["players"], 8);
+    assert!(f(step, &["generator_cpu_cores"]) > 0.0, "{step}");
+    // One group on its own path: one place, nothing shared between groups.
+    assert_eq!((step["groups"].as_u64(), step["places"].as_u64()), (Some(1), Some(1)));
+    assert_eq!(r["geometry"]["kind"], "spread");
+    assert!(!step["sharing"].as_array().unwrap().is_empty(), "{step}");
+    let text = std::fs::read_to_string(&md).unwrap();
+    assert!(text.contains("<!-- bench:capacity:begin -->"), "{text}");
+    assert!(text.contains("| players | places | requests/s |") && text.contains("| generator CPU |"));
+    assert!(text.contains(&format!("Generator: nice 7, core {core} (read back: nice 7, cores {core})")), "{text}");
+    assert!(text.contains("| players | level | keyframes |"), "{text}");
+    let (w, h) = png_size(&plot);
+    assert!(w >= 1000 && h > 200, "three panels: {w}×{h}");
+}
+
 #[test]
 fn bad_input_is_one_error_line_and_a_failure() {
     for args in [
         &["loadtest", "--target", "http://127.0.0.1:1", "--scenario", "raid"][..],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--geometry", "grid"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--nice", "25"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--nice", "-3"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--nice", "low"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--cpu", "99999"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--cpu", "a-b"],
+        &["loadtest", "--target", "http://127.0.0.1:1", "--cpu", "1023"],
         &["loadtest", "--target", "127.0.0.1:1"],
         &["loadtest", "--target", "http://127.0.0.1:1", "--duration", "forever"],
         &["loadtest", "--target", "http://127.0.0.1:1", "--rate", "-3"],

@@ -7,7 +7,7 @@ use std::time::Duration;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use cloudscape_tools::loadtest::{self, FetchMode, LoadSpec, Scenario};
+use cloudscape_tools::loadtest::{self, FetchMode, GeometryKind, LoadSpec, Placement, Scenario};
 
 #[derive(Args)]
 pub struct LoadtestArgs {
@@ -30,15 +30,29 @@ pub struct LoadtestArgs {
     /// World name or decimal seed.
     #[arg(long, default_value = "default")]
     world: String,
-    /// World-clock time at the start, seconds.
-    #[arg(long, default_value_t = 43_200.0, allow_hyphen_values = true)]
-    t: f64,
+    /// World-clock time at the start, seconds. Default: the server's clock now (its
+    /// discovery's `clock.now`, the keyframes it keeps warm), else 43200.
+    #[arg(long, allow_hyphen_values = true)]
+    t: Option<f64>,
     /// World seconds per real second (0 freezes the clock, so views only revalidate).
-    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true)]
-    clock: f64,
-    /// Seed of the players' paths and views.
+    /// Default: the server's clock rate, else 1.
+    #[arg(long, allow_hyphen_values = true)]
+    clock: Option<f64>,
+    /// Seed of the players' itineraries and views.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Where the mmo groups are: towns (start in the server's warm areas or nine
+    /// generated towns, walk, ride and fly between them along roads) or spread (each
+    /// group its own path, 30 km from the next: every group a new place).
+    #[arg(long, default_value = "towns")]
+    geometry: String,
+    /// Run the generator at this nice value, 0 to 19 (every thread; higher yields the
+    /// CPU to the server), so the figures describe the server.
+    #[arg(long, allow_hyphen_values = true)]
+    nice: Option<String>,
+    /// Pin the generator's threads to these cores: 1, 0,2 or 0-3.
+    #[arg(long, allow_hyphen_values = true)]
+    cpu: Option<String>,
     /// Write the full report (figures, status counts, per-second timeline) as JSON.
     #[arg(long)]
     json: Option<String>,
@@ -62,7 +76,7 @@ pub struct LoadtestArgs {
     /// p99 passes 50 ms or a request is shed; prints the curve.
     #[arg(long)]
     sweep: bool,
-    /// The players of each sweep step, comma-separated (default 8,16,…,256,384,…,2048, stopping at the first step that does not hold); steps given here all run, for a whole curve.
+    /// The players of each sweep step, comma-separated (default 8,16,32,…,1024, stopping at the first step that does not hold); steps given here all run, for a whole curve.
     #[arg(long, value_delimiter = ',')]
     steps: Option<Vec<usize>>,
     /// With --sweep: write the curve into this Markdown file between
@@ -96,6 +110,15 @@ pub(crate) fn parse_duration(s: &str) -> Result<Duration, String> {
 pub fn run(a: LoadtestArgs) -> Result<(), String> {
     let scenario = Scenario::parse(&a.scenario)
         .ok_or_else(|| format!("--scenario must be mmo, queries or mixed, got `{}`", a.scenario))?;
+    let geometry = GeometryKind::parse(&a.geometry)
+        .ok_or_else(|| format!("--geometry must be towns or spread, got `{}`", a.geometry))?;
+    let nice = match &a.nice {
+        Some(n) => Some(Placement::check_nice(n.trim().parse().map_err(|_| {
+            format!("--nice must be a whole number between 0 and 19, got `{n}`")
+        })?)?),
+        None => None,
+    };
+    let cpus = a.cpu.as_deref().map(Placement::parse_cpus).transpose()?;
     let warmup = if a.warmup.trim() == "0s" || a.warmup.trim() == "0" {
         Duration::ZERO
     } else {
@@ -111,6 +134,8 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         t0: a.t,
         clock: a.clock,
         seed: a.seed,
+        geometry,
+        placement: Placement { nice, cpus },
         fetch: if a.poll { FetchMode::Poll } else { FetchMode::Keyframes },
         places: a.places,
         server_pid: a.pid,

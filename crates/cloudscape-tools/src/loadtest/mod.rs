@@ -14,9 +14,16 @@
 //!   measured from the *intended* send time, so a stalled server is charged for the
 //!   requests it kept from being sent (coordinated-omission correction, as in wrk2).
 //!
-//! The server's response-cache hit ratio is read from its `/metrics` before and after.
+//! The server's response-cache hit ratio and CPU time are read from its `/metrics`
+//! before and after; the generator's own CPU time from `getrusage` beside it
+//! ([`generator`]), and `--nice`/`--cpu` move the generator out of the server's way.
+//! Players never decode what they fetch: a body is read chunk by chunk and counted.
 
+pub mod discovery;
+pub mod generator;
+pub mod geometry;
 pub mod record;
+pub mod sharing;
 pub mod workload;
 
 use std::sync::{Arc, Mutex};
@@ -25,11 +32,14 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 use tokio::sync::Semaphore;
 
-use cloudscape_client::RemoteWorld;
-
+use self::discovery::{Discovery, ServerClock};
+pub use self::generator::{Placement, PlacementReadBack};
+pub use self::geometry::GeometryKind;
+use self::geometry::{Geometry, TravelMode};
 use self::record::{BoundaryLatency, Counts, Latency, Outcome, Recorder, SecondSummary};
+use self::sharing::LevelSharing;
 pub use self::workload::FetchMode;
-use self::workload::{Agent, GROUP_SIZE, GameServer, GroupPath, Player, RequestKind, Role, TICK_SECONDS, WorldView};
+use self::workload::{Agent, GROUP_SIZE, GameServer, Player, RequestKind, Role, TICK_SECONDS, WorldView};
 
 /// Most requests in flight in the open loop; past it the schedule waits (and the wait
 /// counts in the latency, which is measured from the intended send time).
@@ -38,6 +48,8 @@ const MAX_IN_FLIGHT: usize = 1024;
 const MAX_BACKOFF: Duration = Duration::from_secs(1);
 /// The client's timeout for one request.
 const REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
+/// World-clock seconds at the start when neither `--t` nor the server's clock says.
+pub const DEFAULT_T0: f64 = 43_200.0;
 
 /// Which clients the run simulates.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -77,15 +89,21 @@ pub struct LoadSpec {
     pub scenario: Scenario,
     /// Requests per second for the open loop; `None` for the closed loop.
     pub rate: Option<f64>,
-    /// World-clock seconds at the start.
-    pub t0: f64,
-    /// World seconds per real second (0 freezes the clock: every tick revalidates).
-    pub clock: f64,
-    /// Seed of the players' paths and views.
+    /// World-clock seconds at the start; `None`: the server's clock now (from its
+    /// discovery), else [`DEFAULT_T0`].
+    pub t0: Option<f64>,
+    /// World seconds per real second (0 freezes the clock: every tick revalidates);
+    /// `None`: the server's clock rate, else 1.
+    pub clock: Option<f64>,
+    /// Seed of the players' itineraries and views.
     pub seed: u64,
+    /// The world the groups move through.
+    pub geometry: GeometryKind,
+    /// Where the generator runs (`--nice`, `--cpu`).
+    pub placement: Placement,
     /// How players fetch: keyframes (as the viewer) or polling every tick.
     pub fetch: FetchMode,
-    /// Groups share this many places (paths) when set: more players, same tiles.
+    /// Groups share this many places (itineraries) when set: more players, same tiles.
     pub places: Option<usize>,
     /// The server's process id, to read its CPU time from /proc when its /metrics has
     /// no `process_cpu_seconds_total`.
@@ -106,6 +124,8 @@ pub enum LoadError {
     Spec(String),
     #[error("cannot start the load generator: {0}")]
     Runtime(String),
+    #[error("{0}")]
+    Placement(String),
 }
 
 /// The server's response-cache counters (`cloudscape_cache_{hits,misses}_total`, summed
@@ -153,6 +173,85 @@ pub struct AheadFigures {
     /// in time.
     #[serde(rename = "ahead_mean_lag_s")]
     pub mean_lag_s: Option<f64>,
+}
+
+/// What the load generator itself spent, and where it ran.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct GeneratorFigures {
+    /// The generator's CPU time over the measured run (user + system, all threads), s.
+    pub cpu_seconds: f64,
+    /// The same as a share of the run's wall time (1.0 = one core busy).
+    pub cpu_cores: f64,
+    /// The priority and cores it asked for and ran with, read back from the kernel.
+    pub placement: PlacementReadBack,
+}
+
+/// Where the world clock of a run came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockSource {
+    /// `--t` (and `--clock`) as given.
+    Given,
+    /// The server's discovery `clock` (its `now`, and its `rate` unless `--clock`).
+    Server,
+    /// Neither: t = 43 200 (noon), 1 world second per second.
+    Default,
+}
+
+/// The world the groups moved through.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct GeometrySummary {
+    pub kind: GeometryKind,
+    /// Towns and roads (towns geometry); whether the towns are the server's warm areas.
+    pub towns: usize,
+    pub roads: usize,
+    pub towns_from_server: bool,
+    /// Groups (of [`GROUP_SIZE`] players) and how many walk, ride and fly.
+    pub groups: usize,
+    pub walking: usize,
+    pub riding: usize,
+    pub flying: usize,
+}
+
+impl GeometrySummary {
+    fn new(g: &Geometry, groups: usize) -> GeometrySummary {
+        let count = |m| (0..groups).filter(|&i| g.itinerary(i).mode == m).count();
+        GeometrySummary {
+            kind: g.kind,
+            towns: g.towns.len(),
+            roads: g.roads.len(),
+            towns_from_server: g.towns_from_server,
+            groups,
+            walking: count(TravelMode::Walking),
+            riding: count(TravelMode::Riding),
+            flying: count(TravelMode::Flying),
+        }
+    }
+
+    /// One line for the reports.
+    fn describe(&self) -> String {
+        match self.kind {
+            GeometryKind::Spread => format!(
+                "spread: {} groups {:.0} m apart at the start, each its own path at 12 m/s",
+                self.groups,
+                geometry::SPREAD_SPACING
+            ),
+            GeometryKind::Towns => format!(
+                "towns: {} groups in {} {} joined by {} roads ({} walking, {} riding, {} flying)",
+                self.groups,
+                self.towns,
+                if self.towns_from_server {
+                    "warm areas of the server"
+                } else {
+                    "generated towns"
+                },
+                self.roads,
+                self.walking,
+                self.riding,
+                self.flying
+            ),
+        }
+    }
 }
 
 /// A scrape of the server's /metrics.
@@ -264,6 +363,17 @@ pub struct Report {
     /// Simulated players and game servers.
     pub players: usize,
     pub game_servers: usize,
+    /// The world the groups moved through.
+    pub geometry: GeometrySummary,
+    /// Distinct places: the level-0 tiles of the world's finest layer that held a
+    /// group's centre at a whole second of the measured run.
+    pub distinct_places: usize,
+    /// Side of those tiles, metres.
+    pub place_side_m: f64,
+    /// World-clock seconds at the start, world seconds per second, and where they came from.
+    pub t0: f64,
+    pub clock: f64,
+    pub clock_source: ClockSource,
     /// Requested duration, seconds.
     pub duration_s: f64,
     /// From the first request to the last answer, seconds.
@@ -286,6 +396,10 @@ pub struct Report {
     pub cache: Option<CacheFigures>,
     /// What the server computed and how busy it was; `None` when /metrics could not be read.
     pub server: Option<ServerFigures>,
+    /// What the load generator itself spent, beside the server.
+    pub generator: GeneratorFigures,
+    /// How much the groups shared, per level (the measured tile requests by keyframe).
+    pub sharing: Vec<LevelSharing>,
     /// Latency just after level-0 keyframe boundaries against the rest.
     pub boundary: BoundaryLatency,
     /// Per second of the measured run.
@@ -307,7 +421,8 @@ pub struct Progress {
 /// State every worker shares.
 struct Shared {
     world: WorldView,
-    paths: Mutex<Vec<GroupPath>>,
+    /// Every group's itinerary: read-only, so agents need no lock to find their place.
+    geometry: Geometry,
     recorder: Mutex<Recorder>,
     http: reqwest::Client,
     base: String,
@@ -352,42 +467,63 @@ impl LoadSpec {
                 "--rate must be a number of requests per second in (0, 1e6], got {r}"
             )));
         }
-        if !(self.t0.is_finite() && (0.0..=1e12).contains(&self.t0)) {
-            return Err(LoadError::Spec(format!("--t must be in [0, 1e12], got {}", self.t0)));
+        if let Some(t) = self.t0
+            && !(t.is_finite() && (0.0..=1e12).contains(&t))
+        {
+            return Err(LoadError::Spec(format!("--t must be in [0, 1e12], got {t}")));
         }
-        if !(self.clock.is_finite() && (0.0..=1e6).contains(&self.clock)) {
-            return Err(LoadError::Spec(format!(
-                "--clock must be in [0, 1e6], got {}",
-                self.clock
-            )));
+        if let Some(c) = self.clock
+            && !(c.is_finite() && (0.0..=1e6).contains(&c))
+        {
+            return Err(LoadError::Spec(format!("--clock must be in [0, 1e6], got {c}")));
+        }
+        if let Some(n) = self.placement.nice {
+            Placement::check_nice(n).map_err(LoadError::Spec)?;
         }
         Ok(())
     }
+
+    /// The world clock of the run: `--t`/`--clock` where given, else the server's clock
+    /// (its `now` when discovery answered; its rate), else noon at 1 s per s.
+    fn clock(&self, server: Option<ServerClock>) -> (f64, f64, ClockSource) {
+        let rate = self.clock.or(server.map(|c| c.rate.clamp(0.0, 1e6))).unwrap_or(1.0);
+        match (self.t0, server) {
+            (Some(t), _) => (t, rate, ClockSource::Given),
+            (None, Some(c)) => (c.now.clamp(0.0, 1e12), rate, ClockSource::Server),
+            (None, None) => (DEFAULT_T0, rate, ClockSource::Default),
+        }
+    }
 }
 
-/// Sends one request; returns the outcome (latency from `from`) and the ETag and
-/// `Retry-After` of the answer.
+/// Sends one request; returns the outcome (latency from `from`) and the ETag (when the
+/// agent keeps it) and `Retry-After` of the answer. The body is counted, not kept.
 async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outcome, Option<String>, Option<Duration>) {
     let mut builder = shared.http.get(format!("{}{}", shared.base, req.path));
     if let Some(e) = &req.etag {
         builder = builder.header(reqwest::header::IF_NONE_MATCH, e.as_str());
     }
     let result = async {
-        let response = builder.send().await?;
+        let mut response = builder.send().await?;
         let status = response.status().as_u16();
         let header = |name| {
             response
                 .headers()
                 .get(name)
                 .and_then(|v: &reqwest::header::HeaderValue| v.to_str().ok())
-                .map(str::to_string)
         };
-        let etag = header(reqwest::header::ETAG);
-        let retry = header(reqwest::header::RETRY_AFTER)
+        let etag = (status == 200 && Agent::keeps_etag(req))
+            .then(|| header(reqwest::header::ETAG).map(str::to_string))
+            .flatten();
+        let retry = (status == 503)
+            .then(|| header(reqwest::header::RETRY_AFTER))
+            .flatten()
             .and_then(|v| v.trim().parse::<f64>().ok())
             .map(|s| Duration::from_secs_f64(s.clamp(0.0, 3600.0)));
-        let body = response.bytes().await?;
-        Ok::<_, reqwest::Error>((status, etag, retry, body.len() as u64))
+        let mut bytes = 0u64;
+        while let Some(chunk) = response.chunk().await? {
+            bytes += chunk.len() as u64;
+        }
+        Ok::<_, reqwest::Error>((status, etag, retry, bytes))
     }
     .await;
     let done = Instant::now();
@@ -395,36 +531,24 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
     // The timeline counts from the end of the warm-up.
     let at = done.saturating_duration_since(shared.measure_from).as_secs_f64();
     let after_boundary = shared.world.just_after_boundary(shared.seconds(from));
+    let outcome = |status, bytes| Outcome {
+        kind: req.kind,
+        status,
+        at,
+        micros,
+        bytes,
+        after_boundary,
+        keyframe: req.tile.map(|t| t.keyframe),
+        group: req.group,
+    };
     match result {
-        Ok((status, etag, retry, bytes)) => (
-            Outcome {
-                kind: req.kind,
-                status: Some(status),
-                at,
-                micros,
-                bytes,
-                after_boundary,
-            },
-            (status == 200).then_some(etag).flatten(),
-            (status == 503).then_some(retry).flatten(),
-        ),
+        Ok((status, etag, retry, bytes)) => (outcome(Some(status), bytes), etag, retry),
         Err(e) => {
             let mut rec = shared.recorder.lock().unwrap();
             if rec.first_error.is_none() {
                 rec.first_error = Some(format!("{}{}: {e}", shared.base, req.path));
             }
-            (
-                Outcome {
-                    kind: req.kind,
-                    status: None,
-                    at,
-                    micros,
-                    bytes: 0,
-                    after_boundary,
-                },
-                None,
-                None,
-            )
+            (outcome(None, 0), None, None)
         }
     }
 }
@@ -436,7 +560,7 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
     tokio::time::sleep_until(next_tick.into()).await;
     while Instant::now() < shared.deadline {
         let s = shared.seconds(Instant::now());
-        agent.plan(&shared.world, &mut shared.paths.lock().unwrap(), s);
+        agent.plan(&shared.world, &shared.geometry, s);
         while let Some(req) = agent.next_request() {
             if Instant::now() >= shared.deadline {
                 return;
@@ -446,7 +570,7 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
             if sent >= shared.measure_from {
                 shared.recorder.lock().unwrap().record(outcome);
             }
-            agent.answered(&req, etag);
+            agent.answered(&req, outcome.status == Some(200), etag);
             if outcome.status == Some(503) || outcome.status.is_none() {
                 let wait = retry.unwrap_or(MAX_BACKOFF).min(MAX_BACKOFF);
                 tokio::time::sleep(wait).await;
@@ -476,11 +600,7 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
         let req = {
             let mut a = agent.lock().unwrap();
             if a.idle() {
-                a.plan(
-                    &shared.world,
-                    &mut shared.paths.lock().unwrap(),
-                    shared.seconds(intended),
-                );
+                a.plan(&shared.world, &shared.geometry, shared.seconds(intended));
             }
             a.next_request()
         };
@@ -496,7 +616,7 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
             if intended >= shared.measure_from {
                 shared.recorder.lock().unwrap().record(outcome);
             }
-            agent.lock().unwrap().answered(&req, etag);
+            agent.lock().unwrap().answered(&req, outcome.status == Some(200), etag);
             drop(permit);
         });
         // Reap finished tasks so the set does not grow with the run.
@@ -505,10 +625,52 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
     while tasks.join_next().await.is_some() {}
 }
 
+/// CPU readings once a second of the measured run, for the timeline: the generator's
+/// own (getrusage) and the server's (from /proc when its pid is known).
+struct CpuSampler {
+    pid: Option<u32>,
+    second: usize,
+    at: Instant,
+    generator: f64,
+    server: Option<f64>,
+}
+
+impl CpuSampler {
+    fn new(pid: Option<u32>, at: Instant) -> CpuSampler {
+        CpuSampler {
+            pid,
+            second: 0,
+            at,
+            generator: generator::cpu_seconds(),
+            server: pid.and_then(proc_cpu_seconds),
+        }
+    }
+
+    /// Records the last second into `rec` once a whole second has passed since the last reading.
+    fn tick(&mut self, rec: &mut Recorder) {
+        let now = Instant::now();
+        let dt = now.saturating_duration_since(self.at).as_secs_f64();
+        if dt < 1.0 {
+            return;
+        }
+        let generator = generator::cpu_seconds();
+        let server = self.pid.and_then(proc_cpu_seconds);
+        let share = |a: f64, b: f64| ((a - b) / dt).max(0.0);
+        rec.record_cpu(
+            self.second,
+            Some(share(generator, self.generator)),
+            server.zip(self.server).map(|(a, b)| share(a, b)),
+        );
+        (self.second, self.at, self.generator, self.server) = (self.second + 1, now, generator, server);
+    }
+}
+
 /// Runs the load test. `progress` is called about five times a second.
 pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report, LoadError> {
     spec.check()?;
     let base = parse_target(&spec.target)?;
+    // Before the runtime starts its threads, so that they inherit the placement.
+    spec.placement.apply().map_err(LoadError::Placement)?;
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -536,12 +698,9 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
         if !status.is_success() {
             return Err(discovery(format!("status {status}: {}", text.trim())));
         }
-        let remote: RemoteWorld =
-            serde_json::from_str(&text).map_err(|e| discovery(format!("not a world description: {e}")))?;
-        if remote.layers.is_empty() {
-            return Err(discovery("the world has no layers".into()));
-        }
-        let world = WorldView::new(&remote, spec.t0, spec.clock);
+        let found = Discovery::parse(&text).map_err(discovery)?;
+        let (t0, clock, clock_source) = spec.clock(found.clock);
+        let world = WorldView::new(&found.world, t0, clock);
 
         let (players, servers) = match spec.scenario {
             Scenario::Mmo => (spec.players, 0),
@@ -549,21 +708,19 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             Scenario::Mixed => (spec.players, spec.players.div_ceil(GROUP_SIZE)),
         };
         let groups = spec.players.div_ceil(GROUP_SIZE).max(1);
-        // With `places`, group g walks the path of place g mod places.
+        // With `places`, group g follows the itinerary of place g mod places.
         let places = spec.places.map_or(groups, |p| p.clamp(1, groups));
+        let horizon = (spec.warmup + spec.duration).as_secs_f64() + 2.0 * TICK_SECONDS;
+        let geometry = Geometry::new(spec.geometry, places, spec.seed, found.towns, horizon);
         let mut agents: Vec<Agent> = (0..players)
             .map(|i| Agent::new(Role::Player(Player::new(i, spec.seed, spec.fetch))))
             .collect();
-        agents.extend((0..servers).map(|i| Agent::new(Role::GameServer(GameServer::new(i)))));
+        agents.extend((0..servers).map(|i| Agent::new(Role::GameServer(GameServer::new(i, groups)))));
 
         let start = Instant::now();
         let shared = Arc::new(Shared {
             world,
-            paths: Mutex::new(
-                (0..groups)
-                    .map(|g| GroupPath::new(g % places, places, spec.seed))
-                    .collect(),
-            ),
+            geometry,
             recorder: Mutex::new(Recorder::default()),
             http: http.clone(),
             base: base.clone(),
@@ -597,9 +754,10 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                 }
             })
         };
-        let before = {
+        let (before, generator_before, mut sampler) = {
             tokio::time::sleep_until(shared.measure_from.into()).await;
-            scrape(&http, &base, spec.server_pid).await
+            let before = scrape(&http, &base, spec.server_pid).await;
+            (before, generator::cpu_seconds(), CpuSampler::new(spec.server_pid, Instant::now()))
         };
         let mut ticker = tokio::time::interval(Duration::from_millis(200));
         tokio::pin!(work);
@@ -610,7 +768,8 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                     break;
                 }
                 _ = ticker.tick() => {
-                    let rec = shared.recorder.lock().unwrap();
+                    let mut rec = shared.recorder.lock().unwrap();
+                    sampler.tick(&mut rec);
                     progress(Progress {
                         elapsed_s: shared.measure_from.elapsed().as_secs_f64(),
                         requests: rec.totals().requests,
@@ -620,6 +779,7 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             }
         }
         let elapsed = shared.measure_from.elapsed().as_secs_f64();
+        let generator_cpu = (generator::cpu_seconds() - generator_before).max(0.0);
         let after = scrape(&http, &base, spec.server_pid).await;
         let rec = shared.recorder.lock().unwrap();
         progress(Progress {
@@ -636,6 +796,8 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             .iter()
             .filter(|(k, _)| matches!(k, RequestKind::Tile | RequestKind::Prefetch | RequestKind::Splats))
             .fold((0, 0), |(f, r), (_, c)| (f + c.ok, r + c.not_modified));
+        let warmup = spec.warmup.as_secs_f64();
+        let place_side_m = shared.world.finest_tile_side();
         Ok(Report {
             target: base.clone(),
             world: spec.world.clone(),
@@ -645,6 +807,14 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             rate: spec.rate,
             players,
             game_servers: servers,
+            geometry: GeometrySummary::new(&shared.geometry, groups),
+            distinct_places: shared
+                .geometry
+                .distinct_places(groups, place_side_m, warmup, warmup + elapsed),
+            place_side_m,
+            t0,
+            clock,
+            clock_source,
             duration_s: spec.duration.as_secs_f64(),
             elapsed_s: elapsed,
             throughput_rps: rec.totals().requests as f64 / elapsed.max(1e-9),
@@ -656,6 +826,12 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             body_bytes: rec.bytes(),
             cache,
             server,
+            generator: GeneratorFigures {
+                cpu_seconds: generator_cpu,
+                cpu_cores: generator_cpu / elapsed.max(1e-9),
+                placement: spec.placement.read_back(),
+            },
+            sharing: rec.sharing(),
             boundary: rec.boundary_latency(),
             timeline: rec.timeline(),
             distribution: rec.distribution(),
@@ -665,11 +841,9 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
 }
 
 /// The players of each step of a capacity sweep, until p99 passes the target: 8, 16,
-/// 32, … doubling to 256, then steps of 128 up to 2048.
+/// 32, … doubling to 1024.
 pub fn sweep_steps() -> Vec<usize> {
-    let mut steps: Vec<usize> = (3..=8).map(|e| 1usize << e).collect();
-    steps.extend((3..=16).map(|i| i * 128));
-    steps
+    (3..=10).map(|e| 1usize << e).collect()
 }
 
 /// The p99 a capacity step must stay within, milliseconds.
@@ -678,8 +852,13 @@ pub const SWEEP_P99_MS: f64 = 50.0;
 /// One step of a capacity sweep.
 #[derive(Clone, Debug, Serialize)]
 pub struct SweepStep {
-    /// Players of the step.
+    /// Players of the step, their groups, and the distinct places the groups were in
+    /// ([`Report::distinct_places`]).
     pub players: usize,
+    pub groups: usize,
+    pub places: usize,
+    /// World-clock seconds at the step's start.
+    pub t0: f64,
     /// Answers per second (the step's [`Report::throughput_rps`]).
     pub throughput_rps: f64,
     /// Latency of the step's measured requests, milliseconds.
@@ -693,10 +872,20 @@ pub struct SweepStep {
     pub elsewhere_p99_ms: f64,
     /// What the server computed and how busy it was; `None` when /metrics could not be read.
     pub server: Option<ServerFigures>,
+    /// The load generator's own CPU over the step, as a share of one core.
+    pub generator_cpu_cores: f64,
+    /// How much the groups shared, per level.
+    pub sharing: Vec<LevelSharing>,
     /// Body bytes per second received.
     pub bytes_per_s: f64,
     /// Within [`SWEEP_P99_MS`] and no 503.
     pub holds: bool,
+}
+
+impl SweepStep {
+    fn overall_sharing(&self) -> Option<LevelSharing> {
+        sharing::overall(&self.sharing)
+    }
 }
 
 /// A capacity sweep: the steps run, and the most players a step held.
@@ -707,21 +896,31 @@ pub struct SweepReport {
     pub world: String,
     pub fetch: FetchMode,
     pub clock: f64,
+    pub clock_source: ClockSource,
+    /// The world the groups moved through (as the last step saw it).
+    pub geometry: Option<GeometrySummary>,
+    /// Side of the tiles distinct places are counted in, metres.
+    pub place_side_m: f64,
+    /// Where the generator ran (`--nice`, `--cpu`), read back at the last step.
+    pub placement: Option<PlacementReadBack>,
     /// Measured seconds of each step, after its warm-up.
     pub step_s: f64,
     /// Warm-up seconds of each step.
     pub warmup_s: f64,
     /// The steps run, in order.
     pub steps: Vec<SweepStep>,
-    /// The most players a step held; `None` when the first step did not.
+    /// The most players a step held, and the distinct places they were in; `None`
+    /// when the first step did not hold.
     pub capacity: Option<usize>,
+    pub capacity_places: Option<usize>,
 }
 
 /// Raises the number of players step by step ([`sweep_steps`], or `steps`) until a
 /// step's p99 passes [`SWEEP_P99_MS`] or any request is shed, or (`every_step`)
 /// through all of `steps`, for a whole curve. Each step is a run of `spec` with that
 /// many players; the world clock runs on from one step to the next, so no step finds
-/// the previous one's keyframes.
+/// the previous one's keyframes (with the server's clock, each step starts at its
+/// `now`; else each starts where the last one's time ended).
 pub fn sweep(
     spec: &LoadSpec,
     steps: &[usize],
@@ -730,17 +929,26 @@ pub fn sweep(
 ) -> Result<SweepReport, LoadError> {
     let mut out = Vec::new();
     let mut t0 = spec.t0;
+    let mut last: Option<Report> = None;
     for &players in steps {
         let step = LoadSpec {
             players,
-            t0: t0.min(1e12),
+            t0: t0.map(|t| t.min(1e12)),
             ..spec.clone()
         };
         let r = run(&step, |p| progress(players, p))?;
-        t0 += spec.clock * (spec.warmup + spec.duration).as_secs_f64();
+        t0 = match r.clock_source {
+            ClockSource::Server => None,
+            ClockSource::Given | ClockSource::Default => {
+                Some(r.t0 + r.clock * (spec.warmup + spec.duration).as_secs_f64())
+            }
+        };
         let holds = r.latency.p99_ms <= SWEEP_P99_MS && r.totals.shed == 0 && r.totals.transport_errors == 0;
         out.push(SweepStep {
             players,
+            groups: r.geometry.groups,
+            places: r.distinct_places,
+            t0: r.t0,
             throughput_rps: r.throughput_rps,
             p50_ms: r.latency.p50_ms,
             p99_ms: r.latency.p99_ms,
@@ -749,40 +957,79 @@ pub fn sweep(
             boundary_p99_ms: r.boundary.after_boundary.p99_ms,
             elsewhere_p99_ms: r.boundary.elsewhere.p99_ms,
             server: r.server.clone(),
+            generator_cpu_cores: r.generator.cpu_cores,
+            sharing: r.sharing.clone(),
             bytes_per_s: r.body_bytes as f64 / r.elapsed_s.max(1e-9),
             holds,
         });
+        last = Some(r);
         if !holds && !every_step {
             break;
         }
     }
-    let capacity = out.iter().take_while(|s| s.holds).last().map(|s| s.players);
+    let held = out.iter().take_while(|s| s.holds).last();
     Ok(SweepReport {
         target: spec.target.clone(),
         world: spec.world.clone(),
         fetch: spec.fetch,
-        clock: spec.clock,
+        clock: last.as_ref().map_or(1.0, |r| r.clock),
+        clock_source: last.as_ref().map_or(ClockSource::Default, |r| r.clock_source),
+        geometry: last.as_ref().map(|r| r.geometry.clone()),
+        place_side_m: last.as_ref().map_or(0.0, |r| r.place_side_m),
+        placement: last.as_ref().map(|r| r.generator.placement.clone()),
         step_s: spec.duration.as_secs_f64(),
         warmup_s: spec.warmup.as_secs_f64(),
+        capacity: held.map(|s| s.players),
+        capacity_places: held.map(|s| s.places),
         steps: out,
-        capacity,
     })
 }
 
+/// `12.5 %` of a share, or `–`.
+fn percent(v: Option<f64>) -> String {
+    v.map_or("–".into(), |c| format!("{:.0} %", 100.0 * c))
+}
+
 impl SweepReport {
-    /// The curve as a Markdown table (what `--sweep` prints and writes to BENCHMARKS.md).
+    /// The curve as Markdown tables (what `--sweep` prints and writes to
+    /// BENCHMARKS.md): the capacity curve, then the sharing per level of every step.
     pub fn markdown(&self) -> String {
+        let geometry = self.geometry.as_ref().map_or(String::from("–"), |g| match g.kind {
+            GeometryKind::Spread => format!(
+                "`--geometry spread`: groups {:.0} m apart at the start, each its own path at 12 m/s",
+                geometry::SPREAD_SPACING
+            ),
+            GeometryKind::Towns => format!(
+                "`--geometry towns`: groups start in {} {} joined by {} roads, {:.0} % walk (near their town), \
+                 {:.0} % ride the roads, {:.0} % fly between towns, stopping {:.0}–{:.0} min in each",
+                g.towns,
+                if g.towns_from_server {
+                    "warm areas of the server"
+                } else {
+                    "generated towns"
+                },
+                g.roads,
+                100.0 * g.walking as f64 / g.groups.max(1) as f64,
+                100.0 * g.riding as f64 / g.groups.max(1) as f64,
+                100.0 * g.flying as f64 / g.groups.max(1) as f64,
+                geometry::DWELL.0 / 60.0,
+                geometry::DWELL.1 / 60.0,
+            ),
+        });
         let mut md = format!(
             "`cloudscape loadtest --sweep` against `{}`, world `{}`: mmo scenario, groups of {GROUP_SIZE} players \
-             {} m apart at the start (each group its own path, players within 300 m of its centre), players \
-             fetching `{}` tiles {} (prefetching past {:.0} % of a span), world clock {} s per second. Each step: \
-             {:.0} s of warm-up (the players' first views, all cold) then {:.0} s measured. A step holds when its \
-             p99 ≤ {SWEEP_P99_MS} ms with no 503.\n\n\
-             | players | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | computations | ahead computed / served / missed | ahead lag | MB/s | holds |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles {} (prefetching past \
+             {:.0} % of a span); world clock {} s per second ({}). Generator: {}. Each step: {:.0} s of warm-up \
+             (the players' first views) then {:.0} s measured. A step holds when its p99 ≤ {SWEEP_P99_MS} ms \
+             with no 503. *Places*: distinct level-0 tiles ({:.1} km) holding a group's centre during the step; \
+             *CPU*: share of one core over the step (server from its `process_cpu_seconds_total`, generator \
+             from its own `getrusage`); *requests per keyframe*: tile requests per distinct tile keyframe at \
+             level 0; *shared*: share of the distinct keyframes (all levels) asked for by two groups or more.\n\n\
+             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | computations | ahead computed / served / missed | ahead lag | requests per keyframe (level 0) | shared | MB/s | holds |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             self.target,
             self.world,
-            workload::GROUP_SPACING,
+            workload::PARTY_SPREAD,
             workload::CLIENT_QUALITY.as_str(),
             match self.fetch {
                 FetchMode::Keyframes => "by keyframe URL (immutable, never revalidated)",
@@ -790,14 +1037,28 @@ impl SweepReport {
             },
             100.0 * workload::PREFETCH_AT,
             self.clock,
+            match self.clock_source {
+                ClockSource::Given => "`--t`",
+                ClockSource::Server => "from the server's clock",
+                ClockSource::Default => "from t = 43200",
+            },
+            self.placement.as_ref().map_or("as is".into(), |p| format!(
+                "{} (read back: nice {}, cores {})",
+                p.mode,
+                p.nice,
+                generator::cpu_list(&p.cpus)
+            )),
             self.warmup_s,
             self.step_s,
+            self.place_side_m / 1000.0,
         );
         for s in &self.steps {
             let f = s.server.clone().unwrap_or_default();
+            let l0 = s.sharing.iter().find(|l| l.level == 0);
             md += &format!(
-                "| {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} / {} / {} | {} | {:.2} | {} |\n",
+                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} | {} / {} / {} | {} | {} | {} | {:.2} | {} |\n",
                 s.players,
+                s.places,
                 s.throughput_rps,
                 s.p50_ms,
                 s.p99_ms,
@@ -805,24 +1066,45 @@ impl SweepReport {
                 s.shed,
                 s.boundary_p99_ms,
                 s.elsewhere_p99_ms,
-                f.cpu_cores.map_or("–".into(), |c| format!("{:.0} %", 100.0 * c)),
+                percent(f.cpu_cores),
+                percent(Some(s.generator_cpu_cores)),
                 f.computations,
                 f.ahead.computed,
                 f.ahead.served,
                 f.ahead.missed,
                 f.ahead.mean_lag_s.map_or("–".into(), |l| format!("{l:.2} s")),
+                l0.map_or("–".into(), |l| format!("{:.1}", l.requests_per_keyframe)),
+                percent(s.overall_sharing().map(|o| o.shared_by_2_groups)),
                 s.bytes_per_s / 1e6,
                 if s.holds { "yes" } else { "**no**" },
             );
         }
-        md += &match self.capacity {
-            Some(c) => format!("\nCapacity: **{c} players** held.\n"),
-            None => "\nCapacity: the first step did not hold.\n".to_string(),
+        md += &match (self.capacity, self.capacity_places) {
+            (Some(c), Some(p)) => format!("\nCapacity: **{c} players** in **{p} distinct places** held.\n"),
+            _ => "\nCapacity: the first step did not hold.\n".to_string(),
         };
+        md += "\nSharing per level (measured tile requests by keyframe):\n\n\
+               | players | level | keyframes | requests | requests per keyframe | groups per keyframe | asked by ≥ 2 groups |\n\
+               |---|---|---|---|---|---|---|\n";
+        for s in &self.steps {
+            for l in &s.sharing {
+                md += &format!(
+                    "| {} | {} | {} | {} | {:.1} | {:.2} | {:.0} % |\n",
+                    s.players,
+                    l.level,
+                    l.keyframes,
+                    l.requests,
+                    l.requests_per_keyframe,
+                    l.groups_per_keyframe,
+                    100.0 * l.shared_by_2_groups
+                );
+            }
+        }
         md
     }
 
-    /// Players against p50 and p99, server CPU and compute-ahead lag (PNG).
+    /// Players against p50 and p99; server and generator CPU and compute-ahead lag;
+    /// distinct places and sharing (PNG).
     pub fn plot(&self) -> Result<Vec<u8>, String> {
         use crate::chart::{Mark, PALETTE, Panel, Series, render};
         let series = |name: &str, c: usize, f: &dyn Fn(&SweepStep) -> Option<f64>| Series {
@@ -849,19 +1131,36 @@ impl SweepReport {
             ],
         };
         let cpu = Panel {
-            title: "server CPU and compute-ahead lag".into(),
+            title: "CPU (server, generator) and compute-ahead lag".into(),
             x_label: "players".into(),
             y_label: "% of a core / lag ms".into(),
             x_log: true,
             y_log: false,
             series: vec![
                 series("server CPU %", 2, &|s| s.server.as_ref()?.cpu_cores.map(|c| 100.0 * c)),
+                series("generator CPU %", 1, &|s| Some(100.0 * s.generator_cpu_cores)),
                 series("ahead lag ms", 4, &|s| {
                     Some(1000.0 * s.server.as_ref()?.ahead.mean_lag_s.unwrap_or(0.0))
                 }),
             ],
         };
-        render(&[latency, cpu], 2, (560, 420))
+        let sharing = Panel {
+            title: "places and sharing".into(),
+            x_label: "players".into(),
+            y_label: "places / requests per keyframe / %".into(),
+            x_log: true,
+            y_log: true,
+            series: vec![
+                series("distinct places", 0, &|s| Some(s.places as f64)),
+                series("requests per keyframe", 3, &|s| {
+                    s.overall_sharing().map(|o| o.requests_per_keyframe)
+                }),
+                series("% keyframes shared by ≥ 2 groups", 2, &|s| {
+                    s.overall_sharing().map(|o| 100.0 * o.shared_by_2_groups)
+                }),
+            ],
+        };
+        render(&[latency, cpu, sharing], 3, (520, 420))
     }
 }
 
@@ -883,6 +1182,19 @@ impl Report {
             self.players,
             self.game_servers,
             self.elapsed_s
+        );
+        s += &format!(
+            "world: {}; {} distinct places ({:.1} km tiles); t0 {} ({}), clock {} s per second\n",
+            self.geometry.describe(),
+            self.distinct_places,
+            self.place_side_m / 1000.0,
+            self.t0,
+            match self.clock_source {
+                ClockSource::Given => "--t",
+                ClockSource::Server => "the server's clock",
+                ClockSource::Default => "default",
+            },
+            self.clock,
         );
         if let Some(r) = self.rate {
             s += &format!("offered rate: {r} requests/s (latency from the intended send time)\n");
@@ -919,6 +1231,29 @@ impl Report {
                     .mean_lag_s
                     .map_or(String::new(), |l| format!(", mean lag {l:.2} s")),
             );
+        }
+        let g = &self.generator;
+        s += &format!(
+            "CPU, share of one core: server {}, generator {} (generator {}; read back: nice {}, cores {})\n",
+            percent(self.server.as_ref().and_then(|f| f.cpu_cores)),
+            percent(Some(g.cpu_cores)),
+            g.placement.mode,
+            g.placement.nice,
+            generator::cpu_list(&g.placement.cpus),
+        );
+        if !self.sharing.is_empty() {
+            s += "sharing by level (distinct tile keyframes; requests per keyframe; asked by >= 2 groups):";
+            for l in &self.sharing {
+                s += &format!(
+                    " L{} {} kf, {:.1} req, {:.0} %;",
+                    l.level,
+                    l.keyframes,
+                    l.requests_per_keyframe,
+                    100.0 * l.shared_by_2_groups
+                );
+            }
+            s.pop();
+            s += "\n";
         }
         match &self.cache {
             Some(CacheFigures {
@@ -994,7 +1329,35 @@ impl Report {
                 mark: Mark::Line,
             }],
         };
-        render(&[over_time, rates, distribution], 3, (520, 400))
+        let cpu = Panel {
+            title: "CPU per second (share of one core)".into(),
+            x_label: "seconds since start".into(),
+            y_label: "% of a core".into(),
+            series: vec![
+                Series {
+                    name: "generator".into(),
+                    points: self
+                        .timeline
+                        .iter()
+                        .filter_map(|s| Some((s.second as f64 + 0.5, 100.0 * s.generator_cpu_cores?)))
+                        .collect(),
+                    colour: PALETTE[1],
+                    mark: Mark::Line,
+                },
+                Series {
+                    name: "server (--pid)".into(),
+                    points: self
+                        .timeline
+                        .iter()
+                        .filter_map(|s| Some((s.second as f64 + 0.5, 100.0 * s.server_cpu_cores?)))
+                        .collect(),
+                    colour: PALETTE[2],
+                    mark: Mark::Line,
+                },
+            ],
+            ..Panel::default()
+        };
+        render(&[over_time, rates, distribution, cpu], 2, (520, 400))
     }
 }
 
@@ -1049,9 +1412,11 @@ mod tests {
             duration: Duration::from_secs(1),
             scenario: Scenario::Mmo,
             rate: None,
-            t0: 0.0,
-            clock: 1.0,
+            t0: Some(0.0),
+            clock: Some(1.0),
             seed: 1,
+            geometry: GeometryKind::Towns,
+            placement: Placement::default(),
             fetch: FetchMode::Keyframes,
             places: None,
             server_pid: None,
@@ -1064,5 +1429,114 @@ mod tests {
             ..spec
         };
         assert!(matches!(run(&spec, |_| {}), Err(LoadError::Spec(_))));
+        // A nice value the generator could not take is refused before anything runs.
+        let spec = LoadSpec {
+            rate: None,
+            placement: Placement {
+                nice: Some(-5),
+                cpus: None,
+            },
+            ..spec
+        };
+        match run(&spec, |_| {}) {
+            Err(LoadError::Spec(m)) => assert!(m.starts_with("--nice must be between 0 and 19"), "{m}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn the_clock_comes_from_the_flags_then_the_server_then_noon() {
+        let spec = |t0, clock| LoadSpec {
+            target: "http://127.0.0.1:1".into(),
+            world: "default".into(),
+            players: 8,
+            duration: Duration::from_secs(1),
+            scenario: Scenario::Mmo,
+            rate: None,
+            t0,
+            clock,
+            seed: 1,
+            geometry: GeometryKind::Towns,
+            placement: Placement::default(),
+            fetch: FetchMode::Keyframes,
+            places: None,
+            server_pid: None,
+            warmup: Duration::ZERO,
+        };
+        let server = Some(ServerClock {
+            offset: 0.0,
+            rate: 2.0,
+            now: 90_000.0,
+        });
+        assert_eq!(spec(None, None).clock(server), (90_000.0, 2.0, ClockSource::Server));
+        assert_eq!(spec(None, Some(1.0)).clock(server), (90_000.0, 1.0, ClockSource::Server));
+        assert_eq!(spec(Some(5.0), None).clock(server), (5.0, 2.0, ClockSource::Given));
+        assert_eq!(spec(Some(5.0), Some(0.0)).clock(None), (5.0, 0.0, ClockSource::Given));
+        assert_eq!(spec(None, None).clock(None), (DEFAULT_T0, 1.0, ClockSource::Default));
+    }
+
+    #[test]
+    fn the_default_sweep_doubles_from_8_to_1024() {
+        assert_eq!(sweep_steps(), vec![8, 16, 32, 64, 128, 256, 512, 1024]);
+    }
+
+    #[test]
+    fn the_sweep_table_carries_places_generator_cpu_and_sharing() {
+        let level = |level, keyframes, requests, shared| LevelSharing {
+            level,
+            keyframes,
+            requests,
+            requests_per_keyframe: requests as f64 / keyframes as f64,
+            groups_per_keyframe: 1.5,
+            shared_by_2_groups: shared,
+        };
+        let step = SweepStep {
+            players: 16,
+            groups: 2,
+            places: 1,
+            t0: 43_200.0,
+            throughput_rps: 20.0,
+            p50_ms: 1.0,
+            p99_ms: 9.0,
+            max_ms: 12.0,
+            shed: 0,
+            boundary_p99_ms: 5.0,
+            elsewhere_p99_ms: 9.0,
+            server: Some(ServerFigures {
+                cpu_cores: Some(1.2),
+                ..ServerFigures::default()
+            }),
+            generator_cpu_cores: 0.034,
+            sharing: vec![level(0, 10, 40, 0.5), level(2, 2, 30, 1.0)],
+            bytes_per_s: 1e6,
+            holds: true,
+        };
+        let report = SweepReport {
+            target: "http://x:1".into(),
+            world: "default".into(),
+            fetch: FetchMode::Keyframes,
+            clock: 1.0,
+            clock_source: ClockSource::Server,
+            geometry: None,
+            place_side_m: 25_600.0,
+            placement: None,
+            step_s: 20.0,
+            warmup_s: 10.0,
+            steps: vec![step],
+            capacity: Some(16),
+            capacity_places: Some(1),
+        };
+        let md = report.markdown();
+        // places 1, server 120 %, generator 3 %, 4.0 requests per level-0 keyframe,
+        // (5 + 2) / 12 = 58 % of the keyframes shared.
+        assert!(
+            md.contains("| 16 | 1 | 20 | 1.0 ms | 9.0 ms | 12 ms | 0 | 5.0 / 9.0 ms | 120 % | 3 % |"),
+            "{md}"
+        );
+        assert!(md.contains("| 4.0 | 58 % | 1.00 | yes |"), "{md}");
+        assert!(md.contains("**16 players** in **1 distinct places**"), "{md}");
+        assert!(md.contains("| 16 | 2 | 2 | 30 | 15.0 | 1.50 | 100 % |"), "{md}");
+        let png = report.plot().unwrap();
+        assert!(png.starts_with(b"\x89PNG"));
     }
 }

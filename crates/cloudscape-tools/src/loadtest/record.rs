@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 use hdrhistogram::Histogram;
 use serde::Serialize;
 
+use super::sharing::{KeyframeKey, LevelSharing, SharingLog};
 use super::workload::RequestKind;
 
 /// Latencies are recorded in microseconds, up to an hour, to 3 significant digits.
@@ -29,6 +30,9 @@ pub struct Outcome {
     pub bytes: u64,
     /// Sent in the first real second after a level-0 keyframe boundary.
     pub after_boundary: bool,
+    /// The tile keyframe asked for, and the asking agent's group (for the sharing figures).
+    pub keyframe: Option<KeyframeKey>,
+    pub group: u32,
 }
 
 /// Counts of one second (or one kind) of the run.
@@ -71,6 +75,11 @@ pub struct Recorder {
     totals: Counts,
     by_kind: BTreeMap<RequestKind, Counts>,
     bytes: u64,
+    /// Tile requests by keyframe.
+    sharing: SharingLog,
+    /// CPU use in each second of the run, as a share of one core: the generator's and
+    /// the server's (`None` when unknown).
+    cpu: Vec<(Option<f64>, Option<f64>)>,
     /// The first transport error, to tell the operator what went wrong.
     pub first_error: Option<String>,
 }
@@ -86,6 +95,8 @@ impl Default for Recorder {
             totals: Counts::default(),
             by_kind: BTreeMap::new(),
             bytes: 0,
+            sharing: SharingLog::default(),
+            cpu: Vec::new(),
             first_error: None,
         }
     }
@@ -121,6 +132,10 @@ pub struct SecondSummary {
     pub p50_ms: f64,
     pub p99_ms: f64,
     pub max_ms: f64,
+    /// CPU used in that second, as a share of one core (1.0 = one core busy): the load
+    /// generator's own, and the server's (when its /proc entry is readable, `--pid`).
+    pub generator_cpu_cores: Option<f64>,
+    pub server_cpu_cores: Option<f64>,
 }
 
 fn ms(micros: u64) -> f64 {
@@ -163,6 +178,22 @@ impl Recorder {
         self.totals.add(o.status);
         self.by_kind.entry(o.kind).or_default().add(o.status);
         self.bytes += o.bytes;
+        if let Some(k) = o.keyframe {
+            self.sharing.record(k, o.group);
+        }
+    }
+
+    /// Notes the CPU used in second `second` of the measured run (shares of a core).
+    pub fn record_cpu(&mut self, second: usize, generator: Option<f64>, server: Option<f64>) {
+        if self.cpu.len() <= second {
+            self.cpu.resize(second + 1, (None, None));
+        }
+        self.cpu[second] = (generator, server);
+    }
+
+    /// How much the groups shared, per level.
+    pub fn sharing(&self) -> Vec<LevelSharing> {
+        self.sharing.by_level()
     }
 
     pub fn totals(&self) -> &Counts {
@@ -196,17 +227,21 @@ impl Recorder {
     }
 
     pub fn timeline(&self) -> Vec<SecondSummary> {
-        self.per_second
-            .iter()
-            .enumerate()
-            .map(|(i, (h, c))| {
-                let l = latency(h);
+        (0..self.per_second.len().max(self.cpu.len()))
+            .map(|i| {
+                let (l, counts) = self
+                    .per_second
+                    .get(i)
+                    .map_or_else(|| (Latency::default(), Counts::default()), |(h, c)| (latency(h), c.clone()));
+                let (generator_cpu_cores, server_cpu_cores) = self.cpu.get(i).copied().unwrap_or_default();
                 SecondSummary {
                     second: i as u64,
-                    counts: c.clone(),
+                    counts,
                     p50_ms: l.p50_ms,
                     p99_ms: l.p99_ms,
                     max_ms: l.max_ms,
+                    generator_cpu_cores,
+                    server_cpu_cores,
                 }
             })
             .collect()
@@ -248,6 +283,8 @@ mod tests {
                 micros: 1000 * (i as u64 + 1),
                 bytes: 10,
                 after_boundary: i == 4,
+                keyframe: None,
+                group: 0,
             });
         }
         let t = r.totals();

@@ -1,25 +1,27 @@
 //! Who sends what: MMO players that fetch the tiles their view needs, and game servers
-//! that ask region questions. Every agent's position is a pure function of the time
-//! since the run started, so the closed and open loops replay the same world.
+//! that ask region questions. Every agent's position comes from its group's place in
+//! the [`Geometry`], a pure function of the time since the run started, so the closed
+//! and open loops replay the same world.
+//!
+//! Players are kept cheap: a view's tiles are compared with what the player holds as
+//! plain keys, and a URL is written only for a request that is sent.
 
 use std::collections::{HashMap, HashSet};
 
 use cloudscape_client::RemoteWorld;
 use cloudscape_core::render::scene::{LayerBand, plan_bands};
-use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, TileId};
+use cloudscape_core::render::tile::TILE_COLUMNS;
+use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams};
 use cloudscape_core::world::{Keyframe, keyframe_span};
+
+use super::geometry::{Geometry, GeometryKind, unit};
+use super::sharing::KeyframeKey;
 
 /// Players per group: players of one group share an area (and so most of their tiles),
 /// as a party or a town does in an MMO.
 pub const GROUP_SIZE: usize = 8;
 /// Seconds between two re-plans of a player's view (and between two game-server queries).
 pub const TICK_SECONDS: f64 = 1.0;
-/// How fast a group walks along its path, m/s (a mounted player).
-const GROUP_SPEED: f64 = 12.0;
-/// Length of one straight leg of a group's path, metres.
-const LEG_METRES: f64 = 2_000.0;
-/// Distance between the starting points of neighbouring groups, metres.
-pub const GROUP_SPACING: f64 = 30_000.0;
 /// The viewer's default screen, pixels (web/viewer.js).
 const SCREEN: (usize, usize) = (800, 450);
 /// The preset MMO clients fetch (the viewer's default).
@@ -31,6 +33,10 @@ pub const PREFETCH_AT: f64 = 0.5;
 const REGION_SIDE: f64 = 10_000.0;
 /// A game server asks for a /series (the last minute) every this many queries.
 const SERIES_EVERY: u64 = 4;
+/// The tile products a player fetches (the viewer's).
+const PLAYER_PRODUCTS: [&str; 2] = ["billboards.bin", "shadow.png"];
+/// Most a player stands from its group's centre, metres, each way.
+pub const PARTY_SPREAD: f64 = 300.0;
 
 /// What a request is, for the report.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
@@ -62,64 +68,17 @@ pub struct Request {
     pub kind: RequestKind,
     /// Path and query, relative to the target.
     pub path: String,
-    /// What the agent's store calls the resource: the path without the time, so a new
-    /// frame of the same tile revalidates against the old ETag (and gets the new body).
-    pub resource: String,
+    /// What the agent's store calls the resource when it revalidates it: the path
+    /// without the time, so a new frame of the same tile revalidates against the old
+    /// ETag. `None` for what is never revalidated (keyframe URLs, the splat sheet):
+    /// its ETag is not kept.
+    pub resource: Option<String>,
     /// The ETag the agent holds for `resource`, sent as `If-None-Match`.
     pub etag: Option<String>,
-}
-
-/// A deterministic pseudo-random number in [0, 1) from a key (SplitMix64).
-fn unit(key: u64) -> f64 {
-    let mut z = key.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^= z >> 31;
-    (z >> 11) as f64 / (1u64 << 53) as f64
-}
-
-/// The path a group walks: straight legs of [`LEG_METRES`], each turning up to 60°
-/// from the last, starting from the group's home.
-#[derive(Clone, Debug)]
-pub struct GroupPath {
-    /// Leg start points; extended as the group walks on.
-    waypoints: Vec<[f64; 2]>,
-    heading: f64,
-    seed: u64,
-}
-
-impl GroupPath {
-    /// The path of group `g` of `groups` (homes on a square grid around the world origin).
-    pub fn new(g: usize, groups: usize, seed: u64) -> GroupPath {
-        let side = (groups as f64).sqrt().ceil().max(1.0) as usize;
-        let home = [
-            12_800.0 + GROUP_SPACING * (g % side) as f64,
-            12_800.0 + GROUP_SPACING * (g / side) as f64,
-        ];
-        GroupPath {
-            waypoints: vec![home],
-            heading: unit(seed ^ (g as u64) << 20) * std::f64::consts::TAU,
-            seed: seed ^ (g as u64) << 20,
-        }
-    }
-
-    /// Where the group is `s` seconds into the run.
-    pub fn at(&mut self, s: f64) -> [f64; 2] {
-        let walked = (s.max(0.0) * GROUP_SPEED) / LEG_METRES;
-        let leg = walked.floor() as usize;
-        while self.waypoints.len() < leg + 2 {
-            let k = self.waypoints.len() as u64;
-            self.heading += (unit(self.seed.wrapping_add(k)) - 0.5) * 2.0 * 60f64.to_radians();
-            let last = self.waypoints[self.waypoints.len() - 1];
-            self.waypoints.push([
-                last[0] + LEG_METRES * self.heading.sin(),
-                last[1] + LEG_METRES * self.heading.cos(),
-            ]);
-        }
-        let (a, b) = (self.waypoints[leg], self.waypoints[leg + 1]);
-        let f = walked - leg as f64;
-        [a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f]
-    }
+    /// The group of the agent that sends it (for the sharing figures).
+    pub group: u32,
+    /// The tile keyframe and product a tile request asks for.
+    pub tile: Option<TileProduct>,
 }
 
 /// The world as the agents see it: from discovery, plus the clock.
@@ -164,6 +123,13 @@ impl WorldView {
         self.dts.iter().copied().fold(f64::INFINITY, f64::min)
     }
 
+    /// Side of a level-0 tile of the world's finest layer, metres: the size of a
+    /// "distinct place".
+    pub fn finest_tile_side(&self) -> f64 {
+        let cell = self.bands.iter().map(|b| b.cell_size).fold(f64::INFINITY, f64::min);
+        TILE_COLUMNS as f64 * if cell.is_finite() { cell } else { 100.0 }
+    }
+
     /// Whether `s` real seconds into the run fall in the first real second after a
     /// level-0 keyframe boundary of the fastest layer (when every level-0 tile of it
     /// turns over).
@@ -176,6 +142,14 @@ impl WorldView {
     }
 }
 
+/// One product of one tile keyframe: what a player asks for and holds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TileProduct {
+    pub keyframe: KeyframeKey,
+    /// Index in the players' products (`billboards.bin`, `shadow.png`).
+    pub product: u8,
+}
+
 /// An MMO client: looks around from near its group's position and fetches
 /// `billboards.bin` and `shadow.png` for every tile its view needs (the viewer's
 /// products), at the levels the renderer's level choice gives ([`plan_bands`]).
@@ -183,15 +157,19 @@ impl WorldView {
 pub struct Player {
     index: usize,
     group: usize,
-    /// Offset from the group centre, metres, and height above ground.
-    offset: [f64; 3],
+    /// Offset from the group centre, metres, and a draw in [0, 1) for its height above
+    /// the group's (the geometry says what range it spans).
+    offset: [f64; 2],
+    height: f64,
     /// Starting yaw and how fast the player turns, degrees and degrees per second.
     yaw0: f64,
     turn: f64,
     fetched_splats: bool,
     mode: FetchMode,
-    /// Keyframe URLs held (their answers never change): never asked again.
-    held: HashSet<String>,
+    /// Keyframe products held (their answers never change): never asked again.
+    held: HashSet<TileProduct>,
+    /// What the current view needs (kept to reuse its memory from tick to tick).
+    wanted: HashSet<TileProduct>,
 }
 
 impl Player {
@@ -201,35 +179,36 @@ impl Player {
             index,
             group: index / GROUP_SIZE,
             offset: [
-                (unit(k) - 0.5) * 600.0,
-                (unit(k + 1) - 0.5) * 600.0,
-                30.0 + unit(k + 2) * 400.0,
+                (unit(k) - 0.5) * 2.0 * PARTY_SPREAD,
+                (unit(k + 1) - 0.5) * 2.0 * PARTY_SPREAD,
             ],
+            height: unit(k + 2),
             yaw0: unit(k + 3) * 360.0,
             turn: (unit(k + 4) - 0.5) * 12.0,
             fetched_splats: false,
             mode,
             held: HashSet::new(),
+            wanted: HashSet::new(),
         }
     }
 
-    /// The player's camera `s` seconds into the run.
-    pub fn camera(&self, paths: &mut [GroupPath], s: f64) -> Camera {
-        let c = paths[self.group].at(s);
+    /// The player's camera `s` seconds into the run: its group's position, its offset,
+    /// and its eye height: 30 to 430 m in the spread geometry (as before), 2 to 50 m
+    /// above its group's height in the towns (on the ground, or a flyer's altitude).
+    pub fn camera(&self, geometry: &Geometry, s: f64) -> Camera {
+        let c = geometry.position(self.group, s);
+        let eye = match geometry.kind {
+            GeometryKind::Spread => 30.0 + self.height * 400.0,
+            GeometryKind::Towns => c[2] + 2.0 + self.height * 48.0,
+        };
         let yaw = (self.yaw0 + self.turn * s).rem_euclid(360.0);
-        Camera::new(
-            [c[0] + self.offset[0], c[1] + self.offset[1], self.offset[2]],
-            yaw,
-            6.0,
-            75.0,
-        )
-        .expect("a finite camera")
+        Camera::new([c[0] + self.offset[0], c[1] + self.offset[1], eye], yaw, 6.0, 75.0).expect("a finite camera")
     }
 
     /// The tiles (layer, tile) this player's view needs at `s`. Like the viewer, it
     /// coarsens the level choice (a narrower screen) when a view needs too many tiles.
-    pub fn tiles(&self, world: &WorldView, paths: &mut [GroupPath], s: f64) -> Vec<(usize, TileId)> {
-        let camera = self.camera(paths, s);
+    pub fn tiles(&self, world: &WorldView, geometry: &Geometry, s: f64) -> Vec<(usize, cloudscape_core::render::TileId)> {
+        let camera = self.camera(geometry, s);
         let mut width = SCREEN.0;
         loop {
             let req = RenderRequest {
@@ -254,53 +233,75 @@ impl Player {
     /// products per planned tile: in [`FetchMode::Keyframes`] those of its keyframe
     /// (and of the next one past [`PREFETCH_AT`]) not held yet, in [`FetchMode::Poll`]
     /// every one at the current time.
-    pub fn requests(&mut self, world: &WorldView, paths: &mut [GroupPath], s: f64) -> Vec<Request> {
-        let t = world.t(s);
+    pub fn requests(&mut self, world: &WorldView, geometry: &Geometry, s: f64) -> Vec<Request> {
+        let t = world.t(s).clamp(0.0, 1e12);
         let q = CLIENT_QUALITY.as_str();
+        let group = self.group as u32;
         let mut out = Vec::new();
         if !self.fetched_splats {
             self.fetched_splats = true;
             for product in ["splats.json", "splats.png"] {
-                let path = format!("/v1/{product}?quality={q}");
                 out.push(Request {
                     kind: RequestKind::Splats,
-                    resource: path.clone(),
-                    path,
+                    path: format!("/v1/{product}?quality={q}"),
+                    resource: None,
                     etag: None,
+                    group,
+                    tile: None,
                 });
             }
         }
-        let mut wanted = HashSet::new();
-        for (layer, tile) in self.tiles(world, paths, s) {
+        self.wanted.clear();
+        for (layer, tile) in self.tiles(world, geometry, s) {
             let name = &world.layers[layer];
-            for product in ["billboards.bin", "shadow.png"] {
-                let resource = format!(
+            let k = Keyframe::on_grid(t, keyframe_span(world.dts[layer], tile.z));
+            let key = |t0: f64| KeyframeKey {
+                layer: layer as u16,
+                z: tile.z,
+                x: tile.x,
+                y: tile.y,
+                t0_bits: t0.to_bits(),
+            };
+            let url = |product: &str| {
+                format!(
                     "/v1/worlds/{}/tiles/{}/{}/{}/{product}?quality={q}&layer={name}",
                     world.name, tile.z, tile.x, tile.y
-                );
+                )
+            };
+            for (p, product) in PLAYER_PRODUCTS.iter().enumerate() {
                 if self.mode == FetchMode::Poll {
+                    let resource = url(product);
                     out.push(Request {
                         kind: RequestKind::Tile,
                         path: format!("{resource}&t={t}"),
-                        resource,
+                        resource: Some(resource),
                         etag: None,
+                        group,
+                        tile: Some(TileProduct {
+                            keyframe: key(k.t0),
+                            product: p as u8,
+                        }),
                     });
                     continue;
                 }
-                let k = Keyframe::on_grid(t.clamp(0.0, 1e12), keyframe_span(world.dts[layer], tile.z));
-                let mut times = vec![(RequestKind::Tile, k.t0)];
-                if k.fraction(t) >= PREFETCH_AT && k.t1 > k.t0 {
-                    times.push((RequestKind::Prefetch, k.t1));
-                }
-                for (kind, t0) in times {
-                    let path = format!("{resource}&t={t0}");
-                    wanted.insert(path.clone());
-                    if !self.held.contains(&path) {
+                let prefetch = k.fraction(t) >= PREFETCH_AT && k.t1 > k.t0;
+                for (kind, t0) in [(RequestKind::Tile, k.t0), (RequestKind::Prefetch, k.t1)] {
+                    if kind == RequestKind::Prefetch && !prefetch {
+                        continue;
+                    }
+                    let held = TileProduct {
+                        keyframe: key(t0),
+                        product: p as u8,
+                    };
+                    self.wanted.insert(held);
+                    if !self.held.contains(&held) {
                         out.push(Request {
                             kind,
-                            resource: path.clone(),
-                            path,
+                            path: format!("{}&t={t0}", url(product)),
+                            resource: None,
                             etag: None,
+                            group,
+                            tile: Some(held),
                         });
                     }
                 }
@@ -308,20 +309,28 @@ impl Player {
         }
         // What the view no longer needs is let go (a viewer's memory is bounded too).
         if self.mode == FetchMode::Keyframes {
-            self.held.retain(|p| wanted.contains(p));
+            let wanted = &self.wanted;
+            self.held.retain(|h| wanted.contains(h));
         }
         out
     }
 
-    /// Takes note of a 200: a keyframe URL is held from now on.
-    fn fetched(&mut self, path: &str) {
-        if self.mode == FetchMode::Keyframes && path.contains("/tiles/") {
-            self.held.insert(path.to_string());
+    /// Takes note of a 200: a keyframe product is held from now on.
+    fn fetched(&mut self, req: &Request) {
+        if self.mode != FetchMode::Keyframes {
+            return;
+        }
+        if let Some(tile) = req.tile {
+            self.held.insert(tile);
         }
     }
 
     pub fn index(&self) -> usize {
         self.index
+    }
+
+    pub fn group(&self) -> usize {
+        self.group
     }
 }
 
@@ -330,17 +339,24 @@ impl Player {
 #[derive(Clone, Debug)]
 pub struct GameServer {
     index: usize,
+    /// The groups of the run: the server watches group `index mod groups`.
+    groups: usize,
     queries: u64,
 }
 
 impl GameServer {
-    pub fn new(index: usize) -> GameServer {
-        GameServer { index, queries: 0 }
+    pub fn new(index: usize, groups: usize) -> GameServer {
+        GameServer {
+            index,
+            groups: groups.max(1),
+            queries: 0,
+        }
     }
 
     /// The next query at `s`, about the area of group `index mod groups`.
-    pub fn request(&mut self, world: &WorldView, paths: &mut [GroupPath], s: f64) -> Request {
-        let c = paths[self.index % paths.len()].at(s);
+    pub fn request(&mut self, world: &WorldView, geometry: &Geometry, s: f64) -> Request {
+        let group = self.index % self.groups;
+        let c = geometry.position(group, s);
         let h = REGION_SIDE / 2.0;
         let bbox = format!("{:.0},{:.0},{:.0},{:.0}", c[0] - h, c[1] - h, c[0] + h, c[1] + h);
         let t = world.t(s);
@@ -359,9 +375,11 @@ impl GameServer {
         };
         Request {
             kind,
-            resource: path.clone(),
+            resource: Some(path.clone()),
             path,
             etag: None,
+            group: group as u32,
+            tile: None,
         }
     }
 }
@@ -374,7 +392,7 @@ pub enum Role {
 }
 
 /// An agent: a role, the requests it still has to send for its current tick, and the
-/// ETags of what it has fetched.
+/// ETags of what it revalidates.
 #[derive(Clone, Debug)]
 pub struct Agent {
     pub role: Role,
@@ -397,10 +415,10 @@ impl Agent {
     }
 
     /// Plans a new tick at `s` (a player's view, a game server's query).
-    pub fn plan(&mut self, world: &WorldView, paths: &mut [GroupPath], s: f64) {
+    pub fn plan(&mut self, world: &WorldView, geometry: &Geometry, s: f64) {
         let mut reqs = match &mut self.role {
-            Role::Player(p) => p.requests(world, paths, s),
-            Role::GameServer(g) => vec![g.request(world, paths, s)],
+            Role::Player(p) => p.requests(world, geometry, s),
+            Role::GameServer(g) => vec![g.request(world, geometry, s)],
         };
         reqs.reverse();
         self.pending = reqs;
@@ -409,18 +427,26 @@ impl Agent {
     /// The next request of the current tick, with the ETag held for its resource.
     pub fn next_request(&mut self) -> Option<Request> {
         let mut r = self.pending.pop()?;
-        r.etag = self.etags.get(&r.resource).cloned();
+        r.etag = r.resource.as_ref().and_then(|res| self.etags.get(res).cloned());
         Some(r)
     }
 
-    /// Remembers what a 200 answer came with: its ETag (to revalidate with), and for a
-    /// player fetching keyframes, that the URL is held.
-    pub fn answered(&mut self, req: &Request, etag: Option<String>) {
-        if let Some(e) = etag {
-            if let Role::Player(p) = &mut self.role {
-                p.fetched(&req.path);
-            }
-            self.etags.insert(req.resource.clone(), e);
+    /// Whether the agent keeps the ETag of `req`'s answer (it revalidates the resource).
+    pub fn keeps_etag(req: &Request) -> bool {
+        req.resource.is_some()
+    }
+
+    /// Remembers what a 200 answer came with: for a player fetching keyframes, that
+    /// the keyframe is held; for a resource it revalidates, the ETag.
+    pub fn answered(&mut self, req: &Request, ok: bool, etag: Option<String>) {
+        if !ok {
+            return;
+        }
+        if let Role::Player(p) = &mut self.role {
+            p.fetched(req);
+        }
+        if let (Some(res), Some(e)) = (&req.resource, etag) {
+            self.etags.insert(res.clone(), e);
         }
     }
 }
@@ -445,34 +471,24 @@ mod tests {
         WorldView::new(&remote, 43_200.0, 1.0)
     }
 
-    #[test]
-    fn paths_are_continuous_and_deterministic() {
-        let mut a = GroupPath::new(3, 10, 7);
-        let mut b = GroupPath::new(3, 10, 7);
-        let mut last = a.at(0.0);
-        for i in 1..2000 {
-            let s = i as f64 * 0.5;
-            let p = a.at(s);
-            let step = ((p[0] - last[0]).powi(2) + (p[1] - last[1]).powi(2)).sqrt();
-            assert!(step <= GROUP_SPEED * 0.5 + 1e-6, "jump of {step} m at {s} s");
-            last = p;
+    fn towns(places: usize) -> Geometry {
+        Geometry::new(GeometryKind::Towns, places, 1, Vec::new(), 600.0)
+    }
+
+    fn drain(agent: &mut Agent) -> Vec<Request> {
+        let mut reqs = Vec::new();
+        while let Some(r) = agent.next_request() {
+            reqs.push(r);
         }
-        assert_eq!(a.at(123.0), b.at(123.0));
+        reqs
     }
 
     #[test]
     fn players_fetch_each_keyframe_once_and_the_next_one_past_the_middle() {
         let w = world();
-        let mut paths = vec![GroupPath::new(0, 1, 1)];
+        let geo = towns(1);
         let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
-        let drain = |agent: &mut Agent| {
-            let mut reqs = Vec::new();
-            while let Some(r) = agent.next_request() {
-                reqs.push(r);
-            }
-            reqs
-        };
-        agent.plan(&w, &mut paths, 0.0);
+        agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         let tiles: Vec<_> = first.iter().filter(|r| r.kind == RequestKind::Tile).collect();
         assert!(!tiles.is_empty());
@@ -480,46 +496,101 @@ mod tests {
         assert!(first.iter().all(|r| r.kind != RequestKind::Prefetch));
         assert!(tiles.iter().all(|r| r.path.ends_with("&t=43200") && r.etag.is_none()));
         for r in &first {
-            agent.answered(r, Some("\"e\"".into()));
+            agent.answered(r, true, Some("\"e\"".into()));
         }
+        // Keyframe URLs are never revalidated: their ETags are not kept.
+        assert!(agent.etags.is_empty());
         // Three seconds on (level 0 spans 20 s): everything is held, nothing is asked.
-        agent.plan(&w, &mut paths, 3.0);
+        agent.plan(&w, &geo, 3.0);
         let held: Vec<_> = drain(&mut agent);
         assert!(
             held.iter().all(|r| !r.path.ends_with("&t=43200")),
             "held keyframes are never asked again: {held:?}"
         );
         // Past the middle of the level-0 span: the next keyframe, once.
-        agent.plan(&w, &mut paths, 12.0);
+        agent.plan(&w, &geo, 12.0);
         let pre = drain(&mut agent);
         let next: Vec<_> = pre.iter().filter(|r| r.path.ends_with("&t=43220")).collect();
         assert!(!next.is_empty() && next.iter().all(|r| r.kind == RequestKind::Prefetch));
         for r in &pre {
-            agent.answered(r, Some("\"e\"".into()));
+            agent.answered(r, true, None);
         }
         // After the boundary the prefetched keyframe is the current one: not asked again.
-        agent.plan(&w, &mut paths, 20.5);
+        agent.plan(&w, &geo, 20.5);
         let after = drain(&mut agent);
         assert!(after.iter().all(|r| !r.path.ends_with("&t=43220")), "{after:?}");
     }
 
     #[test]
+    fn a_failed_request_is_asked_again() {
+        let w = world();
+        let geo = towns(1);
+        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
+        agent.plan(&w, &geo, 0.0);
+        let first = drain(&mut agent);
+        for r in &first {
+            agent.answered(r, false, None);
+        }
+        agent.plan(&w, &geo, 1.0);
+        let again = drain(&mut agent);
+        let tiles = |rs: &[Request]| rs.iter().filter(|r| r.tile.is_some()).map(|r| r.path.clone()).collect::<Vec<_>>();
+        assert_eq!(tiles(&again), tiles(&first));
+    }
+
+    #[test]
+    fn tile_requests_name_their_keyframe_and_group() {
+        let w = world();
+        let geo = towns(4);
+        let mut agent = Agent::new(Role::Player(Player::new(17, 1, FetchMode::Keyframes)));
+        agent.plan(&w, &geo, 0.0);
+        for r in drain(&mut agent).iter().filter(|r| r.kind == RequestKind::Tile) {
+            assert_eq!(r.group, 2);
+            let k = r.tile.unwrap().keyframe;
+            let want = format!("/tiles/{}/{}/{}/", k.z, k.x, k.y);
+            assert!(r.path.contains(&want) && r.path.ends_with(&format!("&t={}", f64::from_bits(k.t0_bits))));
+        }
+    }
+
+    #[test]
+    fn the_same_seed_sends_the_same_requests() {
+        let w = world();
+        let run = |seed: u64| {
+            let geo = Geometry::new(GeometryKind::Towns, 3, seed, Vec::new(), 600.0);
+            let mut agents: Vec<Agent> = (0..24)
+                .map(|i| Agent::new(Role::Player(Player::new(i, seed, FetchMode::Keyframes))))
+                .collect();
+            let mut paths = Vec::new();
+            for tick in 0..30 {
+                for a in &mut agents {
+                    a.plan(&w, &geo, tick as f64 * 5.0);
+                    for r in drain(a) {
+                        a.answered(&r, true, None);
+                        paths.push(r.path);
+                    }
+                }
+            }
+            paths
+        };
+        let a = run(5);
+        assert!(a.len() > 100);
+        assert_eq!(a, run(5));
+        assert_ne!(a, run(6));
+    }
+
+    #[test]
     fn polling_players_fetch_their_planned_tiles_and_revalidate() {
         let w = world();
-        let mut paths = vec![GroupPath::new(0, 1, 1)];
+        let geo = towns(1);
         let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Poll)));
-        agent.plan(&w, &mut paths, 0.0);
-        let mut reqs = Vec::new();
-        while let Some(r) = agent.next_request() {
-            reqs.push(r);
-        }
+        agent.plan(&w, &geo, 0.0);
+        let reqs = drain(&mut agent);
         assert_eq!(reqs[0].kind, RequestKind::Splats);
         let tiles: Vec<_> = reqs.iter().filter(|r| r.kind == RequestKind::Tile).collect();
         assert!(!tiles.is_empty() && tiles.len() % 2 == 0);
         assert!(tiles.iter().all(|r| r.etag.is_none() && r.path.contains("&t=43200")));
-        agent.answered(tiles[0], Some("\"abc\"".into()));
+        agent.answered(tiles[0], true, Some("\"abc\"".into()));
         // One second later: a new time, the same resources, the held ETag is sent.
-        agent.plan(&w, &mut paths, 1.0);
+        agent.plan(&w, &geo, 1.0);
         let first = agent.next_request().unwrap();
         assert_eq!(first.kind, RequestKind::Tile, "the splat sheet is fetched once");
         assert_eq!(first.resource, tiles[0].resource);
@@ -529,10 +600,24 @@ mod tests {
     #[test]
     fn game_servers_mix_region_and_series() {
         let w = world();
-        let mut paths = vec![GroupPath::new(0, 1, 1)];
-        let mut g = GameServer::new(0);
-        let kinds: Vec<_> = (0..8).map(|i| g.request(&w, &mut paths, i as f64).kind).collect();
+        let geo = towns(1);
+        let mut g = GameServer::new(0, 1);
+        let kinds: Vec<_> = (0..8).map(|i| g.request(&w, &geo, i as f64).kind).collect();
         assert_eq!(kinds.iter().filter(|k| **k == RequestKind::Series).count(), 2);
-        assert!(g.request(&w, &mut paths, 0.0).path.contains("/region?bbox="));
+        assert!(g.request(&w, &geo, 0.0).path.contains("/region?bbox="));
+    }
+
+    #[test]
+    fn a_flying_player_looks_from_its_group_s_altitude() {
+        let geo = Geometry::new(GeometryKind::Towns, 64, 2, Vec::new(), 7_200.0);
+        let (g, s) = (0..64)
+            .flat_map(|g| (0..72).map(move |i| (g, i as f64 * 100.0)))
+            .find(|&(g, s)| geo.position(g, s)[2] > 500.0)
+            .expect("a group in flight within 2 h");
+        let p = Player::new(g * GROUP_SIZE, 2, FetchMode::Keyframes);
+        let cam = p.camera(&geo, s);
+        let c = geo.position(g, s);
+        assert!(cam.position[2] >= c[2] + 2.0 && cam.position[2] <= c[2] + 50.0);
+        assert!((cam.position[0] - c[0]).abs() <= PARTY_SPREAD && (cam.position[1] - c[1]).abs() <= PARTY_SPREAD);
     }
 }

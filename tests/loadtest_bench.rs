@@ -290,8 +290,14 @@ fn an_allowed_core() -> usize {
     // SAFETY: sched_getaffinity fills the zeroed set; CPU_ISSET reads it.
     unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();
-        assert_eq!(libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set), 0);
-        (0..libc::CPU_SETSIZE as usize).rev().find(|&c| libc::CPU_ISSET(c, &set)).unwrap()
+        assert_eq!(
+            libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &mut set),
+            0
+        );
+        (0..libc::CPU_SETSIZE as usize)
+            .rev()
+            .find(|&c| libc::CPU_ISSET(c, &set))
+            .unwrap()
     }
 }
 
@@ -299,7 +305,11 @@ fn an_allowed_core() -> usize {
 fn a_niced_and_pinned_sweep_reports_where_the_generator_ran() {
     let server = ServeProcess::start(&[], &[("RUST_LOG", "warn")]);
     let dir = tempfile::tempdir().unwrap();
-    let (json, md, plot) = (dir.path().join("sweep.json"), dir.path().join("B.md"), dir.path().join("c.png"));
+    let (json, md, plot) = (
+        dir.path().join("sweep.json"),
+        dir.path().join("B.md"),
+        dir.path().join("c.png"),
+    );
     std::fs::write(&md, "# Benchmarks\n").unwrap();
     let core = an_allowed_core().to_string();
     let out = cloudscape(&[
@@ -331,7 +341,10 @@ fn a_niced_and_pinned_sweep_reports_where_the_generator_ran() {
     assert_eq!(p["mode"], format!("nice 7, core {core}"), "{r}");
     assert_eq!(p["nice"], 7);
     assert_eq!(p["cpus"], serde_json::json!([core.parse::<u64>().unwrap()]));
-    assert!(p["threads"].as_u64().unwrap() >= 3, "the runtime's threads were read: {p}");
+    assert!(
+        p["threads"].as_u64().unwrap() >= 3,
+        "the runtime's threads were read: {p}"
+    );
     let step = &r["steps"][0];
     assert_eq!(step["players"], 8);
     assert!(f(step, &["generator_cpu_cores"]) > 0.0, "{step}");
@@ -342,7 +355,12 @@ fn a_niced_and_pinned_sweep_reports_where_the_generator_ran() {
     let text = std::fs::read_to_string(&md).unwrap();
     assert!(text.contains("<!-- bench:capacity:begin -->"), "{text}");
     assert!(text.contains("| players | places | requests/s |") && text.contains("| generator CPU |"));
-    assert!(text.contains(&format!("Generator: nice 7, core {core} (read back: nice 7, cores {core})")), "{text}");
+    assert!(
+        text.contains(&format!(
+            "Generator: nice 7, core {core} (read back: nice 7, cores {core})"
+        )),
+        "{text}"
+    );
     assert!(text.contains("| players | level | keyframes |"), "{text}");
     let (w, h) = png_size(&plot);
     assert!(w >= 1000 && h > 200, "three panels: {w}×{h}");

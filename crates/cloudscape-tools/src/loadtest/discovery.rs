@@ -90,7 +90,10 @@ mod tests {
         let d = Discovery::parse(&text).unwrap();
         assert_eq!(d.world.layers.len(), 1);
         assert_eq!(d.towns.len(), 2);
-        assert_eq!((d.towns[0].name.as_str(), d.towns[0].centre, d.towns[0].radius), ("harbour", [2000.0, 1000.0], 500.0));
+        assert_eq!(
+            (d.towns[0].name.as_str(), d.towns[0].centre, d.towns[0].radius),
+            ("harbour", [2000.0, 1000.0], 500.0)
+        );
         // The triangle's centroid, a third of the way in.
         assert!((d.towns[1].centre[0] - 11_000.0).abs() < 1e-9 && (d.towns[1].centre[1] - 11_000.0).abs() < 1e-9);
         assert_eq!(d.towns[1].radius, 750.0);
@@ -118,8 +121,15 @@ mod tests {
         assert!(e.contains("no layers"), "{e}");
         let e = Discovery::parse(&format!(r#"{{{LAYERS}, "warm": [{{"name": "a", "bbox": [0, 0]}}]}}"#)).unwrap_err();
         assert!(e.contains("warm areas"), "{e}");
-        let e = Discovery::parse(&format!(r#"{{{LAYERS}, "warm": [{{"name": "a", "bbox": [5, 0, 5, 9]}}]}}"#)).unwrap_err();
+        let e = Discovery::parse(&format!(
+            r#"{{{LAYERS}, "warm": [{{"name": "a", "bbox": [5, 0, 5, 9]}}]}}"#
+        ))
+        .unwrap_err();
         assert!(e.contains("`a`"), "{e}");
-        assert!(Discovery::parse("<html>").unwrap_err().starts_with("not a world description"));
+        assert!(
+            Discovery::parse("<html>")
+                .unwrap_err()
+                .starts_with("not a world description")
+        );
     }
 }

@@ -101,7 +101,11 @@ impl Placement {
             parts.push(format!("nice {n}"));
         }
         if let Some(c) = &self.cpus {
-            parts.push(format!("{} {}", if c.len() == 1 { "core" } else { "cores" }, cpu_list(c)));
+            parts.push(format!(
+                "{} {}",
+                if c.len() == 1 { "core" } else { "cores" },
+                cpu_list(c)
+            ));
         }
         if parts.is_empty() {
             "as is".into()
@@ -118,8 +122,7 @@ impl Placement {
         }
         for tid in threads()? {
             if let Some(n) = self.nice {
-                set_nice(tid, n)
-                    .map_err(|e| format!("cannot lower the generator's priority to nice {n}: {e}"))?;
+                set_nice(tid, n).map_err(|e| format!("cannot lower the generator's priority to nice {n}: {e}"))?;
             }
             if let Some(cpus) = &self.cpus {
                 set_affinity(tid, cpus)
@@ -173,9 +176,7 @@ pub fn cpu_list(cpus: &[usize]) -> String {
 /// The thread ids of this process.
 fn threads() -> Result<Vec<libc::pid_t>, String> {
     let dir = std::fs::read_dir("/proc/self/task").map_err(|e| format!("cannot list /proc/self/task: {e}"))?;
-    Ok(dir
-        .filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok())
-        .collect())
+    Ok(dir.filter_map(|e| e.ok()?.file_name().to_str()?.parse().ok()).collect())
 }
 
 fn last_error() -> std::io::Error {
@@ -266,7 +267,10 @@ mod tests {
         }
         for bad in ["", "x", "1-", "3-1", "-1", "1,,2", "4096", "0.5"] {
             let e = Placement::parse_cpus(bad).unwrap_err();
-            assert!(e.starts_with("--cpu must list cores") && !e.contains('\n'), "{bad}: {e}");
+            assert!(
+                e.starts_with("--cpu must list cores") && !e.contains('\n'),
+                "{bad}: {e}"
+            );
         }
         let outside = (0..MAX_CPUS).find(|c| !allowed.contains(c)).unwrap();
         let e = Placement::parse_cpus(&outside.to_string()).unwrap_err();
@@ -277,7 +281,11 @@ mod tests {
     #[test]
     fn nice_values_are_checked_and_the_mode_is_named() {
         assert_eq!(Placement::check_nice(19), Ok(19));
-        assert!(Placement::check_nice(-1).unwrap_err().starts_with("--nice must be between 0 and 19"));
+        assert!(
+            Placement::check_nice(-1)
+                .unwrap_err()
+                .starts_with("--nice must be between 0 and 19")
+        );
         assert!(Placement::check_nice(20).is_err());
         assert_eq!(Placement::default().mode(), "as is");
         let p = Placement {

@@ -104,6 +104,8 @@ const TOWN_RADIUS: f64 = 800.0;
 /// Where the generated towns' middle one is: the middle of level-0 tile (0, 0) of a
 /// 100 m layer, where the spread geometry's first group starts too.
 const WORLD_MIDDLE: [f64; 2] = [12_800.0, 12_800.0];
+/// The key of the generated layout's jitter: a constant, not the run's seed.
+const TOWN_LAYOUT_KEY: u64 = 0x0770_76e5;
 /// Each town has roads to this many of its nearest towns (besides a spanning tree).
 const ROADS_PER_TOWN: usize = 2;
 
@@ -132,9 +134,7 @@ impl Town {
         if !(bbox.iter().all(|v| v.is_finite()) && x0 < x1 && y0 < y1) {
             return None;
         }
-        let centre = polygon
-            .and_then(centroid)
-            .unwrap_or([(x0 + x1) / 2.0, (y0 + y1) / 2.0]);
+        let centre = polygon.and_then(centroid).unwrap_or([(x0 + x1) / 2.0, (y0 + y1) / 2.0]);
         Some(Town {
             name: name.to_string(),
             centre,
@@ -177,11 +177,15 @@ fn distance(a: [f64; 2], b: [f64; 2]) -> f64 {
 /// players). The first, in the middle, is the capital.
 pub fn generated_towns() -> Vec<Town> {
     let mut grid: Vec<(i64, i64)> = vec![(0, 0)];
-    grid.extend((-1..=1).flat_map(|j| (-1..=1).map(move |i| (i, j))).filter(|&g| g != (0, 0)));
+    grid.extend(
+        (-1..=1)
+            .flat_map(|j| (-1..=1).map(move |i| (i, j)))
+            .filter(|&g| g != (0, 0)),
+    );
     grid.iter()
         .enumerate()
         .map(|(n, &(i, j))| {
-            let k = 0x7077_6e5u64 + 16 * n as u64;
+            let k = TOWN_LAYOUT_KEY + 16 * n as u64;
             Town {
                 name: format!("town-{n}"),
                 centre: [
@@ -202,14 +206,9 @@ pub fn roads(towns: &[Town]) -> Vec<(usize, usize)> {
     let d = |a: usize, b: usize| distance(towns[a].centre, towns[b].centre);
     let mut out = Vec::new();
     // Prim's algorithm, O(n²): the towns are a handful.
-    let mut linked = vec![false; n];
-    let mut best: Vec<(f64, usize)> = vec![(f64::INFINITY, 0); n];
-    if n > 0 {
-        linked[0] = true;
-        for b in 1..n {
-            best[b] = (d(0, b), 0);
-        }
-    }
+    // Town 0 is linked first; `best[b]` is b's nearest linked town and its distance.
+    let mut linked: Vec<bool> = (0..n).map(|b| b == 0).collect();
+    let mut best: Vec<(f64, usize)> = (0..n).map(|b| (d(0, b), 0)).collect();
     for _ in 1..n {
         let next = (0..n)
             .filter(|&b| !linked[b])
@@ -410,7 +409,11 @@ fn spread_path(p: usize, places: usize, seed: u64, horizon: f64) -> Itinerary {
     let mut k = 1u64;
     while b.t <= horizon {
         heading += (unit(key.wrapping_add(k)) - 0.5) * 2.0 * 60f64.to_radians();
-        at = [at[0] + SPREAD_LEG * heading.sin(), at[1] + SPREAD_LEG * heading.cos(), 0.0];
+        at = [
+            at[0] + SPREAD_LEG * heading.sin(),
+            at[1] + SPREAD_LEG * heading.cos(),
+            0.0,
+        ];
         b.go(at);
         k += 1;
     }

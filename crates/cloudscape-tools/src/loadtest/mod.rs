@@ -757,7 +757,11 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
         let (before, generator_before, mut sampler) = {
             tokio::time::sleep_until(shared.measure_from.into()).await;
             let before = scrape(&http, &base, spec.server_pid).await;
-            (before, generator::cpu_seconds(), CpuSampler::new(spec.server_pid, Instant::now()))
+            (
+                before,
+                generator::cpu_seconds(),
+                CpuSampler::new(spec.server_pid, Instant::now()),
+            )
         };
         let mut ticker = tokio::time::interval(Duration::from_millis(200));
         tokio::pin!(work);
@@ -1469,7 +1473,10 @@ mod tests {
             now: 90_000.0,
         });
         assert_eq!(spec(None, None).clock(server), (90_000.0, 2.0, ClockSource::Server));
-        assert_eq!(spec(None, Some(1.0)).clock(server), (90_000.0, 1.0, ClockSource::Server));
+        assert_eq!(
+            spec(None, Some(1.0)).clock(server),
+            (90_000.0, 1.0, ClockSource::Server)
+        );
         assert_eq!(spec(Some(5.0), None).clock(server), (5.0, 2.0, ClockSource::Given));
         assert_eq!(spec(Some(5.0), Some(0.0)).clock(None), (5.0, 0.0, ClockSource::Given));
         assert_eq!(spec(None, None).clock(None), (DEFAULT_T0, 1.0, ClockSource::Default));

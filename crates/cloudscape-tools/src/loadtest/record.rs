@@ -229,10 +229,10 @@ impl Recorder {
     pub fn timeline(&self) -> Vec<SecondSummary> {
         (0..self.per_second.len().max(self.cpu.len()))
             .map(|i| {
-                let (l, counts) = self
-                    .per_second
-                    .get(i)
-                    .map_or_else(|| (Latency::default(), Counts::default()), |(h, c)| (latency(h), c.clone()));
+                let (l, counts) = self.per_second.get(i).map_or_else(
+                    || (Latency::default(), Counts::default()),
+                    |(h, c)| (latency(h), c.clone()),
+                );
                 let (generator_cpu_cores, server_cpu_cores) = self.cpu.get(i).copied().unwrap_or_default();
                 SecondSummary {
                     second: i as u64,

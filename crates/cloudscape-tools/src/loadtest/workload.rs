@@ -207,7 +207,12 @@ impl Player {
 
     /// The tiles (layer, tile) this player's view needs at `s`. Like the viewer, it
     /// coarsens the level choice (a narrower screen) when a view needs too many tiles.
-    pub fn tiles(&self, world: &WorldView, geometry: &Geometry, s: f64) -> Vec<(usize, cloudscape_core::render::TileId)> {
+    pub fn tiles(
+        &self,
+        world: &WorldView,
+        geometry: &Geometry,
+        s: f64,
+    ) -> Vec<(usize, cloudscape_core::render::TileId)> {
         let camera = self.camera(geometry, s);
         let mut width = SCREEN.0;
         loop {
@@ -533,7 +538,12 @@ mod tests {
         }
         agent.plan(&w, &geo, 1.0);
         let again = drain(&mut agent);
-        let tiles = |rs: &[Request]| rs.iter().filter(|r| r.tile.is_some()).map(|r| r.path.clone()).collect::<Vec<_>>();
+        let tiles = |rs: &[Request]| {
+            rs.iter()
+                .filter(|r| r.tile.is_some())
+                .map(|r| r.path.clone())
+                .collect::<Vec<_>>()
+        };
         assert_eq!(tiles(&again), tiles(&first));
     }
 

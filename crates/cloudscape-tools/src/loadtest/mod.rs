@@ -1153,7 +1153,8 @@ impl SweepReport {
             x_label: "players".into(),
             y_label: "places / requests per keyframe / %".into(),
             x_log: true,
-            y_log: true,
+            // Linear: no group shares at the first steps (0 %), which a log axis drops.
+            y_log: false,
             series: vec![
                 series("distinct places", 0, &|s| Some(s.places as f64)),
                 series("requests per keyframe", 3, &|s| {

@@ -72,6 +72,7 @@ impl Discovery {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::loadtest::geometry::{Geometry, GeometryKind};
 
     const LAYERS: &str = r#""name": "default", "maxzoom": 8, "layers": [
         {"name": "cumulus", "base": 1200, "top": 2600, "cell_size": 100, "dt": 20}]"#;
@@ -97,6 +98,13 @@ mod tests {
         // The triangle's centroid, a third of the way in.
         assert!((d.towns[1].centre[0] - 11_000.0).abs() < 1e-9 && (d.towns[1].centre[1] - 11_000.0).abs() < 1e-9);
         assert_eq!(d.towns[1].radius, 750.0);
+        // The towns geometry uses them: every group starts in one of the two.
+        let geo = Geometry::new(GeometryKind::Towns, 32, 9, d.towns.clone(), 60.0);
+        assert!(geo.towns_from_server && geo.towns == d.towns);
+        for g in 0..32 {
+            let p = geo.position(g, 0.0);
+            assert!(d.towns.iter().any(|t| t.contains([p[0], p[1]])), "group {g} at {p:?}");
+        }
         assert_eq!(
             d.clock,
             Some(ServerClock {

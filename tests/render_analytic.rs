@@ -34,6 +34,7 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
         levels: 1,
         radius: R,
         base: CENTRE[2] - 0.5 * R,
+        drift: Default::default(),
     };
     let ball = Metaball {
         index: [0, 0, 0],

@@ -1,9 +1,9 @@
 //! What tiles keep between keyframes, under a byte budget.
 //!
 //! A tile's next keyframe starts from what its last one kept
-//! ([`cloudscape_core::density::kept::KeptDensity`]: the latest density grids and, at
-//! level 0, the automaton's runs), so it costs one automaton step and a shading
-//! instead of a cold computation. The states are kept per (world fingerprint,
+//! ([`cloudscape_core::render::tile::KeptTile`]: the latest density grids, at level 0
+//! the automaton's runs, and the latest instants shaded), so it costs one automaton
+//! step and the shading of one instant instead of a cold computation. The states are kept per (world fingerprint,
 //! layer, tile) in a cache weighed by the bytes each holds (measured after every
 //! job), under `server.kept_bytes`, a part of `server.cache_bytes`: the least
 //! recently used go first, and a tile whose state was dropped computes cold once.
@@ -19,13 +19,14 @@ use std::sync::{Arc, Mutex};
 use moka::sync::Cache;
 use prometheus::{IntCounter, IntCounterVec};
 
-use cloudscape_core::density::kept::{KeptCounts, KeptDensity};
+use cloudscape_core::density::kept::KeptCounts;
+use cloudscape_core::render::tile::{KeptTile, ShadingCounts};
 
 use crate::metrics::Metrics;
 
 /// One tile's kept state and the bytes it held when last weighed.
 pub struct Kept {
-    state: Mutex<KeptDensity>,
+    state: Mutex<KeptTile>,
     bytes: AtomicU64,
 }
 
@@ -36,6 +37,8 @@ pub struct KeptStates {
     grids: IntCounterVec,
     /// Automaton steps advanced by live runs.
     steps: IntCounter,
+    /// Instants of shading given, by how (`reused`, `shaded`).
+    shadings: IntCounterVec,
     /// Jobs that found their tile's state held by another job (they computed cold).
     busy: IntCounter,
 }
@@ -53,6 +56,7 @@ impl KeptStates {
                 .build(),
             grids: metrics.kept_grids.clone(),
             steps: metrics.kept_steps.clone(),
+            shadings: metrics.kept_shadings.clone(),
             busy: metrics.kept_busy.clone(),
         })
     }
@@ -62,8 +66,8 @@ impl KeptStates {
     pub fn with<R>(
         &self,
         key: &str,
-        make: impl FnOnce() -> KeptDensity,
-        job: impl FnOnce(Option<&mut KeptDensity>) -> R,
+        make: impl FnOnce() -> KeptTile,
+        job: impl FnOnce(Option<&mut KeptTile>) -> R,
     ) -> R {
         let entry = self.cache.get_with(key.to_string(), || {
             Arc::new(Kept {
@@ -75,9 +79,9 @@ impl KeptStates {
             self.busy.inc();
             return job(None);
         };
-        let (counts, steps) = (state.counts(), state.live_steps());
+        let (counts, steps, shadings) = (state.density.counts(), state.density.live_steps(), state.shading_counts());
         let out = job(Some(&mut state));
-        let after = state.counts();
+        let after = state.density.counts();
         let KeptCounts { reused, live, cold } = after;
         for (label, n) in [
             ("reused", reused - counts.reused),
@@ -86,7 +90,11 @@ impl KeptStates {
         ] {
             self.grids.with_label_values(&[label]).inc_by(n);
         }
-        self.steps.inc_by(state.live_steps() - steps);
+        self.steps.inc_by(state.density.live_steps() - steps);
+        let ShadingCounts { reused, shaded } = state.shading_counts();
+        for (label, n) in [("reused", reused - shadings.reused), ("shaded", shaded - shadings.shaded)] {
+            self.shadings.with_label_values(&[label]).inc_by(n);
+        }
         entry.bytes.store(state.bytes() as u64, Ordering::Relaxed);
         drop(state);
         // Inserted again to be weighed again (moka weighs on insert).

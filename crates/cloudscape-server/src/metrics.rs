@@ -89,6 +89,9 @@ pub struct Metrics {
     pub kept_grids: IntCounterVec,
     /// Automaton steps advanced by kept runs.
     pub kept_steps: IntCounter,
+    /// Instants of shading tile jobs used, by how: `reused` (the previous
+    /// keyframe's end, kept) or `shaded`.
+    pub kept_shadings: IntCounterVec,
     /// Tile jobs that found their tile's kept state held by another job.
     pub kept_busy: IntCounter,
     /// Wall time of tile jobs by stage (`cloudscape_core::stages`, plus `encoding`
@@ -374,6 +377,11 @@ impl Metrics {
             kept_steps: plain_counter(
                 "cloudscape_kept_steps_total",
                 "automaton steps advanced by runs kept between keyframes",
+            ),
+            kept_shadings: counter(
+                "cloudscape_kept_shadings_total",
+                "instants of shading (metaballs and light) of tile jobs with kept state, by how: reused, shaded",
+                &["how"],
             ),
             kept_busy: plain_counter(
                 "cloudscape_kept_busy_total",

@@ -20,12 +20,11 @@ use utoipa::{IntoResponses, PartialSchema};
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::density;
-use cloudscape_core::density::kept::KeptDensity;
 use cloudscape_core::products::Product;
 use cloudscape_core::products::billboards;
 use cloudscape_core::products::catalogue::encode_shaded;
 use cloudscape_core::render::TileId;
-use cloudscape_core::render::tile::{kept_region, shade_tile_staged};
+use cloudscape_core::render::tile::{KeptTile, shade_tile_staged};
 use cloudscape_core::render::{Quality, ShadingParams, Sun, SunBucket};
 use cloudscape_core::stages::Stages;
 use cloudscape_core::world::{Keyframe, Limits, SunConfig, World};
@@ -288,7 +287,7 @@ impl TileRecipe {
             let out = match shading {
                 None => {
                     let grid = with_kept(kept.as_deref(), &kept_key, &world, layer, tile, |state| match state {
-                        Some(state) => state.density(&world, region, keyframe.t0, true, cancel, &mut stages),
+                        Some(state) => state.density.density(&world, region, keyframe.t0, true, cancel, &mut stages),
                         None => {
                             density::density_staged(&world, layer, tile.z, region, keyframe.t0, cancel, &mut stages)
                         }
@@ -358,22 +357,12 @@ fn with_kept<R>(
     world: &World,
     layer: usize,
     tile: TileId,
-    job: impl FnOnce(Option<&mut KeptDensity>) -> R,
+    job: impl FnOnce(Option<&mut KeptTile>) -> R,
 ) -> R {
     match kept {
-        Some(k) => k.with(key, || new_kept(world, layer, tile), job),
+        Some(k) => k.with(key, || KeptTile::for_tile(&world.layers[layer], layer, tile), job),
         None => job(None),
     }
-}
-
-/// A tile's kept state before its first keyframe: over the region every keyframe of
-/// it, in every quality and sun, is cut from (the tile's own columns if that region
-/// is out of range; the job then computes cold where it must).
-fn new_kept(world: &World, layer: usize, tile: TileId) -> KeptDensity {
-    let region = kept_region(&world.layers[layer], tile)
-        .or_else(|_| tile.region())
-        .unwrap_or(cloudscape_core::density::Region::square(0, 0, 0));
-    KeptDensity::new(layer, tile.z, region)
 }
 
 impl crate::ahead::Recipe for TileRecipe {

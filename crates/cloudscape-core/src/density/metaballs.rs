@@ -7,11 +7,20 @@
 //! vertical level, which weakens lattice artifacts:
 //!
 //! ```text
-//! x = (i + ½·((j + k) mod 2)) · s,   y = (j + ½·(k mod 2)) · s,   z = base + (k + ½) · s_v
+//! x = (i + ½·((j + k) mod 2)) · s + o_x(k),   y = (j + ½·(k mod 2)) · s + o_y(k),
+//! z = base + (k + ½) · s_v
 //! ```
 //!
 //! with `s` the horizontal spacing and `s_v = thickness / n_v` the vertical spacing
 //! (`n_v` levels fill the layer exactly).
+//!
+//! The lattice drifts with the air ([`Drift`]): at time `t` level `k` is moved by
+//! `o(k) = v(z_k) · t` (the wind at its altitude), taken modulo the lattice's period
+//! (`s` in x, `2s` in y, so the row pattern is kept) to stay small at any `t`. A ball
+//! of the lattice at `t` is then, up to rounding, a ball of the lattice at `t + Δt`
+//! moved by `v · Δt` ([`Lattice::successor`] names it): the balls follow the cloud
+//! they hold, so the shading of one instant serves as the end of one keyframe span
+//! and the start of the next (`render::tile`).
 //!
 //! A metaball's density is the field-weighted mean of the cell densities within its
 //! radius, `d = Σ ρ_j f(r_j/R) / Σ f(r_j/R)`, where cells beyond the grid (above or
@@ -69,6 +78,20 @@ pub struct Lattice {
     pub radius: f64,
     /// Altitude of the layer base, metres.
     pub base: f64,
+    /// How the lattice moves with the wind (none: anchored to the world).
+    pub drift: Drift,
+}
+
+/// The motion of a lattice with the air: the wind at the layer's base, its change
+/// with height, and the time the lattice is placed for.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Drift {
+    /// Wind at the layer's base, m/s (x east, y north).
+    pub wind: [f64; 2],
+    /// Change of the wind with height, (m/s) per metre.
+    pub shear: [f64; 2],
+    /// World-clock seconds: level `k` is moved by `v(z_k) · t` modulo the period.
+    pub t: f64,
 }
 
 /// One metaball: a sphere of the lattice with the density it collected.
@@ -104,18 +127,74 @@ impl Lattice {
             levels,
             radius,
             base,
+            drift: Drift::default(),
         }
+    }
+
+    /// The same lattice drifting with `wind` (m/s at the base) and `shear` ((m/s) per
+    /// metre), placed for time `t`.
+    pub fn drifting(self, wind: [f64; 2], shear: [f64; 2], t: f64) -> Lattice {
+        Lattice {
+            drift: Drift { wind, shear, t },
+            ..self
+        }
+    }
+
+    /// The same lattice placed for time `t` (same drift).
+    pub fn at(self, t: f64) -> Lattice {
+        Lattice {
+            drift: Drift { t, ..self.drift },
+            ..self
+        }
+    }
+
+    /// Wind at level `k` (m/s): the base wind plus the shear over its height.
+    fn velocity(&self, k: i64) -> [f64; 2] {
+        let h = (k as f64 + 0.5) * self.vertical_spacing;
+        let d = &self.drift;
+        [d.wind[0] + d.shear[0] * h, d.wind[1] + d.shear[1] * h]
+    }
+
+    /// How far level `k` has drifted at the lattice's time, modulo the period
+    /// (`s` in x, `2s` in y), metres. Written out rather than kept as a running sum so
+    /// that any machine places the lattice of any time alike: `v · t` rounds once.
+    pub fn offset(&self, k: i64) -> [f64; 2] {
+        let v = self.velocity(k);
+        let t = self.drift.t;
+        let s = self.spacing;
+        let wrap = |d: f64, period: f64| {
+            let o = d.rem_euclid(period);
+            // NaN/∞ only from a degenerate spacing; 0 keeps the lattice where it was.
+            if o.is_finite() && o < period { o } else { 0.0 }
+        };
+        [wrap(v[0] * t, s), wrap(v[1] * t, 2.0 * s)]
     }
 
     /// Centre of lattice point (i, j, k), world metres.
     pub fn centre(&self, i: i64, j: i64, k: i64) -> [f64; 3] {
         let ox = 0.5 * ((j + k).rem_euclid(2)) as f64;
         let oy = 0.5 * (k.rem_euclid(2)) as f64;
+        let o = self.offset(k);
         [
-            (i as f64 + ox) * self.spacing,
-            (j as f64 + oy) * self.spacing,
+            (i as f64 + ox) * self.spacing + o[0],
+            (j as f64 + oy) * self.spacing + o[1],
             self.base + (k as f64 + 0.5) * self.vertical_spacing,
         ]
+    }
+
+    /// The index, in `later` (this lattice placed for a later time), of the point that
+    /// the wind carries lattice point `index` to: its centre moved by `v · Δt` lies
+    /// on `later`'s point up to rounding (the drifts are the same motion).
+    pub fn successor(&self, index: [i64; 3], later: &Lattice) -> [i64; 3] {
+        let [i, j, k] = index;
+        let v = self.velocity(k);
+        let dt = later.drift.t - self.drift.t;
+        let (a, b) = (self.offset(k), later.offset(k));
+        let s = self.spacing;
+        let di = ((a[0] + v[0] * dt - b[0]) / s).round();
+        let dj = ((a[1] + v[1] * dt - b[1]) / (2.0 * s)).round() * 2.0;
+        let step = |d: f64| if d.is_finite() { d.clamp(-1e15, 1e15) as i64 } else { 0 };
+        [i.saturating_add(step(di)), j.saturating_add(step(dj)), k]
     }
 
     /// The mean of `Σ_i f(|x − c_i|/R)` over space: (balls per volume) × ∫f over the ball.
@@ -126,46 +205,42 @@ impl Lattice {
     /// The metaballs whose centres lie in `owned` = [x0, y0, x1, y1) (world metres),
     /// each collecting density from `grid` placed at `place`. Balls with density below
     /// `min_density` are dropped. Ordered by (k, j, i); deterministic.
+    ///
+    /// A ball whose stencil covers only empty cells collects exactly 0 and is dropped
+    /// without summing its taps: a table of non-empty columns ([`Occupancy`]) answers
+    /// for the box under it. Clear air costs a lookup, not a stencil, and the balls
+    /// kept are the same, bit for bit.
     pub fn collect(&self, grid: &Grid<f32>, place: &GridPlacement, owned: [f64; 4], min_density: f32) -> Vec<Metaball> {
-        self.collect_moved(grid, place, owned, min_density, |_| [0.0, 0.0])
-    }
-
-    /// [`Lattice::collect`] of the lattice moved by the wind: the lattice point whose
-    /// centre `c` lies in `owned` collects at `c + (shift(c_z), 0)` and keeps that
-    /// centre (and its index). With `shift` the wind's displacement over a keyframe
-    /// span at each altitude, each ball collects the air that was at its lattice
-    /// point at the span's start (`render::tile`'s keyframes pair them).
-    pub fn collect_moved(
-        &self,
-        grid: &Grid<f32>,
-        place: &GridPlacement,
-        owned: [f64; 4],
-        min_density: f32,
-        shift: impl Fn(f64) -> [f64; 2] + Sync,
-    ) -> Vec<Metaball> {
         use rayon::prelude::*;
         let s = self.spacing;
+        let occupied = Occupancy::of(grid);
         let mut rows = Vec::new();
         for k in 0..self.levels as i64 {
             let oy = 0.5 * (k.rem_euclid(2)) as f64;
-            let j0 = (owned[1] / s - oy).ceil() as i64;
-            let j1 = (owned[3] / s - oy).ceil() as i64;
+            let o = self.offset(k);
+            let j0 = ((owned[1] - o[1]) / s - oy).ceil() as i64;
+            let j1 = ((owned[3] - o[1]) / s - oy).ceil() as i64;
             for j in j0..j1 {
                 rows.push((k, j));
             }
         }
+        // The horizontal reach of a stencil, cells: what `stencil` spans.
+        let reach = (2.0 * self.radius / place.column).ceil() as i64 + 1;
         let per_row: Vec<Vec<Metaball>> = rows
             .par_iter()
             .map(|&(k, j)| {
                 let ox = 0.5 * ((j + k).rem_euclid(2)) as f64;
-                let i0 = (owned[0] / s - ox).ceil() as i64;
-                let i1 = (owned[2] / s - ox).ceil() as i64;
+                let o = self.offset(k);
+                let i0 = ((owned[0] - o[0]) / s - ox).ceil() as i64;
+                let i1 = ((owned[2] - o[0]) / s - ox).ceil() as i64;
                 let mut stencils: Vec<Stencil> = Vec::new();
                 let mut out = Vec::new();
-                let [sx, sy] = shift(self.centre(0, j, k)[2]);
                 for i in i0..i1 {
                     let c = self.centre(i, j, k);
-                    let c = [c[0] + sx, c[1] + sy, c[2]];
+                    let (first, _) = self.stencil_anchor(place, c);
+                    if !occupied.any(first[1], first[0], reach) {
+                        continue;
+                    }
                     let d = self.collect_cached(grid, place, c, &mut stencils);
                     if d >= min_density && d > 0.0 {
                         out.push(Metaball {
@@ -330,6 +405,53 @@ impl Lattice {
             taps,
             weight,
         }
+    }
+}
+
+/// Which columns of a grid hold any non-zero cell, as a summed-area table: whether a
+/// box of columns is all clear air costs four lookups.
+struct Occupancy {
+    rows: usize,
+    cols: usize,
+    /// `sum[(r + 1) · (cols + 1) + c + 1]`: non-empty columns in rows `..=r`, cols `..=c`.
+    sum: Vec<u32>,
+}
+
+impl Occupancy {
+    fn of(grid: &Grid<f32>) -> Occupancy {
+        let (rows, cols) = (grid.rows, grid.cols);
+        let mut filled = vec![false; rows * cols];
+        for k in 0..grid.depth {
+            let level = &grid.data[grid.index(k, 0, 0)..][..rows * cols];
+            for (f, &v) in filled.iter_mut().zip(level) {
+                // NaN counts as filled: such a ball is summed as it always was.
+                *f |= v != 0.0;
+            }
+        }
+        let w = cols + 1;
+        let mut sum = vec![0u32; (rows + 1) * w];
+        for r in 0..rows {
+            let mut run = 0u32;
+            for c in 0..cols {
+                run += u32::from(filled[r * cols + c]);
+                sum[(r + 1) * w + c + 1] = sum[r * w + c + 1] + run;
+            }
+        }
+        Occupancy { rows, cols, sum }
+    }
+
+    /// Whether any column in rows `r0..=r0 + n`, cols `c0..=c0 + n` (clipped to the
+    /// grid) holds a non-zero cell.
+    fn any(&self, r0: i64, c0: i64, n: i64) -> bool {
+        let clip = |v: i64, len: usize| v.clamp(0, len as i64) as usize;
+        let (r_lo, r_hi) = (clip(r0, self.rows), clip(r0.saturating_add(n).saturating_add(1), self.rows));
+        let (c_lo, c_hi) = (clip(c0, self.cols), clip(c0.saturating_add(n).saturating_add(1), self.cols));
+        if r_lo >= r_hi || c_lo >= c_hi {
+            return false;
+        }
+        let w = self.cols + 1;
+        let at = |r: usize, c: usize| self.sum[r * w + c];
+        at(r_hi, c_hi) + at(r_lo, c_lo) > at(r_lo, c_hi) + at(r_hi, c_lo)
     }
 }
 

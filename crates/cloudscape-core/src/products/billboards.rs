@@ -15,8 +15,10 @@
 //!
 //! A billboard list covers one keyframe span `[t0, t1]` (`world::Keyframe`: one
 //! automaton step at level 0, doubling per level up to 16 steps) and holds every
-//! metaball at both ends, the end moved by the wind at its altitude. A client draws
-//! any time `t` inside the span by itself, with `f = (t − t0) / (t1 − t0)`:
+//! metaball at both ends, the end moved by the wind at its altitude. The metaball
+//! lattice drifts with the wind, so the balls a span ends with are those the next
+//! span starts with: at a boundary a client switches lists without a jump. A client
+//! draws any time `t` inside the span by itself, with `f = (t − t0) / (t1 − t0)`:
 //!
 //! - position `p0 + v (t − t0)`, `v` the record's velocity (m/s);
 //! - centre optical depth `(1 − f) τ0 + f τ1` (τ = 0 at an end where the ball is

@@ -247,19 +247,9 @@ fn sweep(
 }
 
 /// Shades `balls` (all of them shadow each other) for `lighting` and returns the
-/// billboards of those whose lattice points lie in `owned` = [x0, y0, x1, y1) (a
-/// ball moved by the wind, [`Lattice::collect_moved`], belongs where its lattice point
-/// is), plus the
-/// light buffer toward the sun. `light_texel` is the buffer texel in radii.
-/// Deterministic.
-///
-/// Two sweeps of the light-buffer machinery: one toward the sun gives each ball's
-/// `τ_sun = τ_front + κ τ_self`; one toward the zenith gives the optical depth of the
-/// balls above (`τ_up`) and, from the column total, of those below (`τ_down`), each
-/// plus `κ τ_self`. The colour is `albedo · (sun · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
-/// with the octaves of [`crate::render::light::Octaves`] and the ambient of
-/// [`Lighting::ambient_source`]: the sky (`ambient_rgb`) through `τ_up`, and the
-/// ground under the ball (lit through the sun buffer's total depth) through `τ_down`.
+/// billboards of those whose centres lie in `owned` = [x0, y0, x1, y1), plus the
+/// light buffer toward the sun: [`shade_where`] with the buffers placed at `owned`'s
+/// corner.
 pub fn shade(
     balls: &[Metaball],
     lattice: &Lattice,
@@ -268,7 +258,36 @@ pub fn shade(
     light_texel: f64,
     owned: [f64; 4],
 ) -> (Vec<Billboard>, LightBuffer) {
-    let origin = [owned[0], owned[1], lattice.base];
+    let inside = |b: &Metaball| {
+        let c = b.centre;
+        c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3]
+    };
+    shade_where(balls, lattice, lighting, sheet, light_texel, [owned[0], owned[1]], inside)
+}
+
+/// Shades `balls` (all of them shadow each other) for `lighting` and returns the
+/// billboards of those `keep` accepts, in input order, plus the light buffer toward
+/// the sun. `light_texel` is the buffer texel in radii; the buffers' coordinates are
+/// taken relative to `origin` (x, y at the lattice's base), so one `origin` and one
+/// set of balls give the same bits whichever balls are kept. Deterministic.
+///
+/// Two sweeps of the light-buffer machinery: one toward the sun gives each ball's
+/// `τ_sun = τ_front + κ τ_self`; one toward the zenith gives the optical depth of the
+/// balls above (`τ_up`) and, from the column total, of those below (`τ_down`), each
+/// plus `κ τ_self`. The colour is `albedo · (sun · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
+/// with the octaves of [`crate::render::light::Octaves`] and the ambient of
+/// [`Lighting::ambient_source`]: the sky (`ambient_rgb`) through `τ_up`, and the
+/// ground under the ball (lit through the sun buffer's total depth) through `τ_down`.
+pub fn shade_where(
+    balls: &[Metaball],
+    lattice: &Lattice,
+    lighting: &Lighting,
+    sheet: &SplatSheet,
+    light_texel: f64,
+    origin: [f64; 2],
+    keep: impl Fn(&Metaball) -> bool,
+) -> (Vec<Billboard>, LightBuffer) {
+    let origin = [origin[0], origin[1], lattice.base];
     let r = lattice.radius;
     let extinction = lighting.params.extinction;
     let taus: Vec<f64> = balls
@@ -283,11 +302,7 @@ pub fn shade(
     let out = balls
         .iter()
         .enumerate()
-        .filter(|(_, b)| {
-            let [i, j, k] = b.index;
-            let c = lattice.centre(i, j, k);
-            c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3]
-        })
+        .filter(|(_, b)| keep(b))
         .map(|(i, b)| {
             let tau = taus[i];
             let c = b.centre;

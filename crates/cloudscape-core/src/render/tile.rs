@@ -1,15 +1,17 @@
 //! One tile, shaded: density (with a halo) → metaballs → sun shading → billboards
 //! and the ground shadow map. Every tile product is encoded from a [`ShadedTile`].
 
+use std::sync::Arc;
+
 use crate::cancel::Cancel;
 use crate::density::kept::KeptDensity;
-use crate::density::metaballs::{GridPlacement, Lattice};
+use crate::density::metaballs::{GridPlacement, Lattice, Metaball};
 use crate::density::{self, Grid, Region, SimError, check_time};
 use crate::stages::{Stage, Stages};
 use crate::world::{Keyframe, Layer, Limits, World, keyframe_span};
 
 use super::light::{Lighting, ShadingParams};
-use super::shade::{Billboard, shade};
+use super::shade::{Billboard, shade_where};
 use super::splats::SplatSheet;
 use super::sun::{Sun, SunBucket};
 use super::{Quality, RenderError};
@@ -138,11 +140,15 @@ pub fn tile_halo(l: &Layer, z: u32, quality: Quality, sun: Sun) -> usize {
 /// `keyframe` (once for an instant); stops early once `cancel` fires (then an error;
 /// `Cancel::never()` runs to the end).
 ///
-/// The span's end collects the density at `t1` on the lattice moved by the wind
-/// ([`Lattice::collect_moved`]), so each lattice point follows its air: the grid at
-/// `t1` is taken over the tile's box moved downwind by whole columns (the wind at
-/// the layer's middle over the span), and each level's remaining displacement is the
-/// lattice's own shift.
+/// Each end is an instant shaded on its own ([`ShadedInstant`]): the density at that
+/// time over the tile, its halo and the box the wind moves it to over one span, and
+/// the lattice placed for that time, drifting with the wind
+/// ([`crate::density::metaballs::Drift`]). The span's start keeps the balls whose
+/// centres lie in the tile, the end the balls the wind carried those lattice points
+/// to ([`Lattice::successor`]), so each ball follows its air. Since the end of one
+/// span is the instant the next span starts at, a tile shaded keyframe after
+/// keyframe ([`shade_tile_kept`]) shades one instant per keyframe, and a client
+/// sees no jump where one span hands over to the next.
 #[allow(clippy::too_many_arguments)]
 pub fn shade_tile(
     world: &World,
@@ -172,8 +178,8 @@ pub fn shade_tile(
 }
 
 /// [`shade_tile`] from what the tile kept of its previous keyframes (`kept`, made
-/// for this layer and tile with [`kept_region`]), and keeping what the next keyframe
-/// can use: the same bytes, at the cost of what changed.
+/// for this layer and tile with [`KeptTile::for_tile`]), and keeping what the next
+/// keyframe can use: the same bytes, at the cost of what changed.
 #[allow(clippy::too_many_arguments)]
 pub fn shade_tile_kept(
     world: &World,
@@ -185,7 +191,7 @@ pub fn shade_tile_kept(
     params: &ShadingParams,
     limits: &Limits,
     cancel: &Cancel,
-    kept: &mut KeptDensity,
+    kept: &mut KeptTile,
 ) -> Result<ShadedTile, RenderError> {
     let mut stages = Stages::default();
     shade_tile_staged(
@@ -216,28 +222,50 @@ pub fn shade_tile_staged(
     params: &ShadingParams,
     limits: &Limits,
     cancel: &Cancel,
-    mut kept: Option<&mut KeptDensity>,
+    mut kept: Option<&mut KeptTile>,
     stages: &mut Stages,
 ) -> Result<ShadedTile, RenderError> {
     check_time(keyframe.t0)?;
     let l = checked_layer(world, layer)?;
     tile.region()?.check(tile.z, l.depth, limits)?;
-    let mut density = |region: Region, t: f64, stages: &mut Stages| match kept.as_deref_mut() {
-        Some(kept) => kept.density(world, region, t, true, cancel, stages),
+    let halo = tile_halo(l, tile.z, quality, sun);
+    let shading = TileShading::new(l, tile, quality, sun, params, halo, keyframe.span())?;
+    let square = shading.square;
+    let density = |kept: Option<&mut KeptTile>, region: Region, t: f64, stages: &mut Stages| match kept {
+        Some(kept) => kept.density.density(world, region, t, true, cancel, stages),
         None => density::density_staged(world, layer, tile.z, region, t, cancel, stages),
     };
-    let halo = tile_halo(l, tile.z, quality, sun);
-    let grid = density(around(tile, halo, [0, 0])?, keyframe.t0, stages)?;
-    let mut shaded = shade_density_staged(layer, l, tile, keyframe.t0, quality, sun, params, grid, halo, stages);
+    // The span's start, and the density of the tile and its halo then.
+    let (start, grid) = match kept.as_deref_mut().and_then(|k| k.instant(&shading, keyframe.t0)) {
+        Some(start) => (start, density(kept.as_deref_mut(), square, keyframe.t0, stages)?),
+        None => {
+            let grid = density(kept.as_deref_mut(), shading.region, keyframe.t0, stages)?;
+            let start = Arc::new(shading.instant(&grid, keyframe.t0, stages));
+            if let Some(k) = kept.as_deref_mut() {
+                k.keep(Arc::clone(&start));
+            }
+            (start, cut(&grid, shading.region, square))
+        }
+    };
     cancel.check().map_err(SimError::from)?;
-    if keyframe.is_instant() {
-        return Ok(shaded);
-    }
-    let moved = downwind_columns(l, shaded.column, keyframe.span());
-    let end_grid = density(around(tile, halo, moved)?, keyframe.t1, stages)?;
-    shaded.shade_end(l, keyframe, end_grid, moved, params, stages);
+    // The span's end.
+    let end = if keyframe.is_instant() {
+        Arc::clone(&start)
+    } else {
+        match kept.as_deref_mut().and_then(|k| k.instant(&shading, keyframe.t1)) {
+            Some(end) => end,
+            None => {
+                let grid = density(kept.as_deref_mut(), shading.region, keyframe.t1, stages)?;
+                let end = Arc::new(shading.instant(&grid, keyframe.t1, stages));
+                if let Some(k) = kept {
+                    k.keep(Arc::clone(&end));
+                }
+                end
+            }
+        }
+    };
     cancel.check().map_err(SimError::from)?;
-    Ok(shaded)
+    Ok(shading.keyframe(l, layer, keyframe, &start, &end, grid))
 }
 
 /// The columns a tile's kept density ([`KeptDensity`]) covers: the tile with the
@@ -320,8 +348,12 @@ fn around(tile: TileId, halo: usize, moved: [i64; 2]) -> Result<Region, RenderEr
     ))
 }
 
-/// What shading a tile of one layer at one level needs, whichever end of a span.
-struct TileShading {
+/// What shading a tile of one layer at one level needs, whichever instant.
+pub(crate) struct TileShading {
+    tile: TileId,
+    quality: Quality,
+    bucket: SunBucket,
+    /// The lattice, not yet placed in time (its drift is the layer's wind).
     lattice: Lattice,
     lighting: Lighting,
     sheet: SplatSheet,
@@ -330,10 +362,30 @@ struct TileShading {
     column: f64,
     /// The tile's own box, world metres.
     owned: [f64; 4],
+    /// Extra columns around the tile for shadowing.
+    halo: usize,
+    /// The span of the keyframes the instants serve (0 for an instant).
+    span: f64,
+    /// The tile and its halo: the density a keyframe keeps of its start.
+    square: Region,
+    /// The columns an instant is shaded over: `square`, and the same box moved by the
+    /// wind over one span (so the balls that the wind carries out of the tile still
+    /// collect their air).
+    region: Region,
+    /// Height of the layer's cells, metres.
+    cell_height: f64,
 }
 
 impl TileShading {
-    fn new(l: &Layer, tile: TileId, quality: Quality, sun: Sun, params: &ShadingParams) -> TileShading {
+    fn new(
+        l: &Layer,
+        tile: TileId,
+        quality: Quality,
+        sun: Sun,
+        params: &ShadingParams,
+        halo: usize,
+        span: f64,
+    ) -> Result<TileShading, RenderError> {
         let settings = quality.settings();
         let column = l.cell_size * (tile.z as f64).exp2();
         let spacing = settings.spacing_columns * column;
@@ -343,62 +395,102 @@ impl TileShading {
             tile.y.saturating_mul(n) as f64 * column,
         ];
         let size = TILE_COLUMNS as f64 * column;
-        TileShading {
-            lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base),
+        let moved = downwind_columns(l, column, span);
+        let square = around(tile, halo, [0, 0])?;
+        Ok(TileShading {
+            tile,
+            quality,
+            bucket: sun.bucket(),
+            lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base).drifting(
+                l.wind,
+                l.shear,
+                0.0,
+            ),
             lighting: Lighting::new(sun.bucket().centre(), *params),
             sheet: SplatSheet::new(settings.splat_count, settings.splat_size),
             light_texel: settings.light_texel,
             origin,
             column,
             owned: [origin[0], origin[1], origin[0] + size, origin[1] + size],
-        }
-    }
-
-    /// Where a grid of `halo` extra columns around the tile, moved by `moved` whole
-    /// columns, lies in the world.
-    fn placement(&self, l: &Layer, halo: usize, moved: [i64; 2]) -> GridPlacement {
-        let h = halo as f64;
-        GridPlacement {
-            x0: self.origin[0] + (moved[0] as f64 - h) * self.column,
-            y0: self.origin[1] + (moved[1] as f64 - h) * self.column,
-            column: self.column,
-            base: l.base,
+            halo,
+            span,
+            square,
+            region: hull(square, around(tile, halo, moved)?),
             cell_height: l.cell_height,
+        })
+    }
+
+    /// Where a grid over `region` (columns of the tile's level) lies in the world.
+    fn placement(&self, region: Region) -> GridPlacement {
+        GridPlacement {
+            x0: region.x0 as f64 * self.column,
+            y0: region.y0 as f64 * self.column,
+            column: self.column,
+            base: self.lattice.base,
+            cell_height: self.cell_height,
         }
     }
 
-    /// The billboards of the balls `grid` gives the lattice moved by `shift(z)`, and
-    /// the ground shadow map they cast.
-    fn shade(
-        &self,
-        grid: &Grid<f32>,
-        unmoved: &GridPlacement,
-        place: &GridPlacement,
-        shift: impl Fn(f64) -> [f64; 2] + Sync,
-        stages: &mut Stages,
-    ) -> (Vec<Billboard>, Vec<f32>) {
-        // Lattice points over the unmoved grid: every ball that may shadow the tile.
-        let all = [
-            unmoved.x0,
-            unmoved.y0,
-            unmoved.x0 + grid.cols as f64 * self.column,
-            unmoved.y0 + grid.rows as f64 * self.column,
-        ];
-        let balls = stages.time(Stage::Metaballs, || {
-            self.lattice.collect_moved(grid, place, all, MIN_BALL_DENSITY, shift)
-        });
-        stages.time(Stage::Shading, || self.light(&balls))
+    /// Whether a point lies in the tile's own box.
+    fn inside(&self, c: [f64; 3]) -> bool {
+        c[0] >= self.owned[0] && c[0] < self.owned[2] && c[1] >= self.owned[1] && c[1] < self.owned[3]
     }
 
-    /// The billboards of `balls` shaded toward the sun, and the ground shadow map.
-    fn light(&self, balls: &[crate::density::metaballs::Metaball]) -> (Vec<Billboard>, Vec<f32>) {
-        let (billboards, buffer) = shade(
+    /// The index, in the lattice of one span earlier, of the point the wind carried
+    /// to lattice point `index` of `lattice`, and its centre then.
+    fn predecessor(&self, lattice: &Lattice, index: [i64; 3]) -> ([i64; 3], [f64; 3]) {
+        let earlier = lattice.at(lattice.drift.t - self.span);
+        let p = lattice.successor(index, &earlier);
+        (p, earlier.centre(p[0], p[1], p[2]))
+    }
+
+    /// The instant `t` shaded from `grid` (the density over `self.region` at `t`):
+    /// the balls of the lattice placed for `t` over the region, lit together, kept
+    /// where they start a span in the tile or end one that started there, and the
+    /// ground shadow map they cast.
+    fn instant(&self, grid: &Grid<f32>, t: f64, stages: &mut Stages) -> ShadedInstant {
+        let lattice = self.lattice.at(t);
+        debug_assert_eq!((grid.rows, grid.cols), (self.region.rows, self.region.cols));
+        let place = self.placement(self.region);
+        let r = self.region;
+        let all = [
+            place.x0,
+            place.y0,
+            place.x0 + r.cols as f64 * self.column,
+            place.y0 + r.rows as f64 * self.column,
+        ];
+        let balls = stages.time(Stage::Metaballs, || lattice.collect(grid, &place, all, MIN_BALL_DENSITY));
+        let keep = |b: &Metaball| {
+            self.inside(b.centre) || (self.span > 0.0 && self.inside(self.predecessor(&lattice, b.index).1))
+        };
+        let (billboards, shadow) = stages.time(Stage::Shading, || self.light(&lattice, &balls, keep));
+        ShadedInstant {
+            t,
+            span: self.span,
+            quality: self.quality,
+            bucket: self.bucket,
+            lattice,
+            billboards,
+            shadow,
+        }
+    }
+
+    /// The billboards of `balls` that `keep` accepts, shaded toward the sun, and the
+    /// ground shadow map.
+    fn light(
+        &self,
+        lattice: &Lattice,
+        balls: &[Metaball],
+        keep: impl Fn(&Metaball) -> bool,
+    ) -> (Vec<Billboard>, Vec<f32>) {
+        let (billboards, buffer) = shade_where(
             balls,
-            &self.lattice,
+            lattice,
             &self.lighting,
             &self.sheet,
             self.light_texel,
-            self.owned,
+            self.origin,
+            keep,
         );
         let mut shadow = vec![1.0f32; TILE_COLUMNS * TILE_COLUMNS];
         if self.lighting.sun_dir[2] > 0.0 {
@@ -409,7 +501,7 @@ impl TileShading {
                     let p = [
                         self.origin[0] + (c as f64 + 0.5) * self.column,
                         self.origin[1] + (r as f64 + 0.5) * self.column,
-                        self.lattice.base,
+                        lattice.base,
                     ];
                     shadow[r * TILE_COLUMNS + c] = buffer.transmittance_at(p).clamp(0.0, 1.0) as f32;
                 }
@@ -417,6 +509,198 @@ impl TileShading {
         }
         (billboards, shadow)
     }
+
+    /// The keyframe from its two ends (the same instant for an instant) and `grid`,
+    /// the density of the tile and its halo at the start.
+    fn keyframe(
+        &self,
+        l: &Layer,
+        layer: usize,
+        keyframe: Keyframe,
+        start: &ShadedInstant,
+        end: &ShadedInstant,
+        grid: Grid<f32>,
+    ) -> ShadedTile {
+        let first: Vec<Billboard> = start.billboards.iter().filter(|b| self.inside(b.centre)).copied().collect();
+        let (billboards, end_billboards) = if keyframe.is_instant() {
+            (first.clone(), first)
+        } else {
+            // The end's balls whose lattice points started the span in the tile, named
+            // by those points so the two ends pair.
+            let last: Vec<Billboard> = end
+                .billboards
+                .iter()
+                .filter_map(|b| {
+                    let (index, from) = self.predecessor(&end.lattice, b.index);
+                    self.inside(from).then_some(Billboard { index, ..*b })
+                })
+                .collect();
+            let span = keyframe.span();
+            let (wind, shear, base) = (l.wind, l.shear, l.base);
+            let shift = |z: f64| {
+                let h = z - base;
+                [(wind[0] + shear[0] * h) * span, (wind[1] + shear[1] * h) * span]
+            };
+            pair_ends(first, last, shift)
+        };
+        ShadedTile {
+            layer,
+            layer_name: l.name.clone(),
+            tile: self.tile,
+            t: keyframe.t0,
+            keyframe,
+            quality: self.quality,
+            bucket: self.bucket,
+            sun: self.bucket.centre(),
+            lighting: self.lighting.clone(),
+            lattice: start.lattice,
+            origin: self.origin,
+            size: TILE_COLUMNS as f64 * self.column,
+            column: self.column,
+            wind: l.wind,
+            shear: l.shear,
+            billboards,
+            end: end_billboards,
+            shadow: start.shadow.clone(),
+            shadow_end: end.shadow.clone(),
+            density: grid,
+            halo: self.halo,
+            place: self.placement(self.square),
+        }
+    }
+}
+
+/// One instant of a tile shaded (see [`shade_tile`]): what the keyframe that starts
+/// at `t` and the one that ends there both take from it.
+#[derive(Debug)]
+pub struct ShadedInstant {
+    t: f64,
+    span: f64,
+    quality: Quality,
+    bucket: SunBucket,
+    /// The lattice placed for `t`.
+    lattice: Lattice,
+    /// The shaded balls that start a span in the tile or end one that started there,
+    /// in lattice order, named by the lattice of `t`.
+    billboards: Vec<Billboard>,
+    /// The ground shadow map at `t`.
+    shadow: Vec<f32>,
+}
+
+impl ShadedInstant {
+    /// Whether it is the instant `t` of keyframes shaded as `shading` shades them.
+    fn is(&self, shading: &TileShading, t: f64) -> bool {
+        self.t == t && self.span == shading.span && self.quality == shading.quality && self.bucket == shading.bucket
+    }
+
+    /// Bytes it holds.
+    fn bytes(&self) -> usize {
+        std::mem::size_of::<Self>()
+            + self.billboards.capacity() * std::mem::size_of::<Billboard>()
+            + self.shadow.capacity() * 4
+    }
+}
+
+/// The columns of the smallest box holding `a` and `b`.
+fn hull(a: Region, b: Region) -> Region {
+    let (x0, y0) = (a.x0.min(b.x0), a.y0.min(b.y0));
+    let (x1, y1) = (
+        (a.x0 + a.cols as i64).max(b.x0 + b.cols as i64),
+        (a.y0 + a.rows as i64).max(b.y0 + b.rows as i64),
+    );
+    Region {
+        x0,
+        y0,
+        cols: (x1 - x0) as usize,
+        rows: (y1 - y0) as usize,
+    }
+}
+
+/// Instants a tile keeps: both ends of its latest keyframe, for two variants.
+const KEPT_INSTANTS: usize = 4;
+
+/// What one tile of one layer keeps between keyframes: its density
+/// ([`KeptDensity`]: the latest grids and, at level 0, the automaton's runs) and the
+/// latest instants it shaded, so that a keyframe whose start is the previous one's
+/// end shades one instant, not two.
+#[derive(Debug)]
+pub struct KeptTile {
+    /// The tile's density state.
+    pub density: KeptDensity,
+    instants: Vec<Arc<ShadedInstant>>,
+    counts: ShadingCounts,
+}
+
+/// How the instants a [`KeptTile`] gave were obtained.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ShadingCounts {
+    /// Taken from an earlier keyframe: no metaballs collected, no light swept.
+    pub reused: u64,
+    /// Shaded.
+    pub shaded: u64,
+}
+
+impl KeptTile {
+    /// Nothing kept yet for layer `layer` of `l`'s tile `tile`: over the columns every
+    /// keyframe of it, in every quality and sun, is cut from ([`kept_region`]; the
+    /// tile's own columns if that region is out of range, and then the jobs compute
+    /// cold where they must).
+    pub fn for_tile(l: &Layer, layer: usize, tile: TileId) -> KeptTile {
+        let region = kept_region(l, tile)
+            .or_else(|_| tile.region())
+            .unwrap_or(Region::square(0, 0, 0));
+        KeptTile {
+            density: KeptDensity::new(layer, tile.z, region),
+            instants: Vec::new(),
+            counts: ShadingCounts::default(),
+        }
+    }
+
+    /// The kept instant `t` of `shading`'s keyframes, counted as reused.
+    fn instant(&mut self, shading: &TileShading, t: f64) -> Option<Arc<ShadedInstant>> {
+        let found = self.instants.iter().find(|i| i.is(shading, t)).cloned();
+        self.counts.reused += u64::from(found.is_some());
+        found
+    }
+
+    /// Keeps `instant`, dropping the earliest when full; counts it as shaded.
+    fn keep(&mut self, instant: Arc<ShadedInstant>) {
+        self.counts.shaded += 1;
+        if self.instants.len() >= KEPT_INSTANTS {
+            let earliest = (0..self.instants.len())
+                .min_by(|&a, &b| self.instants[a].t.total_cmp(&self.instants[b].t))
+                .expect("not empty");
+            if self.instants[earliest].t > instant.t {
+                return;
+            }
+            self.instants.remove(earliest);
+        }
+        self.instants.push(instant);
+    }
+
+    /// Bytes held: the density state and the instants.
+    pub fn bytes(&self) -> usize {
+        self.density.bytes() + self.instants.iter().map(|i| i.bytes()).sum::<usize>()
+    }
+
+    /// How its instants were obtained so far.
+    pub fn shading_counts(&self) -> ShadingCounts {
+        self.counts
+    }
+}
+
+/// The columns `inner` of a grid over `outer` (which holds them).
+fn cut(grid: &Grid<f32>, outer: Region, inner: Region) -> Grid<f32> {
+    let (dx, dy) = ((inner.x0 - outer.x0) as usize, (inner.y0 - outer.y0) as usize);
+    let mut out = Grid::new(grid.depth, inner.rows, inner.cols);
+    for k in 0..grid.depth {
+        for r in 0..inner.rows {
+            let from = grid.index(k, r + dy, dx);
+            let to = out.index(k, r, 0);
+            out.data[to..to + inner.cols].copy_from_slice(&grid.data[from..from + inner.cols]);
+        }
+    }
+    out
 }
 
 /// [`shade_tile`] of an instant on a density grid already computed: `grid` covers the
@@ -434,51 +718,9 @@ pub fn shade_density(
     halo: usize,
 ) -> ShadedTile {
     let mut stages = Stages::default();
-    shade_density_staged(layer, l, tile, t, quality, sun, params, grid, halo, &mut stages)
-}
-
-/// [`shade_density`] adding the time of each stage to `stages`.
-#[allow(clippy::too_many_arguments)]
-fn shade_density_staged(
-    layer: usize,
-    l: &Layer,
-    tile: TileId,
-    t: f64,
-    quality: Quality,
-    sun: Sun,
-    params: &ShadingParams,
-    grid: Grid<f32>,
-    halo: usize,
-    stages: &mut Stages,
-) -> ShadedTile {
-    let shading = TileShading::new(l, tile, quality, sun, params);
-    let place = shading.placement(l, halo, [0, 0]);
-    let (billboards, shadow) = shading.shade(&grid, &place, &place, |_| [0.0, 0.0], stages);
-    let bucket = sun.bucket();
-    ShadedTile {
-        layer,
-        layer_name: l.name.clone(),
-        tile,
-        t,
-        keyframe: Keyframe::instant(t),
-        quality,
-        bucket,
-        sun: bucket.centre(),
-        lighting: shading.lighting,
-        lattice: shading.lattice,
-        origin: shading.origin,
-        size: TILE_COLUMNS as f64 * shading.column,
-        column: shading.column,
-        wind: l.wind,
-        shear: l.shear,
-        end: billboards.clone(),
-        billboards,
-        shadow_end: shadow.clone(),
-        shadow,
-        density: grid,
-        halo,
-        place,
-    }
+    let shading = TileShading::new(l, tile, quality, sun, params, halo, 0.0).expect("the grid's tile is in range");
+    let start = shading.instant(&grid, t, &mut stages);
+    shading.keyframe(l, layer, Keyframe::instant(t), &start, &start, grid)
 }
 
 impl ShadedTile {
@@ -504,36 +746,6 @@ impl ShadedTile {
     pub fn velocity_at(&self, z: f64) -> [f64; 2] {
         let h = z - self.lattice.base;
         [self.wind[0] + self.shear[0] * h, self.wind[1] + self.shear[1] * h]
-    }
-
-    /// Turns an instant's tile into one animating over `keyframe`: shades the end of
-    /// the span from `end_grid` (the density at `t1` over the tile and its halo moved
-    /// by `moved` whole columns) on the lattice moved by the wind, and pairs the balls
-    /// of both ends by lattice point.
-    fn shade_end(
-        &mut self,
-        l: &Layer,
-        keyframe: Keyframe,
-        end_grid: Grid<f32>,
-        moved: [i64; 2],
-        params: &ShadingParams,
-        stages: &mut Stages,
-    ) {
-        let shading = TileShading::new(l, self.tile, self.quality, self.sun, params);
-        let place = shading.placement(l, self.halo, moved);
-        let span = keyframe.span();
-        let (wind, shear, base) = (self.wind, self.shear, l.base);
-        let shift = |z: f64| {
-            let h = z - base;
-            [(wind[0] + shear[0] * h) * span, (wind[1] + shear[1] * h) * span]
-        };
-        let (end, shadow_end) = shading.shade(&end_grid, &self.place, &place, shift, stages);
-        let start = std::mem::take(&mut self.billboards);
-        let (start, end) = pair_ends(start, end, shift);
-        self.billboards = start;
-        self.end = end;
-        self.shadow_end = shadow_end;
-        self.keyframe = keyframe;
     }
 }
 
@@ -646,11 +858,9 @@ mod tests {
     #[test]
     fn kept_keyframes_equal_cold_ones() {
         use crate::cancel::Cancel;
-        use crate::density::kept::KeptDensity;
         use crate::products::Product;
         use crate::products::catalogue::encode_shaded;
         use crate::render::{Quality, ShadingParams, Sun};
-        use crate::stages::{Stage, Stages};
         use crate::world::Config;
         let config = Config::embedded();
         let world = config.world("default").unwrap();
@@ -665,7 +875,7 @@ mod tests {
         };
         for z in 0..=3u32 {
             let tile = TileId { z, x: -1, y: 0 };
-            let mut kept = KeptDensity::new(layer, z, kept_region(l, tile).unwrap());
+            let mut kept = KeptTile::for_tile(l, layer, tile);
             let span = keyframe_span(l.dt, z);
             // Level 0: the steps 16·200 − 2 … 16·200 + 1 hold an epoch boundary.
             let first = (16 * 200 - 2) / (1i64 << z.min(4));
@@ -701,9 +911,66 @@ mod tests {
                 .unwrap();
                 assert!(encode(&cold) == encode(&warm), "level {z}, keyframe {k}, {q:?}");
             }
-            let c = kept.counts();
+            let c = kept.density.counts();
             assert!(c.reused >= 4, "level {z}: {c:?}");
             assert!(z > 0 || c.live >= 5, "level {z}: {c:?}");
+            // Each keyframe after the first of a run shades its end alone.
+            let s = kept.shading_counts();
+            assert!(s.reused >= 3, "level {z}: {s:?}");
+        }
+    }
+
+    /// Where one keyframe hands over to the next, a ball that the first span ends
+    /// with inside the tile is the ball the next span starts with: the same place and
+    /// the same light, so a client draws no jump at the boundary.
+    #[test]
+    fn a_span_ends_where_the_next_one_starts() {
+        use crate::cancel::Cancel;
+        use crate::render::{Quality, ShadingParams, Sun};
+        use crate::world::Config;
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let (layer, sun) = (0, Sun::new(200.0, 35.0).unwrap());
+        for z in [0u32, 2] {
+            let l = &world.layers[layer];
+            let tile = TileId { z, x: 1, y: 0 };
+            let span = keyframe_span(l.dt, z);
+            let shade = |k: u64| {
+                let keyframe = Keyframe::containing(k as f64 * span, l, z);
+                shade_tile(
+                    &world,
+                    layer,
+                    tile,
+                    keyframe,
+                    Quality::Fast,
+                    sun,
+                    &ShadingParams::default(),
+                    &config.limits,
+                    &Cancel::never(),
+                )
+                .unwrap()
+            };
+            let k = (43_200.0 / span) as u64;
+            let (a, b) = (shade(k), shade(k + 1));
+            let owned = |c: [f64; 3]| {
+                c[0] >= a.origin[0] && c[0] < a.origin[0] + a.size && c[1] >= a.origin[1] && c[1] < a.origin[1] + a.size
+            };
+            let mut matched = 0;
+            for e in a.end.iter().filter(|e| e.splat_tau > 0.0 && owned(e.centre)) {
+                let s = b
+                    .billboards
+                    .iter()
+                    .find(|s| (s.centre[0] - e.centre[0]).abs() < 1e-6 && (s.centre[1] - e.centre[1]).abs() < 1e-6 && s.centre[2] == e.centre[2])
+                    .unwrap_or_else(|| panic!("level {z}: {e:?} starts no ball of the next span"));
+                assert_eq!(
+                    (s.splat_tau, s.colour, s.tau_sun, s.density),
+                    (e.splat_tau, e.colour, e.tau_sun, e.density),
+                    "level {z}"
+                );
+                matched += 1;
+            }
+            assert!(matched > 100, "level {z}: {matched}");
+            assert!(a.shadow_end == b.shadow, "level {z}: the shadow map hands over too");
         }
     }
 }

@@ -40,7 +40,11 @@ use serde::Deserialize;
 /// 10: authored weather (storms, fronts and regional overrides that push a layer's
 ///    humidity and activation, `world::authored`) and the cumulonimbus anvil
 ///    (`Preset::anvil`: brightness spread under the layer's top).
-pub const ALGORITHM_VERSION: u32 = 10;
+/// 11: the metaball lattice drifts with the wind (`density::metaballs::Drift`): a
+///    keyframe's end is the next keyframe's start (one instant shaded per keyframe,
+///    no jump at the boundary); each instant is shaded over the tile, its halo and
+///    the box the wind moves it to over a span.
+pub const ALGORITHM_VERSION: u32 = 11;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -11,10 +11,9 @@
 use std::time::{Duration, Instant};
 
 use cloudscape_core::cancel::Cancel;
-use cloudscape_core::density::kept::KeptDensity;
 use cloudscape_core::products::Product;
 use cloudscape_core::products::catalogue::encode_shaded;
-use cloudscape_core::render::tile::{kept_region, shade_tile_staged};
+use cloudscape_core::render::tile::{KeptTile, shade_tile_staged};
 use cloudscape_core::render::{Quality, ShadedTile, ShadingParams, Sun, TileId};
 use cloudscape_core::stages::{Stage, Stages};
 use cloudscape_core::world::{Config, Keyframe, World};
@@ -55,7 +54,7 @@ fn keyframe(
     keyframe: Keyframe,
     quality: Quality,
     sun: Sun,
-    kept: Option<&mut KeptDensity>,
+    kept: Option<&mut KeptTile>,
 ) -> Result<Profile, String> {
     let mut p = Profile::default();
     let start = Instant::now();
@@ -135,8 +134,7 @@ pub fn stages(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
                 let k = Keyframe::containing(t, l, z);
                 cold.push(keyframe(&world, &config, layer, tile, k, quality, sun, None)?);
             }
-            let region = kept_region(l, tile).map_err(|e| e.to_string())?;
-            let mut kept = KeptDensity::new(layer, z, region);
+            let mut kept = KeptTile::for_tile(l, layer, tile);
             t += 977.0 * span / l.dt;
             let first = Keyframe::containing(t, l, z);
             keyframe(&world, &config, layer, tile, first, quality, sun, Some(&mut kept))?;

@@ -75,13 +75,16 @@ fn steady_state(ph: f64, pa: f64, pe: f64) -> f64 {
 
 fn table() -> &'static Vec<f32> {
     static TABLE: OnceLock<Vec<f32>> = OnceLock::new();
+    // Filled on the calling thread (tens of milliseconds, once): a rayon join inside
+    // the initialiser deadlocked when another rayon thread, stealing work meanwhile,
+    // called `table()` and blocked on the lock whose initialiser waited for it.
     TABLE.get_or_init(|| {
         let axis = |i: usize| {
             let s = i as f64 / (N - 1) as f64;
             s * s
         };
         let mut t = vec![0f32; N * N * N];
-        t.par_chunks_mut(N * N).enumerate().for_each(|(i, plane)| {
+        t.chunks_mut(N * N).enumerate().for_each(|(i, plane)| {
             for j in 0..N {
                 for k in 0..N {
                     plane[j * N + k] = steady_state(axis(i), axis(j), axis(k)) as f32;

@@ -39,6 +39,8 @@ fn config_text() -> String {
 /// Every product of one keyframe of `tile`, in [`Product::ALL`] order: the shaded
 /// ones from one shading, the grids from the density at the span's start; from
 /// `kept` where given (as the server's jobs do, all of a tile's jobs sharing it).
+/// The impostor atlas (half a second a tile: it renders every cluster) only `with_atlas`.
+#[allow(clippy::too_many_arguments)]
 fn products(
     world: &World,
     layer: usize,
@@ -47,6 +49,7 @@ fn products(
     quality: Quality,
     sun: Sun,
     mut kept: Option<&mut KeptTile>,
+    with_atlas: bool,
 ) -> Vec<(Product, Vec<u8>)> {
     let limits = cloudscape_core::world::Limits::default();
     let cancel = Cancel::never();
@@ -71,13 +74,22 @@ fn products(
         None => density::density(world, layer, tile.z, region, keyframe.t0),
     }
     .unwrap();
+    // Billboards (both encodings) and shadow in one call, the atlas and its manifest in
+    // another, as the server encodes them.
+    let mut shaded_bytes = encode_shaded(&shaded, u64::MAX, Product::BillboardsJson);
+    if with_atlas {
+        shaded_bytes.extend(encode_shaded(&shaded, u64::MAX, Product::AtlasPng));
+    }
     Product::ALL
         .iter()
+        .filter(|p| with_atlas || !matches!(p, Product::AtlasPng | Product::AtlasJson))
         .map(|&p| {
             let bytes = if p.needs_shading() {
-                let mut all = encode_shaded(&shaded, u64::MAX, p);
-                let i = all.iter().position(|(q, _)| *q == p).expect("the wanted product is encoded");
-                all.swap_remove(i).1
+                let i = shaded_bytes
+                    .iter()
+                    .position(|(q, _)| *q == p)
+                    .unwrap_or_else(|| panic!("{} is encoded", p.name()));
+                shaded_bytes[i].1.clone()
             } else {
                 p.encode_grid(&world.layers[layer], &grid)
                     .unwrap_or_else(|| panic!("{} is a grid product", p.name()))
@@ -114,9 +126,11 @@ fn run_on(threads: usize, world: &World) -> Vec<Vec<(Product, Vec<u8>)>> {
             for z in 0..=3u32 {
                 let tile = TileId { z, x: -1, y: 2 };
                 let mut kept = KeptTile::for_tile(l, layer, tile);
-                for (keyframe, quality, sun) in asks(z, l.dt) {
-                    let warm = products(world, layer, tile, keyframe, quality, sun, Some(&mut kept));
-                    let cold = products(world, layer, tile, keyframe, quality, sun, None);
+                for (i, (keyframe, quality, sun)) in asks(z, l.dt).into_iter().enumerate() {
+                    // The atlas once per level, at a keyframe computed from kept state.
+                    let atlas = i == 5;
+                    let warm = products(world, layer, tile, keyframe, quality, sun, Some(&mut kept), atlas);
+                    let cold = products(world, layer, tile, keyframe, quality, sun, None, atlas);
                     for ((p, w), (_, c)) in warm.iter().zip(&cold) {
                         assert!(
                             w == c,
@@ -151,6 +165,10 @@ fn kept_keyframes_give_the_bytes_of_cold_ones_on_any_thread_count() {
     let three = run_on(3, &world);
     assert!(one == three, "1 and 3 threads give different bytes");
     assert!(one.iter().flatten().any(|(p, b)| *p == Product::BillboardsBin && b.len() > 200));
+    // Every product was compared.
+    for p in Product::ALL {
+        assert!(one.iter().flatten().any(|(q, _)| *q == p), "{} never compared", p.name());
+    }
 }
 
 /// The keyframe URLs a game client walks through: every product of a tile, at levels
@@ -160,7 +178,9 @@ fn urls(z: u32, dt: f64) -> Vec<String> {
     let first = (4 * 1000 - 2) / (1u64 << z);
     let mut out = Vec::new();
     for k in first..first + 5 {
-        for p in Product::ALL {
+        // The atlas (half a second a tile) at the last keyframe only.
+        let atlas = |p: &Product| matches!(p, Product::AtlasPng | Product::AtlasJson);
+        for p in Product::ALL.iter().filter(|p| k == first + 4 || !atlas(p)) {
             out.push(format!(
                 "/v1/worlds/default/tiles/{z}/-1/2/{}?t={}&layer=low&quality=fast&sun=200,35",
                 p.name(),

@@ -101,7 +101,8 @@ pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
     };
     let config = Config::from_file(p).map_err(|e| e.to_string())?;
     let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?;
-    cloudscape_server::ServerConfig::parse(&text).map_err(|e| e.to_string())?;
+    let settings = cloudscape_server::ServerConfig::parse(&text).map_err(|e| e.to_string())?;
+    cloudscape_server::check_config(&config, &settings).map_err(|e| e.to_string())?;
     Ok(config)
 }
 

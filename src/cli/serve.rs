@@ -9,7 +9,8 @@
 use clap::Args;
 
 use cloudscape_core::world::authored::{Area, Influence, Shape};
-use cloudscape_core::world::{Config, DEFAULT_CONFIG};
+use cloudscape_core::world::warm::WarmArea;
+use cloudscape_core::world::{Config, DEFAULT_CONFIG, World, WorldClock};
 use cloudscape_server::{Server, ServerConfig};
 
 /// Sections whose keys the environment may override.
@@ -133,6 +134,7 @@ pub(crate) fn effective_config(
     let merged = toml::to_string(&doc).map_err(|e| format!("cannot merge config overrides: {e}"))?;
     let config = Config::parse(&merged).map_err(|e| e.to_string())?;
     let server = ServerConfig::parse(&merged).map_err(|e| e.to_string())?;
+    cloudscape_server::check_config(&config, &server).map_err(|e| e.to_string())?;
     Ok((config, server))
 }
 
@@ -188,6 +190,13 @@ pub(crate) fn config_to_toml(config: &Config, server: &ServerConfig) -> Result<S
             if !list.is_empty() {
                 wt.insert(key.into(), toml::Value::Array(list));
             }
+        }
+        if w.clock != WorldClock::default() {
+            wt.insert("clock".into(), value(&w.clock)?);
+        }
+        let warm: Vec<toml::Value> = w.warm.iter().map(|a| warm_entry(w, a)).collect::<Result<_, _>>()?;
+        if !warm.is_empty() {
+            wt.insert("warm".into(), toml::Value::Array(warm));
         }
         worlds.insert(name.clone(), toml::Value::Table(wt));
     }
@@ -250,6 +259,23 @@ fn authored_entry(preset: &str, influence: &Influence) -> Result<(bool, toml::Ta
     }
     put("ramp", influence.ramp.into());
     Ok((is_region, t))
+}
+
+/// One `[[worlds.NAME.warm]]` entry that parses back to `area` of world `w`.
+fn warm_entry(w: &World, area: &WarmArea) -> Result<toml::Value, String> {
+    let mut t = toml::Table::new();
+    t.insert("name".into(), area.name.clone().into());
+    match &area.area {
+        Area::Box(b) => t.insert("bbox".into(), value(b)?),
+        Area::Polygon(p) => t.insert("polygon".into(), value(p)?),
+    };
+    t.insert("margin".into(), area.margin.into());
+    t.insert("levels".into(), value(&area.levels)?);
+    t.insert("products".into(), value(&area.products)?);
+    t.insert("qualities".into(), value(&area.qualities)?);
+    let layers: Vec<&str> = area.layers.iter().map(|&l| w.layers[l].name.as_str()).collect();
+    t.insert("layers".into(), value(&layers)?);
+    Ok(toml::Value::Table(t))
 }
 
 fn value<T: serde::Serialize>(v: &T) -> Result<toml::Value, String> {
@@ -326,8 +352,15 @@ mod tests {
              centre = [0.0, 0.0, 3000.0]\nradii = [1000.0, 1000.0, 1000.0]\npath = [[0.0, 0.0, 0.0], [100.0, 50.0, 0.0]]\n\
              [[worlds.storm-front.regions]]\nbox = [0.0, 0.0, 10.0, 10.0]\nmix = {{ cumulonimbus = 0.5, stratocumulus = -0.5 }}\nend = 500.0\n"
         );
+        let more = format!(
+            "{more}[worlds.storm-front.clock]\noffset = -1.0e9\nrate = 12.0\n\
+             [[worlds.storm-front.warm]]\nname = \"camp\"\npolygon = [[0.0, 0.0], [5000.0, 0.0], [0.0, 5000.0]]\n\
+             levels = [0, 3]\nproducts = [\"density.u8\"]\nlayers = [\"anvil\"]\nmargin = 100.0\n"
+        );
         let c = Config::parse(&more).unwrap();
         assert_eq!(c.worlds["storm-front"].authored.len(), 3);
+        assert_eq!(c.worlds["storm-front"].clock.rate, 12.0);
+        assert_eq!(c.worlds["storm-front"].warm.len(), 1);
         let text = config_to_toml(&c, &s).unwrap();
         assert_eq!(Config::parse(&text).unwrap(), c);
         assert!(!c.worlds["archipelago"].authored.is_empty());

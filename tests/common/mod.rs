@@ -109,8 +109,9 @@ pub fn free_port() -> u16 {
 }
 
 impl ServeProcess {
-    /// Starts `cloudscape serve --listen 127.0.0.1:PORT` with `args` and `env` added and
-    /// waits (up to 60 s) for `/readyz`. Panics with the server's stderr if it never
+    /// Starts `cloudscape serve --listen 127.0.0.1:PORT` with `args` and `env` added (and
+    /// no play area kept warm unless `env` says otherwise) and waits (up to 60 s) for
+    /// `/readyz`. Panics with the server's stderr if it never
     /// becomes ready.
     pub fn start(args: &[&str], env: &[(&str, &str)]) -> ServeProcess {
         Self::start_on(free_port(), args, env)
@@ -122,6 +123,11 @@ impl ServeProcess {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_cloudscape"));
         cmd.arg("serve").args(["--listen", &listen]).args(args);
         cmd.env("CLOUDSCAPE_SERVER_DRAIN_MS", "0");
+        // The embedded config's play areas are kept warm from start-up on: seconds of
+        // work before readiness and a keyframe per tile every span after it, which
+        // would compete with what each test measures. A test that wants them passes
+        // `("CLOUDSCAPE_SERVER_WARM_THREADS", "1")` in `env` (tests/warm.rs has its own).
+        cmd.env("CLOUDSCAPE_SERVER_WARM_THREADS", "0");
         for (k, v) in env {
             cmd.env(k, v);
         }

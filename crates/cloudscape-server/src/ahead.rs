@@ -36,7 +36,7 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::Work;
 use cloudscape_core::world::Keyframe;
 
-use crate::cache::{Computation, ResponseCache, WithSiblings};
+use crate::cache::{Asker, Computation, ResponseCache, WithSiblings};
 use crate::error::ApiError;
 use crate::key::CacheKey;
 use crate::metrics::Metrics;
@@ -293,8 +293,10 @@ async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) ->
                 work,
                 job: plan,
             },
+            Asker::Ahead,
         )
-        .await;
+        .await
+        .is_ok();
     tracing::debug!(variant = %job.variant, computed, "ahead: end");
     if computed {
         m.ahead_computed.inc();

@@ -43,12 +43,14 @@ const CANCEL_POLL: Duration = Duration::from_millis(50);
 /// `Retry-After` bounds, seconds.
 const RETRY_AFTER_S: (u32, u32) = (1, 60);
 
-/// Who a computation is for: a request waiting on it, or compute-ahead
-/// (`crate::ahead`), whose computations and refusals are counted apart.
+/// Who a computation is for: a request waiting on it, or one of the background tasks,
+/// compute-ahead (`crate::ahead`) and the play areas kept warm (`crate::warm`), whose
+/// computations and refusals are counted apart.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Asker {
     Request,
     Ahead,
+    Warm,
 }
 
 /// Bounded CPU work: at most `capacity` jobs running or waiting for a rayon thread,
@@ -238,36 +240,39 @@ pub struct ResponseCache {
     budget: Duration,
     /// The second-level cache shared by replicas, if configured.
     shared: Option<Arc<SharedCache>>,
-    /// Keys computed ahead that no request has found yet.
+    /// Keys computed in the background (ahead, warm) that no request has found yet.
     ahead: AheadKeys,
 }
 
-/// Keys computed ahead of any request, until a request finds each (bounded: the
-/// oldest half is forgotten when full).
+/// Keys computed in the background, ahead of any request, and by whom, until a request
+/// finds each (bounded: the oldest half is forgotten when full).
 #[derive(Default)]
-struct AheadKeys(Mutex<HashMap<CacheKey, u64>>, AtomicU64);
+struct AheadKeys(Mutex<HashMap<CacheKey, (u64, Asker)>>, AtomicU64);
 
 /// Most keys [`AheadKeys`] remembers.
 const MAX_AHEAD_KEYS: usize = 1 << 16;
 
 impl AheadKeys {
-    fn remember<'a>(&self, keys: impl Iterator<Item = &'a CacheKey>) {
+    fn remember<'a>(&self, keys: impl Iterator<Item = &'a CacheKey>, by: Asker) {
         let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
         for key in keys {
             if map.len() >= MAX_AHEAD_KEYS {
-                let mut ages: Vec<u64> = map.values().copied().collect();
+                let mut ages: Vec<u64> = map.values().map(|(age, _)| *age).collect();
                 ages.sort_unstable();
                 let median = ages[ages.len() / 2];
-                map.retain(|_, age| *age > median);
+                map.retain(|_, (age, _)| *age > median);
             }
-            map.insert(key.clone(), self.1.fetch_add(1, Ordering::Relaxed));
+            map.insert(key.clone(), (self.1.fetch_add(1, Ordering::Relaxed), by));
         }
     }
 
-    /// True (once) when `key` was computed ahead and no request had found it yet.
-    fn served(&self, key: &CacheKey) -> bool {
+    /// Who computed `key` in the background, once, when no request had found it yet.
+    fn served(&self, key: &CacheKey) -> Option<Asker> {
         let mut map = self.0.lock().unwrap_or_else(|e| e.into_inner());
-        !map.is_empty() && map.remove(key).is_some()
+        if map.is_empty() {
+            return None;
+        }
+        map.remove(key).map(|(_, by)| by)
     }
 }
 
@@ -345,8 +350,10 @@ impl ResponseCache {
         let (kind, key) = (computation.kind, computation.key.clone());
         if let Some(bytes) = self.cache.get(&key).await {
             metrics.cache_hits.with_label_values(&[kind]).inc();
-            if self.ahead.served(&key) {
-                metrics.ahead_served.inc();
+            match self.ahead.served(&key) {
+                Some(Asker::Ahead) => metrics.ahead_served.inc(),
+                Some(Asker::Warm) => metrics.warm_served.inc(),
+                _ => {}
             }
             return Ok(bytes);
         }
@@ -357,7 +364,7 @@ impl ResponseCache {
         let this = Arc::clone(self);
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
-            let init = this.fill(&m, computation, cancel, false);
+            let init = this.fill(&m, computation, cancel, Asker::Request);
             this.get_with(&key, init).await
         });
         let result = match tokio::time::timeout(self.budget, task).await {
@@ -380,14 +387,15 @@ impl ResponseCache {
 
     /// The bytes of `key` from the shared cache, or computed by `job` through the
     /// queue; the siblings the job yields go into both caches (the key itself is
-    /// inserted by the caller's `try_get_with`). Keys computed `ahead` are remembered,
-    /// so the first request that finds each counts as served from ahead.
+    /// inserted by the caller's `try_get_with`). Keys computed in the background are
+    /// remembered, so the first request that finds each counts as served from ahead
+    /// (or warm).
     async fn fill(
         &self,
         m: &Arc<Metrics>,
         computation: Computation<impl Job>,
         cancel: Cancel,
-        ahead: bool,
+        by: Asker,
     ) -> Result<Bytes, ApiError> {
         let Computation { kind, key, work, job } = computation;
         if let Some(shared) = &self.shared
@@ -395,15 +403,14 @@ impl ResponseCache {
         {
             return Ok(bytes);
         }
-        let by = if ahead { Asker::Ahead } else { Asker::Request };
         let (bytes, siblings) = self.queue.run(m, (kind, by), work, cancel, job).await?;
         for (k, b) in &siblings {
             if b.len() <= self.max_entry {
                 self.cache.insert(k.clone(), b.clone()).await;
             }
         }
-        if ahead {
-            self.ahead.remember(siblings.iter().map(|(k, _)| k).chain([&key]));
+        if by != Asker::Request {
+            self.ahead.remember(siblings.iter().map(|(k, _)| k).chain([&key]), by);
         }
         if let Some(shared) = &self.shared {
             let mut entries = siblings;
@@ -413,16 +420,28 @@ impl ResponseCache {
         Ok(bytes)
     }
 
-    /// Computes `key` ahead of any request (no time budget; requests asking for it
-    /// meanwhile join the computation). True when the bytes are in the cache
-    /// afterwards, computed now or before; false when the queue shed it or it failed.
-    pub async fn compute_ahead(self: &Arc<Self>, metrics: &Arc<Metrics>, computation: Computation<impl Job>) -> bool {
+    /// Computes `key` ahead of any request, for a background task `by` (no time
+    /// budget; requests asking for it meanwhile join the computation). `Ok(true)` when
+    /// this call put the bytes in the cache, `Ok(false)` when they were there already
+    /// (or another caller's computation put them there); an error when the queue shed
+    /// it or it failed.
+    pub async fn compute_ahead(
+        self: &Arc<Self>,
+        metrics: &Arc<Metrics>,
+        computation: Computation<impl Job>,
+        by: Asker,
+    ) -> Result<bool, ApiError> {
         let key = computation.key.clone();
         if self.cache.contains_key(&key) {
-            return true;
+            return Ok(false);
         }
-        let init = self.fill(metrics, computation, Cancel::never(), true);
-        self.get_with(&key, init).await.is_ok()
+        let ran = std::sync::atomic::AtomicBool::new(false);
+        let init = async {
+            ran.store(true, Ordering::Relaxed);
+            self.fill(metrics, computation, Cancel::never(), by).await
+        };
+        self.get_with(&key, init).await?;
+        Ok(ran.load(Ordering::Relaxed))
     }
 
     /// The bytes of `key` from the cache, or from `init` (run once for all concurrent

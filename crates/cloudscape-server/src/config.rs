@@ -88,6 +88,14 @@ pub struct ServerConfig {
     /// Most tile variants the hot set follows for compute-ahead; the least watched are
     /// forgotten first.
     pub ahead_tiles: u32,
+    /// Compute threads that keeping play areas warm may use at once once the server is
+    /// ready (`crate::warm`; before, it may use them all): the current and next
+    /// keyframes of `[[worlds.NAME.warm]]` areas. 0 keeps no area warm (nor lists any
+    /// in discovery, nor waits for any before readiness).
+    pub warm_threads: u32,
+    /// Most tile variants (tile × layer × computation × quality) the play areas of all
+    /// worlds may keep warm together; a config whose areas need more is refused.
+    pub max_warm_tiles: u32,
     /// Origins whose scripts may read the answers (CORS, [`crate::cors`]): `["*"]`
     /// (the default) is any origin; a list such as `["https://game.example"]` only
     /// those; `[]` sends no CORS headers. A string is read as a comma-separated list
@@ -153,6 +161,8 @@ impl Default for ServerConfig {
             reply_bytes: 256 << 20,
             ahead_threads: 1,
             ahead_tiles: 4096,
+            warm_threads: 1,
+            max_warm_tiles: 4096,
             cors_origins: vec!["*".to_string()],
             public_url: String::new(),
         }
@@ -222,6 +232,12 @@ impl ServerConfig {
         }
         if self.ahead_tiles > 1 << 20 {
             return Err(invalid("server.ahead_tiles", "must be at most 1048576"));
+        }
+        if self.warm_threads > 64 {
+            return Err(invalid("server.warm_threads", "must be within [0, 64]"));
+        }
+        if self.max_warm_tiles > 1 << 20 {
+            return Err(invalid("server.max_warm_tiles", "must be at most 1048576"));
         }
         for origin in &self.cors_origins {
             crate::cors::check_origin(origin).map_err(|e| invalid("server.cors_origins", &e))?;

@@ -18,6 +18,7 @@ use crate::extract::WorldPath;
 use crate::key::stable_hash_hex;
 use crate::respond::Representation;
 use crate::state::AppState;
+use crate::warm;
 
 /// One configured world in the list.
 #[derive(Serialize, utoipa::ToSchema)]
@@ -73,6 +74,43 @@ pub struct LayerInfo {
     pub shear: [f64; 2],
 }
 
+/// The world clock: world time `t = offset + rate · u` at Unix second `u` (config
+/// `[worlds.NAME.clock]`; without one, `t` is Unix time).
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct ClockInfo {
+    /// World time at the Unix epoch, seconds.
+    pub offset: f64,
+    /// World seconds per real second.
+    pub rate: f64,
+    /// World time when this answer was made, seconds (within [0, 1e12]); clients
+    /// follow it with `offset + rate · u` on their own clock.
+    pub now: f64,
+}
+
+/// A play area the server keeps warm (config `[[worlds.NAME.warm]]`): the current and
+/// next keyframes of its tiles are computed whether anyone asks or not.
+#[derive(Serialize, utoipa::ToSchema)]
+pub struct WarmInfo {
+    pub name: String,
+    /// `[x0, y0, x1, y1]`, metres: the area's box, or its polygon's bounding box.
+    pub bbox: [f64; 4],
+    /// The polygon's vertices `[[x, y], …]`, metres; null for a box.
+    pub polygon: Option<Vec<[f64; 2]>>,
+    /// Metres around the area whose tiles are kept warm too.
+    pub margin: f64,
+    /// Tile levels kept warm.
+    pub levels: Vec<u32>,
+    /// Tile products kept warm, by URL name.
+    pub products: Vec<String>,
+    /// Qualities of the shaded products kept warm.
+    pub qualities: Vec<String>,
+    /// Layers kept warm, by name.
+    pub layers: Vec<String>,
+    /// Tile variants kept warm (tiles × layers × computations × qualities; the products
+    /// of one shading are one computation).
+    pub tiles: usize,
+}
+
 /// `/v1/worlds/{world}`: everything a client needs to fetch tiles.
 #[derive(Serialize, utoipa::ToSchema)]
 pub struct WorldInfo {
@@ -96,6 +134,10 @@ pub struct WorldInfo {
     /// `precipitation.png`.
     pub snow_level: f64,
     pub layers: Vec<LayerInfo>,
+    /// The world clock, and the world time now.
+    pub clock: ClockInfo,
+    /// Play areas kept warm (none when the server keeps none: `server.warm_threads` 0).
+    pub warm: Vec<WarmInfo>,
     /// Tile products served, by URL name.
     pub products: Vec<String>,
     /// URL templates (paths) for tiles and queries; `{z}`, `{x}`, `{y}`, `{t}`, … are placeholders.
@@ -176,7 +218,33 @@ pub async fn world(
     let w = resolved.world;
     let fps = s.settings.frames_per_step;
     let base = format!("/v1/worlds/{}", w.name);
+    let clock = ClockInfo {
+        offset: w.clock.offset,
+        rate: w.clock.rate,
+        now: warm::world_now(&w.clock, warm::unix_now()),
+    };
+    let warm = if s.warm.enabled() {
+        w.warm
+            .iter()
+            .enumerate()
+            .map(|(i, a)| WarmInfo {
+                name: a.name.clone(),
+                bbox: a.bounds(),
+                polygon: a.polygon().map(<[[f64; 2]]>::to_vec),
+                margin: a.margin,
+                levels: a.levels.clone(),
+                products: a.products.clone(),
+                qualities: a.qualities.clone(),
+                layers: a.layers.iter().map(|&l| w.layers[l].name.clone()).collect(),
+                tiles: s.warm.count(&w.name, i),
+            })
+            .collect()
+    } else {
+        Vec::new()
+    };
     let info = WorldInfo {
+        clock,
+        warm,
         seed: w.seed,
         algorithm_version: ALGORITHM_VERSION,
         tile_size: TILE_COLUMNS as i64,

@@ -47,6 +47,7 @@ mod shared;
 mod state;
 mod tilejson;
 mod tiles;
+mod warm;
 mod web;
 
 use std::io;
@@ -67,7 +68,7 @@ use tracing::Instrument;
 
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::render::Quality;
-use cloudscape_core::world::Config;
+use cloudscape_core::world::{Config, ConfigError};
 
 pub use config::ServerConfig;
 pub use encode::Coding;
@@ -76,6 +77,15 @@ pub use state::{Lifecycle, Readiness};
 
 use self::render::{splats_bytes, splats_key};
 use self::state::AppState;
+
+/// Checks what a server would refuse at start beyond what `Config::parse` and
+/// `ServerConfig::parse` check: world clocks that read a time outside [0, 1e12] now,
+/// and play areas kept warm (`[[worlds.NAME.warm]]`) that name unknown products or
+/// qualities, reach tiles that cannot be served, or need more than
+/// `server.max_warm_tiles` tile variants together.
+pub fn check_config(config: &Config, settings: &ServerConfig) -> Result<(), ConfigError> {
+    warm::check(config, settings, warm::unix_now()).map(|_| ())
+}
 
 /// Triggers a graceful shutdown: `/readyz` turns 503, requests are still served for
 /// `drain_ms`, then the listener closes and in-flight requests finish.
@@ -126,6 +136,7 @@ impl Server {
             Arc::clone(&state.cache),
             Arc::clone(&state.metrics),
         ));
+        let warm = tokio::spawn(warm::run(Arc::clone(&state)));
         let app = router(Arc::clone(&state));
         let mut stop = self.stop.subscribe();
         let drain = {
@@ -142,6 +153,7 @@ impl Server {
         let limits = conn::ConnLimits::new(&state.settings);
         conn::serve(self.listener, app, limits, Arc::clone(&state.metrics), drain).await;
         ahead.abort();
+        warm.abort();
         tracing::info!("shutdown: done");
         Ok(())
     }
@@ -149,9 +161,11 @@ impl Server {
 
 /// Start-up work: one small computation per layer of every configured world, through
 /// the simulation, so that a replica only says it is ready once it can answer (and
-/// its thread pools are warm), then the splat sheets of every quality into the cache.
+/// its thread pools are warm), then the splat sheets of every quality into the cache,
+/// and the first keyframes of the play areas kept warm (`warm`, computed meanwhile).
 /// Ready when it succeeds; never ready if it fails.
 async fn start_up(state: Arc<AppState>) {
+    let began = Instant::now();
     let worlds: Vec<_> = state.worlds.config().worlds.values().cloned().collect();
     let result = state
         .cache
@@ -186,13 +200,20 @@ async fn start_up(state: Arc<AppState>) {
         }
         Err(e) => Err(e),
     };
+    if result.is_ok() && state.warm.first_pending() > 0 {
+        tracing::info!(
+            variants = state.warm.first_pending(),
+            "start-up: waiting for the first keyframes of the play areas kept warm"
+        );
+        state.warm.first_ready().await;
+    }
     match result {
         Ok(()) => {
             state.readiness.set(Lifecycle::Ready);
             if state.readiness.get() == Lifecycle::Ready {
                 state.metrics.ready.set(1);
             }
-            tracing::info!("start-up done: ready");
+            tracing::info!(seconds = began.elapsed().as_secs_f64(), "start-up done: ready");
         }
         Err(e) => {
             state.readiness.set(Lifecycle::Failed);

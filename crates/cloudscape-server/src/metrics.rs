@@ -78,6 +78,17 @@ pub struct Metrics {
     pub ahead_pending: IntGauge,
     /// Tile variants the hot set follows.
     pub ahead_hot: IntGauge,
+    /// Tile variants the play areas keep warm (`crate::warm`).
+    pub warm_tiles: IntGauge,
+    /// Warm keyframes computed (put in the cache by keeping the play areas warm).
+    pub warm_computed: IntCounter,
+    /// Requests answered from bytes kept warm (the first request of each key).
+    pub warm_served: IntCounter,
+    /// How long before the clock reached its keyframe a warm keyframe was ready,
+    /// seconds (negative: late, as the first keyframes at start-up always are).
+    pub warm_lag: Histogram,
+    /// Warm keyframes (current or next) not computed yet.
+    pub warm_pending: IntGauge,
     /// Compressed variants served, by coding and whether the cache held them.
     pub encodings: IntCounterVec,
     /// Bytes the tiles' kept state holds (`crate::kept`; updated when scraped).
@@ -362,6 +373,28 @@ impl Metrics {
                 "keyframes planned ahead and not computed yet",
             ),
             ahead_hot: gauge("cloudscape_ahead_hot_tiles", "tile variants the hot set follows"),
+            warm_tiles: gauge("cloudscape_warm_tiles", "tile variants the play areas keep warm"),
+            warm_computed: plain_counter(
+                "cloudscape_warm_computed_total",
+                "keyframes of play areas computed to keep them warm",
+            ),
+            warm_served: plain_counter("cloudscape_warm_served_total", "requests answered from bytes kept warm"),
+            warm_lag: {
+                let h = Histogram::with_opts(
+                    HistogramOpts::new(
+                        "cloudscape_warm_lag_seconds",
+                        "how long before the clock reached its keyframe a warm keyframe was ready (negative: late)",
+                    )
+                    .buckets(vec![-60.0, -10.0, -1.0, 0.0, 1.0, 5.0, 10.0, 30.0, 60.0, 300.0]),
+                )
+                .expect("valid metric");
+                registry.register(Box::new(h.clone())).expect("unique metric");
+                h
+            },
+            warm_pending: gauge(
+                "cloudscape_warm_pending",
+                "keyframes of play areas (current or next) not computed yet",
+            ),
             encodings: counter(
                 "cloudscape_encodings_total",
                 "compressed variants served, by coding and cache outcome",

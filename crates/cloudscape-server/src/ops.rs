@@ -16,6 +16,19 @@ use crate::state::{AppState, Lifecycle};
 pub struct Status {
     /// `ok`, `starting`, `failed` or `draining`.
     pub status: &'static str,
+    /// While starting: the tile variants of the play areas kept warm whose first
+    /// keyframe is not computed yet (readiness waits for them).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub warm_pending: Option<usize>,
+}
+
+impl Status {
+    fn of(status: &'static str) -> Status {
+        Status {
+            status,
+            warm_pending: None,
+        }
+    }
 }
 
 fn no_store(status: StatusCode, body: Status) -> Response {
@@ -28,20 +41,24 @@ fn no_store(status: StatusCode, body: Status) -> Response {
 #[utoipa::path(get, path = "/healthz", tag = "operations",
     responses((status = 200, body = Status, description = "The process is alive")))]
 pub async fn healthz() -> Response {
-    no_store(StatusCode::OK, Status { status: "ok" })
+    no_store(StatusCode::OK, Status::of("ok"))
 }
 
 #[utoipa::path(get, path = "/readyz", tag = "operations",
     responses(
         (status = 200, body = Status, description = "Ready to serve"),
-        (status = 503, body = Status, description = "Starting, start-up failed, or draining after SIGTERM"),
+        (status = 503, body = Status, description = "Starting (start-up work, then the first keyframes of the play areas kept warm), start-up failed, or draining after SIGTERM"),
     ))]
 pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
+    let unavailable = |status| no_store(StatusCode::SERVICE_UNAVAILABLE, status);
     match s.readiness.get() {
-        Lifecycle::Ready => no_store(StatusCode::OK, Status { status: "ok" }),
-        Lifecycle::Starting => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "starting" }),
-        Lifecycle::Failed => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "failed" }),
-        Lifecycle::Draining => no_store(StatusCode::SERVICE_UNAVAILABLE, Status { status: "draining" }),
+        Lifecycle::Ready => no_store(StatusCode::OK, Status::of("ok")),
+        Lifecycle::Starting => unavailable(Status {
+            status: "starting",
+            warm_pending: Some(s.warm.first_pending()),
+        }),
+        Lifecycle::Failed => unavailable(Status::of("failed")),
+        Lifecycle::Draining => unavailable(Status::of("draining")),
     }
 }
 

@@ -16,6 +16,7 @@ use crate::key::Worlds;
 use crate::metrics::Metrics;
 use crate::reply::ReplyBudget;
 use crate::shared::SharedCache;
+use crate::warm::{self, RecipeParts, Warm};
 
 /// Where the server is in its life, as `/readyz` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -67,12 +68,15 @@ pub struct AppState {
     pub ahead: Arc<HotSet>,
     /// What tiles keep between keyframes (`None` when `server.kept_share` is 0).
     pub kept: Option<Arc<KeptStates>>,
+    /// The play areas kept warm (`[[worlds.NAME.warm]]`) and how far the keeping is.
+    pub warm: Arc<Warm>,
     /// Source of request ids: a per-process prefix and a counter.
     request_ids: (u32, AtomicU64),
 }
 
 impl AppState {
     pub fn new(config: Config, settings: ServerConfig) -> Result<AppState, String> {
+        let variants = warm::check(&config, &settings, warm::unix_now()).map_err(|e| e.to_string())?;
         let queue = match settings.compute_queue {
             0 => 4 * std::thread::available_parallelism().map_or(1, |n| n.get()),
             n => n as usize,
@@ -93,8 +97,20 @@ impl AppState {
             settings.ahead_tiles as usize,
             settings.ahead_threads as usize,
         ));
+        let worlds = Worlds::new(config, settings.frames_per_step);
+        let warm = Warm::new(
+            variants,
+            settings.warm_threads as usize,
+            RecipeParts {
+                worlds: &worlds,
+                sun: &worlds.config().sun,
+                limits: &worlds.config().limits,
+                kept: kept.clone(),
+                metrics: &metrics,
+            },
+        );
         Ok(AppState {
-            worlds: Worlds::new(config, settings.frames_per_step),
+            worlds,
             settings,
             cache: Arc::new(cache),
             replies,
@@ -102,6 +118,7 @@ impl AppState {
             readiness: Readiness(AtomicU8::new(Lifecycle::Starting as u8)),
             ahead,
             kept,
+            warm: Arc::new(warm),
             request_ids: (prefix, AtomicU64::new(0)),
         })
     }

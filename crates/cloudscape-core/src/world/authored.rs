@@ -79,6 +79,16 @@ impl Polygon {
         }
         Polygon { vertices, bounds }
     }
+
+    /// The vertices, world metres.
+    pub fn vertices(&self) -> &[[f64; 2]] {
+        &self.vertices
+    }
+
+    /// The bounding box `[x0, y0, x1, y1]`, world metres.
+    pub fn bounds(&self) -> [f64; 4] {
+        self.bounds
+    }
 }
 
 /// What an authored influence is.

@@ -5,6 +5,8 @@ use std::collections::BTreeMap;
 use serde::Deserialize;
 
 use super::authored::{Area, Front, Influence, Polygon, Shape, Storm};
+use super::clock::WorldClock;
+use super::warm::{DEFAULT_WARM_PRODUCTS, DEFAULT_WARM_QUALITY, WarmArea};
 use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, MAX_TIME, Preset, World};
 
 /// The embedded default configuration, the text of `config/default.toml`: the one
@@ -143,6 +145,32 @@ struct RawWorld {
     events: Vec<RawEvent>,
     #[serde(default)]
     regions: Vec<RawRegion>,
+    /// `[worlds.NAME.clock]`: how world time follows real time (`world::clock`).
+    #[serde(default)]
+    clock: WorldClock,
+    /// `[[worlds.NAME.warm]]`: play areas kept warm (`world::warm`).
+    #[serde(default)]
+    warm: Vec<RawWarm>,
+}
+
+/// `[[worlds.NAME.warm]]`: a play area the server keeps warm.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawWarm {
+    name: String,
+    bbox: Option<[f64; 4]>,
+    polygon: Option<Vec<[f64; 2]>>,
+    #[serde(default)]
+    margin: f64,
+    #[serde(default = "default_warm_levels")]
+    levels: Vec<u32>,
+    products: Option<Vec<String>>,
+    qualities: Option<Vec<String>>,
+    layers: Option<Vec<String>>,
+}
+
+fn default_warm_levels() -> Vec<u32> {
+    vec![0]
 }
 
 /// `[[worlds.NAME.events]]`: a storm or a front (see `world::authored`).
@@ -376,6 +404,21 @@ impl Config {
                     authored.push((preset, influence));
                 }
             }
+            if let Err((field, message)) = rw.clock.check() {
+                return Err(invalid(format!("worlds.{wname}.clock.{field}"), message));
+            }
+            let mut warm: Vec<WarmArea> = Vec::new();
+            for (i, rw) in rw.warm.into_iter().enumerate() {
+                let key = format!("worlds.{wname}.warm[{i}]");
+                let area = warm_area(&key, rw, &layers, &limits)?;
+                if warm.iter().any(|w| w.name == area.name) {
+                    return Err(invalid(
+                        format!("{key}.name"),
+                        format!("duplicate play area name `{}`", area.name),
+                    ));
+                }
+                warm.push(area);
+            }
             worlds.insert(
                 wname.clone(),
                 World {
@@ -383,6 +426,8 @@ impl Config {
                     seed: rw.seed,
                     layers,
                     authored,
+                    clock: rw.clock,
+                    warm,
                 },
             );
         }
@@ -408,6 +453,9 @@ impl Config {
             let mut w = self.worlds["default"].clone();
             w.name = name.to_string();
             w.seed = seed;
+            // The default world's climate and clock, not its play areas: those are the
+            // places of one configured world.
+            w.warm.clear();
             return Some(w);
         }
         None
@@ -621,6 +669,105 @@ fn region(key: &str, r: RawRegion) -> Result<Vec<(String, Influence)>, ConfigErr
             ))
         })
         .collect()
+}
+
+/// A checked `[[worlds.NAME.warm]]` entry of a world with `layers`. Product and quality
+/// names are checked by the server, which owns the catalogue.
+fn warm_area(key: &str, w: RawWarm, layers: &[Layer], limits: &Limits) -> Result<WarmArea, ConfigError> {
+    if w.name.is_empty()
+        || w.name.len() > 64
+        || !w
+            .name
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b == b'_' || b == b'-')
+    {
+        return Err(invalid(
+            format!("{key}.name"),
+            "must be 1 to 64 ASCII letters, digits, '-' or '_'",
+        ));
+    }
+    let area = match (w.bbox, w.polygon) {
+        (Some(b), None) => {
+            bounded(&format!("{key}.bbox"), &b, MAX_AUTHORED, "metres")?;
+            if !(b[0] < b[2] && b[1] < b[3]) {
+                return Err(invalid(
+                    format!("{key}.bbox"),
+                    "must be [x0, y0, x1, y1] with x0 < x1, y0 < y1",
+                ));
+            }
+            Area::Box(b)
+        }
+        (None, Some(p)) => {
+            if !(3..=1024).contains(&p.len()) {
+                return Err(invalid(format!("{key}.polygon"), "needs 3 to 1024 vertices"));
+            }
+            bounded(&format!("{key}.polygon"), p.as_flattened(), MAX_AUTHORED, "metres")?;
+            let polygon = Polygon::new(p);
+            let [x0, y0, x1, y1] = polygon.bounds();
+            if !(x0 < x1 && y0 < y1) {
+                return Err(invalid(
+                    format!("{key}.polygon"),
+                    "has no area (its vertices are on one line)",
+                ));
+            }
+            Area::Polygon(polygon)
+        }
+        _ => return Err(invalid(key, "needs exactly one of `bbox` and `polygon`")),
+    };
+    if !(w.margin.is_finite() && (0.0..=MAX_AUTHORED).contains(&w.margin)) {
+        return Err(invalid(format!("{key}.margin"), "must be within [0, 1e9] metres"));
+    }
+    let mut levels = w.levels;
+    levels.sort_unstable();
+    if levels.is_empty() {
+        return Err(invalid(format!("{key}.levels"), "names no level"));
+    }
+    if let Some(z) = levels.iter().find(|&&z| z > limits.max_level) {
+        return Err(invalid(
+            format!("{key}.levels"),
+            format!("level {z} is over limits.max_level ({})", limits.max_level),
+        ));
+    }
+    if let Some(pair) = levels.windows(2).find(|p| p[0] == p[1]) {
+        return Err(invalid(
+            format!("{key}.levels"),
+            format!("lists level {} twice", pair[0]),
+        ));
+    }
+    let names = |field: &str, given: Option<Vec<String>>, default: &[&str]| {
+        let list = given.unwrap_or_else(|| default.iter().map(|s| s.to_string()).collect());
+        if list.is_empty() {
+            return Err(invalid(format!("{key}.{field}"), "is empty"));
+        }
+        if let Some((i, n)) = list.iter().enumerate().find(|(i, n)| list[..*i].contains(n)) {
+            return Err(invalid(format!("{key}.{field}[{i}]"), format!("lists `{n}` twice")));
+        }
+        Ok(list)
+    };
+    let products = names("products", w.products, &DEFAULT_WARM_PRODUCTS)?;
+    let qualities = names("qualities", w.qualities, &[DEFAULT_WARM_QUALITY])?;
+    let all: Vec<&str> = layers.iter().map(|l| l.name.as_str()).collect();
+    let layer_names = names("layers", w.layers, &all)?;
+    let mut indices = Vec::new();
+    for (i, n) in layer_names.iter().enumerate() {
+        let Some(index) = layers.iter().position(|l| &l.name == n) else {
+            return Err(invalid(
+                format!("{key}.layers[{i}]"),
+                format!("unknown layer `{n}` (this world's layers: {})", all.join(", ")),
+            ));
+        };
+        indices.push(index);
+    }
+    indices.sort_unstable();
+    Ok(WarmArea {
+        name: w.name,
+        area,
+        margin: w.margin,
+        levels,
+        products,
+        qualities,
+        layers: indices,
+    })
 }
 
 fn validate_field(key: &str, f: &FieldSpec) -> Result<(), ConfigError> {

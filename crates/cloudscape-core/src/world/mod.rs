@@ -7,9 +7,12 @@
 //! the key, before anything else runs.
 
 pub mod authored;
+mod clock;
 mod config;
 mod keyframe;
+pub mod warm;
 
+pub use clock::WorldClock;
 pub use config::{Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, SunConfig};
 pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, keyframe_span};
 
@@ -401,6 +404,12 @@ pub struct World {
     /// drives; every layer placing that preset holds a copy in [`Layer::authored`].
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub authored: Vec<(String, authored::Influence)>,
+    /// How the world's time follows real time (`worlds.NAME.clock`): the server's, for
+    /// "now"; the simulation takes times as arguments and never reads it.
+    pub clock: WorldClock,
+    /// Play areas the server keeps warm (`worlds.NAME.warm`), in configuration order.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warm: Vec<warm::WarmArea>,
 }
 
 impl World {

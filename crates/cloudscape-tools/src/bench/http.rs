@@ -20,12 +20,14 @@ pub(super) struct LocalServer {
 
 impl LocalServer {
     /// The embedded config (every built-in world) with the default `[server]`
-    /// settings, on a free loopback port; returns once `/readyz` answers 200.
+    /// settings but no play area kept warm (its keyframes would be computed beside
+    /// what is measured), on a free loopback port; returns once `/readyz` answers 200.
     pub(super) fn start() -> Result<LocalServer, String> {
         let config = Config::embedded();
         let server = ServerConfig {
             listen: "127.0.0.1:0".into(),
             drain_ms: 0,
+            warm_threads: 0,
             ..ServerConfig::embedded()
         };
         let runtime = tokio::runtime::Builder::new_multi_thread()

@@ -154,6 +154,21 @@ pub struct ServerFigures {
     pub cpu_seconds: Option<f64>,
     /// The same as a share of the run's wall time (1.0 = one core busy).
     pub cpu_cores: Option<f64>,
+    /// Keyframes of play areas kept warm (`cloudscape_warm_computed_total`).
+    pub warm_computed: u64,
+    /// Shaded instants tile jobs took from the keyframe before
+    /// (`cloudscape_kept_shadings_total{how="reused"}`) …
+    pub shadings_reused: u64,
+    /// … and shaded (`{how="shaded"}`).
+    pub shadings_shaded: u64,
+}
+
+impl ServerFigures {
+    /// The share of shaded instants that were reused, if any was given.
+    pub fn shading_reused_share(&self) -> Option<f64> {
+        let all = self.shadings_reused + self.shadings_shaded;
+        (all > 0).then(|| self.shadings_reused as f64 / all as f64)
+    }
 }
 
 /// The server's compute-ahead over the run (`cloudscape_ahead_*`): keyframes computed
@@ -270,10 +285,22 @@ impl Scrape {
     fn increase_since(&self, before: &Scrape, name: &str) -> f64 {
         (self.sum(name) - before.sum(name)).max(0.0)
     }
+
+    /// [`Scrape::increase_since`] of the samples carrying `label`.
+    fn increase_where(&self, before: &Scrape, name: &str, label: &str) -> f64 {
+        let sum = |s: &Scrape| metric_sum_where(&s.text, name, Some(label)).unwrap_or(0.0);
+        (sum(self) - sum(before)).max(0.0)
+    }
 }
 
 /// Sums the samples of a Prometheus metric family in text exposition.
 pub fn metric_sum(metrics: &str, name: &str) -> Option<f64> {
+    metric_sum_where(metrics, name, None)
+}
+
+/// Sums the samples of a metric family whose labels include `label` (`how="reused"`),
+/// or all of them for `None`.
+pub fn metric_sum_where(metrics: &str, name: &str, label: Option<&str>) -> Option<f64> {
     let mut found = false;
     let mut sum = 0f64;
     for line in metrics.lines() {
@@ -281,6 +308,9 @@ pub fn metric_sum(metrics: &str, name: &str) -> Option<f64> {
             continue;
         };
         if !(rest.starts_with('{') || rest.starts_with(' ')) {
+            continue;
+        }
+        if label.is_some_and(|l| !rest.split(' ').next().is_some_and(|labels| labels.contains(l))) {
             continue;
         }
         if let Some(v) = rest.rsplit(' ').next().and_then(|v| v.parse::<f64>().ok()) {
@@ -344,6 +374,9 @@ fn server_figures(before: &Scrape, after: &Scrape, elapsed_s: f64) -> ServerFigu
         },
         cpu_seconds: cpu,
         cpu_cores: cpu.map(|c| c / elapsed_s.max(1e-9)),
+        warm_computed: d("cloudscape_warm_computed_total") as u64,
+        shadings_reused: after.increase_where(before, "cloudscape_kept_shadings_total", "how=\"reused\"") as u64,
+        shadings_shaded: after.increase_where(before, "cloudscape_kept_shadings_total", "how=\"shaded\"") as u64,
     }
 }
 
@@ -1028,9 +1061,11 @@ impl SweepReport {
              with no 503. *Places*: distinct level-0 tiles ({:.1} km) holding a group's centre during the step; \
              *CPU*: share of one core over the step (server from its `process_cpu_seconds_total`, generator \
              from its own `getrusage`); *requests per keyframe*: tile requests per distinct tile keyframe at \
-             level 0; *shared*: share of the distinct keyframes (all levels) asked for by two groups or more.\n\n\
-             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | computations | ahead computed / served / missed | ahead lag | requests per keyframe (level 0) | shared | MB/s | holds |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             level 0; *shared*: share of the distinct keyframes (all levels) asked for by two groups or more; \
+             *warm*: keyframes of the server's play areas computed during the step; *shading reused*: share of \
+             the instants the server's tile jobs shaded that were the previous keyframe's end, kept.\n\n\
+             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | computations | ahead computed / served / missed | ahead lag | warm | shading reused | requests per keyframe (level 0) | shared | MB/s | holds |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             self.target,
             self.world,
             workload::PARTY_SPREAD,
@@ -1060,7 +1095,7 @@ impl SweepReport {
             let f = s.server.clone().unwrap_or_default();
             let l0 = s.sharing.iter().find(|l| l.level == 0);
             md += &format!(
-                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} | {} / {} / {} | {} | {} | {} | {:.2} | {} |\n",
+                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} | {} / {} / {} | {} | {} | {} | {} | {} | {:.2} | {} |\n",
                 s.players,
                 s.places,
                 s.throughput_rps,
@@ -1077,6 +1112,8 @@ impl SweepReport {
                 f.ahead.served,
                 f.ahead.missed,
                 f.ahead.mean_lag_s.map_or("–".into(), |l| format!("{l:.2} s")),
+                f.warm_computed,
+                percent(f.shading_reused_share()),
                 l0.map_or("–".into(), |l| format!("{:.1}", l.requests_per_keyframe)),
                 percent(s.overall_sharing().map(|o| o.shared_by_2_groups)),
                 s.bytes_per_s / 1e6,
@@ -1396,6 +1433,25 @@ mod tests {
         assert_eq!(v["ahead_served"], 0);
         assert_eq!(v["ahead_mean_lag_s"], 1.5);
         assert!(v.get("ahead").is_none() && v.get("computed").is_none());
+    }
+
+    #[test]
+    fn reused_shading_is_counted_by_its_label() {
+        let scrape = |text: &str| Scrape {
+            text: text.into(),
+            cpu: None,
+        };
+        let before = scrape(
+            "cloudscape_kept_shadings_total{how=\"reused\"} 4\ncloudscape_kept_shadings_total{how=\"shaded\"} 10\n",
+        );
+        let after = scrape(
+            "cloudscape_kept_shadings_total{how=\"reused\"} 34\ncloudscape_kept_shadings_total{how=\"shaded\"} 20\n\
+             cloudscape_warm_computed_total 7\n",
+        );
+        let f = server_figures(&before, &after, 1.0);
+        assert_eq!((f.shadings_reused, f.shadings_shaded, f.warm_computed), (30, 10, 7));
+        assert_eq!(f.shading_reused_share(), Some(0.75));
+        assert_eq!(ServerFigures::default().shading_reused_share(), None);
     }
 
     #[test]

@@ -217,7 +217,10 @@ fn next_keyframes_are_ready_before_the_clock_reaches_them() {
 
 #[test]
 fn discovery_lists_the_clock_and_the_play_areas() {
-    let mut s = Serving::spawn(&config(2.5, AREAS));
+    // AREAS and a ridge kept warm as far as a viewer on it sees (level 3 of `high`).
+    let ridge = r#"{ name = "ridge", bbox = [-5000.0, 60000.0, -1000.0, 61000.0], margin = "view", levels = [3], layers = ["high"] }"#;
+    let areas = AREAS.replace("\n]", &format!("\n    {ridge},\n]"));
+    let mut s = Serving::spawn(&config(2.5, &areas));
     s.watch_readiness(Duration::from_secs(120));
     let before = unix_now();
     let world = s.json("/v1/worlds/default");
@@ -231,7 +234,7 @@ fn discovery_lists_the_clock_and_the_play_areas() {
         "{now} not within the clock's reading around the request"
     );
     let warm = world["warm"].as_array().unwrap();
-    assert_eq!(warm.len(), 2, "{world}");
+    assert_eq!(warm.len(), 3, "{world}");
     let town = &warm[0];
     assert_eq!(town["name"], "town");
     assert_eq!(town["bbox"], serde_json::json!([1000.0, 1000.0, 9000.0, 9000.0]));
@@ -239,6 +242,7 @@ fn discovery_lists_the_clock_and_the_play_areas() {
         town["polygon"],
         serde_json::json!([[1000.0, 1000.0], [9000.0, 2000.0], [8000.0, 9000.0]])
     );
+    assert_eq!(town["margin"], 0.0);
     assert_eq!(town["levels"], serde_json::json!([0, 1]));
     assert_eq!(town["products"], serde_json::json!(["billboards.bin", "shadow.png"]));
     assert_eq!(town["qualities"], serde_json::json!(["fast", "balanced"]));
@@ -251,6 +255,14 @@ fn discovery_lists_the_clock_and_the_play_areas() {
     assert_eq!(port["levels"], serde_json::json!([0]));
     assert_eq!(port["qualities"], serde_json::json!(["fast"]));
     assert_eq!(port["tiles"], PORT_TILES);
+    let ridge = &warm[2];
+    assert_eq!(ridge["name"], "ridge");
+    assert_eq!(ridge["margin"], "view");
+    assert_eq!(ridge["layers"], serde_json::json!(["high"]));
+    // Level-3 tiles of `high` are 409.6 km: the ridge's own and its eastern neighbour,
+    // 1 km away (within the 30 km a viewer sees; the level-4 tiles above both are split
+    // nearer than 3200 m / (2 tan 37.5° / 800 × 8) ≈ 209 km).
+    assert_eq!(ridge["tiles"], 2);
     // A seed world has the default world's clock, not its play areas.
     let seed = s.json("/v1/worlds/7");
     assert_eq!(seed["clock"]["rate"], 2.5);
@@ -306,6 +318,11 @@ fn bad_play_areas_and_clocks_stop_the_server_with_the_key_named() {
             "worlds.default.warm".into(),
             town(&format!("{bbox}, colour = 3")),
             "colour",
+        ),
+        (
+            "worlds.default.warm".into(),
+            town(&format!("{bbox}, margin = \"far\"")),
+            "worlds.default.warm[0].margin",
         ),
         (
             "worlds.default.warm".into(),

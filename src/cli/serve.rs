@@ -269,7 +269,7 @@ fn warm_entry(w: &World, area: &WarmArea) -> Result<toml::Value, String> {
         Area::Box(b) => t.insert("bbox".into(), value(b)?),
         Area::Polygon(p) => t.insert("polygon".into(), value(p)?),
     };
-    t.insert("margin".into(), area.margin.into());
+    t.insert("margin".into(), value(&area.margin)?);
     t.insert("levels".into(), value(&area.levels)?);
     t.insert("products".into(), value(&area.products)?);
     t.insert("qualities".into(), value(&area.qualities)?);
@@ -355,12 +355,13 @@ mod tests {
         let more = format!(
             "{more}[worlds.storm-front.clock]\noffset = -1.0e9\nrate = 12.0\n\
              [[worlds.storm-front.warm]]\nname = \"camp\"\npolygon = [[0.0, 0.0], [5000.0, 0.0], [0.0, 5000.0]]\n\
-             levels = [0, 3]\nproducts = [\"density.u8\"]\nlayers = [\"anvil\"]\nmargin = 100.0\n"
+             levels = [0, 3]\nproducts = [\"density.u8\"]\nlayers = [\"anvil\"]\nmargin = 100.0\n\
+             [[worlds.storm-front.warm]]\nname = \"ridge\"\nbbox = [0.0, 0.0, 10.0, 10.0]\nmargin = \"view\"\n"
         );
         let c = Config::parse(&more).unwrap();
         assert_eq!(c.worlds["storm-front"].authored.len(), 3);
         assert_eq!(c.worlds["storm-front"].clock.rate, 12.0);
-        assert_eq!(c.worlds["storm-front"].warm.len(), 1);
+        assert_eq!(c.worlds["storm-front"].warm.len(), 2);
         let text = config_to_toml(&c, &s).unwrap();
         assert_eq!(Config::parse(&text).unwrap(), c);
         assert!(!c.worlds["archipelago"].authored.is_empty());

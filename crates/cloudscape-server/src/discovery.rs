@@ -10,6 +10,7 @@ use serde::Serialize;
 
 use cloudscape_core::products::Product;
 use cloudscape_core::render::tile::TILE_COLUMNS;
+use cloudscape_core::world::warm::Margin;
 use cloudscape_core::world::{ALGORITHM_VERSION, MAX_KEYFRAME_DOUBLINGS, MAX_TIME, keyframe_span};
 
 use crate::annotations::{NotModified, WorldName};
@@ -96,8 +97,10 @@ pub struct WarmInfo {
     pub bbox: [f64; 4],
     /// The polygon's vertices `[[x, y], …]`, metres; null for a box.
     pub polygon: Option<Vec<[f64; 2]>>,
-    /// Metres around the area whose tiles are kept warm too.
-    pub margin: f64,
+    /// How far around the area tiles are kept warm too: metres at every level, or
+    /// `"view"` (at each level, as far as a viewer in the area draws that level).
+    #[schema(value_type = Object)]
+    pub margin: Margin,
     /// Tile levels kept warm.
     pub levels: Vec<u32>,
     /// Tile products kept warm, by URL name.

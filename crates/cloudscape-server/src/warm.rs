@@ -20,16 +20,16 @@
 //!
 //! "Now" is the world clock (`[worlds.NAME.clock]`, `world::WorldClock`) read against
 //! the server's real time: the keyframe that holds it is current, the one after it
-//! next. The worker ([`run`]) computes current keyframes first, then next ones by when
-//! clients will ask for them (the viewer and `cloudscape loadtest` fetch the next
-//! keyframe past [`PREFETCH_AT`] of the span). Priority against requests, as
-//! compute-ahead's: a warm keyframe runs while no request is queued and a compute
-//! thread is free, at most `server.warm_threads` at once, never in the queue's last
-//! place. But it must not starve: once clients will ask for it (a current keyframe,
-//! or a next one past the middle of the span before it) it runs whatever requests
-//! are queued, waiting its turn in the queue's order. Before the server is ready it
-//! may use every compute thread: `/readyz` waits for the first keyframe of every
-//! variant.
+//! next. The worker ([`run`]) computes current keyframes first, then next ones, the
+//! earliest first. Priority against requests, as compute-ahead's: a warm keyframe runs
+//! while no request is queued and a compute thread is free, never in the queue's last
+//! place, so a request waits at most for the warm computations already running. But it
+//! must not starve: a current keyframe, or a next one past [`URGENT_FROM`] of the span
+//! before it, runs whatever requests are queued, waiting its turn in the queue's order,
+//! at most `server.warm_threads` at once, so that it is in the cache before clients
+//! fetch it (the viewer and `cloudscape loadtest` fetch the next keyframe from half the
+//! span on). Before the server is ready every keyframe is urgent and may use every
+//! compute thread: `/readyz` waits for the first keyframe of every variant.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -39,9 +39,10 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tokio::sync::Notify;
 
 use cloudscape_core::products::Product;
+use cloudscape_core::render::scene::VIEW_DISTANCE;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::render::{Quality, TileId};
-use cloudscape_core::world::warm::WarmArea;
+use cloudscape_core::world::warm::{Margin, WarmArea};
 use cloudscape_core::world::{Config, ConfigError, Keyframe, Layer, Limits, MAX_TIME, SunConfig, WorldClock};
 
 use crate::cache::{Asker, Computation};
@@ -53,9 +54,10 @@ use crate::metrics::Metrics;
 use crate::state::{AppState, Lifecycle};
 use crate::tiles::TileRecipe;
 
-/// Past this fraction of a keyframe's span clients fetch the next keyframe (the viewer,
-/// `cloudscape loadtest`): from then on the next warm keyframe is urgent.
-pub const PREFETCH_AT: f64 = 0.5;
+/// Past this fraction of the span before it, a next warm keyframe is urgent: clients
+/// fetch it from half the span on (the viewer, `cloudscape loadtest`), which leaves
+/// a quarter of a span to have it in the cache first.
+pub const URGENT_FROM: f64 = 0.25;
 /// Most tiles one area may span at one level of one layer before its tiles are
 /// counted one by one (its bounding box grown by the margin).
 const MAX_CANDIDATE_TILES: f64 = 65_536.0;
@@ -151,7 +153,9 @@ pub fn variants(config: &Config, max: u32) -> Result<BTreeMap<String, Vec<Varian
                 let (shaded, grid) = computations(&products, l);
                 let per_tile = shaded.len() * qualities.len() + grid.len();
                 for &z in &area.levels {
-                    let tiles = tiles_reached(area, l, z).ok_or_else(|| over("more than 65536 a level".into()))?;
+                    let reach = Reach::of(area, l, z, &qualities);
+                    let tiles =
+                        tiles_reached(area, l, z, reach).ok_or_else(|| over("more than 65536 a level".into()))?;
                     if total + tiles.len() * per_tile > max as usize {
                         return Err(over(format!("at least {}", total + tiles.len() * per_tile)));
                     }
@@ -265,13 +269,62 @@ fn computations(products: &[Product], layer: &Layer) -> (Vec<Product>, Vec<Produ
     (shaded, grid)
 }
 
-/// The tiles of level `z` of `layer` that the area (grown by its margin) reaches, in
-/// row order; `None` when its grown bounding box spans more than
-/// [`MAX_CANDIDATE_TILES`].
-fn tiles_reached(area: &WarmArea, layer: &Layer, z: u32) -> Option<Vec<TileId>> {
+/// The viewer's screen as `cloudscape loadtest` simulates it: 800 pixels wide, a
+/// horizontal field of view of 75° (the viewer's default camera).
+const VIEWER_WIDTH: f64 = 800.0;
+const VIEWER_FOV_DEG: f64 = 75.0;
+
+/// Which tiles of a level an area keeps warm.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Reach {
+    /// Those within this many metres of it.
+    Within(f64),
+    /// `margin = "view"`: those the renderer's level choice (`render::scene::plan_bands`)
+    /// may draw at this level for an eye in the area: a tile of level z + 1 splits into
+    /// its four level-z children while one of its columns, at the tile's nearest
+    /// distance d, spans more than the preset's `lod_pixels` pixels, so the level-z
+    /// tiles drawn are children of parents nearer than `split` = column(z + 1) /
+    /// (pixel angle × lod_pixels), and within `VIEW_DISTANCE`. (The eye's height only
+    /// shortens d; here it is on the ground.)
+    View { split: f64 },
+}
+
+impl Reach {
+    /// How the tiles of level `z` of `layer` are chosen for `area`, the finest of
+    /// `qualities` deciding the level choice.
+    fn of(area: &WarmArea, layer: &Layer, z: u32, qualities: &[Quality]) -> Reach {
+        match area.margin {
+            Margin::Metres(m) => Reach::Within(m),
+            Margin::View => {
+                let lod = qualities
+                    .iter()
+                    .map(|q| q.settings().lod_pixels)
+                    .fold(f64::INFINITY, f64::min);
+                let pixel = 2.0 * (VIEWER_FOV_DEG.to_radians() / 2.0).tan() / VIEWER_WIDTH;
+                let column = layer.cell_size * f64::from(z + 1).exp2();
+                Reach::View {
+                    split: column / (pixel * lod),
+                }
+            }
+        }
+    }
+
+    /// The farthest a tile kept warm may be from the area, metres.
+    fn distance(self) -> f64 {
+        match self {
+            Reach::Within(m) => m,
+            Reach::View { .. } => VIEW_DISTANCE,
+        }
+    }
+}
+
+/// The tiles of level `z` of `layer` that `reach` keeps warm around the area, in row
+/// order; `None` when the area's bounding box grown by the reach's distance spans more
+/// than [`MAX_CANDIDATE_TILES`].
+fn tiles_reached(area: &WarmArea, layer: &Layer, z: u32, reach: Reach) -> Option<Vec<TileId>> {
     let size = TILE_COLUMNS as f64 * layer.cell_size * f64::from(z).exp2();
     let [x0, y0, x1, y1] = area.bounds();
-    let m = area.margin;
+    let m = reach.distance();
     // Tile x covers [x·size, (x + 1)·size): the first whose end is past x0 − m, the last
     // whose start is before x1 + m.
     let first = |v: f64| ((v - m) / size).floor();
@@ -290,7 +343,16 @@ fn tiles_reached(area: &WarmArea, layer: &Layer, z: u32) -> Option<Vec<TileId>> 
                 (x + 1) as f64 * size,
                 (y + 1) as f64 * size,
             ];
-            if area.reaches(rect) {
+            let kept = match reach {
+                Reach::Within(m) => area.reaches(rect, m),
+                Reach::View { split } => {
+                    // The parent: the level-(z + 1) tile holding this one.
+                    let (px, py, ps) = (x.div_euclid(2) as f64, y.div_euclid(2) as f64, 2.0 * size);
+                    let parent = [px * ps, py * ps, (px + 1.0) * ps, (py + 1.0) * ps];
+                    area.reaches(rect, VIEW_DISTANCE) && area.reaches(parent, split)
+                }
+            };
+            if kept {
                 out.push(TileId { z, x, y });
             }
         }
@@ -347,7 +409,7 @@ pub struct Warm {
 struct Due {
     index: usize,
     keyframe: Keyframe,
-    /// When clients will ask for it (Unix seconds).
+    /// From when it runs whatever requests are queued (Unix seconds).
     urgent_at: f64,
 }
 
@@ -470,8 +532,8 @@ impl Warm {
                 if p.running || p.retry_at.is_some_and(|r| r > now) {
                     continue;
                 }
-                let urgent_at = tile.clock.unix_at(k.t0 - PREFETCH_AT * k.span());
-                // Current keyframes (0) before next ones (1), then the earliest asked.
+                let urgent_at = tile.clock.unix_at(k.t0 - (1.0 - URGENT_FROM) * k.span());
+                // Current keyframes (0) before next ones (1), then the earliest.
                 let rank = (u8::from(is_next), urgent_at);
                 if best
                     .as_ref()
@@ -550,22 +612,25 @@ pub async fn run(state: Arc<AppState>) {
         let (due, pending, change) = warm.due(unix);
         state.metrics.warm_pending.set(pending as i64);
         let busy = running.load(Ordering::SeqCst);
-        let limit = if starting {
-            warm.threads.max(compute_threads)
-        } else {
-            warm.threads
-        };
         let wait = match due {
             None => Duration::from_secs_f64((change - unix).clamp(0.01, IDLE_POLL.as_secs_f64())),
-            Some(_) if busy >= limit || phase == Lifecycle::Draining => BUSY_POLL,
+            Some(_) if phase == Lifecycle::Draining => BUSY_POLL,
             Some(due) => {
-                // Requests keep priority: politely, only while none is queued (the queue
-                // holds only background work) and a compute thread is free; once clients
-                // will ask for it, whatever is queued. Never the queue's last place.
+                // Requests keep priority. Politely (no request queued: the queue holds
+                // only warm work; and a compute thread free) a warm keyframe may take any
+                // free thread. Urgently (before ready, a current keyframe, or a next one
+                // past URGENT_FROM of the span before it) it runs whatever is queued, in
+                // the queue's order, at most `warm_threads` at once (before ready, every
+                // compute thread). Never in the queue's last place.
                 let depth = state.cache.queue_depth();
+                let limit = if starting {
+                    warm.threads.max(compute_threads)
+                } else {
+                    warm.threads
+                };
                 let polite = depth <= busy && depth < compute_threads;
                 let urgent = starting || due.urgent_at <= unix;
-                if state.cache.queue_free() >= 2 && (urgent || polite) {
+                if busy < limit && state.cache.queue_free() >= 2 && (urgent || polite) {
                     warm.start(due.index);
                     running.fetch_add(1, Ordering::SeqCst);
                     let (state, running) = (Arc::clone(&state), Arc::clone(&running));
@@ -668,11 +733,32 @@ mod tests {
             "name = \"town\"\nbbox = [10300.0, 10300.0, 15300.0, 15300.0]\nmargin = 12000.0\nlayers = [\"cumulus\"]",
         )
         .unwrap();
-        // 10.3 − 12 km < 0 and 15.3 + 12 km > 25.6 km: 3 × 3 level-0 tiles.
-        assert_eq!(variants(&c, 4096).unwrap()["default"].len(), 9);
-        let e = variants(&c, 8).unwrap_err().to_string();
+        // 10.3 − 12 km < 0 and 15.3 + 12 km > 25.6 km: the four level-0 neighbours by an
+        // edge; those by a corner are √2 × 10.3 ≈ 14.6 km away.
+        assert_eq!(variants(&c, 4096).unwrap()["default"].len(), 5);
+        let e = variants(&c, 4).unwrap_err().to_string();
         assert!(e.contains("worlds.default.warm[0]") && e.contains("`town`"), "{e}");
         assert!(e.contains("server.max_warm_tiles"), "{e}");
+    }
+
+    #[test]
+    fn the_view_margin_keeps_what_the_level_choice_may_draw_from_the_area() {
+        let c = config(
+            "name = \"town\"\nbbox = [10300.0, 10300.0, 15300.0, 15300.0]\nmargin = \"view\"\nlayers = [\"cumulus\"]",
+        )
+        .unwrap();
+        let mut tiles: Vec<(i64, i64)> = variants(&c, 4096).unwrap()["default"]
+            .iter()
+            .map(|v| (v.tile.x, v.tile.y))
+            .collect();
+        tiles.sort_unstable();
+        // `fast` on the viewer's screen splits a level-1 tile (51.2 km) nearer than
+        // 200 m / (2 tan 37.5° / 800 × 8) ≈ 13.0 km: parents (0, 0), (−1, 0) and (0, −1)
+        // (10.3 km away; (−1, −1) is 14.6 km), whose children within 30 km are drawn.
+        assert_eq!(
+            tiles,
+            [(-1, 0), (-1, 1), (0, -1), (0, 0), (0, 1), (1, -1), (1, 0), (1, 1)]
+        );
     }
 
     #[test]

@@ -6,7 +6,7 @@ use serde::Deserialize;
 
 use super::authored::{Area, Front, Influence, Polygon, Shape, Storm};
 use super::clock::WorldClock;
-use super::warm::{DEFAULT_WARM_PRODUCTS, DEFAULT_WARM_QUALITY, WarmArea};
+use super::warm::{DEFAULT_WARM_PRODUCTS, DEFAULT_WARM_QUALITY, Margin, WarmArea};
 use super::{Ellipsoid, EpochSpec, FieldSpec, Layer, MAX_TIME, Preset, World};
 
 /// The embedded default configuration, the text of `config/default.toml`: the one
@@ -160,8 +160,8 @@ struct RawWarm {
     name: String,
     bbox: Option<[f64; 4]>,
     polygon: Option<Vec<[f64; 2]>>,
-    #[serde(default)]
-    margin: f64,
+    /// Metres, or `"view"`.
+    margin: Option<toml::Value>,
     #[serde(default = "default_warm_levels")]
     levels: Vec<u32>,
     products: Option<Vec<String>>,
@@ -714,9 +714,22 @@ fn warm_area(key: &str, w: RawWarm, layers: &[Layer], limits: &Limits) -> Result
         }
         _ => return Err(invalid(key, "needs exactly one of `bbox` and `polygon`")),
     };
-    if !(w.margin.is_finite() && (0.0..=MAX_AUTHORED).contains(&w.margin)) {
-        return Err(invalid(format!("{key}.margin"), "must be within [0, 1e9] metres"));
-    }
+    let margin = match w.margin {
+        None => Margin::Metres(0.0),
+        Some(toml::Value::String(s)) if s == "view" => Margin::View,
+        Some(v) => {
+            let m = v.as_float().or_else(|| v.as_integer().map(|i| i as f64));
+            match m {
+                Some(m) if m.is_finite() && (0.0..=MAX_AUTHORED).contains(&m) => Margin::Metres(m),
+                _ => {
+                    return Err(invalid(
+                        format!("{key}.margin"),
+                        "must be metres within [0, 1e9] or \"view\"",
+                    ));
+                }
+            }
+        }
+    };
     let mut levels = w.levels;
     levels.sort_unstable();
     if levels.is_empty() {
@@ -762,7 +775,7 @@ fn warm_area(key: &str, w: RawWarm, layers: &[Layer], limits: &Limits) -> Result
     Ok(WarmArea {
         name: w.name,
         area,
-        margin: w.margin,
+        margin,
         levels,
         products,
         qualities,

@@ -16,6 +16,24 @@ pub const DEFAULT_WARM_PRODUCTS: [&str; 2] = ["billboards.bin", "shadow.png"];
 /// The quality an area keeps warm when it names none: the viewer's default.
 pub const DEFAULT_WARM_QUALITY: &str = "fast";
 
+/// How far around a play area its tiles are kept warm.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(untagged)]
+pub enum Margin {
+    /// The same distance at every level, metres (`margin = 2000.0`; 0: the tiles the
+    /// area itself touches).
+    Metres(f64),
+    /// `margin = "view"`: at each level of each layer, as far as a viewer standing in
+    /// the area draws tiles of that level (the server's rule, from the level choice of
+    /// the renderer).
+    #[serde(serialize_with = "view")]
+    View,
+}
+
+fn view<S: serde::Serializer>(s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_str("view")
+}
+
 /// One play area kept warm.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct WarmArea {
@@ -23,9 +41,8 @@ pub struct WarmArea {
     pub name: String,
     /// Where it is: a box `[x0, y0, x1, y1]` or a polygon, world metres.
     pub area: Area,
-    /// Metres added around the area at every level: tiles within this distance of it
-    /// are kept warm too (0: the tiles the area itself touches).
-    pub margin: f64,
+    /// How far around it tiles are kept warm too.
+    pub margin: Margin,
     /// Tile levels kept warm, ascending.
     pub levels: Vec<u32>,
     /// Tile product names (`billboards.bin`, …), checked against the catalogue by the
@@ -54,10 +71,9 @@ impl WarmArea {
         }
     }
 
-    /// Whether the rectangle `[x0, y0, x1, y1]` (metres) comes within `margin` of the
-    /// area: shares a point with it, or lies at most `margin` from its edge.
-    pub fn reaches(&self, rect: [f64; 4]) -> bool {
-        let m = self.margin;
+    /// Whether the rectangle `[x0, y0, x1, y1]` (metres) comes within `m` metres of the
+    /// area: shares a point with it, or lies at most `m` from its edge.
+    pub fn reaches(&self, rect: [f64; 4], m: f64) -> bool {
         let [x0, y0, x1, y1] = rect;
         let [a0, b0, a1, b1] = self.bounds();
         // Outside the bounding box grown by the margin, nothing of the area is near.
@@ -65,9 +81,12 @@ impl WarmArea {
             return false;
         }
         match &self.area {
-            // A box grown by the margin is near wherever its bounding box is (its
-            // rounded corners aside: at most a margin's worth more, which is harmless).
-            Area::Box(_) => true,
+            // Apart along x, along y, or both (then the corners are nearest).
+            Area::Box(_) => {
+                let dx = (a0 - x1).max(x0 - a1).max(0.0);
+                let dy = (b0 - y1).max(y0 - b1).max(0.0);
+                dx.hypot(dy) <= m
+            }
             Area::Polygon(p) => {
                 let v = p.vertices();
                 // The rectangle inside the polygon (a corner of it inside), or an edge
@@ -134,11 +153,11 @@ mod tests {
     use super::*;
     use crate::world::authored::Polygon;
 
-    fn area(area: Area, margin: f64) -> WarmArea {
+    fn area(area: Area) -> WarmArea {
         WarmArea {
             name: "town".into(),
             area,
-            margin,
+            margin: Margin::Metres(0.0),
             levels: vec![0],
             products: vec![],
             qualities: vec![],
@@ -148,13 +167,15 @@ mod tests {
 
     #[test]
     fn a_box_reaches_the_rectangles_it_overlaps_or_comes_near() {
-        let a = area(Area::Box([0.0, 0.0, 1000.0, 1000.0]), 0.0);
-        assert!(a.reaches([500.0, 500.0, 2000.0, 2000.0]));
-        assert!(a.reaches([-10.0, -10.0, 2000.0, 2000.0]));
-        assert!(!a.reaches([1100.0, 0.0, 2000.0, 1000.0]));
-        let near = area(Area::Box([0.0, 0.0, 1000.0, 1000.0]), 200.0);
-        assert!(near.reaches([1100.0, 0.0, 2000.0, 1000.0]));
-        assert!(!near.reaches([1300.0, 0.0, 2000.0, 1000.0]));
+        let a = area(Area::Box([0.0, 0.0, 1000.0, 1000.0]));
+        assert!(a.reaches([500.0, 500.0, 2000.0, 2000.0], 0.0));
+        assert!(a.reaches([-10.0, -10.0, 2000.0, 2000.0], 0.0));
+        assert!(!a.reaches([1100.0, 0.0, 2000.0, 1000.0], 0.0));
+        assert!(a.reaches([1100.0, 0.0, 2000.0, 1000.0], 200.0));
+        assert!(!a.reaches([1300.0, 0.0, 2000.0, 1000.0], 200.0));
+        // Diagonally apart: 150 m along each axis is 212 m.
+        assert!(!a.reaches([1150.0, 1150.0, 2000.0, 2000.0], 200.0));
+        assert!(a.reaches([1150.0, 1150.0, 2000.0, 2000.0], 220.0));
     }
 
     #[test]
@@ -162,20 +183,20 @@ mod tests {
         // A triangle with its right angle at the origin: the far corner of its bounding
         // box is outside it.
         let triangle = || Area::Polygon(Polygon::new(vec![[0.0, 0.0], [10_000.0, 0.0], [0.0, 10_000.0]]));
-        let a = area(triangle(), 0.0);
+        let a = area(triangle());
         // Holds the rectangle.
-        assert!(a.reaches([1000.0, 1000.0, 2000.0, 2000.0]));
+        assert!(a.reaches([1000.0, 1000.0, 2000.0, 2000.0], 0.0));
         // Is held by it.
-        assert!(a.reaches([-1.0, -1.0, 20_000.0, 20_000.0]));
+        assert!(a.reaches([-1.0, -1.0, 20_000.0, 20_000.0], 0.0));
         // An edge crosses it (no vertex inside, no corner inside).
-        assert!(a.reaches([4000.0, -100.0, 4500.0, 100.0]));
-        // In the bounding box, beyond the hypotenuse.
+        assert!(a.reaches([4000.0, -100.0, 4500.0, 100.0], 0.0));
+        // In the bounding box, beyond the hypotenuse: (8000, 8000) is 6000/√2 ≈ 4243 m
+        // from it.
         let beyond = [8000.0, 8000.0, 9000.0, 9000.0];
-        assert!(!a.reaches(beyond));
-        // ...which is 6000/√2 − ... from it: about 4243 m from (8000, 8000) to the line.
-        assert!(area(triangle(), 4300.0).reaches(beyond));
-        assert!(!area(triangle(), 4200.0).reaches(beyond));
+        assert!(!a.reaches(beyond, 0.0));
+        assert!(a.reaches(beyond, 4300.0));
+        assert!(!a.reaches(beyond, 4200.0));
         // Far outside the bounding box.
-        assert!(!area(triangle(), 1000.0).reaches([20_000.0, 0.0, 30_000.0, 100.0]));
+        assert!(!a.reaches([20_000.0, 0.0, 30_000.0, 100.0], 1000.0));
     }
 }

@@ -83,8 +83,8 @@ pub struct ClockInfo {
     pub offset: f64,
     /// World seconds per real second.
     pub rate: f64,
-    /// World time when this answer was made, seconds (within [0, 1e12]); clients
-    /// follow it with `offset + rate · u` on their own clock.
+    /// World time when this answer was made, whole seconds (within [0, 1e12]);
+    /// clients follow it with `offset + rate · u` on their own clock.
     pub now: f64,
 }
 
@@ -161,8 +161,19 @@ pub(crate) fn json_response(
     value: &impl Serialize,
 ) -> Result<Response, ApiError> {
     let body = serde_json::to_vec(value).map_err(|e| ApiError::Internal(e.to_string()))?;
+    let etag = format!("\"{}\"", stable_hash_hex(&body));
+    tagged_json_response(headers, cache_control, body, etag)
+}
+
+/// A JSON `body` answered under `etag` (304 when the request names it).
+fn tagged_json_response(
+    headers: &HeaderMap,
+    cache_control: &str,
+    body: Vec<u8>,
+    etag: String,
+) -> Result<Response, ApiError> {
     let repr = Representation {
-        etag: format!("\"{}\"", stable_hash_hex(&body)),
+        etag,
         cache_control: cache_control.to_string(),
         time: None,
         content_location: None,
@@ -224,7 +235,7 @@ pub async fn world(
     let clock = ClockInfo {
         offset: w.clock.offset,
         rate: w.clock.rate,
-        now: warm::world_now(&w.clock, warm::unix_now()),
+        now: warm::world_now(&w.clock, warm::unix_now()).floor(),
     };
     let warm = if s.warm.enabled() {
         w.warm
@@ -311,5 +322,13 @@ pub async fn world(
         tilejson: format!("{base}/tilejson.json?layer={{layer}}&product={{product}}"),
         name: w.name,
     };
-    json_response(&headers, &s.settings.cache_control_other, &info)
+    // `clock.now` differs in every answer: the ETag is that of the document without it,
+    // weak (the bodies differ in `now` only, which clients follow from `offset` and
+    // `rate`), so revalidation still answers 304 while the world is unchanged.
+    let json = |info: &WorldInfo| serde_json::to_vec(info).map_err(|e| ApiError::Internal(e.to_string()));
+    let mut info = info;
+    let now = std::mem::replace(&mut info.clock.now, 0.0);
+    let etag = format!("W/\"{}\"", stable_hash_hex(&json(&info)?));
+    info.clock.now = now;
+    tagged_json_response(&headers, &s.settings.cache_control_other, json(&info)?, etag)
 }

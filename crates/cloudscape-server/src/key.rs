@@ -157,7 +157,7 @@ pub const CODINGS: [&str; 4] = ["gzip", "br", "zstd", "deflate"];
 /// Whether an `If-None-Match` header value matches `etag` (weak comparison, RFC 9110
 /// §13.1.2), accepting the tags of compressed representations of the same bytes.
 pub fn if_none_match(header: &str, etag: &str) -> bool {
-    let base = etag.trim_matches('"');
+    let base = etag.strip_prefix("W/").unwrap_or(etag).trim_matches('"');
     header.split(',').map(str::trim).any(|tag| {
         if tag == "*" {
             return true;
@@ -214,5 +214,10 @@ mod tests {
         assert!(if_none_match("*", e));
         assert!(!if_none_match("\"abcd\"", e));
         assert!(!if_none_match("\"abc-foo\"", e));
+        // A weak ETag (discovery's) matches itself, strong or weak, and its coded forms.
+        let weak = "W/\"abc\"";
+        assert!(if_none_match("W/\"abc\"", weak) && if_none_match("\"abc\"", weak));
+        assert!(if_none_match("W/\"abc-gzip\"", weak));
+        assert!(!if_none_match("W/\"abd\"", weak));
     }
 }

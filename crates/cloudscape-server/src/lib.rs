@@ -325,8 +325,9 @@ async fn observe(State(state): State<Arc<AppState>>, req: Request, next: Next) -
     response
 }
 
-/// A compressed representation is a different representation: its strong ETag gets
-/// the coding appended (`"…-gzip"`); [`key::if_none_match`] accepts either form.
+/// A compressed representation is a different representation: its ETag gets the
+/// coding appended (`"…-gzip"`, `W/"…-gzip"` for a weak one); [`key::if_none_match`]
+/// accepts either form.
 async fn tag_coding(req: Request, next: Next) -> Response {
     let mut response = next.run(req).await;
     let coding = response
@@ -339,7 +340,10 @@ async fn tag_coding(req: Request, next: Next) -> Response {
             .headers()
             .get(header::ETAG)
             .and_then(|v| v.to_str().ok())
-            .map(|etag| format!("\"{}-{coding}\"", etag.trim_matches('"')));
+            .map(|etag| {
+                let (weak, tag) = etag.strip_prefix("W/").map_or(("", etag), |t| ("W/", t));
+                format!("{weak}\"{}-{coding}\"", tag.trim_matches('"'))
+            });
         if let Some(v) = tagged.and_then(|t| HeaderValue::from_str(&t).ok()) {
             response.headers_mut().insert(header::ETAG, v);
         }

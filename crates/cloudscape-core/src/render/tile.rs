@@ -616,8 +616,8 @@ fn hull(a: Region, b: Region) -> Region {
     }
 }
 
-/// Instants a tile keeps: both ends of its latest keyframe, for two variants.
-const KEPT_INSTANTS: usize = 4;
+/// Variants (quality, sun bucket) whose latest instant a tile keeps.
+const KEPT_INSTANTS: usize = 3;
 
 /// What one tile of one layer keeps between keyframes: its density
 /// ([`KeptDensity`]: the latest grids and, at level 0, the automaton's runs) and the
@@ -664,16 +664,21 @@ impl KeptTile {
     }
 
     /// Keeps `instant`, dropping the earliest when full; counts it as shaded.
+    /// Keeps `instant` if it is of the latest time kept (or later: then it replaces
+    /// them), for at most [`KEPT_INSTANTS`] variants; counts it as shaded. Only the
+    /// latest instant serves a keyframe to come: an earlier keyframe asked again is
+    /// in the response cache.
     fn keep(&mut self, instant: Arc<ShadedInstant>) {
         self.counts.shaded += 1;
+        let latest = self.instants.iter().map(|i| i.t).fold(f64::NEG_INFINITY, f64::max);
+        if instant.t < latest {
+            return;
+        }
+        if instant.t > latest {
+            self.instants.clear();
+        }
         if self.instants.len() >= KEPT_INSTANTS {
-            let earliest = (0..self.instants.len())
-                .min_by(|&a, &b| self.instants[a].t.total_cmp(&self.instants[b].t))
-                .expect("not empty");
-            if self.instants[earliest].t > instant.t {
-                return;
-            }
-            self.instants.remove(earliest);
+            self.instants.remove(0);
         }
         self.instants.push(instant);
     }

@@ -14,8 +14,9 @@
 // src/products/billboards.rs, render::keyframe): with f = (t − t0) / span, each
 // billboard moves by its wind velocity · (t − t0), and its centre optical depth,
 // colour and sun optical depth are linear in f; the shadow map blends its R (t0) and
-// G (t1) channels by f. Past the middle of a span the next keyframe's products are
-// prefetched, so the boundary costs no wait.
+// G (t1) channels by f. Past a point in the second half of a span (each tile's own,
+// prefetchAt below: players sharing the clock do not all ask at once) the next
+// keyframe's products are prefetched, so the boundary costs no wait.
 //
 // Immutable bodies are kept (in memory, and in the Cache Storage API across reloads)
 // and never asked for again. Anything else revalidates with the ETag it was last
@@ -1068,6 +1069,15 @@ function keyframeOf(layer, z, t) {
 
 /** Where `t` falls in a keyframe span, 0..1 (0 for an instant). */
 const fractionOf = (k, t) => (k.span > 0 ? clamp((t - k.t0) / k.span, 0, 1) : 0);
+// The fraction of its span past which tile (z, x, y)'s next keyframe is fetched, in
+// [0.5, 0.8): cloudscape_core::world::prefetch_at, the same 32-bit arithmetic.
+function prefetchAt(z, x, y) {
+  let h = (Math.imul(x | 0, 0x9e3779b1) ^ Math.imul(y | 0, 0x85ebca77) ^ Math.imul((z + 1) | 0, 0xc2b2ae3d)) >>> 0;
+  h = (h ^ (h >>> 16)) >>> 0;
+  h = Math.imul(h, 0x7feb352d) >>> 0;
+  h = (h ^ (h >>> 15)) >>> 0;
+  return 0.5 + 0.3 * (h / 4294967296);
+}
 
 /** The parameters every tile URL of the current view shares, but for `t` (quality, sun). */
 function generation() {
@@ -1315,7 +1325,7 @@ function updateTiles() {
       tiles.set(key, tile);
       queue.push(tile);
     }
-    if (k.span > 0 && fractionOf(k, state.t) >= 0.5) {
+    if (k.span > 0 && fractionOf(k, state.t) >= prefetchAt(p.z, p.x, p.y)) {
       for (const product of tileProducts(worldInfo.layers[p.layer])) next.push(tileUrl(p, product, gen, k.t1));
     }
     return key;

@@ -43,6 +43,20 @@ export function keyframeOf(layer, z, t, maxTime = 1e12) {
   return { index, t0, t1, span: t1 - t0, f: fraction(t0, t1, tc) };
 }
 
+/**
+ * The fraction of its span past which tile (z, x, y)'s next keyframe is fetched: in
+ * [0.5, 0.8), by a hash of the tile (cloudscape_core::world::prefetch_at, the same
+ * 32-bit arithmetic), so the tiles of a view, and of every player sharing the world
+ * clock, are not all asked for in the same second.
+ */
+export function prefetchAt(z, x, y) {
+  let h = (Math.imul(x | 0, 0x9e3779b1) ^ Math.imul(y | 0, 0x85ebca77) ^ Math.imul((z + 1) | 0, 0xc2b2ae3d)) >>> 0;
+  h = (h ^ (h >>> 16)) >>> 0;
+  h = Math.imul(h, 0x7feb352d) >>> 0;
+  h = (h ^ (h >>> 15)) >>> 0;
+  return 0.5 + 0.3 * (h / 4294967296);
+}
+
 /** Where `t` falls in `[t0, t1]`, clamped to 0..1 (0 for an instant). */
 export function fraction(t0, t1, t) {
   const span = t1 - t0;
@@ -219,8 +233,8 @@ export class CloudscapeClient {
 
   /**
    * A tile's billboards (decoded billboards.bin) and shadow map (decoded shadow.png)
-   * at the keyframe that holds `at.t`. Past the middle of the span the next
-   * keyframe's products are fetched in the background (`prefetch: false` turns that
+   * at the keyframe that holds `at.t`. Past the tile's prefetch point (`prefetchAt`,
+   * in the second half of the span) the next keyframe's products are fetched in the background (`prefetch: false` turns that
    * off), so the boundary costs no wait.
    */
   async billboardTile(world, tile, at) {
@@ -235,13 +249,14 @@ export class CloudscapeClient {
   }
 
   /**
-   * Fetches the next keyframe's `products` of a tile when `at.t` is past the middle of
-   * its span; resolves to the paths fetched (none before the middle). Errors are
-   * swallowed: the tile is asked for again when its keyframe comes.
+   * Fetches the next keyframe's `products` of a tile when `at.t` is past the tile's
+   * prefetch point in its span (`prefetchAt`, between 0.5 and 0.8); resolves to the
+   * paths fetched (none before it). Errors are swallowed: the tile is asked for again
+   * when its keyframe comes.
    */
   async prefetchNext(world, tile, at, products = ['billboards.bin', 'shadow.png']) {
     const k = keyframeOf(findLayer(world, tile.layer), tile.z, at.t, world.max_time);
-    if (!(k.span > 0 && k.f >= 0.5)) return [];
+    if (!(k.span > 0 && k.f >= prefetchAt(tile.z, tile.x, tile.y))) return [];
     const paths = products.map((p) => this.tilePath(world, tile, p, { ...at, next: true })).filter((p) => !this.holds(p));
     await Promise.all(paths.map((p) => this.fetch(p).catch(() => null)));
     return paths;

@@ -57,6 +57,8 @@ export interface Keyframe {
 }
 
 export function keyframeSpan(layer: Pick<Layer, 'dt' | 'keyframe_spans'>, z: number): number;
+/** The fraction of its span (in [0.5, 0.8)) past which tile (z, x, y)'s next keyframe is fetched. */
+export function prefetchAt(z: number, x: number, y: number): number;
 export function keyframeOf(layer: Pick<Layer, 'dt' | 'keyframe_spans'>, z: number, t: number, maxTime?: number): Keyframe;
 export function fraction(t0: number, t1: number, t: number): number;
 export function isImmutable(cacheControl: string | null | undefined): boolean;

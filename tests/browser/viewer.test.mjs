@@ -240,7 +240,8 @@ try {
   {
     const kctx = await browser.newContext({ viewport: VIEWPORT });
     const kf = await openPage(kctx);
-    const tMid = t0 + 12;
+    // Past tile (0, 0, 0)'s prefetch point (0.7275 of the span: prefetchAt).
+    const tMid = t0 + 16;
     const sceneAt = (t) => `/?world=overcast&t=${t}&camera=${camera}&quality=balanced&sun=180,90&layers=stratocumulus`;
     await kf.page.goto(`${base}${sceneAt(tMid)}`);
     await settle(kf.page);
@@ -249,7 +250,7 @@ try {
       timeout: LOAD_TIMEOUT_MS,
       polling: 250,
     });
-    const span = await kf.page.evaluate(() => window.cloudscape.keyframeOf('stratocumulus', 0, 43212));
+    const span = await kf.page.evaluate(() => window.cloudscape.keyframeOf('stratocumulus', 0, 43216));
     const url = (p, t) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t}&quality=balanced&sun=180,90&layer=stratocumulus`;
     const want = [t0, t0 + 20].flatMap((t) => products.map((p) => url(p, t))).sort();
     const got = [...new Set(kf.log.tileRequests)].sort();

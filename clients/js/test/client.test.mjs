@@ -24,6 +24,7 @@ import {
   halfToFloat,
   keyframeOf,
   keyframeSpan,
+  prefetchAt,
   layerVelocity,
   shadowAt,
   splatForTau,
@@ -47,6 +48,16 @@ let world;
 before(async () => {
   client = new CloudscapeClient(base, { quality: 'fast' });
   world = await client.world(WORLD);
+});
+
+test('prefetch points spread over [0.5, 0.8) by tile, as the server\'s rule does', () => {
+  const points = [];
+  for (let z = 0; z < 4; z++) for (let x = -20; x < 20; x++) for (let y = -20; y < 20; y++) points.push(prefetchAt(z, x, y));
+  assert.ok(points.every((f) => f >= 0.5 && f < 0.8));
+  const mean = points.reduce((a, b) => a + b, 0) / points.length;
+  assert.ok(Math.abs(mean - 0.65) < 0.01, String(mean));
+  // Negative coordinates wrap as the Rust rule's `x as u32` does.
+  assert.equal(prefetchAt(1, -1, 2), prefetchAt(1, 0xffffffff, 2));
 });
 
 test('keyframes come from discovery', () => {
@@ -228,14 +239,17 @@ test('density grids: .u8 is .npy × 255 rounded, .f32 is .npy', async () => {
   assert.throws(() => decodeDensityU8(new Uint8Array(10), layer.depth), /density.u8/);
 });
 
-test('the next keyframe is fetched ahead past the middle, then needs no request', async () => {
+test('the next keyframe is fetched ahead past the tile\'s prefetch point, then needs no request', async () => {
   const c = new CloudscapeClient(base, { quality: 'fast' });
   const w = await c.world(WORLD);
-  const early = await c.prefetchNext(w, TILE, { ...AT, t: T0 + 5 });
-  assert.deepEqual(early, [], 'nothing before the middle of the span');
+  // Tile (0, 0, 0)'s point: 0.7275 of the span (worked out in Python from the rule).
+  const point = prefetchAt(TILE.z, TILE.x, TILE.y);
+  assert.equal(point, 0.5 + (0.3 * 0xc21a3414) / 2 ** 32);
+  const early = await c.prefetchNext(w, TILE, { ...AT, t: T0 + 14 });
+  assert.deepEqual(early, [], 'nothing before the prefetch point (0.70 < 0.7275)');
   const { billboards } = await c.billboardTile(w, TILE, { ...AT, prefetch: false });
   assert.equal(billboards.header.t0, T0);
-  const paths = await c.prefetchNext(w, TILE, AT);
+  const paths = await c.prefetchNext(w, TILE, { ...AT, t: T0 + 15 });
   assert.equal(paths.length, 2);
   assert.ok(paths.every((p) => p.includes(`t=${T0 + 20}&`)), JSON.stringify(paths));
   const requests = c.stats.requests;

@@ -17,7 +17,7 @@ use cloudscape_core::render::shade::Billboard;
 use cloudscape_core::render::splats::SplatSheet;
 use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_lookup, shadow_shift};
 use cloudscape_core::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
-use cloudscape_core::world::{Keyframe, keyframe_span};
+use cloudscape_core::world::{Keyframe, keyframe_span, prefetch_at};
 
 use crate::ClientError;
 
@@ -313,12 +313,13 @@ impl RemoteRender {
     }
 
     /// The next keyframe's products of every tile whose span the request's time is
-    /// past the middle of: what an animating client fetches ahead of need.
+    /// past the tile's prefetch point ([`cloudscape_core::world::prefetch_at`], in the
+    /// second half of the span): what an animating client fetches ahead of need.
     pub fn prefetch_paths(&self) -> Vec<String> {
         let mut paths = Vec::new();
         for &(layer, tile) in &self.tiles {
             let k = self.keyframe(layer, tile);
-            if k.fraction(self.req.t) >= 0.5 && k.t1 > k.t0 {
+            if k.fraction(self.req.t) >= prefetch_at(tile.z, tile.x, tile.y) && k.t1 > k.t0 {
                 for product in [Product::BillboardsBin, Product::ShadowPng] {
                     paths.push(self.tile_path_at(layer, tile, product, k.t1));
                 }

@@ -23,6 +23,29 @@
 
 use super::{Layer, MAX_TIME};
 
+/// The earliest fraction of a span at which a client fetches a tile's next keyframe.
+pub const PREFETCH_FROM: f64 = 0.5;
+/// How far past [`PREFETCH_FROM`] the tiles' prefetch points spread.
+pub const PREFETCH_SPREAD: f64 = 0.3;
+
+/// The fraction of its span past which a client fetches tile (z, x, y)'s next
+/// keyframe: in `[0.5, 0.8)`, by a hash of the tile. Every player of a town shares the
+/// world clock, so with one fraction for all (the middle) every tile of every view
+/// would be asked for in the same second; spread by tile, the next keyframes of a
+/// view arrive over the second half of the span, and each tile's still at one moment
+/// for all players (one computation, one cache fill). A fifth of the span is left for
+/// the last ones. The same integer arithmetic as the JS client's `prefetchAt`
+/// (32-bit wrapping multiplies of the low 32 bits of x and y), so both agree.
+pub fn prefetch_at(z: u32, x: i64, y: i64) -> f64 {
+    let mut h = (x as u32).wrapping_mul(0x9E37_79B1)
+        ^ (y as u32).wrapping_mul(0x85EB_CA77)
+        ^ z.wrapping_add(1).wrapping_mul(0xC2B2_AE3D);
+    h ^= h >> 16;
+    h = h.wrapping_mul(0x7FEB_352D);
+    h ^= h >> 15;
+    PREFETCH_FROM + PREFETCH_SPREAD * (f64::from(h) / 4_294_967_296.0)
+}
+
 /// Levels past which the keyframe span stops doubling.
 pub const MAX_KEYFRAME_DOUBLINGS: u32 = 4;
 
@@ -144,5 +167,36 @@ mod tests {
         }
         assert!(Keyframe::instant(5.0).is_instant());
         assert_eq!(Keyframe::instant(5.0).fraction(7.0), 0.0);
+    }
+
+    #[test]
+    fn prefetch_points_spread_over_the_second_half() {
+        let mut points = Vec::new();
+        for z in 0..4u32 {
+            for x in -20..20i64 {
+                for y in -20..20i64 {
+                    let f = prefetch_at(z, x, y);
+                    assert!((0.5..0.8).contains(&f), "{z}/{x}/{y}: {f}");
+                    assert_eq!(f, prefetch_at(z, x, y));
+                    points.push(f);
+                }
+            }
+        }
+        // Spread: the mean is near the middle of [0.5, 0.8) and every tenth of the
+        // range holds a share of the tiles.
+        let mean = points.iter().sum::<f64>() / points.len() as f64;
+        assert!((mean - 0.65).abs() < 0.01, "{mean}");
+        for bin in 0..10 {
+            let lo = 0.5 + 0.03 * bin as f64;
+            let n = points.iter().filter(|&&f| f >= lo && f < lo + 0.03).count();
+            assert!(n > points.len() / 20, "bin {bin}: {n}");
+        }
+        // Worked out from the definition in Python's big integers, masked to 32 bits:
+        // tile (0, 0, 0): h = 0xC2B2AE3D; h ^= h >> 16 = 0xC2B26C8F; h *= 0x7FEB352D
+        // (mod 2^32) = 0xC21BB023; h ^= h >> 15 = 0xC21A3414.
+        let h = 0xC21A_3414u32;
+        assert_eq!(prefetch_at(0, 0, 0), 0.5 + 0.3 * f64::from(h) / 4_294_967_296.0);
+        // Negative coordinates wrap as two's complement, as `x | 0` does in JS.
+        assert_eq!(prefetch_at(1, -1, 2), prefetch_at(1, 0xFFFF_FFFF, 2));
     }
 }

@@ -14,7 +14,7 @@ pub mod warm;
 
 pub use clock::WorldClock;
 pub use config::{Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, SunConfig};
-pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, keyframe_span};
+pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, PREFETCH_FROM, PREFETCH_SPREAD, keyframe_span, prefetch_at};
 
 use serde::Deserialize;
 

@@ -174,6 +174,6 @@ pub fn stages(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
     }
     md += "\n`kept` is what the tile keeps after the warm keyframes (the two latest grids and, at level 0, the \
            runs): the server holds it under `server.kept_share` of `server.cache_bytes`.\n";
-    out.add_section("keyframe-stages", "Keyframes: where the time goes, cold against warm", md);
+    out.add_section("stages", "Keyframes: where the time goes, cold against warm", md);
     Ok(())
 }

@@ -531,7 +531,14 @@ impl LoadSpec {
 /// Sends one request; returns the outcome (latency from `from`) and the ETag (when the
 /// agent keeps it) and `Retry-After` of the answer. The body is counted, not kept.
 async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outcome, Option<String>, Option<Duration>) {
-    let mut builder = shared.http.get(format!("{}{}", shared.base, req.path));
+    // Players accept compressed bodies as browsers and engines do (the server's zstd
+    // or gzip, compressed once per cached response) and count the bytes on the wire
+    // without decoding them: reqwest is built without its decoders. (The discovery and
+    // metrics reads, which are parsed, ask for none.)
+    let mut builder = shared
+        .http
+        .get(format!("{}{}", shared.base, req.path))
+        .header(reqwest::header::ACCEPT_ENCODING, "zstd, gzip");
     if let Some(e) = &req.etag {
         builder = builder.header(reqwest::header::IF_NONE_MATCH, e.as_str());
     }
@@ -1055,8 +1062,9 @@ impl SweepReport {
         });
         let mut md = format!(
             "`cloudscape loadtest --sweep` against `{}`, world `{}`: mmo scenario, groups of {GROUP_SIZE} players \
-             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles {} (prefetching past \
-             {:.0} % of a span); world clock {} s per second ({}). Generator: {}. Each step: {:.0} s of warm-up \
+             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles {} (prefetching the \
+             next keyframe past {:.0}–{:.0} % of a span, by tile) with `Accept-Encoding: zstd, gzip` as browsers \
+             do; world clock {} s per second ({}). Generator: {}. Each step: {:.0} s of warm-up \
              (the players' first views) then {:.0} s measured. A step holds when its p99 ≤ {SWEEP_P99_MS} ms \
              with no 503. *Places*: distinct level-0 tiles ({:.1} km) holding a group's centre during the step; \
              *CPU*: share of one core over the step (server from its `process_cpu_seconds_total`, generator \
@@ -1074,7 +1082,8 @@ impl SweepReport {
                 FetchMode::Keyframes => "by keyframe URL (immutable, never revalidated)",
                 FetchMode::Poll => "every second at the current time, revalidating (`--poll`)",
             },
-            100.0 * workload::PREFETCH_AT,
+            100.0 * workload::PREFETCH_AT.0,
+            100.0 * workload::PREFETCH_AT.1,
             self.clock,
             match self.clock_source {
                 ClockSource::Given => "`--t`",

@@ -12,7 +12,7 @@ use cloudscape_client::RemoteWorld;
 use cloudscape_core::render::scene::{LayerBand, plan_bands};
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams};
-use cloudscape_core::world::{Keyframe, keyframe_span};
+use cloudscape_core::world::{Keyframe, PREFETCH_FROM, PREFETCH_SPREAD, keyframe_span, prefetch_at};
 
 use super::geometry::{Geometry, GeometryKind, unit};
 use super::sharing::KeyframeKey;
@@ -26,9 +26,9 @@ pub const TICK_SECONDS: f64 = 1.0;
 const SCREEN: (usize, usize) = (800, 450);
 /// The preset MMO clients fetch (the viewer's default).
 pub const CLIENT_QUALITY: Quality = Quality::Fast;
-/// Past this fraction of a keyframe span a player fetches the next keyframe (as the
-/// viewer does).
-pub const PREFETCH_AT: f64 = 0.5;
+/// Past a fraction of a keyframe span a player fetches the next keyframe: each tile's
+/// own, between these (`cloudscape_core::world::prefetch_at`, as the viewer does).
+pub const PREFETCH_AT: (f64, f64) = (PREFETCH_FROM, PREFETCH_FROM + PREFETCH_SPREAD);
 /// Side of a game server's /region box, metres.
 const REGION_SIDE: f64 = 10_000.0;
 /// A game server asks for a /series (the last minute) every this many queries.
@@ -55,7 +55,7 @@ pub enum RequestKind {
 #[serde(rename_all = "snake_case")]
 pub enum FetchMode {
     /// As the viewer: each tile's keyframe URL once (immutable, never revalidated),
-    /// and the next keyframe once past [`PREFETCH_AT`] of the span.
+    /// and the next keyframe once past the tile's prefetch point ([`PREFETCH_AT`]).
     Keyframes,
     /// Every tile of the view every tick at the current time, revalidating the held
     /// ETag (what clients did before keyframes; `--poll`).
@@ -289,7 +289,7 @@ impl Player {
                     });
                     continue;
                 }
-                let prefetch = k.fraction(t) >= PREFETCH_AT && k.t1 > k.t0;
+                let prefetch = k.fraction(t) >= prefetch_at(tile.z, tile.x, tile.y) && k.t1 > k.t0;
                 for (kind, t0) in [(RequestKind::Tile, k.t0), (RequestKind::Prefetch, k.t1)] {
                     if kind == RequestKind::Prefetch && !prefetch {
                         continue;
@@ -489,7 +489,7 @@ mod tests {
     }
 
     #[test]
-    fn players_fetch_each_keyframe_once_and_the_next_one_past_the_middle() {
+    fn players_fetch_each_keyframe_once_and_the_next_one_past_its_prefetch_point() {
         let w = world();
         let geo = towns(1);
         let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
@@ -512,11 +512,23 @@ mod tests {
             held.iter().all(|r| !r.path.ends_with("&t=43200")),
             "held keyframes are never asked again: {held:?}"
         );
-        // Past the middle of the level-0 span: the next keyframe, once.
+        // At 0.6 of the level-0 span: the next keyframe of the tiles whose prefetch
+        // point is past, and only those.
         agent.plan(&w, &geo, 12.0);
+        let early = drain(&mut agent);
+        for r in &early {
+            let tile = r.tile.expect("a tile request");
+            assert!(r.kind == RequestKind::Prefetch && r.path.ends_with("&t=43220"), "{r:?}");
+            let (x, y) = (tile.keyframe.x, tile.keyframe.y);
+            assert!(prefetch_at(tile.keyframe.z, x, y) <= 0.6, "{r:?}");
+            agent.answered(r, true, None);
+        }
+        // At 0.825, past every tile's point: the rest of the next keyframes, once.
+        agent.plan(&w, &geo, 16.5);
         let pre = drain(&mut agent);
         let next: Vec<_> = pre.iter().filter(|r| r.path.ends_with("&t=43220")).collect();
         assert!(!next.is_empty() && next.iter().all(|r| r.kind == RequestKind::Prefetch));
+        assert!(next.iter().all(|r| !early.iter().any(|e| e.path == r.path)), "asked twice");
         for r in &pre {
             agent.answered(r, true, None);
         }

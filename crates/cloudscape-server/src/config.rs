@@ -137,7 +137,7 @@ impl Default for ServerConfig {
     fn default() -> Self {
         ServerConfig {
             listen: default_listen(),
-            cache_bytes: 1 << 30,
+            cache_bytes: 3 << 30,
             kept_share: 0.5,
             compute_queue: 0,
             request_timeout_ms: 10_000,

@@ -267,3 +267,56 @@ fn an_invalid_redis_url_is_refused_at_start() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("redis_url"));
 }
+
+/// Two replicas keeping the same play area warm through one Redis compute each
+/// keyframe once: a background computation claims its key in Redis first
+/// (`SET NX`), the replica that lost takes the bytes from Redis, and both become
+/// ready and stay warm. Without the claim, both computed every keyframe.
+#[test]
+fn replicas_keeping_the_same_area_warm_compute_each_keyframe_once() {
+    let redis = RedisServer::start();
+    let url = redis.url();
+    // The low layer's level-0 span is 10 s; at 5 world seconds a second a keyframe
+    // passes every 2 s. Six tiles, one computation each per keyframe.
+    let text = common::test_config(&[
+        ("worlds.default.clock", "{ rate = 5.0 }"),
+        (
+            "worlds.default.warm",
+            "[{ name = \"town\", bbox = [100.0, 100.0, 60000.0, 40000.0], levels = [0], layers = [\"low\"] }]",
+        ),
+    ]);
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("warm.toml");
+    std::fs::write(&config, text).unwrap();
+    let config = config.to_str().unwrap().to_string();
+    let start = |config: String, url: String| {
+        std::thread::spawn(move || {
+            ServeProcess::start(
+                &["--config", &config],
+                &[("CLOUDSCAPE_SERVER_REDIS_URL", url.as_str()), ("CLOUDSCAPE_SERVER_WARM_THREADS", "1")],
+            )
+        })
+    };
+    // Both at once, so that they meet on the first keyframes as well as on the next.
+    let (a, b) = (start(config.clone(), url.clone()), start(config, url));
+    let (a, b) = (a.join().unwrap(), b.join().unwrap());
+    std::thread::sleep(Duration::from_secs(8));
+    let mut c = redis.connection().unwrap();
+    let claims: Vec<String> = redis::cmd("KEYS").arg("*claim:*").query(&mut c).unwrap();
+    let computed = |s: &ServeProcess| metric(s, "cloudscape_warm_computed_total", &[]);
+    let lost = |s: &ServeProcess| metric(s, "cloudscape_redis_claims_total", &[("outcome", "lost")]);
+    let won = |s: &ServeProcess| metric(s, "cloudscape_redis_claims_total", &[("outcome", "won")]);
+    let total = computed(&a) + computed(&b);
+    // Each keyframe was claimed once and computed by the replica that won it.
+    assert!(claims.len() >= 12, "{} claims: {claims:?}", claims.len());
+    assert_eq!(total, claims.len() as f64, "computed {total}, claimed keys {}", claims.len());
+    assert_eq!(won(&a) + won(&b), claims.len() as f64);
+    assert!(lost(&a) + lost(&b) > 0.0, "the replicas never met on a keyframe");
+    // Both hold every keyframe of the area: nothing pending on either.
+    for s in [&a, &b] {
+        assert!(
+            common::eventually(Duration::from_secs(10), || metric(s, "cloudscape_warm_pending", &[]) == 0.0),
+            "a replica kept keyframes pending"
+        );
+    }
+}

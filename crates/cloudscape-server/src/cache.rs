@@ -16,7 +16,7 @@
 
 use std::collections::HashMap;
 use std::panic::AssertUnwindSafe;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, Weak};
 use std::time::{Duration, Instant};
 
@@ -42,6 +42,11 @@ const MEAN_JOB_WEIGHT: f64 = 0.25;
 const CANCEL_POLL: Duration = Duration::from_millis(50);
 /// `Retry-After` bounds, seconds.
 const RETRY_AFTER_S: (u32, u32) = (1, 60);
+
+/// How long a replica's claim on a background computation holds in the shared cache
+/// (`SharedCache::claim`): longer than any such computation takes, so a replica that
+/// died with it leaves it to another within this time.
+const CLAIM_TTL: Duration = Duration::from_secs(60);
 
 /// Who a computation is for: a request waiting on it, or one of the background tasks,
 /// compute-ahead (`crate::ahead`) and the play areas kept warm (`crate::warm`), whose
@@ -364,7 +369,7 @@ impl ResponseCache {
         let this = Arc::clone(self);
         let m = Arc::clone(metrics);
         let task = tokio::spawn(async move {
-            let init = this.fill(&m, computation, cancel, Asker::Request);
+            let init = this.fill(&m, computation, cancel, Asker::Request, None);
             this.get_with(&key, init).await
         });
         let result = match tokio::time::timeout(self.budget, task).await {
@@ -389,21 +394,32 @@ impl ResponseCache {
     /// queue; the siblings the job yields go into both caches (the key itself is
     /// inserted by the caller's `try_get_with`). Keys computed in the background are
     /// remembered, so the first request that finds each counts as served from ahead
-    /// (or warm).
+    /// (or warm). `computed`, when given, is set when the job ran here (not when the
+    /// bytes came from the shared cache).
     async fn fill(
         &self,
         m: &Arc<Metrics>,
         computation: Computation<impl Job>,
         cancel: Cancel,
         by: Asker,
+        computed: Option<&AtomicBool>,
     ) -> Result<Bytes, ApiError> {
         let Computation { kind, key, work, job } = computation;
-        if let Some(shared) = &self.shared
-            && let Lookup::Hit(bytes) = shared.get(m, kind, &key).await
-        {
-            return Ok(bytes);
+        if let Some(shared) = &self.shared {
+            if let Lookup::Hit(bytes) = shared.get(m, kind, &key).await {
+                return Ok(bytes);
+            }
+            // Work nobody waits for yet (ahead, warm) is done by one replica: the others
+            // come back for the bytes (the warm worker and compute-ahead retry a
+            // refused key soon, and then find it in Redis). A request computes anyway.
+            if by != Asker::Request && !shared.claim(m, &key, CLAIM_TTL).await {
+                return Err(ApiError::Overloaded(1));
+            }
         }
         let (bytes, siblings) = self.queue.run(m, (kind, by), work, cancel, job).await?;
+        if let Some(c) = computed {
+            c.store(true, Ordering::Relaxed);
+        }
         for (k, b) in &siblings {
             if b.len() <= self.max_entry {
                 self.cache.insert(k.clone(), b.clone()).await;
@@ -422,9 +438,10 @@ impl ResponseCache {
 
     /// Computes `key` ahead of any request, for a background task `by` (no time
     /// budget; requests asking for it meanwhile join the computation). `Ok(true)` when
-    /// this call put the bytes in the cache, `Ok(false)` when they were there already
-    /// (or another caller's computation put them there); an error when the queue shed
-    /// it or it failed.
+    /// this call computed the bytes, `Ok(false)` when they were in the cache already,
+    /// another caller's computation put them there, or they came from the shared cache
+    /// (another replica computed them); an error when the queue shed it, it failed, or
+    /// another replica holds its claim (then it comes back later for the bytes).
     pub async fn compute_ahead(
         self: &Arc<Self>,
         metrics: &Arc<Metrics>,
@@ -435,13 +452,10 @@ impl ResponseCache {
         if self.cache.contains_key(&key) {
             return Ok(false);
         }
-        let ran = std::sync::atomic::AtomicBool::new(false);
-        let init = async {
-            ran.store(true, Ordering::Relaxed);
-            self.fill(metrics, computation, Cancel::never(), by).await
-        };
+        let computed = AtomicBool::new(false);
+        let init = self.fill(metrics, computation, Cancel::never(), by, Some(&computed));
         self.get_with(&key, init).await?;
-        Ok(ran.load(Ordering::Relaxed))
+        Ok(computed.load(Ordering::Relaxed))
     }
 
     /// The bytes of `key` from the cache, or from `init` (run once for all concurrent

@@ -56,6 +56,10 @@ pub struct Metrics {
     pub redis_skipped: IntCounter,
     /// Entries written to the shared cache.
     pub redis_writes: IntCounter,
+    /// Background computations (ahead, warm) that claimed their key in the shared cache
+    /// before computing, by outcome: `won` (this replica computes it), `lost` (another
+    /// replica does; this one takes the bytes from Redis once they are there).
+    pub redis_claims: IntCounterVec,
     /// Sockets accepted (served or refused).
     pub connections_accepted: IntCounter,
     /// Connections being served right now.
@@ -322,6 +326,11 @@ impl Metrics {
                 "cloudscape_redis_misses_total",
                 "shared (Redis) cache misses",
                 &["kind"],
+            ),
+            redis_claims: counter(
+                "cloudscape_redis_claims_total",
+                "background computations that claimed their key in Redis first, by outcome: won, lost",
+                &["outcome"],
             ),
             redis_errors: counter(
                 "cloudscape_redis_errors_total",

@@ -41,6 +41,9 @@ pub struct SharedCache {
     /// Redis is skipped until this many milliseconds after `started`.
     skip_until_ms: AtomicU64,
     started: Instant,
+    /// This process, as its claims name it (`pid@unix-ms` of its start): what a
+    /// claim's holder is, for an operator reading Redis; nothing reads it back.
+    replica: String,
 }
 
 /// What a lookup found.
@@ -77,6 +80,13 @@ impl SharedCache {
             ttl_s: settings.redis_ttl_s,
             skip_until_ms: AtomicU64::new(0),
             started: Instant::now(),
+            replica: format!(
+                "{}@{}",
+                std::process::id(),
+                std::time::SystemTime::now()
+                    .duration_since(std::time::UNIX_EPOCH)
+                    .map_or(0, |d| d.as_millis())
+            ),
         }))
     }
 
@@ -134,6 +144,42 @@ impl SharedCache {
                 Lookup::Unavailable
             }
         }
+    }
+
+    /// Claims `key` for this replica's background computation for `ttl`: true when no
+    /// other replica holds a claim on it (a `SET NX PX` of `claim:` and the key), or
+    /// when Redis cannot say (then computing twice is the safe side). Replicas keeping
+    /// the same play areas warm, or computing the same keyframes ahead, compute each
+    /// once: the one that lost takes the bytes from Redis when they are there, and a
+    /// claim whose replica died lapses after `ttl`.
+    pub async fn claim(&self, metrics: &Metrics, key: &CacheKey, ttl: Duration) -> bool {
+        if self.skipping() {
+            return true;
+        }
+        let mut connection = self.connection.clone();
+        let cmd = redis::cmd("SET")
+            .arg(format!("{}claim:{}", self.namespace, key.0))
+            .arg(self.replica.as_str())
+            .arg("NX")
+            .arg("PX")
+            .arg(ttl.as_millis() as u64)
+            .clone();
+        let won = match tokio::time::timeout(self.timeout, cmd.query_async::<Option<String>>(&mut connection)).await {
+            Ok(Ok(reply)) => reply.is_some(),
+            Ok(Err(e)) => {
+                self.failed(metrics, "claim", &e.to_string());
+                true
+            }
+            Err(_) => {
+                self.failed(metrics, "claim", "timed out");
+                true
+            }
+        };
+        metrics
+            .redis_claims
+            .with_label_values(&[if won { "won" } else { "lost" }])
+            .inc();
+        won
     }
 
     /// Stores `entries` in a task of its own; the caller does not wait.

@@ -371,6 +371,21 @@ fn in_range(tile: TileId, layer: &Layer, limits: &Limits) -> Result<(), String> 
 struct WarmTile {
     recipe: Arc<TileRecipe>,
     clock: WorldClock,
+    /// Where it comes among keyframes due at the same time: an order of this
+    /// process's own (a hash of the variant's place in the list and a number drawn at
+    /// start-up), so that replicas keeping the same areas warm work through them in
+    /// different orders. With a shared cache each keyframe is then claimed by one
+    /// replica (`SharedCache::claim`), mostly the same one span after span, so its
+    /// kept state serves the next keyframe; the others take the bytes from Redis.
+    order: u64,
+}
+
+/// SplitMix64's finaliser: the warm worker's per-process order of variants.
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
 }
 
 /// What the worker knows of one variant.
@@ -429,6 +444,11 @@ impl Warm {
         let mut tiles = Vec::new();
         let mut counts = BTreeMap::new();
         let mut kept = std::collections::HashSet::new();
+        // Drawn once per process: scheduling only, never bytes.
+        let seed = mix(u64::from(std::process::id())
+            ^ std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0, |d| d.as_nanos() as u64));
         if threads > 0 {
             for (name, list) in all {
                 let Ok(world) = parts.worlds.resolve(&name) else {
@@ -456,6 +476,7 @@ impl Warm {
                             metrics: Arc::clone(parts.metrics),
                         }),
                         clock,
+                        order: mix(seed ^ tiles.len() as u64),
                     });
                 }
             }
@@ -510,7 +531,7 @@ impl Warm {
     fn due(&self, unix: f64) -> (Option<Due>, usize, f64) {
         let now = Instant::now();
         let mut progress = self.lock();
-        let mut best: Option<((u8, f64), Due)> = None;
+        let mut best: Option<((u8, f64, u64), Due)> = None;
         let mut pending = 0;
         let mut change = f64::INFINITY;
         for (index, (tile, p)) in self.tiles.iter().zip(progress.iter_mut()).enumerate() {
@@ -533,12 +554,12 @@ impl Warm {
                     continue;
                 }
                 let urgent_at = tile.clock.unix_at(k.t0 - (1.0 - URGENT_FROM) * k.span());
-                // Current keyframes (0) before next ones (1), then the earliest.
-                let rank = (u8::from(is_next), urgent_at);
-                if best
-                    .as_ref()
-                    .is_none_or(|(b, _)| rank.0 < b.0 || (rank.0 == b.0 && rank.1 < b.1))
-                {
+                // Current keyframes (0) before next ones (1), then the earliest, then
+                // this process's own order.
+                let rank = (u8::from(is_next), urgent_at, tile.order);
+                if best.as_ref().is_none_or(|(b, _)| {
+                    rank.0 < b.0 || (rank.0 == b.0 && (rank.1 < b.1 || (rank.1 == b.1 && rank.2 < b.2)))
+                }) {
                     best = Some((
                         rank,
                         Due {

@@ -44,7 +44,7 @@ use crate::metrics::Metrics;
 /// A computation ahead: the bytes of a key and of its siblings.
 pub type AheadJob = Box<dyn FnOnce(&Cancel) -> Result<WithSiblings, ApiError> + Send>;
 
-/// What compute-ahead needs of a watched tile variant (`tiles::TileRecipe`).
+/// What compute-ahead needs of a watched tile variant (`recipe::TileRecipe`).
 pub trait Recipe: Send + Sync {
     /// The variant's identity, whatever its time.
     fn variant(&self) -> String;

@@ -40,6 +40,7 @@ mod openapi;
 mod ops;
 pub mod params;
 mod queries;
+mod recipe;
 mod render;
 mod reply;
 mod respond;
@@ -136,7 +137,19 @@ impl Server {
             Arc::clone(&state.cache),
             Arc::clone(&state.metrics),
         ));
-        let warm = tokio::spawn(warm::run(Arc::clone(&state)));
+        let warm = tokio::spawn(warm::run(
+            Arc::clone(&state.warm),
+            Arc::clone(&state.cache),
+            Arc::clone(&state.metrics),
+            {
+                let state = Arc::clone(&state);
+                move || match state.readiness.get() {
+                    Lifecycle::Starting => warm::Phase::Starting,
+                    Lifecycle::Draining => warm::Phase::Draining,
+                    Lifecycle::Ready | Lifecycle::Failed => warm::Phase::Serving,
+                }
+            },
+        ));
         let app = router(Arc::clone(&state));
         let mut stop = self.stop.subscribe();
         let drain = {

@@ -45,14 +45,13 @@ use cloudscape_core::render::{Quality, TileId};
 use cloudscape_core::world::warm::{Margin, WarmArea};
 use cloudscape_core::world::{Config, ConfigError, Keyframe, Layer, Limits, MAX_TIME, SunConfig, WorldClock};
 
-use crate::cache::{Asker, Computation};
+use crate::cache::{Asker, Computation, ResponseCache};
 use crate::config::ServerConfig;
 use crate::error::ApiError;
 use crate::kept::KeptStates;
 use crate::key::Worlds;
 use crate::metrics::Metrics;
-use crate::state::{AppState, Lifecycle};
-use crate::tiles::TileRecipe;
+use crate::recipe::TileRecipe;
 
 /// Past this fraction of the span before it, a next warm keyframe is urgent: clients
 /// fetch it from half the span on (the viewer, `cloudscape loadtest`), which leaves
@@ -238,7 +237,7 @@ fn names(key: &str, area: &WarmArea) -> Result<(Vec<Product>, Vec<Quality>), Con
 /// product it asks for: the shaded ones (once per quality), then the grid ones. A
 /// shading encodes `billboards.bin` and `shadow.png` whatever it is asked for, and
 /// `precipitation.png` on a layer that can precipitate
-/// (`cloudscape_core::products::catalogue::encode_shaded`, `tiles::TileRecipe::plan`),
+/// (`cloudscape_core::products::catalogue::encode_shaded`, `recipe::TileRecipe::plan`),
 /// so those ride along with any shading.
 fn computations(products: &[Product], layer: &Layer) -> (Vec<Product>, Vec<Product>) {
     let wants = |p: Product| products.contains(&p);
@@ -618,24 +617,41 @@ impl Warm {
     }
 }
 
-/// The warm worker: runs until the server stops (the task is dropped).
-pub async fn run(state: Arc<AppState>) {
-    let warm = Arc::clone(&state.warm);
+/// Where the server is in its life, as the warm worker needs it (`phase` in [`run`]:
+/// the server's `Lifecycle`, told apart from its `/readyz` here so that this module
+/// does not depend on the server's state).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// Not ready yet: warm work may use every compute thread.
+    Starting,
+    Serving,
+    /// Shutting down: nothing new is started.
+    Draining,
+}
+
+/// The warm worker: runs until the server stops (the task is dropped). `phase` says
+/// where the server is in its life.
+pub async fn run(
+    warm: Arc<Warm>,
+    cache: Arc<ResponseCache>,
+    metrics: Arc<Metrics>,
+    phase: impl Fn() -> Phase + Send + 'static,
+) {
     if warm.tiles.is_empty() {
         return;
     }
     let compute_threads = rayon::current_num_threads().max(1);
     let running = Arc::new(AtomicUsize::new(0));
     loop {
-        let phase = state.readiness.get();
-        let starting = phase == Lifecycle::Starting;
+        let phase = phase();
+        let starting = phase == Phase::Starting;
         let unix = unix_now();
         let (due, pending, change) = warm.due(unix);
-        state.metrics.warm_pending.set(pending as i64);
+        metrics.warm_pending.set(pending as i64);
         let busy = running.load(Ordering::SeqCst);
         let wait = match due {
             None => Duration::from_secs_f64((change - unix).clamp(0.01, IDLE_POLL.as_secs_f64())),
-            Some(_) if phase == Lifecycle::Draining => BUSY_POLL,
+            Some(_) if phase == Phase::Draining => BUSY_POLL,
             Some(due) => {
                 // Requests keep priority. Politely (no request queued: the queue holds
                 // only warm work; and a compute thread free) a warm keyframe may take any
@@ -643,7 +659,7 @@ pub async fn run(state: Arc<AppState>) {
                 // past URGENT_FROM of the span before it) it runs whatever is queued, in
                 // the queue's order, at most `warm_threads` at once (before ready, every
                 // compute thread). Never in the queue's last place.
-                let depth = state.cache.queue_depth();
+                let depth = cache.queue_depth();
                 let limit = if starting {
                     warm.threads.max(compute_threads)
                 } else {
@@ -651,15 +667,16 @@ pub async fn run(state: Arc<AppState>) {
                 };
                 let polite = depth <= busy && depth < compute_threads;
                 let urgent = starting || due.urgent_at <= unix;
-                if busy < limit && state.cache.queue_free() >= 2 && (urgent || polite) {
+                if busy < limit && cache.queue_free() >= 2 && (urgent || polite) {
                     warm.start(due.index);
                     running.fetch_add(1, Ordering::SeqCst);
-                    let (state, running) = (Arc::clone(&state), Arc::clone(&running));
+                    let (warm, cache, metrics, running) =
+                        (Arc::clone(&warm), Arc::clone(&cache), Arc::clone(&metrics), Arc::clone(&running));
                     tokio::spawn(async move {
-                        let outcome = compute(&state, &due).await;
-                        state.warm.finished(&state.metrics, &due, outcome);
+                        let outcome = compute(&warm, &cache, &metrics, &due).await;
+                        warm.finished(&metrics, &due, outcome);
                         running.fetch_sub(1, Ordering::SeqCst);
-                        state.warm.wake.notify_one();
+                        warm.wake.notify_one();
                     });
                     continue;
                 }
@@ -675,8 +692,8 @@ pub async fn run(state: Arc<AppState>) {
 
 /// Computes one warm keyframe into the cache, as a request for its URL would: `Ok(true)`
 /// when this computation put it there, `Ok(false)` when it was there already.
-async fn compute(state: &Arc<AppState>, due: &Due) -> Result<bool, ApiError> {
-    let recipe = &state.warm.tiles[due.index].recipe;
+async fn compute(warm: &Warm, cache: &Arc<ResponseCache>, metrics: &Arc<Metrics>, due: &Due) -> Result<bool, ApiError> {
+    let recipe = &warm.tiles[due.index].recipe;
     let (work, job) = recipe.plan(due.keyframe)?;
     tracing::debug!(variant = %recipe.variant(), index = due.keyframe.index, "warm: start");
     let computation = Computation {
@@ -685,9 +702,7 @@ async fn compute(state: &Arc<AppState>, due: &Due) -> Result<bool, ApiError> {
         work,
         job,
     };
-    state
-        .cache
-        .compute_ahead(&state.metrics, computation, Asker::Warm)
+    cache.compute_ahead(metrics, computation, Asker::Warm)
         .await
 }
 

@@ -216,8 +216,9 @@ fn replicas_agree_and_nginx_caches_and_coalesces() {
         "replicas are scraped directly"
     );
 
-    // Eight clients ask for one cold URL at once: one of them goes upstream, the others
-    // wait for its answer (proxy_cache_lock), so one replica computes it once.
+    // Eight clients ask for one cold URL at once: nginx sends the misses upstream
+    // without a cache lock (its waiters would poll every 500 ms), all to the replica
+    // the tile hashes to, which joins them into one computation. nginx then has it.
     let path = "/v1/worlds/default/tiles/0/-5/4/density.f32?t=80";
     let before = computations(&replicas);
     let answers: Vec<Answer> = std::thread::scope(|s| {
@@ -225,12 +226,10 @@ fn replicas_agree_and_nginx_caches_and_coalesces() {
         handles.into_iter().map(|h| h.join().unwrap()).collect()
     });
     assert!(answers.iter().all(|a| a.status == 200 && a.body == answers[0].body));
-    assert_eq!(
-        answers.iter().filter(|a| a.cache == "MISS").count(),
-        1,
-        "one request went upstream"
-    );
+    assert!(answers.iter().any(|a| a.cache == "MISS"), "the first went upstream");
     assert_eq!(computations(&replicas) - before, 1.0, "concurrent misses computed once");
+    let again = get(&nginx.base, path, &[]);
+    assert_eq!((again.cache.as_str(), again.body == answers[0].body), ("HIT", true));
 }
 
 #[test]

@@ -226,6 +226,14 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
     assert!(f(&r, &["generator", "cpu_cores"]) > 0.0);
     assert_eq!(r["generator"]["placement"]["mode"], "as is");
     assert!(stdout.contains("CPU, share of one core: server "), "{stdout}");
+    // The generator's own scheduling delay, from its 10 ms probe timer: measured (a
+    // timer never wakes early, so every sample is > 0) and ordered.
+    let lag: Vec<f64> = ["min_ms", "p50_ms", "p99_ms", "max_ms"]
+        .iter()
+        .map(|k| f(&r, &["generator", "lag", k]))
+        .collect();
+    assert!(lag[0] > 0.0 && lag.windows(2).all(|w| w[0] <= w[1]), "{lag:?}");
+    assert!(stdout.contains("generator lag (its own 10 ms timer, late by) p99 "), "{stdout}");
     // The default geometry: one group of 8 in a town, one distinct place.
     assert_eq!(r["geometry"]["kind"], "towns");
     assert_eq!(r["geometry"]["groups"], 1);
@@ -348,6 +356,7 @@ fn a_niced_and_pinned_sweep_reports_where_the_generator_ran() {
     let step = &r["steps"][0];
     assert_eq!(step["players"], 8);
     assert!(f(step, &["generator_cpu_cores"]) > 0.0, "{step}");
+    assert!(f(step, &["generator_lag_p99_ms"]) > 0.0, "{step}");
     // One group on its own path: one place, nothing shared between groups.
     assert_eq!((step["groups"].as_u64(), step["places"].as_u64()), (Some(1), Some(1)));
     assert_eq!(r["geometry"]["kind"], "spread");

@@ -23,7 +23,7 @@
 use super::epoch::{RunId, StepPlan, plan_step, served_steps};
 use super::kernel::{Drives, Level, Rect};
 use super::run::LayerSim;
-use crate::density::Region;
+use crate::region::Region;
 
 /// One run advanced step by step.
 #[derive(Debug)]

@@ -5,10 +5,9 @@ pub mod exact;
 pub mod kept;
 mod lod;
 pub mod metaballs;
-mod region;
 pub mod stats;
 
-pub use region::{Cell, Grid, MAX_CELL_INDEX, Region, SimError, check_time};
+pub use crate::region::{Cell, Grid, MAX_CELL_INDEX, Region, SimError, check_time};
 pub use stats::{CLOUD_THRESHOLD, ColumnStats, RegionStats, column_stats, region_stats};
 
 use crate::automaton::LayerSim;

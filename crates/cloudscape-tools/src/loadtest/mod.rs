@@ -199,6 +199,10 @@ pub struct GeneratorFigures {
     pub cpu_cores: f64,
     /// The priority and cores it asked for and ran with, read back from the kernel.
     pub placement: PlacementReadBack,
+    /// How late its own timer woke ([`record::LAG_PERIOD_MS`] apart) over the
+    /// measured run: its scheduling delay, which every latency above includes. A
+    /// generator starved of CPU (niced below a busy server) shows it here.
+    pub lag: Latency,
 }
 
 /// Where the world clock of a run came from.
@@ -626,6 +630,24 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
     }
 }
 
+/// Sleeps [`record::LAG_PERIOD_MS`] over and over until the run's deadline and records
+/// how late each wake-up came (from the end of the warm-up on): the delay the
+/// generator's own scheduling adds to every latency it measures.
+async fn lag_probe(shared: Arc<Shared>) {
+    let period = Duration::from_millis(record::LAG_PERIOD_MS);
+    loop {
+        let due = Instant::now() + period;
+        if due >= shared.deadline {
+            return;
+        }
+        tokio::time::sleep_until(due.into()).await;
+        let late = Instant::now().saturating_duration_since(due);
+        if due >= shared.measure_from {
+            shared.recorder.lock().unwrap().record_lag(late.as_micros() as u64);
+        }
+    }
+}
+
 /// The open loop: request i leaves at i / rate, round-robin over the agents.
 async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f64) {
     let slots = Arc::new(Semaphore::new(MAX_IN_FLIGHT));
@@ -794,6 +816,7 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                 }
             })
         };
+        tokio::spawn(lag_probe(shared.clone()));
         let (before, generator_before, mut sampler) = {
             tokio::time::sleep_until(shared.measure_from.into()).await;
             let before = scrape(&http, &base, spec.server_pid).await;
@@ -874,6 +897,7 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
                 cpu_seconds: generator_cpu,
                 cpu_cores: generator_cpu / elapsed.max(1e-9),
                 placement: spec.placement.read_back(),
+                lag: rec.lag(),
             },
             sharing: rec.sharing(),
             boundary: rec.boundary_latency(),
@@ -918,6 +942,9 @@ pub struct SweepStep {
     pub server: Option<ServerFigures>,
     /// The load generator's own CPU over the step, as a share of one core.
     pub generator_cpu_cores: f64,
+    /// How late the generator's own timer woke, p99, milliseconds
+    /// ([`GeneratorFigures::lag`]).
+    pub generator_lag_p99_ms: f64,
     /// How much the groups shared, per level.
     pub sharing: Vec<LevelSharing>,
     /// Body bytes per second received.
@@ -1002,6 +1029,7 @@ pub fn sweep(
             elsewhere_p99_ms: r.boundary.elsewhere.p99_ms,
             server: r.server.clone(),
             generator_cpu_cores: r.generator.cpu_cores,
+            generator_lag_p99_ms: r.generator.lag.p99_ms,
             sharing: r.sharing.clone(),
             bytes_per_s: r.body_bytes as f64 / r.elapsed_s.max(1e-9),
             holds,
@@ -1068,12 +1096,14 @@ impl SweepReport {
              (the players' first views) then {:.0} s measured. A step holds when its p99 ≤ {SWEEP_P99_MS} ms \
              with no 503. *Places*: distinct level-0 tiles ({:.1} km) holding a group's centre during the step; \
              *CPU*: share of one core over the step (server from its `process_cpu_seconds_total`, generator \
-             from its own `getrusage`); *requests per keyframe*: tile requests per distinct tile keyframe at \
+             from its own `getrusage`); *generator lag*: how late the generator's own {}-ms timer woke, p99 \
+             (its scheduling delay, which every latency includes: when it nears the p99, the generator \
+             measured itself); *requests per keyframe*: tile requests per distinct tile keyframe at \
              level 0; *shared*: share of the distinct keyframes (all levels) asked for by two groups or more; \
              *warm*: keyframes of the server's play areas computed during the step; *shading reused*: share of \
              the instants the server's tile jobs shaded that were the previous keyframe's end, kept.\n\n\
-             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | computations | ahead computed / served / missed | ahead lag | warm | shading reused | requests per keyframe (level 0) | shared | MB/s | holds |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | generator lag | computations | ahead computed / served / missed | ahead lag | warm | shading reused | requests per keyframe (level 0) | shared | MB/s | holds |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             self.target,
             self.world,
             workload::PARTY_SPREAD,
@@ -1099,12 +1129,13 @@ impl SweepReport {
             self.warmup_s,
             self.step_s,
             self.place_side_m / 1000.0,
+            record::LAG_PERIOD_MS,
         );
         for s in &self.steps {
             let f = s.server.clone().unwrap_or_default();
             let l0 = s.sharing.iter().find(|l| l.level == 0);
             md += &format!(
-                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {} | {} / {} / {} | {} | {} | {} | {} | {} | {:.2} | {} |\n",
+                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {:.1} ms | {} | {} / {} / {} | {} | {} | {} | {} | {} | {:.2} | {} |\n",
                 s.players,
                 s.places,
                 s.throughput_rps,
@@ -1116,6 +1147,7 @@ impl SweepReport {
                 s.elsewhere_p99_ms,
                 percent(f.cpu_cores),
                 percent(Some(s.generator_cpu_cores)),
+                s.generator_lag_p99_ms,
                 f.computations,
                 f.ahead.computed,
                 f.ahead.served,
@@ -1285,13 +1317,24 @@ impl Report {
         }
         let g = &self.generator;
         s += &format!(
-            "CPU, share of one core: server {}, generator {} (generator {}; read back: nice {}, cores {})\n",
+            "CPU, share of one core: server {}, generator {} (generator {}; read back: nice {}, cores {}); \
+             generator lag (its own {} ms timer, late by) p99 {:.1} ms, max {:.1} ms\n",
             percent(self.server.as_ref().and_then(|f| f.cpu_cores)),
             percent(Some(g.cpu_cores)),
             g.placement.mode,
             g.placement.nice,
             generator::cpu_list(&g.placement.cpus),
+            record::LAG_PERIOD_MS,
+            g.lag.p99_ms,
+            g.lag.max_ms,
         );
+        if g.lag.p99_ms > 5.0 && g.lag.p99_ms > 0.5 * self.latency.p99_ms {
+            s += &format!(
+                "warning: the generator itself ran late (p99 {:.1} ms against a request p99 of {:.1} ms): \
+                 the latency is partly its own; give it more CPU (a lower --nice, its own --cpu) or another machine\n",
+                g.lag.p99_ms, self.latency.p99_ms
+            );
+        }
         if !self.sharing.is_empty() {
             s += "sharing by level (distinct tile keyframes; requests per keyframe; asked by >= 2 groups):";
             for l in &self.sharing {
@@ -1580,6 +1623,7 @@ mod tests {
                 ..ServerFigures::default()
             }),
             generator_cpu_cores: 0.034,
+            generator_lag_p99_ms: 0.25,
             sharing: vec![level(0, 10, 40, 0.5), level(2, 2, 30, 1.0)],
             bytes_per_s: 1e6,
             holds: true,
@@ -1600,10 +1644,11 @@ mod tests {
             capacity_places: Some(1),
         };
         let md = report.markdown();
-        // places 1, server 120 %, generator 3 %, 4.0 requests per level-0 keyframe,
-        // (5 + 2) / 12 = 58 % of the keyframes shared.
+        // places 1, server 120 %, generator 3 % and late by 0.2 ms (0.25 rounded to
+        // even), 4.0 requests per level-0 keyframe, (5 + 2) / 12 = 58 % of the
+        // keyframes shared.
         assert!(
-            md.contains("| 16 | 1 | 20 | 1.0 ms | 9.0 ms | 12 ms | 0 | 5.0 / 9.0 ms | 120 % | 3 % |"),
+            md.contains("| 16 | 1 | 20 | 1.0 ms | 9.0 ms | 12 ms | 0 | 5.0 / 9.0 ms | 120 % | 3 % | 0.2 ms |"),
             "{md}"
         );
         assert!(md.contains("| 4.0 | 58 % | 1.00 | yes |"), "{md}");

@@ -80,9 +80,16 @@ pub struct Recorder {
     /// CPU use in each second of the run, as a share of one core: the generator's and
     /// the server's (`None` when unknown).
     cpu: Vec<(Option<f64>, Option<f64>)>,
+    /// How late the generator's own timer fired ([`LAG_PERIOD_MS`] apart), in
+    /// microseconds: the generator's scheduling delay, which its latencies include.
+    lag: Histogram<u64>,
     /// The first transport error, to tell the operator what went wrong.
     pub first_error: Option<String>,
 }
+
+/// Period of the generator's lag probe, milliseconds: it sleeps this long, over and
+/// over, and records how late it woke.
+pub const LAG_PERIOD_MS: u64 = 10;
 
 impl Default for Recorder {
     fn default() -> Self {
@@ -97,6 +104,7 @@ impl Default for Recorder {
             bytes: 0,
             sharing: SharingLog::default(),
             cpu: Vec::new(),
+            lag: histogram(),
             first_error: None,
         }
     }
@@ -181,6 +189,17 @@ impl Recorder {
         if let Some(k) = o.keyframe {
             self.sharing.record(k, o.group);
         }
+    }
+
+    /// Notes one wake-up of the lag probe, `micros` after it was due.
+    pub fn record_lag(&mut self, micros: u64) {
+        self.lag.saturating_record(micros.clamp(1, MAX_MICROS));
+    }
+
+    /// How late the generator's lag probe woke over the measured run: when this is
+    /// close to the requests' latency, the latency is the generator's, not the server's.
+    pub fn lag(&self) -> Latency {
+        latency(&self.lag)
     }
 
     /// Notes the CPU used in second `second` of the measured run (shares of a core).

@@ -1,4 +1,5 @@
-//! Regions of columns and the 3D grids computed over them.
+//! Regions of columns and the 3D grids computed over them: what the automaton runs
+//! and the density is sampled over (both use it, so it sits below them).
 
 use crate::world::{Layer, Limits, MAX_TIME};
 

@@ -70,7 +70,9 @@ fn products(
     .unwrap_or_else(|e| panic!("{tile:?} {keyframe:?}: {e}"));
     let region = tile.region().unwrap();
     let grid = match kept {
-        Some(k) => k.density.density(world, region, keyframe.t0, true, &cancel, &mut stages),
+        Some(k) => k
+            .density
+            .density(world, region, keyframe.t0, true, &cancel, &mut stages),
         None => density::density(world, layer, tile.z, region, keyframe.t0),
     }
     .unwrap();
@@ -149,7 +151,11 @@ fn run_on(threads: usize, world: &World) -> Vec<Vec<(Product, Vec<u8>)>> {
                 let s = kept.shading_counts();
                 assert!(d.reused > 0 && s.reused > 0, "layer {} level {z}: {d:?} {s:?}", l.name);
                 if z == 0 {
-                    assert!(d.live > 0 && kept.density.live_steps() > 0, "layer {} level 0: {d:?}", l.name);
+                    assert!(
+                        d.live > 0 && kept.density.live_steps() > 0,
+                        "layer {} level 0: {d:?}",
+                        l.name
+                    );
                 }
             }
         }
@@ -164,10 +170,18 @@ fn kept_keyframes_give_the_bytes_of_cold_ones_on_any_thread_count() {
     let one = run_on(1, &world);
     let three = run_on(3, &world);
     assert!(one == three, "1 and 3 threads give different bytes");
-    assert!(one.iter().flatten().any(|(p, b)| *p == Product::BillboardsBin && b.len() > 200));
+    assert!(
+        one.iter()
+            .flatten()
+            .any(|(p, b)| *p == Product::BillboardsBin && b.len() > 200)
+    );
     // Every product was compared.
     for p in Product::ALL {
-        assert!(one.iter().flatten().any(|(q, _)| *q == p), "{} never compared", p.name());
+        assert!(
+            one.iter().flatten().any(|(q, _)| *q == p),
+            "{} never compared",
+            p.name()
+        );
     }
 }
 
@@ -201,7 +215,11 @@ fn servers_that_keep_state_serve_the_bytes_of_one_that_keeps_none() {
     let kept_three = ServeProcess::start(&["--config", config], &[quiet[0], ("RAYON_NUM_THREADS", "3")]);
     let cold = ServeProcess::start(
         &["--config", config],
-        &[quiet[0], ("RAYON_NUM_THREADS", "2"), ("CLOUDSCAPE_SERVER_KEPT_SHARE", "0")],
+        &[
+            quiet[0],
+            ("RAYON_NUM_THREADS", "2"),
+            ("CLOUDSCAPE_SERVER_KEPT_SHARE", "0"),
+        ],
     );
     let dt = 10.0;
     let mut asked = 0;
@@ -223,10 +241,16 @@ fn servers_that_keep_state_serve_the_bytes_of_one_that_keeps_none() {
         let reused = metric(server, "cloudscape_kept_shadings_total", &[("how", "reused")]);
         let live = metric(server, "cloudscape_kept_grids_total", &[("source", "live")]);
         let bytes = metric(server, "cloudscape_kept_bytes", &[]);
-        assert!(reused > 0.0 && live > 0.0 && bytes > 0.0, "reused {reused}, live {live}, bytes {bytes}");
+        assert!(
+            reused > 0.0 && live > 0.0 && bytes > 0.0,
+            "reused {reused}, live {live}, bytes {bytes}"
+        );
     }
     // The server that keeps nothing computed every keyframe cold.
-    assert_eq!(metric(&cold, "cloudscape_kept_shadings_total", &[("how", "reused")]), 0.0);
+    assert_eq!(
+        metric(&cold, "cloudscape_kept_shadings_total", &[("how", "reused")]),
+        0.0
+    );
     assert_eq!(metric(&cold, "cloudscape_kept_bytes", &[]), 0.0);
     let _ = std::fs::remove_file(&path);
 }

@@ -233,7 +233,10 @@ fn loadtest_reports_sane_figures_against_a_live_server() {
         .map(|k| f(&r, &["generator", "lag", k]))
         .collect();
     assert!(lag[0] > 0.0 && lag.windows(2).all(|w| w[0] <= w[1]), "{lag:?}");
-    assert!(stdout.contains("generator lag (its own 10 ms timer, late by) p99 "), "{stdout}");
+    assert!(
+        stdout.contains("generator lag (its own 10 ms timer, late by) p99 "),
+        "{stdout}"
+    );
     // The default geometry: one group of 8 in a town, one distinct place.
     assert_eq!(r["geometry"]["kind"], "towns");
     assert_eq!(r["geometry"]["groups"], 1);

@@ -293,7 +293,10 @@ fn replicas_keeping_the_same_area_warm_compute_each_keyframe_once() {
         std::thread::spawn(move || {
             ServeProcess::start(
                 &["--config", &config],
-                &[("CLOUDSCAPE_SERVER_REDIS_URL", url.as_str()), ("CLOUDSCAPE_SERVER_WARM_THREADS", "1")],
+                &[
+                    ("CLOUDSCAPE_SERVER_REDIS_URL", url.as_str()),
+                    ("CLOUDSCAPE_SERVER_WARM_THREADS", "1"),
+                ],
             )
         })
     };
@@ -309,13 +312,19 @@ fn replicas_keeping_the_same_area_warm_compute_each_keyframe_once() {
     let total = computed(&a) + computed(&b);
     // Each keyframe was claimed once and computed by the replica that won it.
     assert!(claims.len() >= 12, "{} claims: {claims:?}", claims.len());
-    assert_eq!(total, claims.len() as f64, "computed {total}, claimed keys {}", claims.len());
+    assert_eq!(
+        total,
+        claims.len() as f64,
+        "computed {total}, claimed keys {}",
+        claims.len()
+    );
     assert_eq!(won(&a) + won(&b), claims.len() as f64);
     assert!(lost(&a) + lost(&b) > 0.0, "the replicas never met on a keyframe");
     // Both hold every keyframe of the area: nothing pending on either.
     for s in [&a, &b] {
         assert!(
-            common::eventually(Duration::from_secs(10), || metric(s, "cloudscape_warm_pending", &[]) == 0.0),
+            common::eventually(Duration::from_secs(10), || metric(s, "cloudscape_warm_pending", &[])
+                == 0.0),
             "a replica kept keyframes pending"
         );
     }

@@ -79,7 +79,11 @@ impl KeptStates {
             self.busy.inc();
             return job(None);
         };
-        let (counts, steps, shadings) = (state.density.counts(), state.density.live_steps(), state.shading_counts());
+        let (counts, steps, shadings) = (
+            state.density.counts(),
+            state.density.live_steps(),
+            state.shading_counts(),
+        );
         let out = job(Some(&mut state));
         let after = state.density.counts();
         let KeptCounts { reused, live, cold } = after;
@@ -92,7 +96,10 @@ impl KeptStates {
         }
         self.steps.inc_by(state.density.live_steps() - steps);
         let ShadingCounts { reused, shaded } = state.shading_counts();
-        for (label, n) in [("reused", reused - shadings.reused), ("shaded", shaded - shadings.shaded)] {
+        for (label, n) in [
+            ("reused", reused - shadings.reused),
+            ("shaded", shaded - shadings.shaded),
+        ] {
             self.shadings.with_label_values(&[label]).inc_by(n);
         }
         entry.bytes.store(state.bytes() as u64, Ordering::Relaxed);

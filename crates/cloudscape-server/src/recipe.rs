@@ -133,7 +133,9 @@ impl TileRecipe {
             let out = match shading {
                 None => {
                     let grid = with_kept(kept.as_deref(), &kept_key, &world, layer, tile, |state| match state {
-                        Some(state) => state.density.density(&world, region, keyframe.t0, true, cancel, &mut stages),
+                        Some(state) => state
+                            .density
+                            .density(&world, region, keyframe.t0, true, cancel, &mut stages),
                         None => {
                             density::density_staged(&world, layer, tile.z, region, keyframe.t0, cancel, &mut stages)
                         }

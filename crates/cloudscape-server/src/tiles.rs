@@ -167,4 +167,3 @@ pub async fn tile(
     };
     cached.respond_with(&s, &headers, plan, refuse_oversized_json).await
 }
-

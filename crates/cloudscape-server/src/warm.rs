@@ -670,8 +670,12 @@ pub async fn run(
                 if busy < limit && cache.queue_free() >= 2 && (urgent || polite) {
                     warm.start(due.index);
                     running.fetch_add(1, Ordering::SeqCst);
-                    let (warm, cache, metrics, running) =
-                        (Arc::clone(&warm), Arc::clone(&cache), Arc::clone(&metrics), Arc::clone(&running));
+                    let (warm, cache, metrics, running) = (
+                        Arc::clone(&warm),
+                        Arc::clone(&cache),
+                        Arc::clone(&metrics),
+                        Arc::clone(&running),
+                    );
                     tokio::spawn(async move {
                         let outcome = compute(&warm, &cache, &metrics, &due).await;
                         warm.finished(&metrics, &due, outcome);
@@ -702,8 +706,7 @@ async fn compute(warm: &Warm, cache: &Arc<ResponseCache>, metrics: &Arc<Metrics>
         work,
         job,
     };
-    cache.compute_ahead(metrics, computation, Asker::Warm)
-        .await
+    cache.compute_ahead(metrics, computation, Asker::Warm).await
 }
 
 #[cfg(test)]

@@ -444,8 +444,14 @@ impl Occupancy {
     /// grid) holds a non-zero cell.
     fn any(&self, r0: i64, c0: i64, n: i64) -> bool {
         let clip = |v: i64, len: usize| v.clamp(0, len as i64) as usize;
-        let (r_lo, r_hi) = (clip(r0, self.rows), clip(r0.saturating_add(n).saturating_add(1), self.rows));
-        let (c_lo, c_hi) = (clip(c0, self.cols), clip(c0.saturating_add(n).saturating_add(1), self.cols));
+        let (r_lo, r_hi) = (
+            clip(r0, self.rows),
+            clip(r0.saturating_add(n).saturating_add(1), self.rows),
+        );
+        let (c_lo, c_hi) = (
+            clip(c0, self.cols),
+            clip(c0.saturating_add(n).saturating_add(1), self.cols),
+        );
         if r_lo >= r_hi || c_lo >= c_hi {
             return false;
         }

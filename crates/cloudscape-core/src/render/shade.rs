@@ -262,7 +262,15 @@ pub fn shade(
         let c = b.centre;
         c[0] >= owned[0] && c[0] < owned[2] && c[1] >= owned[1] && c[1] < owned[3]
     };
-    shade_where(balls, lattice, lighting, sheet, light_texel, [owned[0], owned[1]], inside)
+    shade_where(
+        balls,
+        lattice,
+        lighting,
+        sheet,
+        light_texel,
+        [owned[0], owned[1]],
+        inside,
+    )
 }
 
 /// Shades `balls` (all of them shadow each other) for `lighting` and returns the

@@ -401,11 +401,8 @@ impl TileShading {
             tile,
             quality,
             bucket: sun.bucket(),
-            lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base).drifting(
-                l.wind,
-                l.shear,
-                0.0,
-            ),
+            lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base)
+                .drifting(l.wind, l.shear, 0.0),
             lighting: Lighting::new(sun.bucket().centre(), *params),
             sheet: SplatSheet::new(settings.splat_count, settings.splat_size),
             light_texel: settings.light_texel,
@@ -459,7 +456,9 @@ impl TileShading {
             place.x0 + r.cols as f64 * self.column,
             place.y0 + r.rows as f64 * self.column,
         ];
-        let balls = stages.time(Stage::Metaballs, || lattice.collect(grid, &place, all, MIN_BALL_DENSITY));
+        let balls = stages.time(Stage::Metaballs, || {
+            lattice.collect(grid, &place, all, MIN_BALL_DENSITY)
+        });
         let keep = |b: &Metaball| {
             self.inside(b.centre) || (self.span > 0.0 && self.inside(self.predecessor(&lattice, b.index).1))
         };
@@ -521,7 +520,12 @@ impl TileShading {
         end: &ShadedInstant,
         grid: Grid<f32>,
     ) -> ShadedTile {
-        let first: Vec<Billboard> = start.billboards.iter().filter(|b| self.inside(b.centre)).copied().collect();
+        let first: Vec<Billboard> = start
+            .billboards
+            .iter()
+            .filter(|b| self.inside(b.centre))
+            .copied()
+            .collect();
         let (billboards, end_billboards) = if keyframe.is_instant() {
             (first.clone(), first)
         } else {
@@ -965,7 +969,11 @@ mod tests {
                 let s = b
                     .billboards
                     .iter()
-                    .find(|s| (s.centre[0] - e.centre[0]).abs() < 1e-6 && (s.centre[1] - e.centre[1]).abs() < 1e-6 && s.centre[2] == e.centre[2])
+                    .find(|s| {
+                        (s.centre[0] - e.centre[0]).abs() < 1e-6
+                            && (s.centre[1] - e.centre[1]).abs() < 1e-6
+                            && s.centre[2] == e.centre[2]
+                    })
                     .unwrap_or_else(|| panic!("level {z}: {e:?} starts no ball of the next span"));
                 assert_eq!(
                     (s.splat_tau, s.colour, s.tau_sun, s.density),

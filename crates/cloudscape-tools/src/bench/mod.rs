@@ -23,8 +23,8 @@ pub mod gallery;
 mod http;
 mod keyframes;
 mod pipeline;
-mod stages;
 pub mod quality;
+mod stages;
 mod weather;
 
 use std::time::{Duration, Instant};

@@ -96,7 +96,11 @@ fn mean(runs: &[Profile]) -> (Profile, Duration) {
 
 /// A cell of the table: ms, or – for nothing.
 fn cell(d: Duration) -> String {
-    if d.is_zero() { "–".into() } else { fmt_s(d.as_secs_f64()) }
+    if d.is_zero() {
+        "–".into()
+    } else {
+        fmt_s(d.as_secs_f64())
+    }
 }
 
 pub fn stages(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
@@ -141,7 +145,16 @@ pub fn stages(effort: Effort, out: &mut BenchRun) -> Result<(), String> {
             let mut warm = Vec::new();
             for i in 1..=warm_n {
                 let k = Keyframe::containing(first.t0 + i as f64 * span, l, z);
-                warm.push(keyframe(&world, &config, layer, tile, k, quality, sun, Some(&mut kept))?);
+                warm.push(keyframe(
+                    &world,
+                    &config,
+                    layer,
+                    tile,
+                    k,
+                    quality,
+                    sun,
+                    Some(&mut kept),
+                )?);
             }
             let ((c, c_med), (w, w_med)) = (mean(&cold), mean(&warm));
             let kept_mib = kept.bytes() as f64 / f64::from(1 << 20);

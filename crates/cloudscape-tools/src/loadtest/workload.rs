@@ -528,7 +528,10 @@ mod tests {
         let pre = drain(&mut agent);
         let next: Vec<_> = pre.iter().filter(|r| r.path.ends_with("&t=43220")).collect();
         assert!(!next.is_empty() && next.iter().all(|r| r.kind == RequestKind::Prefetch));
-        assert!(next.iter().all(|r| !early.iter().any(|e| e.path == r.path)), "asked twice");
+        assert!(
+            next.iter().all(|r| !early.iter().any(|e| e.path == r.path)),
+            "asked twice"
+        );
         for r in &pre {
             agent.answered(r, true, None);
         }

@@ -38,6 +38,7 @@ use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
 use tokio::sync::Notify;
 
+use cloudscape_core::fields::noise::mix64;
 use cloudscape_core::products::Product;
 use cloudscape_core::render::scene::VIEW_DISTANCE;
 use cloudscape_core::render::tile::TILE_COLUMNS;
@@ -379,12 +380,10 @@ struct WarmTile {
     order: u64,
 }
 
-/// SplitMix64's finaliser: the warm worker's per-process order of variants.
-fn mix(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+/// SplitMix64 (a golden-ratio step, then the noise's finaliser `mix64`): the warm
+/// worker's per-process order of variants.
+fn mix(z: u64) -> u64 {
+    mix64(z.wrapping_add(0x9E37_79B9_7F4A_7C15))
 }
 
 /// What the worker knows of one variant.
@@ -445,8 +444,8 @@ impl Warm {
         let mut kept = std::collections::HashSet::new();
         // Drawn once per process: scheduling only, never bytes.
         let seed = mix(u64::from(std::process::id())
-            ^ std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
+            ^ SystemTime::now()
+                .duration_since(UNIX_EPOCH)
                 .map_or(0, |d| d.as_nanos() as u64));
         if threads > 0 {
             for (name, list) in all {
@@ -556,9 +555,7 @@ impl Warm {
                 // Current keyframes (0) before next ones (1), then the earliest, then
                 // this process's own order.
                 let rank = (u8::from(is_next), urgent_at, tile.order);
-                if best.as_ref().is_none_or(|(b, _)| {
-                    rank.0 < b.0 || (rank.0 == b.0 && (rank.1 < b.1 || (rank.1 == b.1 && rank.2 < b.2)))
-                }) {
+                if best.as_ref().is_none_or(|(b, _)| rank < *b) {
                     best = Some((
                         rank,
                         Due {

@@ -305,11 +305,27 @@ fn replicas_keeping_the_same_area_warm_compute_each_keyframe_once() {
     let (a, b) = (a.join().unwrap(), b.join().unwrap());
     std::thread::sleep(Duration::from_secs(8));
     let mut c = redis.connection().unwrap();
-    let claims: Vec<String> = redis::cmd("KEYS").arg("*claim:*").query(&mut c).unwrap();
     let computed = |s: &ServeProcess| metric(s, "cloudscape_warm_computed_total", &[]);
     let lost = |s: &ServeProcess| metric(s, "cloudscape_redis_claims_total", &[("outcome", "lost")]);
     let won = |s: &ServeProcess| metric(s, "cloudscape_redis_claims_total", &[("outcome", "won")]);
-    let total = computed(&a) + computed(&b);
+    // The replicas go on working (a keyframe every 2 s), so the counters and Redis are
+    // read between keyframes: a snapshot counts when the counters are the same before
+    // and after the claims are listed (no computation started or ended meanwhile).
+    let mut last = None;
+    let quiet = common::eventually(Duration::from_secs(20), || {
+        let before = (computed(&a) + computed(&b), won(&a) + won(&b));
+        let claims: Vec<String> = redis::cmd("KEYS").arg("*claim:*").query(&mut c).unwrap();
+        let after = (computed(&a) + computed(&b), won(&a) + won(&b));
+        let done = before == after && after.0 == after.1;
+        last = Some((after, claims));
+        done
+    });
+    let ((total, won_total), claims) = last.unwrap();
+    assert!(
+        quiet,
+        "no quiet moment: computed {total}, won {won_total}, claimed keys {}",
+        claims.len()
+    );
     // Each keyframe was claimed once and computed by the replica that won it.
     assert!(claims.len() >= 12, "{} claims: {claims:?}", claims.len());
     assert_eq!(
@@ -318,7 +334,7 @@ fn replicas_keeping_the_same_area_warm_compute_each_keyframe_once() {
         "computed {total}, claimed keys {}",
         claims.len()
     );
-    assert_eq!(won(&a) + won(&b), claims.len() as f64);
+    assert_eq!(won_total, claims.len() as f64);
     assert!(lost(&a) + lost(&b) > 0.0, "the replicas never met on a keyframe");
     // Both hold every keyframe of the area: nothing pending on either.
     for s in [&a, &b] {

@@ -416,7 +416,15 @@ impl ResponseCache {
                 return Err(ApiError::Overloaded(1));
             }
         }
-        let (bytes, siblings) = self.queue.run(m, (kind, by), work, cancel, job).await?;
+        let (bytes, siblings) = match self.queue.run(m, (kind, by), work, cancel, job).await {
+            Ok(done) => done,
+            Err(e) => {
+                if let Some(shared) = self.shared.as_ref().filter(|_| by != Asker::Request) {
+                    shared.release(m, &key).await;
+                }
+                return Err(e);
+            }
+        };
         if let Some(c) = computed {
             c.store(true, Ordering::Relaxed);
         }

@@ -42,7 +42,8 @@ pub struct SharedCache {
     skip_until_ms: AtomicU64,
     started: Instant,
     /// This process, as its claims name it (`pid@unix-ms` of its start): what a
-    /// claim's holder is, for an operator reading Redis; nothing reads it back.
+    /// claim's holder is, for an operator reading Redis, and what
+    /// [`SharedCache::release`] checks before it deletes a claim.
     replica: String,
 }
 
@@ -182,6 +183,28 @@ impl SharedCache {
         won
     }
 
+    /// Gives back this replica's claim on `key` (from [`SharedCache::claim`]) when its
+    /// computation did not finish (shed, failed), so that the next try, here or on
+    /// another replica, does not wait for the claim to lapse. A claim another replica
+    /// holds by then is left alone (compare and delete in one script).
+    pub async fn release(&self, metrics: &Metrics, key: &CacheKey) {
+        if self.skipping() {
+            return;
+        }
+        let mut connection = self.connection.clone();
+        let cmd = redis::cmd("EVAL")
+            .arg("if redis.call('GET', KEYS[1]) == ARGV[1] then return redis.call('DEL', KEYS[1]) else return 0 end")
+            .arg(1)
+            .arg(format!("{}claim:{}", self.namespace, key.0))
+            .arg(self.replica.as_str())
+            .clone();
+        match tokio::time::timeout(self.timeout, cmd.query_async::<i64>(&mut connection)).await {
+            Ok(Ok(_)) => {}
+            Ok(Err(e)) => self.failed(metrics, "release", &e.to_string()),
+            Err(_) => self.failed(metrics, "release", "timed out"),
+        }
+    }
+
     /// Stores `entries` in a task of its own; the caller does not wait.
     pub fn put(self: &Arc<Self>, metrics: &Arc<Metrics>, entries: Vec<(CacheKey, Bytes)>) {
         if entries.is_empty() || self.skipping() {
@@ -205,5 +228,74 @@ impl SharedCache {
                 Err(_) => this.failed(&metrics, "set", "timed out"),
             }
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::process::{Command, Stdio};
+
+    /// A real `redis-server` on a free port, stopped when dropped.
+    struct Redis(std::process::Child, u16);
+
+    impl Redis {
+        fn start() -> Redis {
+            let port = std::net::TcpListener::bind("127.0.0.1:0")
+                .and_then(|l| l.local_addr())
+                .map(|a| a.port())
+                .unwrap();
+            let child = Command::new("redis-server")
+                .args(["--port", &port.to_string(), "--bind", "127.0.0.1", "--save", ""])
+                .args(["--appendonly", "no", "--loglevel", "warning"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("these tests need redis-server (Debian: apt-get install redis-server)");
+            let start = Instant::now();
+            while std::net::TcpStream::connect(("127.0.0.1", port)).is_err() {
+                assert!(start.elapsed() < Duration::from_secs(10), "redis-server did not start");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            Redis(child, port)
+        }
+    }
+
+    impl Drop for Redis {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+
+    fn replica(port: u16, name: &str) -> SharedCache {
+        let settings = ServerConfig {
+            redis_url: format!("redis://127.0.0.1:{port}/0"),
+            ..ServerConfig::default()
+        };
+        let mut cache = SharedCache::new(&settings).unwrap().unwrap();
+        cache.replica = name.into();
+        cache
+    }
+
+    #[tokio::test]
+    async fn a_claim_is_released_only_by_its_holder() {
+        let redis = Redis::start();
+        let (a, b) = (replica(redis.1, "a"), replica(redis.1, "b"));
+        let m = Metrics::new();
+        let key = CacheKey("tile:1".into());
+        let ttl = Duration::from_secs(60);
+        assert!(a.claim(&m, &key, ttl).await, "the first claim wins");
+        assert!(!b.claim(&m, &key, ttl).await, "a held claim is lost");
+        // b does not hold it: its release leaves a's claim in place.
+        b.release(&m, &key).await;
+        assert!(!b.claim(&m, &key, ttl).await, "a's claim survived b's release");
+        // a gives it back (its computation was shed): the next try wins at once, not
+        // after the claim lapses.
+        a.release(&m, &key).await;
+        assert!(b.claim(&m, &key, ttl).await, "released, the key is free");
+        assert_eq!(m.redis_claims.with_label_values(&["won"]).get(), 2);
+        assert_eq!(m.redis_claims.with_label_values(&["lost"]).get(), 2);
+        assert_eq!(m.redis_errors.with_label_values(&["release"]).get(), 0);
     }
 }

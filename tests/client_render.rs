@@ -16,7 +16,8 @@ use std::process::Command;
 use std::sync::mpsc;
 
 use cloudscape_client::{AsyncTileClient, ClientError, TileClient};
-use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render};
+use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams};
+use cloudscape_core::view::render;
 use cloudscape_core::world::Config;
 use cloudscape_server::{Server, ServerConfig, ShutdownHandle};
 

@@ -107,13 +107,13 @@ pub(crate) fn effective_config(
         let Some(rest) = name.strip_prefix("CLOUDSCAPE_") else {
             continue;
         };
-        let Some(section) = ENV_SECTIONS
+        let Some((section, key)) = ENV_SECTIONS
             .iter()
-            .find(|s| rest.starts_with(&format!("{}_", s.to_uppercase())))
+            .find_map(|s| Some((s, rest.strip_prefix(&format!("{}_", s.to_uppercase()))?)))
         else {
             continue;
         };
-        let key = rest[section.len() + 1..].to_lowercase();
+        let key = key.to_lowercase();
         let known = known_keys(section)?;
         if !known.contains(&key) {
             return Err(format!(
@@ -290,6 +290,8 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         return Ok(());
     }
     init_logging(a.log_format);
+    // A panic is one log line, never a backtrace a client could have written per request.
+    cloudscape_server::log_panics_in_one_line();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

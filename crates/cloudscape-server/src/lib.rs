@@ -40,6 +40,7 @@ mod extract;
 mod kept;
 mod key;
 mod lightning;
+mod machine;
 mod metrics;
 mod openapi;
 mod ops;
@@ -87,11 +88,32 @@ use self::render::{splats_bytes, splats_key};
 use self::state::AppState;
 
 /// Checks what a server would refuse at start beyond what `Config::parse` and
-/// `ServerConfig::parse` check: world clocks that read a time outside [0, 1e12] now,
-/// and play areas kept warm (`[[worlds.NAME.warm]]`) that name unknown products or
+/// `ServerConfig::parse` check: byte budgets over what this machine has (each of them
+/// alone could be spent), world clocks that read a time outside [0, 1e12] now, and
+/// play areas kept warm (`[[worlds.NAME.warm]]`) that name unknown products or
 /// qualities, reach tiles that cannot be served, or need more than
 /// `server.max_warm_tiles` tile variants together.
 pub fn check_config(config: &Config, settings: &ServerConfig) -> Result<(), ConfigError> {
+    if let Some((memory, source)) = machine::memory() {
+        for (key, bytes) in [
+            ("server.cache_bytes", settings.cache_bytes),
+            ("server.compute_memory_bytes", settings.compute_memory_bytes),
+            ("server.reply_bytes", settings.reply_bytes),
+            ("limits.max_request_bytes", config.limits.max_request_bytes),
+            ("limits.max_response_bytes", config.limits.max_response_bytes),
+        ] {
+            if bytes > memory {
+                return Err(ConfigError::invalid(
+                    key,
+                    format!(
+                        "{bytes} bytes ({:.1} GiB) is more than {source}, {memory} bytes ({:.1} GiB)",
+                        bytes as f64 / (1u64 << 30) as f64,
+                        memory as f64 / (1u64 << 30) as f64
+                    ),
+                ));
+            }
+        }
+    }
     warm::check(config, settings, warm::unix_now()).map(|_| ())
 }
 

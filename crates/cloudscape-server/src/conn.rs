@@ -730,7 +730,7 @@ mod tests {
         for head in [
             // A body, a type, another status, another version, a head cut short.
             format!("HTTP/1.1 400 Bad Request\r\ncontent-length: 12\r\n{date}\r\n"),
-            format!("HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\ncontent-length: 0\r\n\r\n"),
+            "HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\ncontent-length: 0\r\n\r\n".to_string(),
             format!("HTTP/1.1 404 Not Found\r\ncontent-length: 0\r\n{date}\r\n"),
             format!("HTTP/1.0 400 Bad Request\r\ncontent-length: 0\r\n{date}\r\n"),
             "HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n".to_string(),

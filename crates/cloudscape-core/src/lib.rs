@@ -9,6 +9,9 @@
 //! The HTTP service is `cloudscape-server`; the tile client is `cloudscape-client`.
 
 #![warn(missing_docs)]
+// Slicing a `str` by byte positions panics inside a multibyte character; parsers
+// split at ASCII separators (`split_once`, `strip_prefix`) or use `str::get`.
+#![deny(clippy::string_slice)]
 
 pub mod automaton;
 pub mod cancel;

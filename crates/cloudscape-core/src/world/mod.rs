@@ -13,7 +13,9 @@ mod keyframe;
 pub mod warm;
 
 pub use clock::WorldClock;
-pub use config::{Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, SunConfig};
+pub use config::{
+    Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, MAX_CONFIG_BYTES, SunConfig, read_config_text,
+};
 pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, PREFETCH_FROM, PREFETCH_SPREAD, keyframe_span, prefetch_at};
 
 use serde::Deserialize;

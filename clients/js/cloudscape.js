@@ -1,11 +1,15 @@
 // cloudscape JS client: an ES module for browsers, Node (18+), Deno and bundlers.
 //
 // It fetches tiles from a cloudscape server with ETag revalidation and immutable
-// caching, computes keyframe URLs from the world's discovery document, decodes every
-// binary product (billboards.bin versions 1 and 2, PNG, density .u8/.f32/.npy),
-// applies the keyframe animation rule, and builds typed arrays ready for three.js
-// (y up). Types: index.d.ts. Formats and the rule: docs/formats.md and the doc comment
-// of crates/cloudscape-core/src/products/billboards.rs.
+// caching (in memory, and in a browser's Cache Storage when given one), computes
+// keyframe URLs from the world's discovery document and follows its world clock,
+// holds billboard keyframes decoded and fetches each tile's later keyframes as deltas
+// on the one before, decodes every binary product (billboards.bin versions 3, 2 and
+// 1, PNG, density .u8/.f32/.npy/.ktx2), applies the keyframe animation rule, derives
+// the ground shadow from the billboards, and builds typed arrays ready for three.js
+// (y up). Types: index.d.ts. Formats and rules: docs/formats.md, and the doc comments
+// of crates/cloudscape-core/src/products/keyframe_bin.rs, products/billboards.rs and
+// view/held.rs, which this file matches.
 //
 // No dependencies. The server serves this file at `/client/cloudscape.js`.
 
@@ -64,7 +68,7 @@ export function fraction(t0, t1, t) {
 }
 
 // ---------------------------------------------------------------------------------
-// Fetching: ETags, immutable bodies, 503 retries.
+// Fetching: ETags, immutable bodies, 503 retries; keyframes held decoded.
 // ---------------------------------------------------------------------------------
 
 /** Whether a Cache-Control value says `immutable`. */
@@ -86,17 +90,74 @@ export class CloudscapeError extends Error {
 }
 
 /**
+ * Decoded keyframes by tile variant (world, layer, tile, quality, sun) and start
+ * time: what a client draws, and what the next keyframe's delta form is decoded
+ * against (crates/cloudscape-client/src/keyframes.rs). At most `maxVariants`
+ * variants (the least recently stored forgotten first), `perVariant` keyframes each
+ * (the one drawn, the next one prefetched, one spare; the earliest go first).
+ */
+export class HeldKeyframes {
+  constructor({ maxVariants = 1024, perVariant = 3 } = {}) {
+    this.maxVariants = maxVariants;
+    this.perVariant = perVariant;
+    /** @type {Map<string, {t0: number, keyframe: object}[]>} */
+    this.byVariant = new Map();
+  }
+
+  /** The keyframe of `variant` that starts at `t0`, if held. */
+  get(variant, t0) {
+    const held = this.byVariant.get(variant);
+    const k = held && held.find((h) => h.t0 === t0);
+    return k ? k.keyframe : null;
+  }
+
+  /** The keyframe of `variant` that ends at `t0` (the one a delta starting at `t0` is coded on), if held. */
+  endingAt(variant, t0) {
+    const held = this.byVariant.get(variant) || [];
+    const k = held.find((h) => h.keyframe.header.t1 !== null && Math.abs(h.keyframe.header.t1 - t0) <= 1e-9 * Math.max(Math.abs(t0), 1));
+    return k ? k.keyframe : null;
+  }
+
+  /** Holds `keyframe` of `variant` starting at `t0`. */
+  insert(variant, t0, keyframe) {
+    let held = this.byVariant.get(variant);
+    if (!held) {
+      if (this.byVariant.size >= this.maxVariants) this.byVariant.delete(this.byVariant.keys().next().value);
+      held = [];
+      this.byVariant.set(variant, held);
+    }
+    const i = held.findIndex((h) => h.t0 === t0);
+    if (i >= 0) held.splice(i, 1);
+    held.push({ t0, keyframe });
+    held.sort((a, b) => a.t0 - b.t0);
+    while (held.length > this.perVariant) held.shift();
+  }
+
+  /** Keyframes held, over all variants. */
+  get size() {
+    let n = 0;
+    for (const h of this.byVariant.values()) n += h.length;
+    return n;
+  }
+}
+
+/**
  * A client of one cloudscape server.
  *
- * Bodies are kept by URL (at most `maxBodies`, oldest forgotten first). An immutable
- * one (`Cache-Control: immutable`, as keyframe URLs are) is returned again without a
- * request; any other is revalidated with `If-None-Match`, and a 304 returns the kept
- * body. A 503 is retried after its `Retry-After`.
+ * Bodies are kept by URL (at most `maxBodies`, oldest forgotten first), and in a
+ * Cache Storage `cache` when one is given (a browser's `caches.open(…)`; kept across
+ * reloads). An immutable one (`Cache-Control: immutable`, as keyframe URLs are) is
+ * returned again without a request; any other is revalidated with `If-None-Match`,
+ * and a 304 returns the kept body. A 503 is retried after its `Retry-After`.
+ *
+ * Billboard keyframes are held decoded (`keyframes`, a HeldKeyframes): a tile's first
+ * keyframe is fetched self-contained (`billboards.bin`), every later one as a delta
+ * on the one before (`billboards.delta.bin`), as docs/formats.md says a client does.
  */
 export class CloudscapeClient {
   /**
    * @param {string} baseUrl the server's origin: scheme, host and port (a trailing `/` is ignored; '' for the page's own origin)
-   * @param {{fetch?: typeof fetch, maxBodies?: number, maxRetries?: number, quality?: string}} [options]
+   * @param {{fetch?: typeof fetch, maxBodies?: number, maxRetries?: number, quality?: string, cache?: Cache | Promise<Cache | null> | null, maxVariants?: number, keyframesPerVariant?: number}} [options]
    */
   constructor(baseUrl, options = {}) {
     this.base = String(baseUrl || '').replace(/\/+$/, '');
@@ -104,10 +165,14 @@ export class CloudscapeClient {
     this.maxBodies = options.maxBodies ?? 1024;
     this.maxRetries = options.maxRetries ?? 8;
     this.quality = options.quality || 'fast';
+    this.cache = Promise.resolve(options.cache || null).catch(() => null);
     /** @type {Map<string, {body: ArrayBuffer, etag: string | null, immutable: boolean}>} */
     this.bodies = new Map();
     this.worlds = new Map();
-    this.stats = { requests: 0, fetched: 0, revalidated: 0, reused: 0, bodyBytes: 0, retries: 0 };
+    this.keyframes = new HeldKeyframes({ maxVariants: options.maxVariants, perVariant: options.keyframesPerVariant });
+    /** Keyframes being fetched, by variant and t0: one request for concurrent asks. */
+    this.pending = new Map();
+    this.stats = { requests: 0, fetched: 0, revalidated: 0, reused: 0, bodyBytes: 0, retries: 0, deltas: 0, prefetched: 0 };
   }
 
   /** The absolute URL of a path. */
@@ -115,27 +180,47 @@ export class CloudscapeClient {
     return /^https?:/.test(path) ? path : `${this.base}${path}`;
   }
 
+  /** Keeps an immutable or ETagged body in memory. */
+  keep(url, entry) {
+    this.bodies.delete(url);
+    this.bodies.set(url, entry);
+    while (this.bodies.size > this.maxBodies) this.bodies.delete(this.bodies.keys().next().value);
+  }
+
   /**
    * GETs a path (or URL) and returns `{ body, status, etag, immutable, source }`;
-   * `source` is `network` (a 200), `revalidated` (a 304) or `memory` (an immutable
-   * body kept, no request made).
+   * `source` is `network` (a 200), `revalidated` (a 304), `memory` (an immutable body
+   * kept, no request made) or `cache` (an immutable body from the Cache Storage).
+   * `keep: false` does not keep the body in memory (what is held decoded instead);
+   * `fresh: true` neither uses nor keeps a stored copy (a document that changes
+   * under a weak ETag, such as discovery's clock).
    */
-  async fetch(path) {
+  async fetch(path, { keep = true, fresh = false } = {}) {
     const url = this.url(path);
-    const kept = this.bodies.get(url);
+    const kept = fresh ? undefined : this.bodies.get(url);
     if (kept && kept.immutable) {
       this.stats.reused++;
-      this.bodies.delete(url);
-      this.bodies.set(url, kept);
+      this.keep(url, kept);
       return { body: kept.body, status: 200, etag: kept.etag, immutable: true, source: 'memory' };
     }
-    const headers = kept && kept.etag ? { 'If-None-Match': kept.etag } : {};
+    const cache = fresh ? null : await this.cache;
+    let stored = kept || null;
+    if (!stored && cache) {
+      const res = await cache.match(url).catch(() => undefined);
+      if (res) stored = { body: await res.arrayBuffer(), etag: res.headers.get('ETag'), immutable: isImmutable(res.headers.get('Cache-Control')) };
+      if (stored && stored.immutable) {
+        this.stats.reused++;
+        if (keep) this.keep(url, stored);
+        return { body: stored.body, status: 200, etag: stored.etag, immutable: true, source: 'cache' };
+      }
+    }
+    const headers = stored && stored.etag ? { 'If-None-Match': stored.etag } : {};
     for (let attempt = 0; ; attempt++) {
       this.stats.requests++;
       const res = await this.fetchImpl(url, { headers, cache: 'no-store' });
-      if (res.status === 304 && kept) {
+      if (res.status === 304 && stored) {
         this.stats.revalidated++;
-        return { body: kept.body, status: 304, etag: kept.etag, immutable: kept.immutable, source: 'revalidated' };
+        return { body: stored.body, status: 304, etag: stored.etag, immutable: stored.immutable, source: 'revalidated' };
       }
       if (res.status === 503 && attempt < this.maxRetries) {
         this.stats.retries++;
@@ -158,13 +243,15 @@ export class CloudscapeClient {
       }
       const body = await res.arrayBuffer();
       const etag = res.headers.get('ETag');
-      const immutable = isImmutable(res.headers.get('Cache-Control'));
+      const cacheControl = res.headers.get('Cache-Control');
+      const immutable = isImmutable(cacheControl);
       this.stats.fetched++;
       this.stats.bodyBytes += body.byteLength;
-      if (etag || immutable) {
-        this.bodies.delete(url);
-        this.bodies.set(url, { body, etag, immutable });
-        while (this.bodies.size > this.maxBodies) this.bodies.delete(this.bodies.keys().next().value);
+      if (keep && !fresh && (etag || immutable)) this.keep(url, { body, etag, immutable });
+      if (cache && etag) {
+        const h = { ETag: etag, 'Cache-Control': cacheControl || '', 'Content-Type': res.headers.get('Content-Type') || 'application/octet-stream' };
+        // A full or refusing Cache Storage costs the next visit a request, nothing more.
+        await cache.put(url, new Response(body.slice(0), { headers: h })).catch(() => {});
       }
       return { body, status: res.status, etag, immutable, source: 'network' };
     }
@@ -180,7 +267,7 @@ export class CloudscapeClient {
     return JSON.parse(new TextDecoder().decode(await this.bytes(path)));
   }
 
-  /** Whether an immutable body of a path is kept (no request would be made). */
+  /** Whether an immutable body of a path is kept in memory (no request would be made). */
   holds(path) {
     const kept = this.bodies.get(this.url(path));
     return Boolean(kept && kept.immutable);
@@ -191,9 +278,18 @@ export class CloudscapeClient {
     return this.json('/v1/worlds');
   }
 
-  /** A world's discovery document (`/v1/worlds/{world}`), fetched once per client. */
+  /**
+   * A world's discovery document (`/v1/worlds/{world}`), fetched once per client. Its
+   * `clock` (`offset`, `rate`, `now`) is as the server read it then; `worldClock`
+   * follows it.
+   */
   async world(name = 'default') {
-    if (!this.worlds.has(name)) this.worlds.set(name, await this.json(`/v1/worlds/${encodeURIComponent(name)}`));
+    if (!this.worlds.has(name)) {
+      const path = `/v1/worlds/${encodeURIComponent(name)}`;
+      const doc = JSON.parse(new TextDecoder().decode((await this.fetch(path, { fresh: true })).body));
+      discoveryReadAt.set(doc, Date.now());
+      this.worlds.set(name, doc);
+    }
     return this.worlds.get(name);
   }
 
@@ -232,35 +328,119 @@ export class CloudscapeClient {
   }
 
   /**
-   * A tile's billboards (decoded billboards.bin) and shadow map (decoded shadow.png)
-   * at the keyframe that holds `at.t`. Past the tile's prefetch point (`prefetchAt`,
-   * in the second half of the span) the next keyframe's products are fetched in the background (`prefetch: false` turns that
-   * off), so the boundary costs no wait.
+   * What names a tile variant's keyframes: world, layer, tile, quality and sun (the
+   * server's clock sun when `at.sun` is not given).
    */
-  async billboardTile(world, tile, at) {
-    const [bin, png] = await Promise.all([
-      this.tile(world, tile, 'billboards.bin', at),
-      at.shadow === false ? null : this.tile(world, tile, 'shadow.png', at),
-    ]);
-    const billboards = decodeBillboards(bin);
-    const shadow = png ? await decodeShadow(png) : null;
-    if (at.prefetch !== false) this.prefetchNext(world, tile, at);
-    return { billboards, shadow };
+  variant(world, tile, at) {
+    const sun = at.sun ? `${at.sun[0]},${at.sun[1]}` : 'clock';
+    return `${world.name}|${tile.layer}|${tile.z}/${tile.x}/${tile.y}|${at.quality || this.quality}|${sun}`;
   }
 
   /**
-   * Fetches the next keyframe's `products` of a tile when `at.t` is past the tile's
-   * prefetch point in its span (`prefetchAt`, between 0.5 and 0.8); resolves to the
-   * paths fetched (none before it). Errors are swallowed: the tile is asked for again
-   * when its keyframe comes.
+   * A tile's billboards (decoded billboards.bin) at the keyframe that holds `at.t`
+   * (the next one with `at.next`): held already, or fetched as a delta
+   * (`billboards.delta.bin`) on the keyframe before it when that is held, else
+   * self-contained (`billboards.bin`). The result is held for the next delta.
    */
-  async prefetchNext(world, tile, at, products = ['billboards.bin', 'shadow.png']) {
+  async keyframe(world, tile, at) {
+    const layer = findLayer(world, tile.layer);
+    const k = keyframeOf(layer, tile.z, at.t, world.max_time);
+    const t0 = at.next ? k.t1 : k.t0;
+    const variant = this.variant(world, tile, at);
+    const held = this.keyframes.get(variant, t0);
+    if (held) {
+      this.stats.reused++;
+      return held;
+    }
+    const key = `${variant}@${t0}`;
+    if (!this.pending.has(key)) {
+      const job = (async () => {
+        const previous = this.keyframes.endingAt(variant, t0);
+        const product = previous ? 'billboards.delta.bin' : 'billboards.bin';
+        const path = this.tilePath(world, tile, product, at);
+        const { body, source } = await this.fetch(path, { keep: false });
+        if (previous && source === 'network') this.stats.deltas++;
+        let decoded;
+        try {
+          decoded = decodeBillboards(body, previous);
+        } catch (e) {
+          throw new Error(`${this.url(path)}: ${e.message}`);
+        }
+        this.keyframes.insert(variant, t0, decoded);
+        return decoded;
+      })();
+      this.pending.set(key, job);
+      job.then(
+        () => this.pending.delete(key),
+        () => this.pending.delete(key),
+      );
+    }
+    return this.pending.get(key);
+  }
+
+  /**
+   * A tile's billboards at the keyframe that holds `at.t` (`keyframe`): `{ billboards }`.
+   * Past the tile's prefetch point (`prefetchAt`, in the second half of the span) the
+   * next keyframe is fetched in the background (`prefetch: false` turns that off), so
+   * the boundary costs no wait. The ground shadow is derived from the billboards of
+   * the held tiles (`shadowMaps`), not fetched.
+   */
+  async billboardTile(world, tile, at) {
+    const billboards = await this.keyframe(world, tile, at);
+    if (at.prefetch !== false) this.prefetchNext(world, tile, at);
+    return { billboards };
+  }
+
+  /**
+   * Fetches the next keyframe of a tile when `at.t` is past the tile's prefetch point in
+   * its span (`prefetchAt`, between 0.5 and 0.8): `billboards.bin` in `products` stands
+   * for its billboards, held decoded (a delta on the current keyframe when that is
+   * held); any other product's body is kept. Resolves to the paths fetched (none
+   * before the point, or when all are held). Errors are swallowed: the tile is asked
+   * for again when its keyframe comes.
+   */
+  async prefetchNext(world, tile, at, products = ['billboards.bin']) {
     const k = keyframeOf(findLayer(world, tile.layer), tile.z, at.t, world.max_time);
     if (!(k.span > 0 && k.f >= prefetchAt(tile.z, tile.x, tile.y))) return [];
-    const paths = products.map((p) => this.tilePath(world, tile, p, { ...at, next: true })).filter((p) => !this.holds(p));
-    await Promise.all(paths.map((p) => this.fetch(p).catch(() => null)));
+    const next = { ...at, next: true };
+    const variant = this.variant(world, tile, at);
+    const jobs = [];
+    const paths = [];
+    for (const p of products) {
+      if (p === 'billboards.bin') {
+        if (this.keyframes.get(variant, k.t1) || this.pending.has(`${variant}@${k.t1}`)) continue;
+        const delta = this.keyframes.endingAt(variant, k.t1) !== null;
+        paths.push(this.tilePath(world, tile, delta ? 'billboards.delta.bin' : 'billboards.bin', next));
+        this.stats.prefetched++;
+        jobs.push(this.keyframe(world, tile, next));
+      } else {
+        const path = this.tilePath(world, tile, p, next);
+        if (this.holds(path)) continue;
+        paths.push(path);
+        this.stats.prefetched++;
+        jobs.push(this.fetch(path));
+      }
+    }
+    await Promise.all(jobs.map((j) => j.catch(() => null)));
     return paths;
   }
+}
+
+/** When each discovery document was read (wall-clock ms), for worldClock. */
+const discoveryReadAt = new WeakMap();
+
+/**
+ * The world time of a discovery document's clock (`clock: {offset, rate, now}`),
+ * followed from when the document was read (by `CloudscapeClient.world`; else from now): `now + rate · (seconds since)`, as every
+ * player's client reads the shared world clock. `rate` overrides the clock's (a
+ * faster clock for a test or a time-lapse); the result is within [0, max_time].
+ * Returns a function of the wall-clock milliseconds (`Date.now()` by default).
+ */
+export function worldClock(world, { rate = null, readAt = discoveryReadAt.get(world) ?? Date.now() } = {}) {
+  const clock = world.clock || { offset: 0, rate: 1, now: readAt / 1000 };
+  const r = rate ?? clock.rate;
+  const max = world.max_time ?? 1e12;
+  return (ms = Date.now()) => Math.min(Math.max(clock.now + (r * (ms - readAt)) / 1000, 0), max);
 }
 
 function findLayer(world, name) {
@@ -268,12 +448,12 @@ function findLayer(world, name) {
   if (!layer) throw new Error(`world ${world.name} has no layer ${name}`);
   return layer;
 }
-
 // ---------------------------------------------------------------------------------
-// billboards.bin (crates/cloudscape-core/src/products/billboards.rs).
+// billboards.bin: version 3 (crates/cloudscape-core/src/products/keyframe_bin.rs),
+// versions 1 and 2 (crates/cloudscape-core/src/products/billboards.rs).
 // ---------------------------------------------------------------------------------
 
-/** Header and record bytes by format version. */
+/** Header and record bytes of the record formats, by version (version 3 has no records: see decodeBillboards). */
 export const BILLBOARD_FORMATS = { 1: { header: 64, record: 36 }, 2: { header: 160, record: 56 } };
 
 /** IEEE 754 binary16 → number. */
@@ -295,68 +475,59 @@ function half(h) {
   return halfTable[h];
 }
 
+/** Version 3's fixed header, level records and planes (keyframe_bin.rs). */
+const V3 = {
+  fixed: 200,
+  level: 88,
+  planes: 12,
+  /** Bounds a decoder holds a header to before it allocates anything. */
+  maxLevels: 256,
+  maxSide: 4096,
+  maxSites: 1 << 23,
+  /** Largest |i64| of a level's indices (beyond it a lattice cannot lie in a tile). */
+  far: 2n ** 52n,
+};
+/** Planes of one end: splat (low, high bytes), green, red, blue, τ_sun; the end's six follow the start's. */
+const PLANE_SPLAT = 0;
+const PLANE_GREEN = 2;
+const PLANE_END = 6;
+/** A site's state: 5 values at `5 · site`: splat code (0 none, else index + 1), green, red, blue codes, τ_sun code. */
+const STATE = 5;
+
 /**
- * Decodes billboards.bin (version 2, a keyframe with both ends of each billboard and
- * the lighting in its header; or version 1, one time). Records come as columns of
- * typed arrays; index `2i` / `2i + 1` of a two-ended column is billboard i's end at
- * t0 / t1 (a version-1 tile has the same value at both ends and a zero velocity).
- * Offsets are metres from the tile origin (x east, y north), altitude absolute.
+ * Decodes billboards.bin: version 3 (the current `billboards.bin` and
+ * `billboards.delta.bin`; a delta needs `previous`, the decoded keyframe of the same
+ * tile variant that ends where this one starts), version 2 (`billboards.v2.bin`: a
+ * keyframe with both ends of each record) or version 1 (one time). Records come as
+ * columns of typed arrays; index `2i` / `2i + 1` of a two-ended column is billboard
+ * i's end at t0 / t1 (a version-1 tile has the same value at both ends and a zero
+ * velocity). Offsets are metres from the tile origin (x east, y north), altitude
+ * absolute. A version-3 tile also carries `lattice`, what its successor's delta is
+ * decoded against.
+ *
+ * Bytes that are not a well-formed keyframe (truncated, damaged, a delta without its
+ * previous keyframe or with another) throw an `Error` that says what is wrong; sizes
+ * are checked before anything is allocated.
  */
-export function decodeBillboards(buffer) {
-  const buf = buffer instanceof ArrayBuffer ? buffer : toArrayBuffer(buffer);
-  const v = new DataView(buf);
-  if (buf.byteLength < 64) throw new Error('billboards.bin: shorter than a header');
+export function decodeBillboards(buffer, previous = null) {
+  const bytes = byteView(buffer);
+  const v = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  if (bytes.length < 64) throw new Error(`billboards.bin: ${bytes.length} bytes, shorter than a header`);
   const magic = String.fromCharCode(v.getUint8(0), v.getUint8(1), v.getUint8(2), v.getUint8(3));
-  const version = v.getUint16(4, true);
-  const format = BILLBOARD_FORMATS[version];
   if (magic !== 'CSBB') throw new Error('billboards.bin: bad magic');
+  const version = v.getUint16(4, true);
+  if (version === 3) return decodeKeyframe(bytes, v, previous);
+  const format = BILLBOARD_FORMATS[version];
   if (!format) throw new Error(`billboards.bin: unknown version ${version}`);
   if (v.getUint16(6, true) !== format.record) throw new Error(`billboards.bin: record size ${v.getUint16(6, true)} for version ${version}`);
   const count = v.getUint32(8, true);
-  if (buf.byteLength !== format.header + count * format.record) {
-    throw new Error(`billboards.bin: ${buf.byteLength} bytes for ${count} records`);
+  if (bytes.length !== format.header + count * format.record) {
+    throw new Error(`billboards.bin: ${bytes.length} bytes for ${count} records`);
   }
   const f32 = (o) => v.getFloat32(o, true);
-  const vec3 = (o) => [f32(o), f32(o + 4), f32(o + 8)];
-  const header = {
-    version,
-    count,
-    tile: { z: v.getUint32(12, true), x: Number(v.getBigInt64(16, true)), y: Number(v.getBigInt64(24, true)) },
-    origin: [v.getFloat64(32, true), v.getFloat64(40, true)],
-    sun: { azimuthDeg: f32(48), elevationDeg: f32(52) },
-    splatCount: v.getUint16(56, true),
-    splatSize: v.getUint16(58, true),
-    size: f32(60),
-    t0: null,
-    t1: null,
-    lighting: null,
-    algorithmVersion: null,
-  };
-  if (version >= 2) {
-    header.t0 = v.getFloat64(64, true);
-    header.t1 = v.getFloat64(72, true);
-    header.lighting = {
-      sunDirection: vec3(80),
-      sunRgb: vec3(92),
-      ambientRgb: vec3(104),
-      albedo: f32(116),
-      extinctionPerM: f32(120),
-      phase: { g1: f32(124), g2: f32(128), mix: f32(132) },
-      octaves: { count: v.getUint32(136, true), a: f32(140), b: f32(144), c: f32(148) },
-    };
-    header.algorithmVersion = v.getUint32(152, true);
-  }
-  const r = {
-    offset: new Float32Array(3 * count),
-    radius: new Float32Array(count),
-    velocity: new Float32Array(2 * count),
-    splatTau: new Float32Array(2 * count),
-    splat: new Uint16Array(2 * count),
-    colour: new Float32Array(6 * count),
-    tauSun: new Float32Array(2 * count),
-    opacity: new Float32Array(2 * count),
-    sunTransmittance: new Float32Array(2 * count),
-  };
+  const header = commonHeader(v, version, count);
+  if (version >= 2) Object.assign(header, keyframeHeader(v));
+  const r = recordColumns(count);
   for (let i = 0; i < count; i++) {
     const o = format.header + i * format.record;
     r.offset[3 * i] = f32(o);
@@ -387,7 +558,357 @@ export function decodeBillboards(buffer) {
       }
     }
   }
-  return { header, count, records: r };
+  return { header, count, records: r, lattice: null };
+}
+
+/** Offsets 0–63, the same in every version. */
+function commonHeader(v, version, count) {
+  const f32 = (o) => v.getFloat32(o, true);
+  return {
+    version,
+    form: version === 3 ? 'self-contained' : null,
+    count,
+    tile: { z: v.getUint32(12, true), x: Number(v.getBigInt64(16, true)), y: Number(v.getBigInt64(24, true)) },
+    origin: [v.getFloat64(32, true), v.getFloat64(40, true)],
+    sun: { azimuthDeg: f32(48), elevationDeg: f32(52) },
+    splatCount: v.getUint16(56, true),
+    splatSize: v.getUint16(58, true),
+    size: f32(60),
+    t0: null,
+    t1: null,
+    lighting: null,
+    algorithmVersion: null,
+  };
+}
+
+/** Offsets 64–155 of versions 2 and 3: the span and the lighting. */
+function keyframeHeader(v) {
+  const f32 = (o) => v.getFloat32(o, true);
+  const vec3 = (o) => [f32(o), f32(o + 4), f32(o + 8)];
+  return {
+    t0: v.getFloat64(64, true),
+    t1: v.getFloat64(72, true),
+    lighting: {
+      sunDirection: vec3(80),
+      sunRgb: vec3(92),
+      ambientRgb: vec3(104),
+      albedo: f32(116),
+      extinctionPerM: f32(120),
+      phase: { g1: f32(124), g2: f32(128), mix: f32(132) },
+      octaves: { count: v.getUint32(136, true), a: f32(140), b: f32(144), c: f32(148) },
+    },
+    algorithmVersion: v.getUint32(152, true),
+  };
+}
+
+function recordColumns(count) {
+  return {
+    offset: new Float32Array(3 * count),
+    radius: new Float32Array(count),
+    velocity: new Float32Array(2 * count),
+    splatTau: new Float32Array(2 * count),
+    splat: new Uint16Array(2 * count),
+    colour: new Float32Array(6 * count),
+    tauSun: new Float32Array(2 * count),
+    opacity: new Float32Array(2 * count),
+    sunTransmittance: new Float32Array(2 * count),
+  };
+}
+
+/** First column and width of a level's box: from the smaller first column of its two row kinds to the larger end. */
+function boxColumns(level) {
+  const live = level.runs.filter((r) => r[1] > 0);
+  if (!live.length) return [0, 0];
+  const first = Math.min(...live.map((r) => r[0]));
+  const end = Math.max(...live.map((r) => r[0] + r[1]));
+  return [first, Math.max(end - first, 0)];
+}
+
+/** Whether site (i, j) of level `k` lies in the tile (its row's run). */
+function levelContains(level, k, i, j) {
+  if (j < level.j0 || j >= level.j0 + level.rows) return false;
+  const [first, n] = level.runs[(((j + k) % 2) + 2) % 2];
+  return i >= first && i < first + n;
+}
+
+/** LOCO-I's median edge detector (JPEG-LS): left `a`, up `b`, up-left `c`, each -1 when missing at the box's edge. */
+function med(a, b, c) {
+  const a2 = a >= 0 ? a : b >= 0 ? b : 0;
+  const b2 = b >= 0 ? b : a2;
+  const c2 = c >= 0 ? c : a2;
+  const lo = Math.min(a2, b2);
+  const hi = Math.max(a2, b2);
+  if (c2 >= hi) return lo;
+  if (c2 <= lo) return hi;
+  return a2 + b2 - c2;
+}
+
+/** Dequantised colour channel and τ_sun of each code (256 codes; values are one byte). */
+function codeTables(colourBits, tauSunSteps, tauFloor) {
+  const levels = 2 ** colourBits - 1;
+  const colour = new Float32Array(256);
+  const tauSun = new Float32Array(256);
+  for (let c = 0; c < 256; c++) {
+    colour[c] = 2 * (Math.min(c, levels) / levels) ** 2.2;
+    tauSun[c] = tauFloor * Math.exp((Math.min(Math.max(c, 1), 255) - 1) / tauSunSteps);
+  }
+  return { colour, tauSun };
+}
+
+/** Peak opacity (or transmittance) × 255 rounded, as the server stores it (render::image::to_u8), back to 0..1. */
+const byteFraction = (x) => (Number.isNaN(x) ? 0 : Math.round(Math.fround(Math.min(Math.max(x, 0), 1) * 255)) / 255);
+
+/**
+ * The residual planes of a version-3 keyframe, each read from its own cursor: one
+ * traversal of the sites asks them in the order the encoder wrote them.
+ */
+class PlaneReader {
+  constructor(bytes, at, lengths) {
+    this.bytes = bytes;
+    this.lengths = lengths;
+    this.starts = [];
+    for (const len of lengths) {
+      this.starts.push(at);
+      at += len;
+    }
+    this.used = new Array(lengths.length).fill(0);
+  }
+
+  /** The next byte of plane `p`; an Error when the plane is spent. */
+  take(p) {
+    if (this.used[p] >= this.lengths[p]) throw new Error(`billboards.bin: plane ${p} ends early (truncated or malformed)`);
+    return this.bytes[this.starts[p] + this.used[p]++];
+  }
+
+  /**
+   * The value at the next site of `plane`, predicted `pred`: pred + residual, modulo
+   * 2^8 (2^16 for a wide splat code, whose high byte is in the next plane).
+   */
+  code(plane, pred, wide) {
+    const lo = this.take(plane);
+    return wide ? (pred + (lo | (this.take(plane + 1) << 8))) & 0xffff : (pred + lo) & 0xff;
+  }
+}
+
+/** The median prediction of field `f` of a site from the states at its left, up and up-left box positions (-1: none). */
+function spatial(states, left, up, upleft, f) {
+  return med(left >= 0 ? states[left + f] : -1, up >= 0 ? states[up + f] : -1, upleft >= 0 ? states[upleft + f] : -1);
+}
+
+function decodeKeyframe(bytes, v, previous) {
+  if (bytes.length < V3.fixed) throw new Error(`billboards.bin: ${bytes.length} bytes, shorter than a version-3 header (${V3.fixed})`);
+  const formCode = v.getUint16(6, true);
+  if (formCode > 1) throw new Error(`billboards.bin: unknown form ${formCode}`);
+  const nLevels = v.getUint16(190, true);
+  const planes = v.getUint16(196, true);
+  if (nLevels > V3.maxLevels || planes !== V3.planes) {
+    throw new Error(`billboards.bin: ${nLevels} levels and ${planes} planes (at most ${V3.maxLevels} levels, ${V3.planes} planes)`);
+  }
+  const headerBytes = V3.fixed + V3.level * nLevels + 4 * V3.planes;
+  if (v.getUint32(8, true) !== headerBytes) throw new Error(`billboards.bin: the header says ${v.getUint32(8, true)} bytes, its tables ${headerBytes}`);
+  if (bytes.length < headerBytes) throw new Error(`billboards.bin: ${bytes.length} bytes, shorter than its header (${headerBytes}; truncated)`);
+  const index = (o) => {
+    const x = v.getBigInt64(o, true);
+    return x > V3.far || x < -V3.far ? null : Number(x);
+  };
+  const levels = [];
+  let sites = 0;
+  let inside = 0;
+  for (let k = 0; k < nLevels; k++) {
+    const o = V3.fixed + k * V3.level;
+    const l = {
+      offset: [v.getFloat64(o, true), v.getFloat64(o + 8, true)],
+      velocity: [v.getFloat64(o + 16, true), v.getFloat64(o + 24, true)],
+      shift: [index(o + 32), index(o + 40)],
+      j0: index(o + 48),
+      rows: v.getUint32(o + 56, true),
+      runs: [
+        [index(o + 60), v.getUint32(o + 68, true)],
+        [index(o + 72), v.getUint32(o + 80, true)],
+      ],
+    };
+    if (
+      l.rows > V3.maxSide ||
+      l.runs.some((r) => r[1] > V3.maxSide || r[0] === null) ||
+      l.j0 === null ||
+      l.shift.some((s) => s === null)
+    ) {
+      throw new Error(`billboards.bin: level ${k} has an impossible extent`);
+    }
+    [l.first, l.width] = boxColumns(l);
+    sites += l.rows * l.width;
+    if (sites > V3.maxSites) throw new Error(`billboards.bin: more than ${V3.maxSites} sites`);
+    // Rows of each kind alternate from j0.
+    const kind0 = (((l.j0 + k) % 2) + 2) % 2;
+    const rowsOf = (kind) => (kind === kind0 ? Math.ceil(l.rows / 2) : Math.floor(l.rows / 2));
+    inside += rowsOf(0) * l.runs[0][1] + rowsOf(1) * l.runs[1][1];
+    levels.push(l);
+  }
+  const lengths = [];
+  let body = 0;
+  for (let p = 0; p < V3.planes; p++) {
+    lengths.push(v.getUint32(V3.fixed + nLevels * V3.level + 4 * p, true));
+    body += lengths[p];
+  }
+  if (bytes.length !== headerBytes + body) throw new Error(`billboards.bin: ${bytes.length} bytes, its header says ${headerBytes + body}`);
+  // Every site in the tile has an end splat code: the plane's length is known before
+  // the arrays are made (the traversal would find the same).
+  if (lengths[PLANE_END + PLANE_SPLAT] !== inside) {
+    throw new Error(`billboards.bin: plane ${PLANE_END + PLANE_SPLAT} holds ${lengths[PLANE_END + PLANE_SPLAT]} bytes for ${inside} sites`);
+  }
+  const colourBits = v.getUint8(188);
+  const tauSunSteps = v.getUint8(189);
+  if (!(colourBits >= 1 && colourBits <= 8) || tauSunSteps === 0) throw new Error('billboards.bin: impossible quantisation');
+  const header = Object.assign(commonHeader(v, 3, v.getUint32(156, true)), keyframeHeader(v));
+  header.form = formCode === 0 ? 'self-contained' : 'delta';
+  const geometry = {
+    spacing: v.getFloat64(160, true),
+    verticalSpacing: v.getFloat64(168, true),
+    base: v.getFloat64(176, true),
+    radius: v.getFloat32(184, true),
+    levels,
+  };
+  const quantisation = { colourBits, tauSunSteps, tauFloor: v.getFloat32(192, true) };
+  const { z, x, y } = header.tile;
+
+  // A delta's sites held from the previous keyframe: its end states.
+  let prev = null;
+  if (formCode === 1) {
+    if (!previous) throw new Error(`billboards.bin: a delta keyframe (tile ${z}/${x}/${y}, t0 = ${header.t0}) needs the previous keyframe of its tile`);
+    const p = previous.header || {};
+    const pl = previous.lattice;
+    const same =
+      Boolean(pl && pl.geometry && pl.quantisation && pl.end && p.tile && p.sun) &&
+      p.tile.z === z &&
+      p.tile.x === x &&
+      p.tile.y === y &&
+      typeof p.t1 === 'number' &&
+      Math.abs(p.t1 - header.t0) <= 1e-9 * Math.max(Math.abs(header.t0), 1) &&
+      p.splatCount === header.splatCount &&
+      p.sun.azimuthDeg === header.sun.azimuthDeg &&
+      p.sun.elevationDeg === header.sun.elevationDeg &&
+      pl.quantisation.colourBits === colourBits &&
+      pl.quantisation.tauSunSteps === tauSunSteps &&
+      pl.geometry.levels.length === nLevels;
+    if (!same) {
+      const tile = p.tile ? `${p.tile.z}/${p.tile.x}/${p.tile.y}` : '?';
+      throw new Error(`billboards.bin: this delta follows keyframe t1 = ${header.t0} of tile ${z}/${x}/${y}, not the keyframe given (t1 = ${p.t1}, tile ${tile})`);
+    }
+    prev = pl;
+  }
+
+  const start = new Uint16Array(STATE * sites);
+  const end = new Uint16Array(STATE * sites);
+  const reader = new PlaneReader(bytes, headerBytes, lengths);
+  const wide = header.splatCount > 255;
+  const prevEnd = prev ? prev.end : null;
+  const bases = [];
+  let level = 0;
+  for (let k = 0; k < nLevels; k++) {
+    const l = levels[k];
+    bases.push(level);
+    const w = l.width;
+    const pl = prev ? prev.geometry.levels[k] : null;
+    for (let r = 0; r < l.rows; r++) {
+      const j = l.j0 + r;
+      const [runFirst, runCount] = l.runs[(((j + k) % 2) + 2) % 2];
+      for (let c = 0; c < w; c++) {
+        const s = level + r * w + c;
+        const i = l.first + c;
+        const o = STATE * s;
+        const left = c > 0 ? o - STATE : -1;
+        const up = r > 0 ? o - STATE * w : -1;
+        const upleft = c > 0 && r > 0 ? o - STATE * (w + 1) : -1;
+        const isInside = i >= runFirst && i < runFirst + runCount;
+        // The predecessor of a site the client holds: the previous keyframe's site
+        // (i, j) − shift(k) inside its runs; its end state is this site's start.
+        let kept = -1;
+        if (isInside && pl) {
+          const pi = i - pl.shift[0];
+          const pj = j - pl.shift[1];
+          if (levelContains(pl, k, pi, pj)) kept = STATE * (prev.bases[k] + (pj - pl.j0) * pl.width + (pi - pl.first));
+        }
+        // The start: held, or in space.
+        let pred = spatial(start, left, up, upleft, 0);
+        const splat = !isInside ? 0 : kept >= 0 ? prevEnd[kept] : reader.code(PLANE_SPLAT, pred, wide);
+        start[o] = splat;
+        let drift = 0;
+        for (let f = 1; f < STATE; f++) {
+          pred = spatial(start, left, up, upleft, f);
+          let value;
+          if (splat === 0) value = pred;
+          else if (kept >= 0) value = prevEnd[kept + f];
+          else value = reader.code(PLANE_GREEN + f - 1, f === 2 || f === 3 ? pred + drift : pred, false);
+          if (f === 1) drift = value - pred;
+          start[o + f] = value;
+        }
+        // The end, from the start of the same site.
+        const was = start[o];
+        const esplat = isInside ? reader.code(PLANE_END + PLANE_SPLAT, was, wide) : 0;
+        end[o] = esplat;
+        drift = 0;
+        for (let f = 1; f < STATE; f++) {
+          pred = was !== 0 ? start[o + f] : spatial(end, left, up, upleft, f);
+          const value = esplat === 0 ? pred : reader.code(PLANE_END + PLANE_GREEN + f - 1, f === 2 || f === 3 ? pred + drift : pred, false);
+          if (f === 1) drift = value - pred;
+          end[o + f] = value;
+        }
+      }
+    }
+    level += l.rows * w;
+  }
+  const used = reader.used;
+  for (let p = 0; p < V3.planes; p++) {
+    if (used[p] !== lengths[p]) throw new Error(`billboards.bin: plane ${p} holds ${lengths[p]} bytes, the keyframe uses ${used[p]}`);
+  }
+
+  // The billboards: every site with a ball at either end, in site order.
+  let count = 0;
+  for (let s = 0; s < sites; s++) if (start[STATE * s] !== 0 || end[STATE * s] !== 0) count++;
+  if (count !== header.count) throw new Error(`billboards.bin: ${count} billboards decoded, the header says ${header.count}`);
+  const rec = recordColumns(count);
+  const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor);
+  const origin = header.origin;
+  const splatCount = header.splatCount;
+  let n = 0;
+  for (let k = 0; k < nLevels; k++) {
+    const l = levels[k];
+    const oy = 0.5 * (k % 2);
+    const zc = Math.fround(geometry.base + (k + 0.5) * geometry.verticalSpacing);
+    for (let r = 0; r < l.rows; r++) {
+      const j = l.j0 + r;
+      const ox = 0.5 * ((((j + k) % 2) + 2) % 2);
+      for (let c = 0; c < l.width; c++) {
+        const s = STATE * (bases[k] + r * l.width + c);
+        if (start[s] === 0 && end[s] === 0) continue;
+        rec.offset[3 * n] = (l.first + c + ox) * geometry.spacing + l.offset[0] - origin[0];
+        rec.offset[3 * n + 1] = (j + oy) * geometry.spacing + l.offset[1] - origin[1];
+        rec.offset[3 * n + 2] = zc;
+        rec.radius[n] = geometry.radius;
+        rec.velocity[2 * n] = l.velocity[0];
+        rec.velocity[2 * n + 1] = l.velocity[1];
+        for (let e = 0; e < 2; e++) {
+          const [self, other] = e === 0 ? [start, end] : [end, start];
+          // An end without a ball draws nothing and keeps the other end's light.
+          const light = self[s] !== 0 ? self : other;
+          const m = 2 * n + e;
+          if (self[s] !== 0) {
+            const splat = Math.min(self[s] - 1, Math.max(splatCount - 1, 0));
+            rec.splat[m] = splat;
+            rec.splatTau[m] = splatTauOf(splat, splatCount);
+          }
+          rec.opacity[m] = byteFraction(Math.fround(1 - Math.fround(Math.exp(-rec.splatTau[m]))));
+          rec.colour[6 * n + 3 * e] = tables.colour[light[s + 2]];
+          rec.colour[6 * n + 3 * e + 1] = tables.colour[light[s + 1]];
+          rec.colour[6 * n + 3 * e + 2] = tables.colour[light[s + 3]];
+          rec.tauSun[m] = tables.tauSun[light[s + 4]];
+          rec.sunTransmittance[m] = byteFraction(Math.fround(Math.exp(-rec.tauSun[m])));
+        }
+        n++;
+      }
+    }
+  }
+  return { header, count, records: rec, lattice: { geometry, quantisation, bases, end } };
 }
 
 /** Largest centre optical depth of the splat sheet (src/render/splats.rs TAU_MAX; /v1/splats.json `tau_max`). */
@@ -395,7 +916,7 @@ export const SPLAT_TAU_MAX = 8;
 
 /** Centre optical depth τ_k of splat `k` of a sheet of `count`: `tau_max · ((k + 1) / count)²`. */
 export function splatTauOf(k, count, tauMax = SPLAT_TAU_MAX) {
-  const x = (Math.min(k, count - 1) + 1) / count;
+  const x = (Math.min(k, Math.max(count - 1, 0)) + 1) / Math.max(count, 1);
   return tauMax * x * x;
 }
 
@@ -451,6 +972,230 @@ export function billboardsAt(tile, t, sheet = null) {
     out.sunTransmittance[i] = lerp(r.sunTransmittance[2 * i], r.sunTransmittance[2 * i + 1]);
   }
   return out;
+}
+
+// ---------------------------------------------------------------------------------
+// Ground shadows derived from the billboards (crates/cloudscape-core/src/view/held.rs).
+// ---------------------------------------------------------------------------------
+
+/** Columns per tile side: the side of a shadow map. */
+export const TILE_COLUMNS = 256;
+/** Entries of the splat profile table over q = p² (render::shade PROFILE_ENTRIES). */
+const PROFILE_ENTRIES = 4096;
+
+/**
+ * S(p), the line integral of Wyvill's field function through a unit ball at impact
+ * parameter p (render::splats::line_integral); 0 for |p| ≥ 1.
+ */
+export function lineIntegral(p) {
+  if (!(Math.abs(p) < 1)) return 0;
+  const q = p * p;
+  const l = Math.sqrt(1 - q);
+  const l2 = l * l;
+  const l3 = l * l * l;
+  const l5 = l3 * l2;
+  const l7 = l3 * l2 * l2;
+  const a3 = 2 * (q * q * q * l + q * q * l3 + (3 * q * l5) / 5 + l7 / 7);
+  const a2 = 2 * (q * q * l + (2 * q * l3) / 3 + l5 / 5);
+  const a1 = 2 * (q * l + l3 / 3);
+  return Math.max((-4 / 9) * a3 + (17 / 9) * a2 - (22 / 9) * a1 + 2 * l, 0);
+}
+
+let profileTable = null;
+/** S(√q) / S(0) tabulated over q (linear between entries), as render::shade::profile_table. */
+function profile() {
+  if (!profileTable) {
+    const s0 = 2 * (1 - 22 / 27 + 17 / 45 - 4 / 63);
+    profileTable = new Float64Array(PROFILE_ENTRIES + 1);
+    for (let i = 0; i <= PROFILE_ENTRIES; i++) profileTable[i] = lineIntegral(Math.sqrt(i / PROFILE_ENTRIES)) / s0;
+  }
+  return profileTable;
+}
+
+/** P(q) = S(√q) / S(0), q the squared distance from a ball's centre in radii (render::shade::profile_at). */
+export function splatProfile(q) {
+  const table = profile();
+  const x = Math.min(Math.max(q, 0), 1) * PROFILE_ENTRIES;
+  const i = Math.min(Math.floor(x), PROFILE_ENTRIES - 1);
+  const f = x - i;
+  return table[i] * (1 - f) + table[i + 1] * f;
+}
+
+/**
+ * The unit vector toward a keyframe's sun (its header's bucket centre), as
+ * render::sun::Sun: azimuth clockwise from north, elevation above the horizon; an
+ * elevation outside [−90, 90] stands for the zenith.
+ */
+export function keyframeSun(tile) {
+  const s = tile.header.sun;
+  let az = s.azimuthDeg;
+  let el = s.elevationDeg;
+  if (!(Number.isFinite(az) && Number.isFinite(el) && el >= -90 && el <= 90)) {
+    az = 0;
+    el = 90;
+  }
+  az = ((az % 360) + 360) % 360;
+  if (az >= 360) az = 0;
+  const a = az * (Math.PI / 180);
+  const e = el * (Math.PI / 180);
+  return [Math.sin(a) * Math.cos(e), Math.cos(a) * Math.cos(e), Math.sin(e)];
+}
+
+/**
+ * How far to shift a ground point (x, y) toward the sun before reading a tile's
+ * shadow map: `(s_x, s_y) · base / max(s_z, sin 1°)` (render::tile::shadow_shift),
+ * `base` the altitude of the tile's layer's base.
+ */
+export function shadowShift(tile, base) {
+  const s = keyframeSun(tile);
+  const k = base / Math.max(s[2], Math.sin(Math.PI / 180));
+  return [s[0] * k, s[1] * k];
+}
+
+/**
+ * The ground shadow maps of a held tile (`target`: `{ layer, base, keyframe }`, the
+ * keyframe decoded by decodeBillboards, `base` its layer's base altitude) cast by the
+ * billboards added to it (`add`: the held tiles of its layer, itself among them), in
+ * as many steps as the caller likes (a frame's budget at a time): `finish` gives
+ * `{ t0, t1 }`, sunlight transmittance at the two ends of the target's span,
+ * 256×256 each, row 0 the southern edge. At each column centre p on the base,
+ * `T = exp(−Σ_b τ_b P(q_b))` over the balls b at that end, τ_b the ball's splat
+ * optical depth, P the splat profile and q_b the squared distance, in radii, from the
+ * ball's centre to the sun ray through p (docs/formats.md, "Ground shadow"); a ball
+ * at t1 is at its t0 centre moved by its wind over its own span. All 1 with the sun
+ * at or below the horizon.
+ */
+export class ShadowDerivation {
+  constructor(target) {
+    const n = TILE_COLUMNS;
+    const k = target.keyframe;
+    this.base = target.base;
+    this.sun = keyframeSun(k);
+    this.maps = [new Float64Array(n * n), new Float64Array(n * n)];
+    this.column = k.header.size / n;
+    this.origin = k.header.origin;
+    const s = this.sun;
+    // The footprint of a ball on the base is an ellipse, r / s_z along the sun's
+    // horizontal direction and r across.
+    const h = Math.sqrt(s[0] * s[0] + s[1] * s[1]);
+    this.across = h > 1e-12 ? [s[0] / h, s[1] / h] : [1, 0];
+  }
+
+  /** Adds the balls of records `[from, to)` of `source` (`{ keyframe }`, a held tile of the target's layer). */
+  add(source, from = 0, to = source.keyframe.count) {
+    const s = this.sun;
+    if (!(s[2] > 0)) return;
+    const n = TILE_COLUMNS;
+    const { column, origin, maps } = this;
+    const x1 = origin[0] + n * column;
+    const y1 = origin[1] + n * column;
+    const [ux, uy] = this.across;
+    const table = profile();
+    const sk = source.keyframe;
+    const r = sk.records;
+    const so = sk.header.origin;
+    const span = sk.header.t0 !== null && sk.header.t1 !== null ? sk.header.t1 - sk.header.t0 : 0;
+    for (let b = from; b < to; b++) {
+      const radius = r.radius[b];
+      if (!(radius > 0)) continue;
+      const a = radius / s[2];
+      const hx = Math.sqrt(a * a * ux * ux + radius * radius * uy * uy);
+      const hy = Math.sqrt(a * a * uy * uy + radius * radius * ux * ux);
+      const invR2 = 1 / (radius * radius);
+      for (let e = 0; e < 2; e++) {
+        const tau = r.splatTau[2 * b + e];
+        if (!(tau > 0)) continue;
+        const moved = e === 1 ? span : 0;
+        const cx = so[0] + r.offset[3 * b] + r.velocity[2 * b] * moved;
+        const cy = so[1] + r.offset[3 * b + 1] + r.velocity[2 * b + 1] * moved;
+        // Where the sun ray through the centre crosses the base.
+        const lift = (r.offset[3 * b + 2] - this.base) / s[2];
+        const px = cx - s[0] * lift;
+        const py = cy - s[1] * lift;
+        if (px + hx < origin[0] || px - hx > x1 || py + hy < origin[1] || py - hy > y1) continue;
+        const map = maps[e];
+        const c0 = Math.max(Math.ceil((px - hx - origin[0]) / column - 0.5), 0);
+        const c1 = Math.min(Math.max(Math.floor((px + hx - origin[0]) / column - 0.5) + 1, 0), n);
+        const r0 = Math.max(Math.ceil((py - hy - origin[1]) / column - 0.5), 0);
+        const r1 = Math.min(Math.max(Math.floor((py + hy - origin[1]) / column - 0.5) + 1, 0), n);
+        for (let row = r0; row < r1; row++) {
+          const wy = py - (origin[1] + (row + 0.5) * column);
+          for (let col = c0; col < c1; col++) {
+            const wx = px - (origin[0] + (col + 0.5) * column);
+            // The distance between the sun rays through the centre and through the
+            // column: the offset less its part along the sun.
+            const along = wx * s[0] + wy * s[1];
+            const q = (wx * wx + wy * wy - along * along) * invR2;
+            if (q < 1) {
+              const x = Math.max(q, 0) * PROFILE_ENTRIES;
+              const i = Math.min(Math.floor(x), PROFILE_ENTRIES - 1);
+              const f = x - i;
+              map[row * n + col] += tau * (table[i] * (1 - f) + table[i + 1] * f);
+            }
+          }
+        }
+      }
+    }
+  }
+
+  /** The maps: `{ t0, t1 }`, transmittance at the span's ends. */
+  finish() {
+    const lit = (m) => {
+      const out = new Float32Array(m.length);
+      for (let i = 0; i < out.length; i++) out[i] = Math.exp(-m[i]);
+      return out;
+    };
+    return { t0: lit(this.maps[0]), t1: lit(this.maps[1]) };
+  }
+}
+
+/**
+ * The ground shadow maps of a held tile cast by the billboards of `sources` (the held
+ * tiles of its layer, itself among them): ShadowDerivation in one step.
+ */
+export function deriveShadow(target, sources) {
+  const d = new ShadowDerivation(target);
+  for (const s of sources) d.add(s);
+  return d.finish();
+}
+
+/**
+ * The ground shadow maps of every held tile (`{ layer, base, keyframe }`), each cast
+ * by the held tiles of its layer (deriveShadow): what the viewer, the Rust client and
+ * `cloudscape render` draw. A client holds only the tiles its view plans, so a tile's
+ * shadow is cast by those; the server's shadow.png takes a halo around the tile.
+ */
+export function shadowMaps(tiles) {
+  return tiles.map((t) => deriveShadow(t, tiles.filter((s) => s.layer === t.layer)));
+}
+
+/**
+ * A tile's shadow map read where a ground point (x, y) looks toward the sun: bilinear
+ * between column centres, the two ends blended by `f`, 1 outside the tile
+ * (render::tile::shadow_lookup after shadow_shift). `maps` from deriveShadow, `tile`
+ * the decoded keyframe, `base` its layer's base altitude.
+ */
+export function shadowAtPoint(maps, tile, base, x, y, f) {
+  const [sx, sy] = shadowShift(tile, base);
+  const n = TILE_COLUMNS;
+  const column = tile.header.size / n;
+  const u = (x + sx - tile.header.origin[0]) / column - 0.5;
+  const v = (y + sy - tile.header.origin[1]) / column - 0.5;
+  if (!(u > -0.5 && v > -0.5 && u < n - 0.5 && v < n - 0.5)) return 1;
+  const uc = Math.min(Math.max(u, 0), n - 1);
+  const vc = Math.min(Math.max(v, 0), n - 1);
+  const u0 = Math.min(Math.floor(uc), n - 2);
+  const v0 = Math.min(Math.floor(vc), n - 2);
+  const fu = uc - u0;
+  const fv = vc - v0;
+  const at = (m) => {
+    const p = (c, r) => m[r * n + c];
+    const a = p(u0, v0) * (1 - fu) + p(u0 + 1, v0) * fu;
+    const b = p(u0, v0 + 1) * (1 - fu) + p(u0 + 1, v0 + 1) * fu;
+    return a * (1 - fv) + b * fv;
+  };
+  const a = at(maps.t0);
+  return f === 0 ? a : (1 - f) * a + f * at(maps.t1);
 }
 
 // ---------------------------------------------------------------------------------
@@ -522,6 +1267,13 @@ export function threeArrays(frames, { origin = [0, 0, 0], eye = null } = {}) {
 // ---------------------------------------------------------------------------------
 // PNG (8-bit, non-interlaced: what the server writes), density grids.
 // ---------------------------------------------------------------------------------
+
+/** The bytes of an ArrayBuffer or a view of one, without a copy. */
+function byteView(buffer) {
+  if (buffer instanceof ArrayBuffer) return new Uint8Array(buffer);
+  if (ArrayBuffer.isView(buffer)) return new Uint8Array(buffer.buffer, buffer.byteOffset, buffer.byteLength);
+  throw new Error('billboards.bin: not an ArrayBuffer or a view of one');
+}
 
 function toArrayBuffer(bytes) {
   if (bytes instanceof ArrayBuffer) return bytes;

@@ -41,10 +41,21 @@ export interface World {
   max_time: number;
   frames_per_step: number;
   keyframes?: string;
+  /** The world clock: `t = offset + rate · Unix seconds`; `now` the world time the document was answered at. */
+  clock?: WorldClock;
   layers: Layer[];
   products: string[];
   tiles: string[];
   [key: string]: unknown;
+}
+
+/** A world's clock, from discovery. */
+export interface WorldClock {
+  offset: number;
+  /** World seconds per real second. */
+  rate: number;
+  /** World time of the answer, whole seconds. */
+  now: number;
 }
 
 /** A keyframe span: `t0 = index · span`, `t1 = t0 + span`, `f` where a time falls in it. */
@@ -80,10 +91,8 @@ export interface TileTime {
   sun?: [number, number];
   /** The next keyframe's URL instead (what to prefetch). */
   next?: boolean;
-  /** `billboardTile`: fetch the next keyframe past the middle of the span (default true). */
+  /** `billboardTile`: fetch the next keyframe past the tile's prefetch point (default true). */
   prefetch?: boolean;
-  /** `billboardTile`: fetch and decode shadow.png too (default true). */
-  shadow?: boolean;
 }
 
 export interface FetchResult {
@@ -91,8 +100,11 @@ export interface FetchResult {
   status: number;
   etag: string | null;
   immutable: boolean;
-  /** `network`: a 200; `revalidated`: a 304 reused the kept body; `memory`: an immutable body, no request. */
-  source: 'network' | 'revalidated' | 'memory';
+  /**
+   * `network`: a 200; `revalidated`: a 304 reused the kept body; `memory`: an immutable
+   * body kept in memory, `cache`: one kept in the Cache Storage (no request either).
+   */
+  source: 'network' | 'revalidated' | 'memory' | 'cache';
 }
 
 export interface FetchStats {
@@ -102,6 +114,10 @@ export interface FetchStats {
   reused: number;
   bodyBytes: number;
   retries: number;
+  /** Delta keyframes (`billboards.delta.bin`) fetched over the network. */
+  deltas: number;
+  /** Next-keyframe products fetched ahead of need. */
+  prefetched: number;
 }
 
 export interface ClientOptions {
@@ -110,6 +126,24 @@ export interface ClientOptions {
   maxRetries?: number;
   /** Default quality of shaded products. */
   quality?: string;
+  /** A Cache Storage cache (`caches.open(…)`, in a browser) that keeps bodies across reloads. */
+  cache?: Cache | Promise<Cache | null> | null;
+  /** Tile variants whose keyframes are held decoded (default 1024). */
+  maxVariants?: number;
+  /** Keyframes held per variant (default 3: the one drawn, the next, a spare). */
+  keyframesPerVariant?: number;
+}
+
+/** Decoded keyframes by tile variant and start time, bounded. */
+export class HeldKeyframes {
+  constructor(options?: { maxVariants?: number; perVariant?: number });
+  readonly maxVariants: number;
+  readonly perVariant: number;
+  get(variant: string, t0: number): BillboardTile | null;
+  /** The keyframe of `variant` whose span ends at `t0`. */
+  endingAt(variant: string, t0: number): BillboardTile | null;
+  insert(variant: string, t0: number, keyframe: BillboardTile): void;
+  readonly size: number;
 }
 
 export class CloudscapeError extends Error {
@@ -123,8 +157,11 @@ export class CloudscapeClient {
   readonly base: string;
   quality: string;
   stats: FetchStats;
+  /** The billboard keyframes held decoded. */
+  keyframes: HeldKeyframes;
   url(path: string): string;
-  fetch(path: string): Promise<FetchResult>;
+  /** `keep: false`: not kept in memory; `fresh: true`: no stored copy used or kept. */
+  fetch(path: string, options?: { keep?: boolean; fresh?: boolean }): Promise<FetchResult>;
   bytes(path: string): Promise<ArrayBuffer>;
   json<T = unknown>(path: string): Promise<T>;
   holds(path: string): boolean;
@@ -133,9 +170,17 @@ export class CloudscapeClient {
   splats(quality?: string): Promise<SplatManifest>;
   tilePath(world: World, tile: TileRef, product: string, at: TileTime): string;
   tile(world: World, tile: TileRef, product: string, at: TileTime): Promise<ArrayBuffer>;
-  billboardTile(world: World, tile: TileRef, at: TileTime): Promise<{ billboards: BillboardTile; shadow: ShadowMap | null }>;
+  /** What names a tile variant's keyframes (world, layer, tile, quality, sun). */
+  variant(world: World, tile: TileRef, at: TileTime): string;
+  /** The decoded keyframe holding `at.t` (`at.next`: the next one): held, a delta on the held one before, or self-contained. */
+  keyframe(world: World, tile: TileRef, at: TileTime): Promise<BillboardTile>;
+  billboardTile(world: World, tile: TileRef, at: TileTime): Promise<{ billboards: BillboardTile }>;
+  /** `billboards.bin` in `products` (the default) stands for the decoded keyframe. */
   prefetchNext(world: World, tile: TileRef, at: TileTime, products?: string[]): Promise<string[]>;
 }
+
+/** The world time of a discovery document's clock, as a function of wall-clock ms (default now). */
+export function worldClock(world: Pick<World, 'clock' | 'max_time'>, options?: { rate?: number | null; readAt?: number }): (ms?: number) => number;
 
 /** `/v1/splats.json`. */
 export interface SplatManifest {
@@ -163,7 +208,9 @@ export interface Lighting {
 }
 
 export interface BillboardHeader {
-  version: 1 | 2;
+  version: 1 | 2 | 3;
+  /** Version 3: `self-contained` (form 0) or `delta` (form 1, decoded on the previous keyframe); null before. */
+  form: 'self-contained' | 'delta' | null;
   count: number;
   tile: { z: number; x: number; y: number };
   /** South-west corner of the tile, world metres. */
@@ -173,7 +220,7 @@ export interface BillboardHeader {
   splatSize: number;
   /** Tile side, metres. */
   size: number;
-  /** Keyframe span (version 2); null for version 1. */
+  /** Keyframe span (versions 2 and 3); null for version 1. */
   t0: number | null;
   t1: number | null;
   lighting: Lighting | null;
@@ -205,13 +252,44 @@ export interface BillboardRecords extends BillboardLooks {
   velocity: Float32Array;
 }
 
+/** One lattice level of a version-3 keyframe: where its sites are and how it moves. */
+export interface LatticeLevel {
+  /** The level's drift at t0, metres. */
+  offset: [number, number];
+  /** Wind at the level's altitude, m/s. */
+  velocity: [number, number];
+  /** Index shift (i, j) from the t0 lattice to the t1 lattice. */
+  shift: [number, number];
+  /** First row in the tile, and rows. */
+  j0: number;
+  rows: number;
+  /** First column and count of rows with (j + k) even, then odd. */
+  runs: [[number, number], [number, number]];
+  /** First column and width of the level's box. */
+  first: number;
+  width: number;
+}
+
+/** A version-3 keyframe's lattice: what the next keyframe's delta is decoded against. */
+export interface Lattice {
+  geometry: { spacing: number; verticalSpacing: number; base: number; radius: number; levels: LatticeLevel[] };
+  quantisation: { colourBits: number; tauSunSteps: number; tauFloor: number };
+  /** Index of each level's first site. */
+  bases: number[];
+  /** Each site's state at t1, 5 codes a site: splat (0 none, else index + 1), green, red, blue, τ_sun. */
+  end: Uint16Array;
+}
+
 export interface BillboardTile {
   header: BillboardHeader;
   count: number;
   records: BillboardRecords;
+  /** Version 3; null before. */
+  lattice: Lattice | null;
 }
 
-export function decodeBillboards(buffer: ArrayBuffer | ArrayBufferView): BillboardTile;
+/** Decodes billboards.bin of version 3, 2 or 1; a version-3 delta needs `previous`, its tile's keyframe before. Throws an Error on malformed bytes. */
+export function decodeBillboards(buffer: ArrayBuffer | ArrayBufferView, previous?: BillboardTile | null): BillboardTile;
 export function halfToFloat(h: number): number;
 export const SPLAT_TAU_MAX: number;
 export function splatTauOf(k: number, count: number, tauMax?: number): number;
@@ -229,6 +307,44 @@ export interface BillboardFrame extends BillboardLooks {
 }
 
 export function billboardsAt(tile: BillboardTile, t: number, sheet?: Pick<SplatManifest, 'count' | 'tau_max'> | null): BillboardFrame;
+
+/** Side of a tile's shadow map, columns. */
+export const TILE_COLUMNS: 256;
+
+/** A held tile as the ground shadow sees it: its decoded keyframe, its layer and the layer's base altitude (m). */
+export interface HeldTile {
+  layer: string | number;
+  base: number;
+  keyframe: BillboardTile;
+}
+
+/** Sunlight transmittance on the layer's base at t0 and t1, 256×256 each, row 0 the southern edge. */
+export interface DerivedShadow {
+  t0: Float32Array;
+  t1: Float32Array;
+}
+
+/** S(p): the line integral of Wyvill's field function through a unit ball at impact parameter p. */
+export function lineIntegral(p: number): number;
+/** S(√q) / S(0), tabulated as the server does. */
+export function splatProfile(q: number): number;
+/** Unit vector toward the sun a keyframe was shaded for (x east, y north, z up). */
+export function keyframeSun(tile: BillboardTile): [number, number, number];
+/** Shift of a ground point toward the sun before reading a tile's shadow map, metres. */
+export function shadowShift(tile: BillboardTile, base: number): [number, number];
+/** The shadow maps of a held tile, cast by the billboards added to it, in as many steps as the caller likes. */
+export class ShadowDerivation {
+  constructor(target: HeldTile);
+  /** Adds the balls of records `[from, to)` of `source` (a held tile of the target's layer). */
+  add(source: Pick<HeldTile, 'keyframe'>, from?: number, to?: number): void;
+  finish(): DerivedShadow;
+}
+/** The shadow maps of `target` cast by the billboards of `sources` (its layer's held tiles, itself among them). */
+export function deriveShadow(target: HeldTile, sources: Iterable<Pick<HeldTile, 'keyframe'>>): DerivedShadow;
+/** The shadow maps of every held tile, each cast by the held tiles of its layer. */
+export function shadowMaps(tiles: HeldTile[]): DerivedShadow[];
+/** The transmittance a ground point (x, y) reads from a tile's maps a fraction `f` through its span. */
+export function shadowAtPoint(maps: DerivedShadow, tile: BillboardTile, base: number, x: number, y: number, f: number): number;
 
 export function zUpToYUp(p: ArrayLike<number>): [number, number, number];
 

@@ -4,7 +4,8 @@
 //   CLOUDSCAPE_URL=http://127.0.0.1:8080 node --test clients/js/test/
 //
 // The server's own JSON (billboards.json, density.npy) is the independent reference
-// the binary decoders are checked against.
+// the binary decoders are checked against. Version 3 of billboards.bin, its deltas and
+// the ground shadow derived from it: keyframes.test.mjs and shadow.test.mjs.
 
 import assert from 'node:assert/strict';
 import { readFileSync } from 'node:fs';
@@ -103,8 +104,8 @@ test('a URL by plain t revalidates with its ETag and gets a 304', async () => {
   assert.deepEqual(new Uint8Array(b.body), new Uint8Array(a.body));
 });
 
-test('billboards.bin version 2 decodes to what billboards.json says', async () => {
-  const bin = decodeBillboards(await client.tile(world, TILE, 'billboards.bin', AT));
+test('billboards.v2.bin (version 2) decodes to what billboards.json says', async () => {
+  const bin = decodeBillboards(await client.tile(world, TILE, 'billboards.v2.bin', AT));
   const json = await client.json(client.tilePath(world, TILE, 'billboards.json', AT));
   const h = bin.header;
   assert.equal(h.version, 2);
@@ -239,7 +240,7 @@ test('density grids: .u8 is .npy × 255 rounded, .f32 is .npy', async () => {
   assert.throws(() => decodeDensityU8(new Uint8Array(10), layer.depth), /density.u8/);
 });
 
-test('the next keyframe is fetched ahead past the tile\'s prefetch point, then needs no request', async () => {
+test('the next keyframe is fetched ahead past the tile\'s prefetch point, as a delta, then needs no request', async () => {
   const c = new CloudscapeClient(base, { quality: 'fast' });
   const w = await c.world(WORLD);
   // Tile (0, 0, 0)'s point: 0.7275 of the span (worked out in Python from the rule).
@@ -250,12 +251,14 @@ test('the next keyframe is fetched ahead past the tile\'s prefetch point, then n
   const { billboards } = await c.billboardTile(w, TILE, { ...AT, prefetch: false });
   assert.equal(billboards.header.t0, T0);
   const paths = await c.prefetchNext(w, TILE, { ...AT, t: T0 + 15 });
-  assert.equal(paths.length, 2);
-  assert.ok(paths.every((p) => p.includes(`t=${T0 + 20}&`)), JSON.stringify(paths));
+  assert.deepEqual(paths, [`/v1/worlds/${WORLD}/tiles/0/0/0/billboards.delta.bin?t=${T0 + 20}&quality=fast&sun=180,60&layer=stratocumulus`]);
+  assert.equal(c.stats.deltas, 1);
   const requests = c.stats.requests;
   const next = await c.billboardTile(w, TILE, { ...AT, t: T0 + 21, prefetch: false });
   assert.equal(c.stats.requests, requests, 'the next keyframe came from what was prefetched');
   assert.equal(next.billboards.header.t0, T0 + 20);
+  assert.equal(next.billboards.header.form, 'delta');
+  assert.deepEqual(await c.prefetchNext(w, TILE, { ...AT, t: T0 + 15 }), [], 'a held keyframe is not fetched again');
 });
 
 test('tiles around a point; errors carry the server code', async () => {

@@ -1,9 +1,11 @@
 // cloudscape clouds in three.js, two ways:
 //
-// - mode=billboards (default): the tile's shaded metaballs (billboards.bin) as one
-//   InstancedMesh of camera-facing quads, sorted back to front, each textured with the
-//   splat of the server's sheet (/v1/splats.png) nearest its optical depth, animated
-//   between keyframes by the documented rule (clients/js billboardsAt);
+// - mode=billboards (default): the tile's shaded metaballs as one InstancedMesh of
+//   camera-facing quads, sorted back to front, each textured with the splat of the
+//   server's sheet (/v1/splats.png) nearest its optical depth, animated between
+//   keyframes by the documented rule (clients/js billboardsAt). The JS client fetches
+//   a tile's first keyframe as billboards.bin and, animating, every later one as
+//   billboards.delta.bin decoded on the keyframe it holds (CloudscapeClient.keyframe);
 // - mode=volume: the density tile (density.u8) of the keyframes on either side of t as
 //   two Data3DTextures, blended by the rule (render::keyframe::blend_density_at) and
 //   ray-marched in a fragment shader with Beer–Lambert extinction and a shadow ray
@@ -51,7 +53,7 @@ const params = {
   rate: num('rate', 4),
 };
 const info = document.getElementById('info');
-const status = { ready: false, error: null, mode: params.mode, instances: 0, tiles: 0, keyframes: [], requests: 0 };
+const status = { ready: false, error: null, mode: params.mode, instances: 0, tiles: 0, keyframes: [], forms: [], requests: 0 };
 
 const client = new CloudscapeClient(params.server, { quality: params.quality });
 const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
@@ -164,13 +166,17 @@ async function billboards(world, tiles) {
   let mesh = null;
   let loadedFor = '';
 
-  /** The tiles' keyframes holding t (fetched once each; the next ones prefetched past the middle). */
+  /**
+   * The tiles' keyframes holding t: held by the client once fetched, the next ones
+   * prefetched past each tile's prefetch point as deltas on them.
+   */
   async function load(t) {
     const key = tiles.map((tile) => keyframeOf(world.layers.find((l) => l.name === tile.layer), tile.z, t).t0).join();
     if (key === loadedFor) return;
-    loaded = await Promise.all(tiles.map((tile) => client.billboardTile(world, tile, { ...at, t, shadow: false })));
+    loaded = await Promise.all(tiles.map((tile) => client.billboardTile(world, tile, { ...at, t })));
     loadedFor = key;
     status.keyframes = loaded.map((l) => [l.billboards.header.t0, l.billboards.header.t1]);
+    status.forms = loaded.map((l) => l.billboards.header.form);
   }
 
   /** Rebuilds the instances at time t, sorted back to front from the eye. */
@@ -323,7 +329,7 @@ async function ktx2Texture(url) {
 
 async function volumes(world, tiles) {
   // The lighting of the tile (billboards.bin's header), so both modes shade alike.
-  const lit = (await client.billboardTile(world, tiles[0], { t: params.t, quality: params.quality, sun: params.sun, shadow: false })).billboards.header.lighting;
+  const lit = (await client.keyframe(world, tiles[0], { t: params.t, quality: params.quality, sun: params.sun })).header.lighting;
   const toThree = (v) => new THREE.Vector3(...zUpToYUp(v));
   for (const tile of tiles) {
     const layer = world.layers.find((l) => l.name === tile.layer);

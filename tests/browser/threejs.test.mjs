@@ -8,8 +8,10 @@
 // two keyframes: the billboard mode (InstancedMesh) and the volume mode (density.u8 as
 // a Data3DTexture, ray-marched) both draw clouds where coverage.png says cloud; the
 // KTX2 mode loads density.ktx2 through three.js's KTX2Loader as a 3D texture and
-// draws the same; and the page fetches the tiles from the tile server's own origin
-// (CORS) when the server sends CORS headers. Screenshots go to OUT_DIR.
+// draws the same; animating across a keyframe, the billboard mode reads the next
+// keyframe as a delta (billboards.delta.bin) on the one it holds, through the JS
+// client; and the page fetches the tiles from the tile server's own origin (CORS)
+// when the server sends CORS headers. Screenshots go to OUT_DIR.
 
 import { mkdirSync } from 'node:fs';
 import { join } from 'node:path';
@@ -124,6 +126,29 @@ try {
 
   const b = await drawsWhereCoverageSays(context, 'billboards', 'three.js billboards (InstancedMesh)');
   check('three.js billboards: draws instances', b && b.instances > 100, `${b && b.instances} instances`);
+
+  // Animating (4 world seconds a second) from 43212 across the keyframe at 43220.
+  {
+    const { page, log, status } = await open(context, `${SCENE}&mode=billboards&animate=1&rate=4`);
+    check('three.js billboards animating: the page loads', !status.error, status.error || '');
+    if (!status.error) {
+      await page.waitForFunction(() => window.example.status.keyframes[0]?.[0] === 43220, null, { timeout: LOAD_TIMEOUT_MS, polling: 250 });
+      await page.screenshot({ path: join(outDir, 'threejs-billboards-next.png') });
+      const forms = await page.evaluate(() => window.example.status.forms);
+      const billboards = log.requests
+        .map((u) => new URL(u))
+        .filter((u) => /\/billboards(\.delta)?\.bin$/.test(u.pathname))
+        .map((u) => `${u.pathname.split('/').pop()}@${u.searchParams.get('t')}`);
+      check(
+        'three.js billboards animating: the first keyframe whole, the next a delta on it (JS client)',
+        billboards.includes('billboards.bin@43200') && billboards.includes('billboards.delta.bin@43220') &&
+          !billboards.includes('billboards.bin@43220') && forms[0] === 'delta',
+        `${JSON.stringify(billboards)}; drawn ${JSON.stringify(forms)}`,
+      );
+      check('three.js billboards animating: logs no console errors', log.errors.length === 0, log.errors.slice(0, 3).join(' | '));
+    }
+    await page.close();
+  }
   await drawsWhereCoverageSays(context, 'volume', 'three.js volume (density.u8 as Data3DTexture)');
 
   // density.ktx2 through KTX2Loader, when the server has the product.

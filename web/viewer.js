@@ -1,31 +1,50 @@
-// cloudscape viewer: a thin WebGL2 client of the tile server.
+// cloudscape viewer: a thin WebGL2 client of the tile server, built on its JS client
+// (`/client/cloudscape.js`, clients/js): one decoder, one keyframe rule, one fetch
+// policy for the viewer and for games.
 //
 // It fetches, for the tiles around the camera, the shaded metaball instances
-// (`billboards.bin`) and ground shadow maps (`shadow.png`), plus the splat sprite
-// sheet (`/v1/splats.png`), and draws camera-facing billboards textured with their
-// splat, sorted back to front and blended over a sky and a shadowed ground plane.
-// Level choice follows the server's renderer (src/render/scene.rs `plan`): a quadtree
-// per layer, split while a column would span more than the preset's `lod_pixels`.
+// (`billboards.bin`), plus the splat sprite sheet (`/v1/splats.png`) and the sky of the
+// tiles' sun (`/v1/sky.json`), and draws camera-facing billboards textured with their
+// splat, sorted back to front and blended over a sky and a shadowed ground plane. The
+// ground shadow is not fetched: each tile's maps are derived from the billboards of
+// the layer's tiles the view holds (the client's ShadowDerivation, the rule of
+// crates/cloudscape-core/src/view/held.rs), a frame's budget at a time. Level choice
+// follows the server's renderer (src/render/scene.rs `plan`): a quadtree per layer,
+// split while a column would span more than the preset's `lod_pixels`.
 //
 // Tile products are keyframes (src/world/keyframe.rs): a tile of level z is fetched at
 // t0 = floor(t / span) · span, span the layer's `keyframe_spans[min(z, 4)]` from
-// discovery, so its URL is the same for the whole span and `immutable`. Between t0 and
-// t1 = t0 + span the viewer animates it by the documented rule (the doc comment of
-// src/products/billboards.rs, render::keyframe): with f = (t − t0) / span, each
-// billboard moves by its wind velocity · (t − t0), and its centre optical depth,
-// colour and sun optical depth are linear in f; the shadow map blends its R (t0) and
-// G (t1) channels by f. Past a point in the second half of a span (each tile's own,
-// prefetchAt below: players sharing the clock do not all ask at once) the next
-// keyframe's products are prefetched, so the boundary costs no wait.
+// discovery, so its URL is the same for the whole span and `immutable`. A tile's first
+// keyframe is `billboards.bin` (self-contained); every later one is
+// `billboards.delta.bin`, decoded on the keyframe before it, which the client holds
+// decoded. Between t0 and t1 = t0 + span the viewer animates it by the documented rule
+// (docs/formats.md, "Animation"): with f = (t − t0) / span, each billboard moves by its
+// wind velocity · (t − t0), and its centre optical depth, colour and sun optical depth
+// are linear in f; the shadow maps of the two ends blend by f. Past a point in the
+// second half of a span (each tile's own, prefetchAt: players sharing the clock do not
+// all ask at once) the next keyframe is prefetched, so the boundary costs no wait.
 //
 // Immutable bodies are kept (in memory, and in the Cache Storage API across reloads)
 // and never asked for again. Anything else revalidates with the ETag it was last
 // given; a 304 reuses the stored bytes. Tiles that leave the view are dropped.
 //
-// State can be given in the URL: ?world=&t=&camera=X,Y,Z,YAW,PITCH,FOV&quality=
-// &sun=AZ,EL&layers=a,b&view=METRES (the page keeps the URL up to date).
+// The drawn time follows the world clock (discovery's `clock`, as a player's client
+// does) unless the URL gives `t` or the time slider is moved. State can be given in
+// the URL: ?world=&t=&camera=X,Y,Z,YAW,PITCH,FOV&quality=&sun=AZ,EL&layers=a,b
+// &view=METRES&weather=off&rate=R (R world seconds per second while following the
+// clock, instead of the clock's own rate). The page keeps the URL up to date.
 
-'use strict';
+import {
+  CloudscapeClient,
+  ShadowDerivation,
+  TILE_COLUMNS,
+  fraction,
+  keyframeOf,
+  keyframeSun,
+  prefetchAt,
+  shadowShift,
+  worldClock,
+} from '/client/cloudscape.js';
 
 // ---------------------------------------------------------------------------
 // Constants shared with the server (src/render/*.rs).
@@ -33,12 +52,11 @@
 
 /** Splits a tile while one of its columns would cover more pixels than this (QualitySettings::lod_pixels). */
 const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
-/** Columns per tile side. */
-const TILE_COLUMNS = 256;
 /**
  * ShadingParams::default() (src/render/light.rs): what a version-1 billboards.bin (no
- * lighting in its header) is drawn with. Version 2 carries albedo, phase, octaves and
- * the sun's radiance in its header; the detail erosion strength is the viewer's own.
+ * lighting in its header) is drawn with. Later versions carry albedo, phase, octaves
+ * and the sun's radiance in their header; the detail erosion strength is the viewer's
+ * own.
  */
 const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
@@ -51,18 +69,24 @@ const MIN_WAVELENGTH_PIXELS = 2;
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
 const MAX_IN_FLIGHT = 4;
-/** Header and record bytes of billboards.bin by format version (src/products/billboards.rs). */
-const BIN_SIZES = { 1: [64, 36], 2: [160, 56] };
 /**
  * Floats per instance in the GPU buffer: centre xyz at t0 and radius; velocity xy, t0
  * (relative to `timeOrigin`) and span; colour rgb at t0; colour rgb at t1; centre
  * optical depth at t0, t1; sun optical depth at t0, t1.
  */
 const INSTANCE_FLOATS = 18;
-/** Immutable bodies kept in memory (a view holds at most MAX_TILES tiles, two products, two keyframes). */
+/** Bodies kept in memory (precipitation maps, splat sheets, skies; billboards are held decoded). */
 const MAX_HELD = 8 * MAX_TILES;
-/** Cache Storage bucket of revalidatable responses. */
+/** Cache Storage bucket of immutable and revalidatable responses. */
 const CACHE_NAME = 'cloudscape-v1';
+/** Main-thread time per frame given to deriving ground shadows, ms (at least one step a frame). */
+const SHADOW_BUDGET_MS = 6;
+/** Balls a shadow derivation adds between two looks at the clock. */
+const SHADOW_STEP = 2000;
+/** A frame drawn within this (ms) is followed by the next at once when only the time moved. */
+const TIME_FRAME_MS = 50;
+/** Least wall time between two sorts of the billboards while only the time moves, ms. */
+const RESORT_MS = 250;
 /** Lightning (issue 24): the world-time window and half side (m) of one /lightning query. */
 const LIGHTNING_WINDOW = 300;
 const LIGHTNING_HALF_SIDE = 20000;
@@ -93,10 +117,6 @@ function basis(cam) {
   return { forward, right, up };
 }
 
-function sunDirection(az, el) {
-  return [Math.sin(rad(az)) * Math.cos(rad(el)), Math.cos(rad(az)) * Math.cos(rad(el)), Math.sin(rad(el))];
-}
-
 /**
  * Lighting of the current sky (`GET /v1/sky.json`, src/products/sky.rs): the server's
  * atmosphere for the sun bucket the tiles are shaded for, so the sky, sun colour,
@@ -121,10 +141,16 @@ function parseNumbers(s, n) {
 
 const DEFAULT_CAMERA = [12800, -6000, 900, 0, 6, 75];
 const camArr = parseNumbers(query.get('camera'), 6) || DEFAULT_CAMERA;
+const fixedT = query.get('t') !== null && query.get('t') !== '' && Number.isFinite(Number(query.get('t'))) ? Number(query.get('t')) : null;
 const state = {
   world: query.get('world') || 'default',
   quality: LOD_PIXELS[query.get('quality')] ? query.get('quality') : 'fast',
-  t: Number.isFinite(Number(query.get('t'))) && query.get('t') !== null ? Number(query.get('t')) : 43200,
+  /** The drawn time, world seconds (while following the clock: the clock's now). */
+  t: fixedT ?? 43200,
+  /** Whether the drawn time follows the world clock (no `t` in the URL, the slider untouched). */
+  follow: fixedT === null,
+  /** World seconds per second while following the clock (`rate=`), or null for the clock's own. */
+  rate: Number(query.get('rate')) > 0 ? Number(query.get('rate')) : null,
   camera: { x: camArr[0], y: camArr[1], z: camArr[2], yaw: camArr[3], pitch: camArr[4], fov: camArr[5] },
   /** Manual sun [az, el], or null to follow the world clock (the server's choice). */
   sun: parseNumbers(query.get('sun'), 2),
@@ -136,29 +162,35 @@ const state = {
   playing: false,
 };
 
-/** Counters the HUD shows and tests read. */
-const stats = {
-  requests: 0,
-  /** Responses with a body (200). */
-  fetched: 0,
-  /** 304 answers to If-None-Match: the stored bytes were reused. */
-  revalidations: 0,
-  /** Immutable (keyframe) bodies used again without a request. */
-  reused: 0,
-  /** Next-keyframe requests made ahead of need. */
-  prefetched: 0,
-  /** Decoded body bytes of 200 responses. */
-  bodyBytes: 0,
+/** The client every request goes through; tile URLs it asks for are listed in `stats.urls`. */
+const client = new CloudscapeClient('', {
+  quality: state.quality,
+  maxBodies: MAX_HELD,
+  // No Cache Storage (an insecure context): memory only.
+  cache: (async () => (typeof caches === 'undefined' ? null : caches.open(CACHE_NAME)))().catch(() => null),
+  fetch: (url, init) => {
+    if (url.includes('/tiles/')) viewerStats.urls.push(url);
+    return fetch(url, init);
+  },
+});
+
+/** Counters of the viewer itself (the HUD shows them, tests read them through `stats`). */
+const viewerStats = {
   /** Bytes on the wire (Resource Timing transferSize: headers + encoded body). */
   transferBytes: 0,
   failures: 0,
   drawCalls: 0,
+  /** Frames drawn (a frame that would show what the last one showed is not drawn). */
+  frames: 0,
   billboards: 0,
   /** Whether the detail-erosion pass ran in the last frame (needs float render targets). */
   erosion: false,
   frameMs: 0,
   /** Tile URLs requested, in order. */
   urls: [],
+  /** Ground shadow maps derived, and the main-thread time they took (ms). */
+  shadows: 0,
+  shadowMs: 0,
   /** Drawn tiles with a precipitation map, and the rain or snow at the eye (mm/h). */
   precipitationTiles: 0,
   eyeRate: 0,
@@ -168,109 +200,36 @@ const stats = {
   flashes: 0,
 };
 
+/** The viewer's counters, and the client's under the names the HUD and tests read. */
+const stats = Object.defineProperties(viewerStats, {
+  requests: { get: () => client.stats.requests, enumerable: true },
+  /** Responses with a body (200). */
+  fetched: { get: () => client.stats.fetched, enumerable: true },
+  /** 304 answers to If-None-Match: the stored bytes were reused. */
+  revalidations: { get: () => client.stats.revalidated, enumerable: true },
+  /** Immutable bodies (memory or Cache Storage) and held keyframes used again without a request. */
+  reused: { get: () => client.stats.reused, enumerable: true },
+  /** Next-keyframe products asked for ahead of need. */
+  prefetched: { get: () => client.stats.prefetched, enumerable: true },
+  /** Delta keyframes (billboards.delta.bin) fetched. */
+  deltas: { get: () => client.stats.deltas, enumerable: true },
+  /** Decoded body bytes of 200 responses. */
+  bodyBytes: { get: () => client.stats.bodyBytes, enumerable: true },
+});
+
 let worldInfo = null;
+/** The world time of the world's clock now (worldClock of its discovery). */
+let clockNow = null;
 let splatInfo = null;
 /** The parsed /v1/sky.json of the current sun, its URL, and its radiance table as a texture. */
 let skyInfo = null;
-let skyUrlLoaded = '';
 let skyUrlLoading = '';
 let skyTexture = null;
 
-// ---------------------------------------------------------------------------
-// Network: ETag revalidation through the Cache Storage API.
-// ---------------------------------------------------------------------------
-
-const sleep = (ms) => new Promise((r) => setTimeout(r, ms));
-let cacheStore = null;
-const cacheReady = (async () => {
-  try {
-    cacheStore = await caches.open(CACHE_NAME);
-  } catch {
-    cacheStore = null; // no Cache Storage (insecure context): plain fetches
-  }
-})();
-
 performance.setResourceTimingBufferSize?.(100000);
 new PerformanceObserver((list) => {
-  for (const e of list.getEntries()) stats.transferBytes += e.transferSize || 0;
+  for (const e of list.getEntries()) viewerStats.transferBytes += e.transferSize || 0;
 }).observe({ type: 'resource', buffered: true });
-
-/** Bodies of immutable URLs by URL, oldest first (a Map keeps insertion order). */
-const held = new Map();
-
-function hold(url, body) {
-  held.delete(url);
-  held.set(url, body);
-  while (held.size > MAX_HELD) held.delete(held.keys().next().value);
-}
-
-const isImmutable = (cacheControl) =>
-  (cacheControl || '').split(',').some((d) => d.trim().toLowerCase() === 'immutable');
-
-/**
- * GETs `url` and returns its body. An immutable body already held (in memory, or in
- * Cache Storage from an earlier visit) is returned without a request; any other
- * stored copy is revalidated with If-None-Match. Retries 503 (overload) after
- * Retry-After.
- */
-async function fetchBytes(url, { track = true } = {}) {
-  const mem = held.get(url);
-  if (mem) {
-    stats.reused++;
-    hold(url, mem);
-    return mem;
-  }
-  await cacheReady;
-  const stored = cacheStore ? await cacheStore.match(url) : undefined;
-  if (stored && isImmutable(stored.headers.get('Cache-Control'))) {
-    const body = await stored.arrayBuffer();
-    stats.reused++;
-    hold(url, body);
-    return body;
-  }
-  const etag = stored && stored.headers.get('ETag');
-  const headers = etag ? { 'If-None-Match': etag } : {};
-  for (let attempt = 0; ; attempt++) {
-    stats.requests++;
-    if (track) stats.urls.push(url);
-    const res = await fetch(url, { cache: 'no-store', headers });
-    if (res.status === 304 && stored) {
-      stats.revalidations++;
-      return stored.arrayBuffer();
-    }
-    if (res.status === 503 && attempt < 10) {
-      const after = Number(res.headers.get('Retry-After'));
-      await sleep(Number.isFinite(after) && after > 0 ? after * 1000 : 250 * 2 ** Math.min(attempt, 4));
-      continue;
-    }
-    if (!res.ok) {
-      let message = `${res.status}`;
-      try {
-        message = (await res.json()).message || message;
-      } catch { /* not JSON */ }
-      throw new Error(`${url}: ${message}`);
-    }
-    const body = await res.arrayBuffer();
-    stats.fetched++;
-    stats.bodyBytes += body.byteLength;
-    const tag = res.headers.get('ETag');
-    const cacheControl = res.headers.get('Cache-Control') || '';
-    if (isImmutable(cacheControl)) hold(url, body);
-    if (cacheStore && tag) {
-      const h = {
-        ETag: tag,
-        'Cache-Control': cacheControl,
-        'Content-Type': res.headers.get('Content-Type') || 'application/octet-stream',
-      };
-      await cacheStore.put(url, new Response(body.slice(0), { headers: h }));
-    }
-    return body;
-  }
-}
-
-async function fetchJson(url) {
-  return JSON.parse(new TextDecoder().decode(await fetchBytes(url, { track: false })));
-}
 
 async function decodeImage(bytes, type) {
   return createImageBitmap(new Blob([bytes], { type }), {
@@ -434,7 +393,10 @@ const skyProgram = compile(
 );
 
 // Ground shadow of one tile: multiplies the ground by (lit with T) / (lit with T = 1),
-// both hazed. The tiles (and so the shadows) end near the view distance: over its last
+// both hazed. T is read from the tile's derived maps (R at its keyframe's t0, G at t1,
+// blended by the drawn time), bilinearly between column centres, where the sun ray
+// from the ground point crosses the layer's base (the quad is shifted away from the
+// sun: render::tile::shadow_lookup after shadow_shift). The tiles (and so the shadows) end near the view distance: over its last
 // 30 % the shadow turns into the layer's mean shadow `far`, and beyond it a quad of
 // `far` alone (mode 1) stands in for the unknown clouds (scene::background does the
 // same), so the far ground has neither a hard edge nor a sunlit band.
@@ -446,7 +408,7 @@ const shadowProgram = compile(
   out vec3 rel;
   void main() {
     vec2 q = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
-    uv = vec2(q.x, 1.0 - q.y); // shadow.png row 0 is the northern edge
+    uv = q; // the derived maps' row 0 is the southern edge
     rel = vec3(rect.xy + q * rect.z, -rect.w);
     gl_Position = viewProj * vec4(rel, 1.0);
   }`,
@@ -454,7 +416,7 @@ const shadowProgram = compile(
   precision highp float;
   in vec2 uv;
   in vec3 rel;
-  uniform sampler2D shadow;  // R: transmittance at the keyframe's t0, G: at t1
+  uniform sampler2D shadow;  // R: transmittance at the keyframe's t0, G: at t1 (RG16F)
   uniform float shadowF;     // where the drawn time falls in the tile's span
   uniform float eyeZ, viewDistance, far, mode; // mode 0: a tile; 1: the far ground
   uniform vec3 forward, right, up;
@@ -1049,172 +1011,39 @@ function snapTime(t) {
   return Math.round(t / period) * period;
 }
 
-/**
- * The keyframe span of level `z` of `layer` that holds `t` (src/world/keyframe.rs):
- * `t0 = floor(t / span) · span`, span = `keyframe_spans[min(z, len − 1)]`. A server
- * without keyframes (no `keyframe_spans`) has products at every frame: an instant.
- */
-function keyframeOf(layer, z, t) {
-  const spans = layer.keyframe_spans;
-  if (!spans || !spans.length) {
-    const at = Math.round(t / layer.frame_seconds) * layer.frame_seconds;
-    return { t0: at, t1: at, span: 0 };
-  }
-  const span = spans[Math.min(z, spans.length - 1)];
-  let t0 = Math.floor(t / span) * span;
-  if (t0 > t) t0 -= span; // t / span rounded up
-  const t1 = Math.min(t0 + span, worldInfo.max_time);
-  return { t0, t1, span: t1 - t0 };
-}
-
-/** Where `t` falls in a keyframe span, 0..1 (0 for an instant). */
-const fractionOf = (k, t) => (k.span > 0 ? clamp((t - k.t0) / k.span, 0, 1) : 0);
-// The fraction of its span past which tile (z, x, y)'s next keyframe is fetched, in
-// [0.5, 0.8): cloudscape_core::world::prefetch_at, the same 32-bit arithmetic.
-function prefetchAt(z, x, y) {
-  let h = (Math.imul(x | 0, 0x9e3779b1) ^ Math.imul(y | 0, 0x85ebca77) ^ Math.imul((z + 1) | 0, 0xc2b2ae3d)) >>> 0;
-  h = (h ^ (h >>> 16)) >>> 0;
-  h = Math.imul(h, 0x7feb352d) >>> 0;
-  h = (h ^ (h >>> 15)) >>> 0;
-  return 0.5 + 0.3 * (h / 4294967296);
-}
-
-/** The parameters every tile URL of the current view shares, but for `t` (quality, sun). */
+/** The parameters every tile of the current view shares, but for `t` (quality, sun): part of a tile's key. */
 function generation() {
   let q = `quality=${state.quality}`;
   if (state.sun) q += `&sun=${state.sun[0]},${state.sun[1]}`;
   return q;
 }
 
-/** A tile product's URL at keyframe time `t0`: immutable, the same for the whole span. */
-function tileUrl(tile, product, gen, t0) {
-  return (
-    `/v1/worlds/${encodeURIComponent(state.world)}/tiles/${tile.z}/${tile.x}/${tile.y}/${product}` +
-    `?t=${t0}&${gen}&layer=${encodeURIComponent(tile.layerName)}`
-  );
+/** When and how the client asks for a tile: at `t`, in the view's quality and sun (none: the clock's). */
+function tileTime(t) {
+  return state.sun ? { t, quality: state.quality, sun: state.sun } : { t, quality: state.quality };
 }
 
-/** Loaded or loading tiles by key (`gen|layer/z/x/y@t0`). */
+/** A planned tile as the client names it. */
+const tileRef = (p) => ({ layer: p.layerName, z: p.z, x: p.x, y: p.y });
+
+/**
+ * Loaded or loading tiles by key (`gen|layer/z/x/y@t0`). A tile is `queued`, then
+ * `loading`, `shading` (its billboards decoded, its ground shadow being derived),
+ * `ready` (drawn) or `failed`.
+ */
 const tiles = new Map();
 /** Keys the current plan wants. */
 let wanted = [];
 let queue = [];
-/** Next-keyframe URLs to fetch ahead of need when nothing else waits. */
+/** Tiles whose next keyframe to fetch ahead of need when nothing else waits: { key, tile }. */
 let prefetchQueue = [];
 const prefetching = new Set();
 let inFlight = 0;
 let instancesDirty = true;
 
-/** IEEE 754 binary16 → number, by table (WebGL2's HALF_FLOAT). */
-const HALF = (() => {
-  const t = new Float32Array(65536);
-  for (let h = 0; h < 65536; h++) {
-    const sign = h & 0x8000 ? -1 : 1;
-    const e = (h >> 10) & 0x1f;
-    const m = h & 0x3ff;
-    t[h] = sign * (e === 0 ? m * 2 ** -24 : e === 31 ? (m ? NaN : Infinity) : (1 + m / 1024) * 2 ** (e - 15));
-  }
-  return t;
-})();
-
-/** The τ_k of splat `k` (src/render/splats.rs: tau_max · ((k + 1) / count)²). */
-const splatTau = (k, count, tauMax) => tauMax * ((Math.min(k, count - 1) + 1) / count) ** 2;
-
-/**
- * Decodes billboards.bin, version 2 (a keyframe: both ends of each billboard, lighting
- * in the header) or version 1 (one time, no lighting), into instance floats (centres
- * relative to the tile origin, t0 relative to the keyframe's own t0). `t` is the
- * time a version-1 tile was asked for.
- */
-function decodeBillboards(buf, t) {
-  const v = new DataView(buf);
-  const magic = String.fromCharCode(v.getUint8(0), v.getUint8(1), v.getUint8(2), v.getUint8(3));
-  const version = v.getUint16(4, true);
-  const sizes = BIN_SIZES[version];
-  if (magic !== 'CSBB' || !sizes || v.getUint16(6, true) !== sizes[1]) {
-    throw new Error(`billboards.bin: unknown format (version ${version})`);
-  }
-  const [headerBytes, recordBytes] = sizes;
-  const count = v.getUint32(8, true);
-  if (buf.byteLength !== headerBytes + count * recordBytes) throw new Error('billboards.bin: truncated');
-  const f32 = (o) => v.getFloat32(o, true);
-  const vec3 = (o) => [f32(o), f32(o + 4), f32(o + 8)];
-  const header = {
-    version,
-    origin: [v.getFloat64(32, true), v.getFloat64(40, true)],
-    sun: [f32(48), f32(52)],
-    splatCount: v.getUint16(56, true),
-    t0: t,
-    t1: t,
-    lighting: null,
-  };
-  if (version >= 2) {
-    header.t0 = v.getFloat64(64, true);
-    header.t1 = v.getFloat64(72, true);
-    header.lighting = {
-      sunDir: vec3(80),
-      sunRgb: vec3(92),
-      ambient: vec3(104),
-      albedo: f32(116),
-      extinction: f32(120),
-      phase: vec3(124),
-      octaves: [v.getUint32(136, true), f32(140), f32(144), f32(148)],
-      algorithmVersion: v.getUint32(152, true),
-    };
-  }
-  const span = header.t1 - header.t0;
-  const data = new Float32Array(count * INSTANCE_FLOATS);
-  const tauMax = splatInfo.tauMax;
-  const splats = splatInfo.count;
-  for (let i = 0; i < count; i++) {
-    const o = headerBytes + i * recordBytes;
-    const d = i * INSTANCE_FLOATS;
-    data[d] = f32(o);
-    data[d + 1] = f32(o + 4);
-    data[d + 2] = f32(o + 8);
-    data[d + 3] = f32(o + 12);
-    data[d + 6] = 0; // t0, made relative to the buffer's time origin when drawn
-    data[d + 7] = span;
-    if (version >= 2) {
-      data[d + 4] = f32(o + 16);
-      data[d + 5] = f32(o + 20);
-      for (let c = 0; c < 3; c++) {
-        data[d + 8 + c] = HALF[v.getUint16(o + 36 + 2 * c, true)];
-        data[d + 11 + c] = HALF[v.getUint16(o + 42 + 2 * c, true)];
-      }
-      data[d + 14] = f32(o + 24);
-      data[d + 15] = f32(o + 28);
-      data[d + 16] = HALF[v.getUint16(o + 48, true)];
-      data[d + 17] = HALF[v.getUint16(o + 50, true)];
-    } else {
-      // One time: both ends the same, the optical depth the splat's own.
-      const tau = splatTau(v.getUint16(o + 16, true), splats, tauMax);
-      for (let c = 0; c < 3; c++) data[d + 8 + c] = data[d + 11 + c] = f32(o + 20 + 4 * c);
-      data[d + 14] = data[d + 15] = tau;
-      data[d + 16] = data[d + 17] = f32(o + 32);
-    }
-  }
-  return { header, count, data };
-}
-
-/** Mean of the red and green channels (0..1) of a shadow map: the tile's mean sun transmittance at t0 and t1. */
-function meanOf(image) {
-  const d = pixelsOf(image);
-  let r = 0;
-  let g = 0;
-  for (let i = 0; i < d.length; i += 4) {
-    r += d[i];
-    g += d[i + 1];
-  }
-  const n = 255 * (d.length / 4);
-  return [r / n, g / n];
-}
-
-/** The tile products the viewer draws of a layer: precipitation.png where it can rain or snow. */
-function tileProducts(layer) {
-  return state.weather && layer.precipitates
-    ? ['billboards.bin', 'shadow.png', 'precipitation.png']
-    : ['billboards.bin', 'shadow.png'];
+/** Tile products the viewer fetches besides the billboards: precipitation.png where the layer can rain or snow. */
+function extraProducts(layer) {
+  return state.weather && layer.precipitates ? ['precipitation.png'] : [];
 }
 
 /** An image's RGBA bytes (row 0 first), for reading values on the CPU. */
@@ -1225,13 +1054,75 @@ function pixelsOf(image) {
   return ctx.getImageData(0, 0, image.width, image.height).data;
 }
 
+/**
+ * A decoded keyframe's billboards as instance floats (centres relative to the tile
+ * origin; t0 made relative to the buffer's time origin when drawn).
+ */
+function instanceData(k) {
+  const { count, records: r, header } = k;
+  const span = header.t0 !== null && header.t1 !== null ? header.t1 - header.t0 : 0;
+  const data = new Float32Array(count * INSTANCE_FLOATS);
+  for (let i = 0; i < count; i++) {
+    const d = i * INSTANCE_FLOATS;
+    data[d] = r.offset[3 * i];
+    data[d + 1] = r.offset[3 * i + 1];
+    data[d + 2] = r.offset[3 * i + 2];
+    data[d + 3] = r.radius[i];
+    data[d + 4] = r.velocity[2 * i];
+    data[d + 5] = r.velocity[2 * i + 1];
+    data[d + 7] = span;
+    for (let c = 0; c < 3; c++) {
+      data[d + 8 + c] = r.colour[6 * i + c];
+      data[d + 11 + c] = r.colour[6 * i + 3 + c];
+    }
+    data[d + 14] = r.splatTau[2 * i];
+    data[d + 15] = r.splatTau[2 * i + 1];
+    data[d + 16] = r.tauSun[2 * i];
+    data[d + 17] = r.tauSun[2 * i + 1];
+  }
+  return data;
+}
+
+/**
+ * The rectangle of the layer's base, [x0, y0, x1, y1] in metres, that a keyframe's
+ * balls can shadow at either end for the tile's own sun (null with the sun down): a
+ * tile's shadow is cast only by tiles whose reach touches it.
+ */
+function shadowReach(k, base) {
+  const s = keyframeSun(k);
+  if (!(s[2] > 0) || !k.count) return null;
+  const r = k.records;
+  const o = k.header.origin;
+  const span = k.header.t1 - k.header.t0 || 0;
+  let maxR = 0;
+  const box = [Infinity, Infinity, -Infinity, -Infinity];
+  for (let b = 0; b < k.count; b++) {
+    maxR = Math.max(maxR, r.radius[b]);
+    const lift = (r.offset[3 * b + 2] - base) / s[2];
+    for (let e = 0; e < 2; e++) {
+      const x = o[0] + r.offset[3 * b] + r.velocity[2 * b] * span * e - s[0] * lift;
+      const y = o[1] + r.offset[3 * b + 1] + r.velocity[2 * b + 1] * span * e - s[1] * lift;
+      box[0] = Math.min(box[0], x);
+      box[1] = Math.min(box[1], y);
+      box[2] = Math.max(box[2], x);
+      box[3] = Math.max(box[3], y);
+    }
+  }
+  // The footprint of a ball reaches r / s_z from its centre's.
+  const m = maxR / s[2];
+  return [box[0] - m, box[1] - m, box[2] + m, box[3] + m];
+}
+
 async function loadTile(tile) {
-  const products = tileProducts(worldInfo.layers[tile.layer]);
-  const [bin, png, rain] = await Promise.all(products.map((p) => fetchBytes(tileUrl(tile, p, tile.gen, tile.t0))));
-  const decoded = decodeBillboards(bin, tile.t0);
-  const image = await decodeImage(png, 'image/png');
+  const layer = worldInfo.layers[tile.layer];
+  const at = tileTime(tile.t0);
+  const ref = tileRef(tile);
+  const [decoded, rain] = await Promise.all([
+    client.keyframe(worldInfo, ref, at),
+    ...extraProducts(layer).map((p) => client.bytes(client.tilePath(worldInfo, ref, p, at))),
+  ]);
   const rainImage = rain ? await decodeImage(rain, 'image/png') : null;
-  return { decoded, image, rainImage };
+  return { decoded, rainImage };
 }
 
 function pump() {
@@ -1242,8 +1133,9 @@ function pump() {
       continue;
     }
     inFlight++;
+    tile.state = 'loading';
     loadTile(tile)
-      .then(({ decoded, image, rainImage }) => {
+      .then(({ decoded, rainImage }) => {
         if (!tiles.has(tile.key)) return;
         if (rainImage) {
           // precipitation.png (src/products/precipitation.rs): R rate, G snow at sea
@@ -1258,20 +1150,23 @@ function pump() {
           }
           rainImage.close?.();
         }
+        const base = worldInfo.layers[tile.layer].base;
         tile.billboards = decoded;
-        tile.sun = decoded.header.sun;
+        tile.instances = instanceData(decoded);
+        tile.held = { layer: tile.layer, base, keyframe: decoded };
+        tile.reach = shadowReach(decoded, base);
+        tile.sun = [decoded.header.sun.azimuthDeg, decoded.header.sun.elevationDeg];
         // The span the bytes say they cover (a version-1 tile: an instant).
-        tile.t0 = decoded.header.t0;
-        tile.t1 = decoded.header.t1;
-        tile.shadow = texture(image, gl.LINEAR);
-        tile.meanShadow = meanOf(image);
-        image.close?.();
-        tile.state = 'ready';
-        instancesDirty = true;
-        dropUnneeded();
+        tile.t0 = decoded.header.t0 ?? tile.t0;
+        tile.t1 = decoded.header.t1 ?? tile.t0;
+        // Drawn once its ground shadow is derived (the tile it replaces stands in
+        // until then); the shadows its balls reach are derived again.
+        tile.state = 'shading';
+        queueShadow(tile);
+        shadowsTouchedBy(tile);
       })
       .catch((e) => {
-        stats.failures++;
+        viewerStats.failures++;
         tile.state = 'failed';
         showError(e.message);
       })
@@ -1280,57 +1175,65 @@ function pump() {
         pump();
       });
   }
-  // Ahead of need, when the view's own tiles are all asked for.
-  while (inFlight < MAX_IN_FLIGHT && !queue.length && prefetchQueue.length) {
-    const url = prefetchQueue.shift();
-    if (held.has(url) || prefetching.has(url)) continue;
+  // Ahead of need, when the view's own tiles are all asked for; one request stays free
+  // for a tile the view needs next.
+  while (inFlight < MAX_IN_FLIGHT - 1 && !queue.length && prefetchQueue.length) {
+    const { key, tile } = prefetchQueue.shift();
+    if (prefetching.has(key)) continue;
     inFlight++;
-    prefetching.add(url);
-    stats.prefetched++;
-    fetchBytes(url)
-      .catch(() => {
-        // The tile is asked for again when its keyframe comes; an error shows then.
-      })
-      .finally(() => {
-        prefetching.delete(url);
-        inFlight--;
-        pump();
-      });
+    prefetching.add(key);
+    const products = ['billboards.bin', ...extraProducts(worldInfo.layers[tile.layer])];
+    // Errors are the client's to swallow: the tile is asked for again when its keyframe comes.
+    client.prefetchNext(worldInfo, tileRef(tile), tileTime(state.t), products).finally(() => {
+      prefetching.delete(key);
+      inFlight--;
+      pump();
+    });
   }
+}
+
+/** Whether the client holds everything of a planned tile's keyframe `t0` (prefetched). */
+function holdsKeyframe(p, t0) {
+  const ref = tileRef(p);
+  const at = tileTime(t0);
+  return (
+    client.keyframes.get(client.variant(worldInfo, ref, at), t0) !== null &&
+    extraProducts(worldInfo.layers[p.layer]).every((product) => client.holds(client.tilePath(worldInfo, ref, product, at)))
+  );
 }
 
 /**
  * Re-plans, queues the new tiles (each at the keyframe that holds `state.t`), queues
- * the next keyframe of tiles past the middle of their span, and drops the tiles no
- * longer needed.
+ * the next keyframe of tiles past their prefetch point, and drops the tiles no longer
+ * needed.
  */
 function updateTiles() {
   if (!worldInfo) return;
   loadSky().catch((e) => {
-    stats.failures++;
+    viewerStats.failures++;
     showError(e.message);
   });
   loadLightning().catch((e) => {
-    stats.failures++;
+    viewerStats.failures++;
     showError(e.message);
   });
   const gen = generation();
   const planned = plan();
   const next = [];
   wanted = planned.map((p) => {
-    const k = keyframeOf(worldInfo.layers[p.layer], p.z, state.t);
+    const k = keyframeOf(worldInfo.layers[p.layer], p.z, state.t, worldInfo.max_time);
     const key = `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}@${k.t0}`;
     if (!tiles.has(key)) {
       const tile = { ...p, key, gen, t0: k.t0, t1: k.t1, state: 'queued' };
       tiles.set(key, tile);
       queue.push(tile);
     }
-    if (k.span > 0 && fractionOf(k, state.t) >= prefetchAt(p.z, p.x, p.y)) {
-      for (const product of tileProducts(worldInfo.layers[p.layer])) next.push(tileUrl(p, product, gen, k.t1));
+    if (k.span > 0 && k.f >= prefetchAt(p.z, p.x, p.y) && !holdsKeyframe(p, k.t1)) {
+      next.push({ key: `${gen}|${p.layerName}/${p.z}/${p.x}/${p.y}@${k.t1}`, tile: p });
     }
     return key;
   });
-  prefetchQueue = next.filter((u) => !held.has(u) && !prefetching.has(u));
+  prefetchQueue = next.filter((n) => !prefetching.has(n.key));
   // Nearest first.
   const cam = state.camera;
   const centreDistance = (t) => Math.hypot(t.origin[0] + t.size / 2 - cam.x, t.origin[1] + t.size / 2 - cam.y);
@@ -1364,12 +1267,132 @@ function dropTile(key) {
   if (tile.shadow) gl.deleteTexture(tile.shadow);
   if (tile.rain) gl.deleteTexture(tile.rain);
   tiles.delete(key);
+  shadowJobs.delete(key);
   queue = queue.filter((t) => t.key !== key);
+  // The shadows it was cast into lose its balls.
+  for (const k of wanted) {
+    const t = tiles.get(k);
+    if (t && t.shadowSources && t.shadowSources.includes(key)) queueShadow(t);
+  }
   instancesDirty = true;
 }
 
 function drawnTiles() {
   return [...tiles.values()].filter((t) => t.state === 'ready');
+}
+
+// ---------------------------------------------------------------------------
+// Ground shadows, derived from the billboards of the layer's tiles.
+// ---------------------------------------------------------------------------
+
+/** Shadow derivations waiting or under way, by tile key: { tile, derivation, sources, at, from }. */
+const shadowJobs = new Map();
+
+const tileRect = (t) => [t.origin[0], t.origin[1], t.origin[0] + t.size, t.origin[1] + t.size];
+const overlaps = (a, b) => Boolean(a && b) && a[0] <= b[2] && b[0] <= a[2] && a[1] <= b[3] && b[1] <= a[3];
+
+/** The loaded tiles whose balls may shadow `tile`: those of its layer the plan wants whose reach touches it. */
+function shadowSources(tile) {
+  const rect = tileRect(tile);
+  const out = [];
+  for (const k of wanted) {
+    const s = tiles.get(k);
+    if (s && s.billboards && s.layer === tile.layer && overlaps(s.reach, rect)) out.push(s);
+  }
+  if (!out.includes(tile)) out.push(tile);
+  return out;
+}
+
+/** (Re)starts the derivation of `tile`'s shadow maps; it keeps drawing its last ones meanwhile. */
+function queueShadow(tile) {
+  shadowJobs.set(tile.key, { tile, derivation: null, sources: null, at: 0, from: 0 });
+}
+
+/** `changed` loaded: the wanted tiles of its layer whose shadow its balls reach are derived again. */
+function shadowsTouchedBy(changed) {
+  for (const k of wanted) {
+    const t = tiles.get(k);
+    if (t && t !== changed && t.billboards && t.layer === changed.layer && overlaps(changed.reach, tileRect(t))) queueShadow(t);
+  }
+}
+
+/**
+ * Works on the queued derivations for about `budget` ms (at least one step of
+ * SHADOW_STEP balls): tiles waiting to be drawn first, then the nearest.
+ */
+function deriveShadows(budget) {
+  if (!shadowJobs.size) return;
+  const started = performance.now();
+  const cam = state.camera;
+  const distance = (t) => Math.hypot(t.origin[0] + t.size / 2 - cam.x, t.origin[1] + t.size / 2 - cam.y);
+  const jobs = [...shadowJobs.values()].sort(
+    (a, b) => (a.tile.state === 'shading' ? 0 : 1) - (b.tile.state === 'shading' ? 0 : 1) || distance(a.tile) - distance(b.tile),
+  );
+  let spent = false;
+  for (const job of jobs) {
+    const t = job.tile;
+    if (!job.derivation) {
+      job.derivation = new ShadowDerivation(t.held);
+      job.sources = shadowSources(t);
+    }
+    while (job.at < job.sources.length && !spent) {
+      const s = job.sources[job.at];
+      const to = Math.min(job.from + SHADOW_STEP, s.billboards.count);
+      job.derivation.add(s.held, job.from, to);
+      if (to >= s.billboards.count) {
+        job.at++;
+        job.from = 0;
+      } else {
+        job.from = to;
+      }
+      spent = performance.now() - started > budget;
+    }
+    if (job.at < job.sources.length) break;
+    if (shadowJobs.get(t.key) === job) {
+      shadowJobs.delete(t.key);
+      finishShadow(t, job.derivation.finish(), job.sources.map((s) => s.key));
+    }
+    if (spent) break;
+  }
+  viewerStats.shadowMs += performance.now() - started;
+}
+
+/** Uploads a tile's derived maps as its RG shadow texture (R at t0, G at t1) and draws it. */
+function finishShadow(tile, maps, sources) {
+  const n = TILE_COLUMNS;
+  const data = new Float32Array(2 * n * n);
+  let m0 = 0;
+  let m1 = 0;
+  for (let i = 0; i < n * n; i++) {
+    data[2 * i] = maps.t0[i];
+    data[2 * i + 1] = maps.t1[i];
+    m0 += maps.t0[i];
+    m1 += maps.t1[i];
+  }
+  if (!tile.shadow) {
+    tile.shadow = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tile.shadow);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.RG16F, n, n);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.LINEAR);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.LINEAR);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
+  } else {
+    gl.bindTexture(gl.TEXTURE_2D, tile.shadow);
+  }
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
+  gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, n, n, gl.RG, gl.FLOAT, data);
+  tile.meanShadow = [m0 / (n * n), m1 / (n * n)];
+  tile.shadowSources = sources;
+  viewerStats.shadows++;
+  if (tile.state === 'shading') {
+    tile.state = 'ready';
+    instancesDirty = true;
+    dropUnneeded();
+  }
+  // A new picture, though nothing else changed.
+  lastDrawn = '';
+  lastDrawnStill = '';
 }
 
 // ---------------------------------------------------------------------------
@@ -1387,6 +1410,7 @@ let bufferOrigin = [0, 0];
 let timeOrigin = 0;
 let lastSortEye = null;
 let lastSortTime = null;
+let lastSortAt = 0;
 
 function rebuildInstances() {
   const drawn = drawnTiles();
@@ -1397,11 +1421,12 @@ function rebuildInstances() {
   timeOrigin = Math.floor(state.t);
   let at = 0;
   for (const t of drawn) {
-    const { data, count, header } = t.billboards;
+    const { count, header } = t.billboards;
+    const data = t.instances;
     instances.set(data, at);
     const ox = header.origin[0] - bufferOrigin[0];
     const oy = header.origin[1] - bufferOrigin[1];
-    const ot = header.t0 - timeOrigin;
+    const ot = t.t0 - timeOrigin;
     for (let i = 0; i < count; i++) {
       instances[at + i * INSTANCE_FLOATS] += ox;
       instances[at + i * INSTANCE_FLOATS + 1] += oy;
@@ -1409,7 +1434,7 @@ function rebuildInstances() {
     }
     at += data.length;
   }
-  stats.billboards = total;
+  viewerStats.billboards = total;
   instancesDirty = false;
   lastSortEye = null;
 }
@@ -1436,6 +1461,7 @@ function sortInstances(eye, time) {
   gl.bufferData(gl.ARRAY_BUFFER, sorted, gl.DYNAMIC_DRAW);
   lastSortEye = eye;
   lastSortTime = time;
+  lastSortAt = performance.now();
 }
 
 /**
@@ -1447,7 +1473,8 @@ function shading() {
   const t = drawnTiles().find((t) => t.billboards.header.lighting);
   if (!t) return { albedo: SHADING.albedo, phase: [SHADING.g1, SHADING.g2, SHADING.mix], octaves: SHADING.octaves, sunRgb: null };
   const l = t.billboards.header.lighting;
-  return { albedo: l.albedo, phase: l.phase, octaves: l.octaves, sunRgb: l.sunRgb };
+  const o = l.octaves;
+  return { albedo: l.albedo, phase: [l.phase.g1, l.phase.g2, l.phase.mix], octaves: [o.count, o.a, o.b, o.c], sunRgb: l.sunRgb };
 }
 
 /** The sun drawn: the manual one, else the one the server shaded the tiles for. */
@@ -1535,7 +1562,7 @@ async function loadLightning() {
   const h = LIGHTNING_HALF_SIDE;
   const bbox = [cx - h, cy - h, cx + h, cy + h].join(',');
   try {
-    const answer = await fetchJson(
+    const answer = await client.json(
       `/v1/worlds/${encodeURIComponent(state.world)}/lightning?bbox=${bbox}&t0=${w0}&t1=${w0 + LIGHTNING_WINDOW}`,
     );
     if (strikesLoading !== key) return;
@@ -1624,23 +1651,48 @@ function setAtmosphere(prog) {
   gl.activeTexture(gl.TEXTURE0);
 }
 
-/** The sky.json URL of the current sun: the manual one, else the world clock's at the drawn time. */
-function skyUrl() {
-  return state.sun ? `/v1/sky.json?sun=${state.sun[0]},${state.sun[1]}` : `/v1/sky.json?t=${snapTime(state.t)}`;
+/**
+ * The sky wanted: the manual sun's; else that of the sun bucket the drawn tiles were
+ * shaded for (their header's: the sky changes with the tiles, only when the clock's
+ * sun moves into another bucket); else, before any tile is drawn, the clock's sun at
+ * the drawn time, which the tiles' sun then matches (the same bucket, not asked for
+ * again).
+ */
+function wantedSky() {
+  if (state.sun) return { url: `/v1/sky.json?sun=${state.sun[0]},${state.sun[1]}` };
+  const t = drawnTiles().find((t) => t.sun);
+  if (t) return { url: `/v1/sky.json?sun=${t.sun[0]},${t.sun[1]}`, sun: t.sun };
+  return { url: `/v1/sky.json?t=${snapTime(state.t)}`, t: state.t };
+}
+
+/**
+ * What the loaded sky was asked for: its URL and, for the clock's sun, the drawn time.
+ * Without tiles a clock sky stands for 10 minutes of world time (a sun bucket spans
+ * several degrees), so a clock that runs does not ask for a sky every frame.
+ */
+let skyLoaded = null;
+
+/** Whether the loaded sky is the wanted one. */
+function skyIsCurrent(w = wantedSky()) {
+  if (!skyInfo || !skyLoaded) return false;
+  if (w.url === skyLoaded.url) return true;
+  const near = (a, b) => Math.abs(a - b) < 1e-3;
+  if (w.sun) return near(skyInfo.sun.azimuth_deg, w.sun[0]) && near(skyInfo.sun.elevation_deg, w.sun[1]);
+  if (w.t !== undefined) return skyLoaded.t !== undefined && Math.abs(w.t - skyLoaded.t) < 600;
+  return false;
 }
 
 /** Loads the sky of the current sun when it changed. */
 async function loadSky() {
-  const url = skyUrl();
-  if (url === skyUrlLoaded || url === skyUrlLoading) return;
-  skyUrlLoading = url;
+  const w = wantedSky();
+  if (skyIsCurrent(w) || w.url === skyUrlLoading) return;
+  skyUrlLoading = w.url;
   let info;
   try {
-    info = await fetchJson(url);
+    info = await client.json(w.url);
   } finally {
     skyUrlLoading = '';
   }
-  if (skyUrl() !== url) return;
   const { rows, columns, rgb } = info.sky;
   const data = new Float32Array(rows * columns * 4);
   for (let i = 0; i < rows * columns; i++) {
@@ -1656,7 +1708,9 @@ async function loadSky() {
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
   skyInfo = info;
-  skyUrlLoaded = url;
+  skyLoaded = { url: w.url, t: w.t };
+  // The wanted sky may have moved on while this one loaded.
+  if (!skyIsCurrent()) loadSky().catch((e) => showError(e.message));
 }
 
 function draw() {
@@ -1708,23 +1762,20 @@ function draw() {
     gl.uniform2f(hu.viewport, canvas.width, canvas.height);
     gl.activeTexture(gl.TEXTURE0);
     gl.uniform1i(hu.shadow, 0);
-    // shadow.png is indexed where the sun ray from the ground crosses the layer's
-    // base (src/products/shadow.rs): draw it shifted away from the sun by
-    // (s_x, s_y) · base / s_z, floored at sin 1° like render::tile::shadow_shift.
-    const sd = light.dir;
-    const sz = Math.max(sd[2], Math.sin(rad(1)));
+    // A tile's maps are indexed where the sun ray from the ground crosses the layer's
+    // base: drawn shifted away from the tile's sun by (s_x, s_y) · base / s_z
+    // (shadowShift, render::tile::shadow_shift).
     const far = new Map();
     const shadowF = new Map();
     for (const t of drawn) {
-      const f = fractionOf({ t0: t.t0, span: t.t1 - t.t0 }, state.t);
+      const f = fraction(t.t0, t.t1, state.t);
       shadowF.set(t, f);
       const e = far.get(t.layer) || { sum: 0, n: 0 };
       far.set(t.layer, { sum: e.sum + (1 - f) * t.meanShadow[0] + f * t.meanShadow[1], n: e.n + 1 });
     }
     gl.uniform1f(hu.mode, 0);
     for (const t of drawn) {
-      const base = worldInfo.layers[t.layer].base;
-      const shift = [(sd[0] * base) / sz, (sd[1] * base) / sz];
+      const shift = shadowShift(t.billboards, worldInfo.layers[t.layer].base);
       const f = far.get(t.layer);
       gl.uniform1f(hu.far, f.sum / f.n);
       gl.uniform1f(hu.shadowF, shadowF.get(t));
@@ -1808,10 +1859,12 @@ function draw() {
   if (n > 0 && splatTexture) {
     const eye = [cam.x - bufferOrigin[0], cam.y - bufferOrigin[1], cam.z];
     const time = state.t - timeOrigin;
+    // The clouds drift a few metres a second: while only the time runs, the order is
+    // sorted again a few times a second, not every frame.
     if (
       !lastSortEye ||
-      time !== lastSortTime ||
-      Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1
+      Math.hypot(eye[0] - lastSortEye[0], eye[1] - lastSortEye[1], eye[2] - lastSortEye[2]) > 1 ||
+      (time !== lastSortTime && performance.now() - lastSortAt > RESORT_MS)
     ) {
       sortInstances(eye, time);
     }
@@ -1927,7 +1980,9 @@ function syncUrl() {
   const c = state.camera;
   const p = new URLSearchParams();
   p.set('world', state.world);
-  p.set('t', String(state.t));
+  // Following the clock, the URL names no time: a reload follows it too.
+  if (!state.follow) p.set('t', String(state.t));
+  if (state.rate !== null) p.set('rate', String(state.rate));
   p.set('camera', [c.x, c.y, c.z, c.yaw, c.pitch, c.fov].map((v) => Math.round(v * 10) / 10).join(','));
   p.set('quality', state.quality);
   if (state.sun) p.set('sun', state.sun.join(','));
@@ -1947,10 +2002,30 @@ function formatTime(t) {
 
 function setTime(t) {
   state.t = clamp(t, 0, worldInfo ? worldInfo.max_time : 1e12);
-  $('time').value = String(state.t);
-  $('time-out').textContent = formatTime(state.t);
+  const slider = $('time');
+  // The slider spans the two days from the start of the drawn time's day.
+  const day = Math.floor(state.t / 86400) * 86400;
+  if (Number(slider.min) !== day) {
+    slider.min = String(day);
+    slider.max = String(day + 172800);
+  }
+  slider.value = String(state.t);
+  $('time-out').textContent = `${formatTime(state.t)}${state.follow ? ' (clock)' : ''}`;
   updateTiles();
   syncUrl();
+}
+
+/** Follows the world clock (the drawn time is its now), or holds the drawn time. */
+function setFollow(on) {
+  state.follow = Boolean(on) && clockNow !== null;
+  $('follow').checked = state.follow;
+  if (state.follow) {
+    state.playing = false;
+    $('play').textContent = 'Play';
+    setTime(clockNow());
+  } else {
+    setTime(state.t);
+  }
 }
 
 function setupControls() {
@@ -1975,9 +2050,17 @@ function setupControls() {
   window.addEventListener('blur', () => keys.clear());
 
   const time = $('time');
-  time.addEventListener('input', () => setTime(Number(time.value)));
+  // Moving the slider holds the time it names: the clock is no longer followed.
+  time.addEventListener('input', () => {
+    state.follow = false;
+    $('follow').checked = false;
+    setTime(Number(time.value));
+  });
+  $('follow').checked = state.follow;
+  $('follow').addEventListener('change', () => setFollow($('follow').checked));
   $('play').addEventListener('click', () => {
     state.playing = !state.playing;
+    if (state.playing && state.follow) setFollow(false);
     $('play').textContent = state.playing ? 'Pause' : 'Play';
   });
 
@@ -1985,6 +2068,7 @@ function setupControls() {
   quality.value = state.quality;
   quality.addEventListener('change', async () => {
     state.quality = quality.value;
+    client.quality = state.quality;
     await loadSplats();
     updateTiles();
     syncUrl();
@@ -2063,9 +2147,9 @@ function settled() {
   return (
     worldInfo !== null &&
     splatTexture !== null &&
-    skyInfo !== null &&
-    skyUrlLoaded === skyUrl() &&
-    wanted.every((k) => tiles.get(k)?.state === 'ready')
+    skyIsCurrent() &&
+    wanted.every((k) => tiles.get(k)?.state === 'ready') &&
+    wanted.every((k) => !shadowJobs.has(k))
   );
 }
 
@@ -2081,6 +2165,15 @@ let lastFrame = performance.now();
  * `continuous` draws every frame regardless (frame-time measurements).
  */
 let lastDrawn = '';
+/** What the last drawn frame showed but for the time (the clock or play moves it every frame). */
+let lastDrawnStill = '';
+/**
+ * What the last drawn frame cost: the longest wait between two frames since it was
+ * drawn (ms; where software GL blocks the page while it draws), and when that wait
+ * ended.
+ */
+let drawCost = 0;
+let drawCostEnd = 0;
 let continuous = false;
 let lastPlan = 0;
 let lastPlanCamera = '';
@@ -2091,6 +2184,10 @@ const PLAY_FRAMES_PER_SECOND = 4;
 
 function frame(now) {
   const dt = Math.min((now - lastFrame) / 1000, 0.1);
+  if (now - lastFrame > drawCost) {
+    drawCost = now - lastFrame;
+    drawCostEnd = now;
+  }
   lastFrame = now;
   const started = performance.now();
   fly(dt);
@@ -2105,34 +2202,50 @@ function frame(now) {
       syncUrl();
     }
   }
-  if (state.playing && worldInfo) {
-    // The clock runs at PLAY_FRAMES_PER_SECOND canonical frames a second; tiles animate
-    // between their keyframes every frame, and are re-planned (new keyframes, prefetch)
-    // a few times a second.
-    const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
-    state.t = clamp(state.t + dt * PLAY_FRAMES_PER_SECOND * period, 0, worldInfo.max_time);
+  if ((state.playing || state.follow) && worldInfo) {
+    // Following the clock, the drawn time is its now; playing, the time runs at
+    // PLAY_FRAMES_PER_SECOND canonical frames a second. Tiles animate between their
+    // keyframes every frame, and are re-planned (new keyframes, prefetch) a few times a
+    // second.
+    if (state.follow) {
+      state.t = clockNow();
+    } else {
+      const period = Math.min(...worldInfo.layers.map((l) => l.frame_seconds));
+      state.t = clamp(state.t + dt * PLAY_FRAMES_PER_SECOND * period, 0, worldInfo.max_time);
+    }
     if (now - lastPlayStep > 250) {
       lastPlayStep = now;
       setTime(state.t);
     }
   }
   strikesPassed();
-  const shown = [
+  deriveShadows(SHADOW_BUDGET_MS);
+  const still = [
     flashes.length,
-    JSON.stringify(state),
+    JSON.stringify({ ...state, t: 0 }),
     canvas.clientWidth,
     canvas.clientHeight,
     window.devicePixelRatio,
     wanted.join(';'),
     wanted.filter((k) => tiles.get(k)?.state === 'ready').length,
     instancesDirty,
-    skyUrlLoaded,
+    skyLoaded && skyLoaded.url,
   ].join('|');
-  // Flashes and the streaks around the eye move every frame.
+  const shown = `${still}|${state.t}`;
+  // Flashes and the streaks around the eye move every frame. When only the time moved,
+  // a frame whose drawing held the page up for longer than TIME_FRAME_MS (software GL)
+  // is followed by as long without drawing, so the page keeps answering (fetches,
+  // input) while the clock runs.
   const moving = flashes.length > 0 || stats.eyeRate > 0;
-  if (splatTexture && skyInfo && (continuous || moving || shown !== lastDrawn)) {
+  const timeOnly = still === lastDrawnStill;
+  const due = !timeOnly || now - drawCostEnd >= drawCost - TIME_FRAME_MS;
+  if (splatTexture && skyInfo && (continuous || moving || (shown !== lastDrawn && due))) {
     draw();
+    viewerStats.frames++;
     lastDrawn = shown;
+    lastDrawnStill = still;
+    drawCost = 0;
+    drawCostEnd = now;
   }
   const cpu = performance.now() - started;
   stats.frameMs = stats.frameMs ? stats.frameMs * 0.9 + cpu * 0.1 : cpu;
@@ -2149,7 +2262,8 @@ function updateHud() {
     `tiles      ${ready}/${wanted.length} loaded, ${inFlight} in flight, ${drawnTiles().length} drawn`,
     `billboards ${stats.billboards}, ${stats.drawCalls} draw calls`,
     `fetched    ${stats.fetched} (${kb(stats.bodyBytes)} bodies, ${kb(stats.transferBytes)} on the wire)`,
-    `revalidated ${stats.revalidations} (304), ${stats.reused} immutable reused, ${stats.prefetched} prefetched`,
+    `revalidated ${stats.revalidations} (304), ${stats.reused} immutable reused, ${stats.prefetched} prefetched, ${stats.deltas} deltas`,
+    `shadows    ${stats.shadows} derived (${stats.shadowMs.toFixed(0)} ms), ${shadowJobs.size} to do`,
     `camera     ${[c().x, c().y, c().z].map((v) => v.toFixed(0)).join(', ')}  yaw ${c().yaw.toFixed(0)}° pitch ${c().pitch.toFixed(0)}°`,
     `weather    ${stats.eyeRate > 0 ? `${stats.eyeSnow ? 'snow' : 'rain'} ${stats.eyeRate.toFixed(1)} mm/h at the eye` : 'dry at the eye'}, ${stats.precipitationTiles} wet tiles, ${stats.strikes} strikes near, ${stats.flashes} flashes`,
     `sun        ${currentSun().map((v) => Number(v).toFixed(0)).join('°, ')}°${state.sun ? '' : ' (clock)'}`,
@@ -2159,10 +2273,7 @@ function updateHud() {
 
 async function loadSplats() {
   const q = `quality=${state.quality}`;
-  const [json, png] = await Promise.all([
-    fetchJson(`/v1/splats.json?${q}`),
-    fetchBytes(`/v1/splats.png?${q}`, { track: false }),
-  ]);
+  const [json, png] = await Promise.all([client.splats(state.quality), client.bytes(`/v1/splats.png?${q}`)]);
   const image = await decodeImage(png, 'image/png');
   if (splatTexture) gl.deleteTexture(splatTexture);
   splatTexture = texture(image, gl.LINEAR);
@@ -2176,7 +2287,8 @@ async function switchWorld(name) {
   state.world = name;
   $('error').hidden = true;
   for (const key of [...tiles.keys()]) dropTile(key);
-  worldInfo = await fetchJson(`/v1/worlds/${encodeURIComponent(name)}`);
+  worldInfo = await client.world(name);
+  clockNow = worldClock(worldInfo, { rate: state.rate });
   const world = $('world');
   if (![...world.options].some((o) => o.value === name)) {
     world.append(new Option(`seed ${name}`, name));
@@ -2185,12 +2297,12 @@ async function switchWorld(name) {
   const time = $('time');
   time.step = String(Math.min(...worldInfo.layers.map((l) => l.frame_seconds)));
   renderLayerToggles();
-  setTime(state.t);
+  setTime(state.follow ? clockNow() : state.t);
 }
 
 async function start() {
   setupControls();
-  const list = await fetchJson('/v1/worlds');
+  const list = await client.worldList();
   const world = $('world');
   for (const w of list.worlds) world.append(new Option(`${w.name} (seed ${w.seed})`, w.name));
   await loadSplats();
@@ -2209,9 +2321,23 @@ window.cloudscape = {
   tiles: () =>
     drawnTiles().map((t) => ({
       layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count,
-      version: t.billboards.header.version, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
+      version: t.billboards.header.version, form: t.billboards.header.form, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
     })),
+  /** Whether the drawn time follows the world clock; `follow(on)` as the checkbox does. */
+  following: () => state.follow,
+  follow: (on) => setFollow(on),
+  /** The world clock's now (world seconds), or null before discovery. */
+  clockNow: () => (clockNow ? clockNow() : null),
   wanted: () => wanted.slice(),
+  /** What the view waits for: wanted tiles by state, shadow derivations queued, requests in flight. */
+  waiting: () => {
+    const byState = {};
+    for (const k of wanted) {
+      const st = tiles.get(k)?.state || 'unknown';
+      byState[st] = (byState[st] || 0) + 1;
+    }
+    return { wanted: wanted.length, byState, shadowJobs: shadowJobs.size, inFlight, queued: queue.length, prefetchQueued: prefetchQueue.length };
+  },
   /** The strikes of the last /lightning answer around the view. */
   strikes: () => strikes.slice(),
   /** Flashes `strike` now (as when the drawn time passes it); `hold` keeps it lit until `unflash()`. */
@@ -2222,12 +2348,8 @@ window.cloudscape = {
   /** Rain or snow at the eye: { rate (mm/h), snow }. */
   eyePrecipitation: () => eyePrecipitation(),
   /** A tile product's keyframe URL at the drawn time (`tile`: layer (name), z, x, y). */
-  tileUrl: (tile, product) => {
-    const l = worldInfo.layers.find((l) => l.name === tile.layer);
-    const k = keyframeOf(l, tile.z, state.t);
-    return tileUrl({ ...tile, layerName: tile.layer }, product, generation(), k.t0);
-  },
-  keyframeOf: (layerName, z, t) => keyframeOf(worldInfo.layers.find((l) => l.name === layerName), z, t),
+  tileUrl: (tile, product) => client.tilePath(worldInfo, tile, product, tileTime(state.t)),
+  keyframeOf: (layerName, z, t) => keyframeOf(worldInfo.layers.find((l) => l.name === layerName), z, t, worldInfo.max_time),
   /** Draw every frame (true) or only frames that show something new (false, default). */
   setContinuous: (on) => {
     continuous = Boolean(on);

@@ -148,7 +148,8 @@ export class HeldKeyframes {
  * Cache Storage `cache` when one is given (a browser's `caches.open(…)`; kept across
  * reloads). An immutable one (`Cache-Control: immutable`, as keyframe URLs are) is
  * returned again without a request; any other is revalidated with `If-None-Match`,
- * and a 304 returns the kept body. A 503 is retried after its `Retry-After`.
+ * and a 304 returns the kept body. A 503 is retried after its `Retry-After`, a
+ * connection that failed after a short wait.
  *
  * Billboard keyframes are held decoded (`keyframes`, a HeldKeyframes): a tile's first
  * keyframe is fetched self-contained (`billboards.bin`), every later one as a delta
@@ -217,7 +218,17 @@ export class CloudscapeClient {
     const headers = stored && stored.etag ? { 'If-None-Match': stored.etag } : {};
     for (let attempt = 0; ; attempt++) {
       this.stats.requests++;
-      const res = await this.fetchImpl(url, { headers, cache: 'no-store' });
+      let res;
+      try {
+        res = await this.fetchImpl(url, { headers, cache: 'no-store' });
+      } catch (e) {
+        // A connection that failed (one the server had closed as it was reused): a GET
+        // is asked again, as often as a 503 is.
+        if (attempt >= this.maxRetries) throw e;
+        this.stats.retries++;
+        await sleep(100 * 2 ** Math.min(attempt, 4));
+        continue;
+      }
       if (res.status === 304 && stored) {
         this.stats.revalidated++;
         return { body: stored.body, status: 304, etag: stored.etag, immutable: stored.immutable, source: 'revalidated' };
@@ -339,8 +350,9 @@ export class CloudscapeClient {
   /**
    * A tile's billboards (decoded billboards.bin) at the keyframe that holds `at.t`
    * (the next one with `at.next`): held already, or fetched as a delta
-   * (`billboards.delta.bin`) on the keyframe before it when that is held, else
-   * self-contained (`billboards.bin`). The result is held for the next delta.
+   * (`billboards.delta.bin`) on the keyframe before it when that is held (or on its
+   * way: it is waited for), else self-contained (`billboards.bin`). The result is held
+   * for the next delta.
    */
   async keyframe(world, tile, at) {
     const layer = findLayer(world, tile.layer);
@@ -354,7 +366,10 @@ export class CloudscapeClient {
     }
     const key = `${variant}@${t0}`;
     if (!this.pending.has(key)) {
+      // The keyframe before, if it is on its way, is waited for: this one is then a delta on it.
+      const before = this.pending.get(`${variant}@${at.next ? k.t0 : k.t0 - k.span}`);
       const job = (async () => {
+        if (before) await before.catch(() => null);
         const previous = this.keyframes.endingAt(variant, t0);
         const product = previous ? 'billboards.delta.bin' : 'billboards.bin';
         const path = this.tilePath(world, tile, product, at);
@@ -409,7 +424,7 @@ export class CloudscapeClient {
     for (const p of products) {
       if (p === 'billboards.bin') {
         if (this.keyframes.get(variant, k.t1) || this.pending.has(`${variant}@${k.t1}`)) continue;
-        const delta = this.keyframes.endingAt(variant, k.t1) !== null;
+        const delta = this.keyframes.endingAt(variant, k.t1) !== null || this.pending.has(`${variant}@${k.t0}`);
         paths.push(this.tilePath(world, tile, delta ? 'billboards.delta.bin' : 'billboards.bin', next));
         this.stats.prefetched++;
         jobs.push(this.keyframe(world, tile, next));
@@ -908,7 +923,7 @@ function decodeKeyframe(bytes, v, previous) {
       }
     }
   }
-  return { header, count, records: rec, lattice: { geometry, quantisation, bases, end } };
+  return { header, count, records: rec, lattice: { geometry, quantisation, bases, end, shadowWidening: Math.fround(v.getUint16(198, true) / 1000) } };
 }
 
 /** Largest centre optical depth of the splat sheet (src/render/splats.rs TAU_MAX; /v1/splats.json `tau_max`). */
@@ -1095,15 +1110,21 @@ export class ShadowDerivation {
     const r = sk.records;
     const so = sk.header.origin;
     const span = sk.header.t0 !== null && sk.header.t1 !== null ? sk.header.t1 - sk.header.t0 : 0;
+    // The footprint widened by the server's light-buffer texel (the keyframe's shadow
+    // widening w, in radii; the variances add), its optical depth spread to keep the
+    // integral: radius r·√(1 + w²), τ / (1 + w²).
+    const w = sk.lattice ? sk.lattice.shadowWidening : 0;
+    const spread = 1 + w * w;
+    const widen = Math.sqrt(spread);
     for (let b = from; b < to; b++) {
-      const radius = r.radius[b];
-      if (!(radius > 0)) continue;
+      const radius = r.radius[b] * widen;
+      if (!(radius > 0 && Number.isFinite(radius))) continue;
       const a = radius / s[2];
       const hx = Math.sqrt(a * a * ux * ux + radius * radius * uy * uy);
       const hy = Math.sqrt(a * a * uy * uy + radius * radius * ux * ux);
       const invR2 = 1 / (radius * radius);
       for (let e = 0; e < 2; e++) {
-        const tau = r.splatTau[2 * b + e];
+        const tau = r.splatTau[2 * b + e] / spread;
         if (!(tau > 0)) continue;
         const moved = e === 1 ? span : 0;
         const cx = so[0] + r.offset[3 * b] + r.velocity[2 * b] * moved;

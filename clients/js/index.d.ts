@@ -278,6 +278,8 @@ export interface Lattice {
   bases: number[];
   /** Each site's state at t1, 5 codes a site: splat (0 none, else index + 1), green, red, blue, τ_sun. */
   end: Uint16Array;
+  /** How much wider than a ball its derived ground shadow is, in radii (the server's light-buffer texel). */
+  shadowWidening: number;
 }
 
 export interface BillboardTile {

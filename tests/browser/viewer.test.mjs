@@ -4,20 +4,23 @@
 //   node tests/browser/viewer.test.mjs http://127.0.0.1:PORT OUT_DIR
 //
 // Checks: the page loads without console errors; it requests exactly the tile URLs
-// its view needs; the canvas is not blank and is brighter where the server's coverage
-// map says cloud; moving the time slider changes the picture; a reload asks for no
-// immutable (keyframe) tile again; at a time between keyframes it asks for the
-// keyframe URLs (never a per-t URL), draws the clouds, prefetches the next keyframe
-// and crosses into it without asking again; the default view's ground has no
-// seam; under the storm-front's storm it finds the rain /sample gives at the eye,
+// its view needs (billboards.bin for a tile's first keyframe, never shadow.png: the
+// ground shadow is derived from the billboards); the canvas is not blank and is
+// brighter where the server's coverage map says cloud; moving the time slider changes
+// the picture; a reload asks for no immutable (keyframe) tile again; at a time between
+// keyframes it asks for the keyframe URLs (never a per-t URL), draws the clouds,
+// prefetches the next keyframe as billboards.delta.bin and crosses into it without
+// asking again; the default view follows the world clock (and the slider stops it);
+// the default view's ground has no seam; under the storm-front's storm it finds the rain /sample gives at the eye,
 // hazes the view (against weather=off) by distance (clouds a few hundred metres away
 // show through heavy rain; the streaks show), holds the strikes /lightning lists and
 // flashes, also when the drawn time passes a strike (issue 24); the sky (the
 // server's /v1/sky.json) is blue above and brighter at the horizon
 // at noon, reddish toward a low sun; at the far horizon `fast` shows no brighter band
 // than `balanced` (issue 20). Saves screenshots in OUT_DIR and
-// prints figures (draw calls, billboards, bytes, frame time) for BENCHMARKS.md; no
-// assertion depends on time.
+// prints figures (draw calls, billboards, frame time; the bytes a player receives: a
+// first view, then per second following the clock, at `fast` and `balanced`) for
+// BENCHMARKS.md; no assertion depends on time.
 
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
@@ -43,6 +46,18 @@ const GALLERY_VIEWPORT = { width: 480, height: 270 };
 const LOAD_TIMEOUT_MS = 600_000;
 /** SwiftShader draws a frame of ~100k billboards slowly. */
 const SCREENSHOT_TIMEOUT_MS = 300_000;
+/**
+ * Pages that follow the clock draw at a quarter of the resolution: the tiles a view
+ * plans come from its CSS pixels, so they ask for what an 800-pixel view asks for,
+ * while SwiftShader draws a sixteenth of the pixels (a full-size frame holds the page
+ * up for seconds, and the clock asks for one every few).
+ */
+const CLOCK_VIEW = { viewport: VIEWPORT, deviceScaleFactor: 0.25 };
+/**
+ * How long the byte figures follow the clock, world seconds (the clock's own rate: the
+ * server keeps the keyframes of its clock warm, not those of a faster one).
+ */
+const FIGURE_SPAN = 90;
 
 const { check, finish } = checks('browser');
 const figures = [];
@@ -52,11 +67,16 @@ const figure = (name, value) => {
 };
 
 const browser = await launchChromium(['--disable-quic', '--disable-sync']);
+/** shadow.png requests of every page: there must be none. */
+const shadowRequests = [];
 
 /** A page with everything it logs and requests recorded. */
 async function openPage(context) {
   const page = await context.newPage();
   const log = { errors: [], tileRequests: [], responses: [] };
+  page.on('request', (r) => {
+    if (r.url().includes('/shadow.png')) shadowRequests.push(r.url().slice(base.length));
+  });
   page.on('console', (m) => {
     if (m.type() === 'error') log.errors.push(m.text());
   });
@@ -144,7 +164,7 @@ try {
   // The products the viewer draws of a layer: precipitation.png too where it can rain.
   const overcast = await (await fetch(`${base}/v1/worlds/overcast`)).json();
   const strato = overcast.layers.find((l) => l.name === 'stratocumulus');
-  const products = strato.precipitates ? ['billboards.bin', 'shadow.png', 'precipitation.png'] : ['billboards.bin', 'shadow.png'];
+  const products = strato.precipitates ? ['billboards.bin', 'precipitation.png'] : ['billboards.bin'];
   const expected = products.map(
     (p) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t0}&quality=balanced&sun=180,90&layer=stratocumulus`,
   );
@@ -211,7 +231,7 @@ try {
   const diff = mean(a.lum.map((v, i) => Math.abs(v - b.lum[i])));
   check(
     'moving the time slider loads the keyframe that holds the new time and changes the picture',
-    drawnSpans.length > 0 && drawnSpans.every(([k0, k1, v]) => v === 2 && k0 <= t1 && t1 < k1) && diff > 0.01,
+    drawnSpans.length > 0 && drawnSpans.every(([k0, k1, v]) => v === 3 && k0 <= t1 && t1 < k1) && diff > 0.01,
     `spans ${JSON.stringify(drawnSpans)}; mean |Δluminance| ${diff.toFixed(4)}`,
   );
 
@@ -223,7 +243,7 @@ try {
   const stats = await page.evaluate(() => ({ ...window.cloudscape.stats, urls: undefined }));
   check(
     'a reload asks for no immutable tile again (bodies kept in Cache Storage)',
-    after.length === 0 && stats.reused >= 2,
+    after.length === 0 && stats.reused >= products.length,
     `${after.length} tile responses after the reload; viewer reused ${stats.reused} immutable bodies`,
   );
 
@@ -233,10 +253,11 @@ try {
   await page.close();
 
   // --- Between keyframes (issue 22), in a fresh context (nothing stored). -------------
-  // Level 0 of the overcast stratocumulus has a 20 s span: t = t0 + 12 s is 60 % of
+  // Level 0 of the overcast stratocumulus has a 20 s span: t = t0 + 16 s is 80 % of
   // the way to the next keyframe. The viewer must ask for the keyframe URLs (t = t0),
-  // never a URL of its own t, draw the animated clouds, and (past the middle) fetch
-  // the next keyframe ahead; crossing into that keyframe then asks for nothing.
+  // never a URL of its own t, draw the animated clouds, and (past the tile's prefetch
+  // point) fetch the next keyframe ahead as a delta on the one it holds; crossing into
+  // that keyframe then asks for nothing.
   {
     const kctx = await browser.newContext({ viewport: VIEWPORT });
     const kf = await openPage(kctx);
@@ -246,16 +267,17 @@ try {
     await kf.page.goto(`${base}${sceneAt(tMid)}`);
     await settle(kf.page);
     // The prefetch runs once the view's own tiles are in: wait for it to finish.
-    await kf.page.waitForFunction(() => window.cloudscape.stats.prefetched >= 2 && window.cloudscape.idle(), null, {
+    await kf.page.waitForFunction((n) => window.cloudscape.stats.prefetched >= n && window.cloudscape.idle(), products.length, {
       timeout: LOAD_TIMEOUT_MS,
       polling: 250,
     });
     const span = await kf.page.evaluate(() => window.cloudscape.keyframeOf('stratocumulus', 0, 43216));
     const url = (p, t) => `/v1/worlds/overcast/tiles/0/0/0/${p}?t=${t}&quality=balanced&sun=180,90&layer=stratocumulus`;
-    const want = [t0, t0 + 20].flatMap((t) => products.map((p) => url(p, t))).sort();
+    // The first keyframe whole, the next as a delta on it.
+    const want = [t0, t0 + 20].flatMap((t) => products.map((p) => url(t === t0 || p !== 'billboards.bin' ? p : 'billboards.delta.bin', t))).sort();
     const got = [...new Set(kf.log.tileRequests)].sort();
     check(
-      'between keyframes the viewer asks for the keyframe URLs and prefetches the next, never its own t',
+      'between keyframes the viewer asks for the keyframe URLs and prefetches the next as a delta, never its own t',
       span.t0 === t0 && span.t1 === t0 + 20 && JSON.stringify(got) === JSON.stringify(want),
       `span ${JSON.stringify(span)}; requested ${JSON.stringify(got)}`,
     );
@@ -282,12 +304,13 @@ try {
       }, t);
       await settle(kf.page);
     }
-    const drawn = await kf.page.evaluate(() => window.cloudscape.tiles().map((t) => t.t0));
+    const drawn = await kf.page.evaluate(() => window.cloudscape.tiles().map((t) => [t.t0, t.form]));
     check(
-      'moving within the span and into the prefetched keyframe asks for no tile again',
-      kf.log.tileRequests.length === n0 && drawn.length === 1 && drawn[0] === t0 + 20,
+      'moving within the span and into the prefetched keyframe (the delta, decoded) asks for no tile again',
+      kf.log.tileRequests.length === n0 && drawn.length === 1 && drawn[0][0] === t0 + 20 && drawn[0][1] === 'delta',
       `${kf.log.tileRequests.length - n0} more tile requests; drawn keyframes ${JSON.stringify(drawn)}`,
     );
+    await kf.page.screenshot({ path: join(outDir, 'next-keyframe.png'), timeout: SCREENSHOT_TIMEOUT_MS });
     check('the between-keyframes page logs no console errors', kf.log.errors.length === 0, kf.log.errors.slice(0, 5).join(' | '));
     await kctx.close();
   }
@@ -406,9 +429,10 @@ try {
     await wctx.close();
   }
 
-  // --- The default view (what `/` shows), and a 10 km view, for the figures. ---------
+  // --- The default view (what `/` shows) at noon of day 0, and a 10 km view, for the
+  // figures. `/` itself follows the clock, whose time of day is the machine's (below).
   const def = await openPage(context);
-  await def.page.goto(`${base}/`);
+  await def.page.goto(`${base}/?t=43200`);
   await settle(def.page);
   await def.page.screenshot({ path: join(outDir, 'viewer.png'), timeout: SCREENSHOT_TIMEOUT_MS });
   const d = await canvasLuminance(def.page);
@@ -444,6 +468,112 @@ try {
   check('the default view logs no console errors', def.log.errors.length === 0, def.log.errors.slice(0, 5).join(' | '));
   await def.page.close();
 
+  // --- The default view follows the world clock. -------------------------------------
+  // `/` names no time: the viewer draws the clock's now (discovery's `clock`) and moves
+  // with it; the slider holds a time, the checkbox follows the clock again.
+  {
+    const cctx = await browser.newContext(CLOCK_VIEW);
+    const c = await openPage(cctx);
+    await c.page.goto(`${base}/`);
+    await c.page.waitForFunction(() => window.cloudscape && window.cloudscape.tiles().length > 0, null, { timeout: LOAD_TIMEOUT_MS, polling: 250 });
+    const read = () => c.page.evaluate(() => ({ t: window.cloudscape.state.t, clock: window.cloudscape.clockNow(), following: window.cloudscape.following(), url: location.search }));
+    const first = await read();
+    const discovery = await (await fetch(`${base}/v1/worlds/default`)).json();
+    await c.page.screenshot({ path: join(outDir, 'clock-1.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+    // A few seconds of the clock later.
+    await c.page.waitForFunction((t) => window.cloudscape.state.t >= t + 3, first.t, { timeout: LOAD_TIMEOUT_MS, polling: 250 });
+    const second = await read();
+    await c.page.screenshot({ path: join(outDir, 'clock-2.png'), timeout: SCREENSHOT_TIMEOUT_MS });
+    check(
+      'the default view follows the world clock: it opens on discovery\'s now and its time advances',
+      first.following && Math.abs(first.t - discovery.clock.now) < 120 && second.t > first.t && !/[?&]t=/.test(second.url),
+      `t ${first.t.toFixed(1)} then ${second.t.toFixed(1)}; discovery now ${discovery.clock.now}; URL ${second.url}`,
+    );
+    const tiles = await c.page.evaluate(() => window.cloudscape.tiles());
+    // (A tile drawn stands in for its next keyframe until that one is in: a span or so behind.)
+    check(
+      'the tiles drawn are keyframes of the clock\'s time',
+      tiles.length > 0 && tiles.every((t) => t.t0 <= second.t + 1 && t.t1 > second.t - 2 * (t.t1 - t.t0)),
+      JSON.stringify(tiles.slice(0, 3).map((t) => [t.t0, t.t1])),
+    );
+    // The slider holds a time (and names it in the URL); the checkbox follows again.
+    const held = Math.floor(first.t / 86400) * 86400 + 43200;
+    await c.page.evaluate((t) => {
+      const slider = document.getElementById('time');
+      slider.value = String(t);
+      slider.dispatchEvent(new Event('input', { bubbles: true }));
+    }, held);
+    const stopped = await read();
+    await c.page.waitForTimeout(1500);
+    const still = await read();
+    check(
+      'moving the time slider stops following the clock',
+      !stopped.following && stopped.t === held && still.t === held && /[?&]t=/.test(still.url),
+      `${JSON.stringify(stopped)} then t ${still.t}`,
+    );
+    await c.page.evaluate(() => {
+      const box = document.getElementById('follow');
+      box.checked = true;
+      box.dispatchEvent(new Event('change', { bubbles: true }));
+    });
+    const again = await read();
+    check(
+      'the follow checkbox follows the clock again',
+      again.following && Math.abs(again.t - again.clock) < 5 && again.t > second.t,
+      JSON.stringify(again),
+    );
+    check('the clock pages log no console errors', c.log.errors.length === 0, c.log.errors.slice(0, 5).join(' | '));
+    await cctx.close();
+  }
+
+  // --- The bytes a player receives (figures): the default view following the clock, at
+  // `fast` and `balanced`, each in a fresh context (nothing stored). First view: what
+  // the page fetched until its view was drawn (every resource, then tiles alone). Then
+  // per second over FIGURE_SPAN world seconds of the clock (the embedded config's clock
+  // runs at 1: world seconds are seconds). Bytes are Resource Timing's transferSize:
+  // headers and compressed bodies, as the network carries them.
+  for (const q of ['fast', 'balanced']) {
+    const bctx = await browser.newContext(CLOCK_VIEW);
+    const b = await openPage(bctx);
+    await b.page.goto(`${base}/?quality=${q}`);
+    await settle(b.page);
+    const bytes = () =>
+      b.page.evaluate(() => {
+        const out = { all: 0, tiles: 0, byProduct: {}, t: window.cloudscape.state.t };
+        for (const e of performance.getEntriesByType('resource')) {
+          out.all += e.transferSize;
+          const m = /\/tiles\/[^?]*\/([^/?]+)\?/.exec(e.name) || /\/v1\/([a-z.]+)/.exec(e.name);
+          const product = m ? m[1] : 'page';
+          if (e.name.includes('/tiles/')) out.tiles += e.transferSize;
+          const p = (out.byProduct[product] ||= { requests: 0, bytes: 0 });
+          p.requests++;
+          p.bytes += e.transferSize;
+        }
+        return out;
+      });
+    const firstView = await bytes();
+    figure(`${q}: first view, bytes on the wire (all requests)`, firstView.all);
+    figure(`${q}: first view, tile bytes on the wire`, firstView.tiles);
+    await b.page.waitForFunction((t) => window.cloudscape.state.t >= t, firstView.t + FIGURE_SPAN, { timeout: LOAD_TIMEOUT_MS, polling: 500 });
+    const later = await bytes();
+    const span = later.t - firstView.t;
+    figure(`${q}: following the clock, bytes per world second (over ${span.toFixed(0)} s)`, ((later.all - firstView.all) / span).toFixed(0));
+    figure(`${q}: following the clock, tile bytes per world second`, ((later.tiles - firstView.tiles) / span).toFixed(0));
+    const products = Object.entries(later.byProduct).map(([p, v]) => {
+      const before = firstView.byProduct[p] || { requests: 0, bytes: 0 };
+      return `${p} ${v.requests - before.requests} requests ${v.bytes - before.bytes} B`;
+    });
+    figure(`${q}: following the clock, by product`, products.join('; '));
+    const drawn = await b.page.evaluate(() => window.cloudscape.tiles().map((t) => t.form));
+    check(
+      `${q}: following the clock the viewer fetches deltas on the keyframes it holds`,
+      (later.byProduct['billboards.delta.bin']?.requests || 0) > 0 && drawn.includes('delta'),
+      products.join('; '),
+    );
+    check(`${q}: the byte-figure page logs no console errors`, b.log.errors.length === 0, b.log.errors.slice(0, 5).join(' | '));
+    await bctx.close();
+  }
+
   // --- The sky: the server's atmosphere (/v1/sky.json) drawn with no layers. --------
   const sky = await openPage(context);
   const horizonRow = (page, el) =>
@@ -454,7 +584,7 @@ try {
       const p = window.cloudscape.project([c.x + far * Math.sin(yaw), c.y + far * Math.cos(yaw), c.z + far * Math.tan((el * Math.PI) / 180)]);
       return Math.round(p[1]);
     }, el);
-  await sky.page.goto(`${base}/?camera=12800,-6000,900,0,15,75&sun=180,60&layers=`);
+  await sky.page.goto(`${base}/?t=43200&camera=12800,-6000,900,0,15,75&sun=180,60&layers=`);
   await settle(sky.page);
   await sky.page.screenshot({ path: join(outDir, 'sky-noon.png'), timeout: SCREENSHOT_TIMEOUT_MS });
   let rows = await canvasRows(sky.page);
@@ -463,7 +593,7 @@ try {
   const low = rowsMean(rows, h1 - 5, h1 + 1);
   check('at noon the sky above is blue', top[2] > top[0] + 0.15 && top[2] > top[1], `top rows rgb ${top.map((v) => v.toFixed(2))}`);
   check('at noon the sky is brighter at the horizon', rowLum(low) > rowLum(top) + 0.05, `horizon ${rowLum(low).toFixed(3)} vs top ${rowLum(top).toFixed(3)}`);
-  await sky.page.goto(`${base}/?camera=12800,-6000,900,270,8,75&sun=270,2&layers=`);
+  await sky.page.goto(`${base}/?t=43200&camera=12800,-6000,900,270,8,75&sun=270,2&layers=`);
   await settle(sky.page);
   await sky.page.screenshot({ path: join(outDir, 'sky-sunset.png'), timeout: SCREENSHOT_TIMEOUT_MS });
   rows = await canvasRows(sky.page);
@@ -476,7 +606,7 @@ try {
   // A fresh context (empty caches): bytes for a 10 km view.
   const fresh = await browser.newContext({ viewport: VIEWPORT });
   const ten = await openPage(fresh);
-  await ten.page.goto(`${base}/?view=10000`);
+  await ten.page.goto(`${base}/?view=10000&t=43200`);
   await settle(ten.page);
   const ts = await ten.page.evaluate(() => ({ ...window.cloudscape.stats, urls: window.cloudscape.stats.urls.length }));
   figure('10 km view: tile requests', ts.urls);
@@ -513,6 +643,7 @@ try {
     Math.abs(band.fast - band.balanced) < 0.04,
     `fast ${band.fast.toFixed(3)}, balanced ${band.balanced.toFixed(3)}`,
   );
+  check('no page asked for shadow.png (the ground shadow is derived from the billboards)', shadowRequests.length === 0, shadowRequests.slice(0, 3).join(' '));
   writeFileSync(join(outDir, 'figures.txt'), figures.join('\n') + '\n');
 } catch (e) {
   check('the browser test ran to the end', false, e.stack || String(e));

@@ -274,3 +274,21 @@ test('the world clock is read from discovery and followed', async () => {
   const k = keyframeOf(world.layers[0], 0, now, world.max_time);
   assert.ok(k.t0 <= now && now < k.t1);
 });
+
+test('asked for the next keyframe while the current one is on its way, the client waits for it and fetches a delta', async () => {
+  const asked = [];
+  const c = new CloudscapeClient(base, {
+    quality: 'fast',
+    fetch: (url, init) => {
+      asked.push(url.slice(base.length));
+      return fetch(url, init);
+    },
+  });
+  const w = await c.world(WORLD);
+  asked.length = 0;
+  const at = { ...AT, t: T0 + 100 + 16 };
+  const [current, next] = await Promise.all([c.keyframe(w, TILE, at), c.keyframe(w, TILE, { ...at, next: true })]);
+  assert.deepEqual(asked.map((u) => u.split('?')[0].split('/').pop()), ['billboards.bin', 'billboards.delta.bin']);
+  assert.equal(next.header.t0, current.header.t1);
+  assert.equal(next.header.form, 'delta');
+});

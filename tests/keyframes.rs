@@ -80,12 +80,12 @@ fn a_request_after_the_boundary_is_served_from_what_was_computed_ahead() {
         .unwrap();
     assert_eq!(next, direct);
     assert_eq!(metric(&plain, "cloudscape_ahead_computed_total", &[]), 0.0);
-    // The shadow map of the same keyframe came with the billboards: served from ahead too.
-    let shadow = http
-        .get(url("110").replace("billboards.bin", "shadow.png"))
+    // The delta form of the same keyframe came with the billboards: served from ahead too.
+    let delta = http
+        .get(url("110").replace("billboards.bin", "billboards.delta.bin"))
         .send()
         .unwrap();
-    assert_eq!(shadow.status(), 200);
+    assert_eq!(delta.status(), 200);
     assert_eq!(metric(&server, "cloudscape_ahead_served_total", &[]), 2.0);
 }
 

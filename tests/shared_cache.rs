@@ -130,8 +130,8 @@ fn a_second_replica_gets_products_from_redis_with_identical_bytes_and_etags() {
     let a = serve_with_redis(&redis.url(), &[("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0")]);
     let density = "/v1/worlds/default/tiles/0/3/-2/density.npy?t=40";
     let billboards = "/v1/worlds/default/tiles/0/1/1/billboards.json?t=40&sun=120,30";
-    // shadow.png: encoded with the billboards from every shading (`Product::encoding`).
-    let atlas = "/v1/worlds/default/tiles/0/1/1/shadow.png?t=40&sun=120,30";
+    // billboards.delta.bin: encoded with the billboards from every shading (`Product::encoding`).
+    let atlas = "/v1/worlds/default/tiles/0/1/1/billboards.delta.bin?t=40&sun=120,30";
     let (status, etag_a, body_a, _) = get(&a, density);
     assert_eq!(status, 200);
     assert_eq!(

@@ -20,7 +20,7 @@ const OFFSET: f64 = -1.6e9;
 /// two qualities, and a box in tile (1, 0) of `low` at level 0 with a grid product too.
 const AREAS: &str = r#"[
     { name = "town", polygon = [[1000.0, 1000.0], [9000.0, 2000.0], [8000.0, 9000.0]], levels = [0, 1], qualities = ["fast", "balanced"] },
-    { name = "port", bbox = [30000.0, 1000.0, 35000.0, 6000.0], products = ["billboards.bin", "shadow.png", "density.u8"] },
+    { name = "port", bbox = [30000.0, 1000.0, 35000.0, 6000.0], products = ["billboards.bin", "billboards.delta.bin", "density.u8"] },
 ]"#;
 
 /// Tile variants of [`AREAS`] per area: `town` 2 layers × 2 levels × 2 qualities (one
@@ -160,7 +160,7 @@ fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
         for (z, quality) in [(0, "fast"), (0, "balanced"), (1, "fast"), (1, "balanced")] {
             let span = dt * f64::from(1u32 << z);
             let t0 = (now / span).floor() * span;
-            for product in ["billboards.bin", "shadow.png"] {
+            for product in ["billboards.bin", "billboards.delta.bin"] {
                 let path = format!("/v1/worlds/default/tiles/{z}/0/0/{product}?t={t0}&layer={layer}&quality={quality}");
                 let r = s.get(&path);
                 assert_eq!(r.status().as_u16(), 200, "{path}");
@@ -214,7 +214,7 @@ fn next_keyframes_are_ready_before_the_clock_reaches_them() {
     }));
     let before = s.metric("cloudscape_computations_total", &[]);
     let r = s.get(&format!(
-        "/v1/worlds/default/tiles/0/0/0/shadow.png?t={t0}&layer=low&quality=fast"
+        "/v1/worlds/default/tiles/0/0/0/billboards.delta.bin?t={t0}&layer=low&quality=fast"
     ));
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(s.metric("cloudscape_computations_total", &[]), before);
@@ -249,7 +249,10 @@ fn discovery_lists_the_clock_and_the_play_areas() {
     );
     assert_eq!(town["margin"], 0.0);
     assert_eq!(town["levels"], serde_json::json!([0, 1]));
-    assert_eq!(town["products"], serde_json::json!(["billboards.bin", "shadow.png"]));
+    assert_eq!(
+        town["products"],
+        serde_json::json!(["billboards.bin", "billboards.delta.bin"])
+    );
     assert_eq!(town["qualities"], serde_json::json!(["fast", "balanced"]));
     assert_eq!(town["layers"], serde_json::json!(["low", "high"]));
     assert_eq!(town["tiles"], TOWN_TILES);

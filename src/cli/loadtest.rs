@@ -66,6 +66,9 @@ pub struct LoadtestArgs {
     /// Groups share this many places: more players watching the same tiles.
     #[arg(long)]
     places: Option<usize>,
+    /// The preset players fetch: fast (the viewer's default), balanced or accurate.
+    #[arg(long, default_value = "fast")]
+    quality: String,
     /// Send from the start but measure only after this long (the first views are cold).
     #[arg(long, default_value = "0s")]
     warmup: String,
@@ -140,6 +143,15 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         places: a.places,
         server_pid: a.pid,
         warmup,
+        quality: match cloudscape_core::render::Quality::parse(&a.quality) {
+            Some(q) if !q.is_volumetric() => q,
+            _ => {
+                return Err(format!(
+                    "--quality must be fast, balanced or accurate, got `{}`",
+                    a.quality
+                ));
+            }
+        },
     };
     if a.sweep {
         // Steps given by hand run to the last, for a whole curve; the default steps

@@ -4,11 +4,12 @@
 //!
 //! A play area names levels, products, qualities and layers; the tiles of a level are
 //! those its box or polygon (grown by its `margin`) reaches. A *variant* is one
-//! computation per keyframe of one tile of one layer: the shaded products that one
-//! shading encodes (`billboards.bin` and `shadow.png`, and `precipitation.png` on a
-//! layer that can precipitate) are one variant per quality; `billboards.json` and the
-//! atlas (its image and manifest are one build) are one each; every grid product is
-//! one. The count of all areas is capped by `server.max_warm_tiles`, checked with the
+//! computation per keyframe of one tile of one layer: the shaded products that every
+//! shading encodes (`billboards.bin` and `billboards.delta.bin`, and
+//! `precipitation.png` on a layer that can precipitate) are one variant per quality;
+//! each shaded product encoded only on request (`billboards.json`, `shadow.png`,
+//! `billboards.v2.bin`, the atlas whose image and manifest are one build) is one; every
+//! grid product is one. The count of all areas is capped by `server.max_warm_tiles`, checked with the
 //! config ([`variants`]).
 //!
 //! Each variant is a [`TileRecipe`] as a request for its URL would build it (world,
@@ -40,6 +41,7 @@ use tokio::sync::Notify;
 
 use cloudscape_core::fields::noise::mix64;
 use cloudscape_core::products::Product;
+use cloudscape_core::products::catalogue::Encoding;
 use cloudscape_core::render::scene::VIEW_DISTANCE;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::render::{Quality, TileId};
@@ -236,26 +238,20 @@ fn names(key: &str, area: &WarmArea) -> Result<(Vec<Product>, Vec<Quality>), Con
 
 /// The computations that make `products` of one tile of `layer`, each named by the
 /// product it asks for: the shaded ones (once per quality), then the grid ones. A
-/// shading encodes `billboards.bin` and `shadow.png` whatever it is asked for, and
-/// `precipitation.png` on a layer that can precipitate
+/// shading encodes the eager products (`billboards.bin`, `billboards.delta.bin`)
+/// whatever it is asked for, and `precipitation.png` on a layer that can precipitate
 /// (`cloudscape_core::products::catalogue::encode_shaded`, `recipe::TileRecipe::plan`),
-/// so those ride along with any shading.
+/// so those ride along with any shading; each product encoded only on request takes a
+/// shading of its own (one for the atlas's two halves).
 fn computations(products: &[Product], layer: &Layer) -> (Vec<Product>, Vec<Product>) {
-    let wants = |p: Product| products.contains(&p);
-    let mut shaded = Vec::new();
-    if wants(Product::BillboardsJson) {
-        shaded.push(Product::BillboardsJson);
-    }
-    if let Some(&atlas) = products
-        .iter()
-        .find(|p| matches!(p, Product::AtlasPng | Product::AtlasJson))
-    {
-        shaded.push(atlas);
+    let mut shaded: Vec<Product> = Vec::new();
+    for &p in products.iter().filter(|p| p.encoding() == Encoding::OnRequest) {
+        if !shaded.iter().any(|&q| q.shares_work_with(p)) {
+            shaded.push(p);
+        }
     }
     if shaded.is_empty()
-        && let Some(&eager) = products
-            .iter()
-            .find(|p| matches!(p, Product::BillboardsBin | Product::ShadowPng))
+        && let Some(&eager) = products.iter().find(|p| p.encoding() == Encoding::Eager)
     {
         shaded.push(eager);
     }
@@ -731,7 +727,7 @@ mod tests {
         let c = config("name = \"town\"\nbbox = [10300.0, 10300.0, 15300.0, 15300.0]\nlevels = [0, 1, 2]").unwrap();
         let all = variants(&c, 4096).unwrap();
         let list = &all["default"];
-        // Three layers × three levels, each one shading (billboards.bin + shadow.png) in `fast`.
+        // Three layers × three levels, each one shading (billboards.bin and its delta) in `fast`.
         assert_eq!(list.len(), 9, "{list:?}");
         assert!(list.iter().all(|v| v.tile.x == 0 && v.tile.y == 0));
         assert!(
@@ -755,12 +751,17 @@ mod tests {
             ],
             layer,
         );
-        assert_eq!(shaded, [Product::AtlasJson]);
+        // shadow.png and the atlas are each encoded on request: a shading each (the
+        // atlas's halves share one); billboards.bin comes with either.
+        assert_eq!(shaded, [Product::ShadowPng, Product::AtlasJson]);
         // The cumulus layer precipitates: its map comes with the shading.
         assert!(layer.preset.precipitates());
         assert_eq!(grid, [Product::DensityU8]);
-        let (shaded, grid) = computations(&[Product::ShadowPng, Product::BillboardsBin], layer);
-        assert_eq!((shaded.as_slice(), grid.len()), ([Product::ShadowPng].as_slice(), 0));
+        let (shaded, grid) = computations(&[Product::BillboardsDelta, Product::BillboardsBin], layer);
+        assert_eq!(
+            (shaded.as_slice(), grid.len()),
+            ([Product::BillboardsDelta].as_slice(), 0)
+        );
     }
 
     #[test]

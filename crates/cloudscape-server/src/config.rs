@@ -65,8 +65,21 @@ pub struct ServerConfig {
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
     /// URL of an optional Redis shared by replicas as a second-level cache
-    /// (`redis://HOST:PORT/DB`, `redis+unix:///PATH`); empty means none.
+    /// (`redis://HOST:PORT/DB`, `rediss://` for TLS, `redis+unix:///PATH`; a user and
+    /// password for Redis `AUTH` go in it: `redis://USER:PASSWORD@HOST:PORT/DB`); empty
+    /// means none.
     pub redis_url: String,
+    /// Key of the MAC that seals every value written to Redis (`crate::shared::Seal`):
+    /// with it, only replicas that hold it can write a value the others will serve.
+    /// Empty: values carry a digest only (garbage, truncated values and values under
+    /// another key's name are refused; a deliberate forger is not). At least 16 bytes.
+    pub redis_secret: String,
+    /// PEM certificates to trust for a `rediss://` Redis instead of the system's roots;
+    /// empty means the system's.
+    pub redis_ca_file: String,
+    /// Largest product written to Redis, bytes; larger ones are computed by each replica
+    /// that needs them (and lookups read no more than this).
+    pub redis_max_value_bytes: u64,
     /// Longest a Redis lookup or write may take (connecting included) before the
     /// request goes on without it, milliseconds.
     pub redis_timeout_ms: u64,
@@ -127,7 +140,7 @@ fn origin_list<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D:
 }
 
 /// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
-const REDIS_SCHEMES: [&str; 3] = ["redis://", "redis+unix://", "unix://"];
+const REDIS_SCHEMES: [&str; 4] = ["redis://", "rediss://", "redis+unix://", "unix://"];
 
 fn default_listen() -> String {
     "127.0.0.1:8080".to_string()
@@ -154,6 +167,9 @@ impl Default for ServerConfig {
             max_header_bytes: 96 << 10,
             max_series: 256,
             redis_url: String::new(),
+            redis_secret: String::new(),
+            redis_ca_file: String::new(),
+            redis_max_value_bytes: 8 << 20,
             redis_timeout_ms: 100,
             redis_retry_ms: 1000,
             redis_ttl_s: 86_400,
@@ -215,7 +231,25 @@ impl ServerConfig {
         if !self.redis_url.is_empty() && !REDIS_SCHEMES.iter().any(|s| self.redis_url.starts_with(s)) {
             return Err(invalid(
                 "server.redis_url",
-                "must start with redis:// or redis+unix:// (or be empty for no Redis)",
+                "must start with redis://, rediss:// or redis+unix:// (or be empty for no Redis)",
+            ));
+        }
+        if !self.redis_secret.is_empty() && self.redis_secret.len() < 16 {
+            return Err(invalid(
+                "server.redis_secret",
+                "must be at least 16 bytes (or empty for a digest without a key)",
+            ));
+        }
+        if !self.redis_ca_file.is_empty() && !self.redis_url.starts_with("rediss://") {
+            return Err(invalid(
+                "server.redis_ca_file",
+                "is for a TLS Redis: server.redis_url must start with rediss://",
+            ));
+        }
+        if !(1 << 10..=512 << 20).contains(&self.redis_max_value_bytes) {
+            return Err(invalid(
+                "server.redis_max_value_bytes",
+                "must be within [1024, 536870912] (Redis refuses larger values)",
             ));
         }
         if !(0.0..=0.9).contains(&self.kept_share) {

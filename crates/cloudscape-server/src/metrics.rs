@@ -52,6 +52,11 @@ pub struct Metrics {
     pub redis_misses: IntCounterVec,
     /// Shared-cache calls that failed or timed out, by operation (`get`, `set`).
     pub redis_errors: IntCounterVec,
+    /// Values read from Redis whose seal did not hold (garbage, another key's value, a
+    /// forgery, another secret), by product kind: treated as misses, never served.
+    pub redis_rejected: IntCounterVec,
+    /// Products not written to Redis: over `server.redis_max_value_bytes`.
+    pub redis_oversize: IntCounter,
     /// Lookups that skipped Redis because it failed recently.
     pub redis_skipped: IntCounter,
     /// Entries written to the shared cache.
@@ -213,6 +218,7 @@ impl Metrics {
                 &m.refused,
                 &m.redis_hits,
                 &m.redis_misses,
+                &m.redis_rejected,
             ] {
                 v.with_label_values(&[kind]);
             }
@@ -336,6 +342,15 @@ impl Metrics {
                 "cloudscape_redis_errors_total",
                 "shared (Redis) cache calls that failed or timed out",
                 &["op"],
+            ),
+            redis_rejected: counter(
+                "cloudscape_redis_rejected_total",
+                "values read from Redis whose seal check failed: treated as misses, never served",
+                &["kind"],
+            ),
+            redis_oversize: plain_counter(
+                "cloudscape_redis_oversize_total",
+                "products not written to Redis: over server.redis_max_value_bytes",
             ),
             redis_skipped: plain_counter(
                 "cloudscape_redis_skipped_total",

@@ -148,7 +148,8 @@ pub async fn tile(
         canonical,
     );
     let watched: Arc<dyn crate::ahead::Recipe> = Arc::clone(&recipe) as _;
-    s.ahead.watched(&s.metrics, &watched, keyframe, t);
+    let in_area = s.warm.covers(&recipe.world.fingerprint, layer_index, tile);
+    s.ahead.watched(&s.metrics, &watched, keyframe, t, in_area);
     let max_response_bytes = config.limits.max_response_bytes;
     let plan = {
         let recipe = Arc::clone(&recipe);

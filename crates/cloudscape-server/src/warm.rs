@@ -415,6 +415,9 @@ pub struct Warm {
     first_done: Notify,
     /// Variants per (world, area index), for discovery.
     counts: BTreeMap<(String, usize), usize>,
+    /// The tiles of the areas, by (world fingerprint, layer, tile): where compute-ahead
+    /// follows a tile from its first request (`crate::ahead`).
+    covered: std::collections::HashSet<(String, usize, TileId)>,
     wake: Notify,
 }
 
@@ -480,6 +483,10 @@ impl Warm {
             }
         }
         parts.metrics.warm_tiles.set(tiles.len() as i64);
+        let covered = tiles
+            .iter()
+            .map(|t| (t.recipe.world.fingerprint.clone(), t.recipe.layer, t.recipe.tile))
+            .collect();
         let progress = tiles.iter().map(|_| Progress::default()).collect();
         Warm {
             first_pending: AtomicUsize::new(tiles.len()),
@@ -488,8 +495,15 @@ impl Warm {
             threads,
             first_done: Notify::new(),
             counts,
+            covered,
             wake: Notify::new(),
         }
+    }
+
+    /// Whether `tile` of `layer` of the world with `fingerprint` is one a play area
+    /// keeps warm (in any product or quality).
+    pub fn covers(&self, fingerprint: &str, layer: usize, tile: TileId) -> bool {
+        !self.covered.is_empty() && self.covered.contains(&(fingerprint.to_string(), layer, tile))
     }
 
     /// Whether play areas are kept warm (`server.warm_threads` > 0).

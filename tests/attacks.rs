@@ -118,8 +118,8 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
     ])
     .await;
     // 12 distinct renders, each within the limits (~1.5 CPU-s), ~18 CPU-s together:
-    // far more than 2 s on 2 threads. Without cancellation the queue stays busy
-    // until all of them are done.
+    // far more than 2 s on 2 threads. Without admission against the backlog and
+    // cancellation the queue stays busy until all of them are done.
     let started = Instant::now();
     let handles: Vec<_> = (0..12)
         .map(|i| tokio::spawn(get_owned(c.clone(), render(&server.base, 100 + i, "1024x1024", "fast"))))
@@ -153,7 +153,11 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
         free_after <= limit,
         "queue free after {free_after:?} (answered after {answered:?}); budget {budget_ms} ms"
     );
-    assert!(metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]) > 0.0);
+    // What could not finish was shed before it started (the backlog was over the
+    // budget) or stopped when its budget ran out.
+    let stopped = metric(&server, "cloudscape_cancelled_total", &[("kind", "render")]);
+    let shed = metric(&server, "cloudscape_shed_total", &[("kind", "render")]);
+    assert!(stopped + shed > 0.0, "{by_status:?}");
     // An uncached cheap request is served at once.
     let a = get(
         &c,
@@ -161,6 +165,52 @@ async fn work_over_its_budget_is_stopped_and_the_queue_is_free_right_after() {
     )
     .await;
     assert_eq!(a.status, 200);
+}
+
+/// Admission counts the queue, not one job: a burst of 16 heavy renders, each legal on
+/// its own, with a queue that has room for all 16. Before, all 16 were admitted and
+/// timed out together at the budget; now the queue admits what its backlog lets finish
+/// within the budget and sheds the rest at once with 503 `overloaded` and a
+/// `Retry-After`, and every admitted job is answered 200.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_burst_admits_only_what_finishes_within_the_budget() {
+    let (_serial, server, c) = start(&[
+        ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "6000"),
+        ("CLOUDSCAPE_SERVER_COMPUTE_QUEUE", "32"),
+        ("CLOUDSCAPE_SERVER_COMPUTE_MEMORY_BYTES", "17179869184"),
+        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
+    ])
+    .await;
+    // Two renders one after the other teach the queue the rate it works at here.
+    for i in 0..2 {
+        assert_eq!(
+            get(&c, render(&server.base, 500 + i, "1024x1024", "fast")).await.status,
+            200
+        );
+    }
+    let handles: Vec<_> = (0..16)
+        .map(|i| tokio::spawn(get_owned(c.clone(), render(&server.base, 600 + i, "1024x1024", "fast"))))
+        .collect();
+    let mut by = std::collections::BTreeMap::new();
+    for h in handles {
+        let a = h.await.unwrap();
+        let what = match a.status {
+            200 => "ok",
+            503 => a.json["error"].as_str().unwrap_or("?"),
+            _ => "other",
+        };
+        if a.status == 503 {
+            assert!(a.retry_after.is_some_and(|s| (1..=60).contains(&s)), "{}", a.json);
+        }
+        *by.entry(what.to_string()).or_insert(0) += 1;
+    }
+    // Some were admitted and finished, some were shed up front, none timed out.
+    assert!(by.get("ok").copied().unwrap_or(0) >= 1, "{by:?}");
+    assert!(by.get("overloaded").copied().unwrap_or(0) >= 1, "{by:?}");
+    assert_eq!(by.get("timeout"), None, "admitted jobs timed out: {by:?}");
+    assert_eq!(by.values().sum::<u32>(), 16, "{by:?}");
+    assert_eq!(metric(&server, "cloudscape_timeouts_total", &[]), 0.0);
+    assert_eq!(metric(&server, "cloudscape_cancelled_total", &[]), 0.0);
 }
 
 async fn get_owned(c: reqwest::Client, url: String) -> Answer {

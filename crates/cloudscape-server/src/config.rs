@@ -16,13 +16,17 @@ fn invalid(key: &str, message: &str) -> ConfigError {
 pub struct ServerConfig {
     /// Address to listen on.
     pub listen: String,
-    /// Byte budget of the in-memory caches: the encoded responses, and the state tiles
-    /// keep between keyframes (`kept_share` of it).
+    /// Memory budget of what the server holds: the computations running or queued
+    /// (their estimated working memory, `compute_memory_bytes`, up to a quarter of
+    /// this), the state tiles keep between keyframes (`kept_share` of the rest) and the
+    /// encoded responses (the remainder). Peak RSS stays within this plus 512 MiB
+    /// (replies being sent, the process itself, the allocator's overhead).
     pub cache_bytes: u64,
-    /// The share of `cache_bytes` that tiles may keep between keyframes (the density
-    /// grids of their latest keyframe ends and, at level 0, the automaton's runs:
-    /// `crate::kept`), in [0, 0.9]; the responses get the rest. 0 keeps nothing, and
-    /// every keyframe is computed as if the tile had never been seen.
+    /// The share of `cache_bytes` (less the computations' part) that tiles may keep
+    /// between keyframes (the density grids of their latest keyframe ends and, at level
+    /// 0, the automaton's runs: `crate::kept`), in [0, 0.9]; the responses get the
+    /// rest. 0 keeps nothing, and every keyframe is computed as if the tile had never
+    /// been seen.
     pub kept_share: f64,
     /// Compute jobs that may be running or queued at once; 0 means 4 × cores.
     /// A request that finds the queue full is shed with 503.
@@ -88,8 +92,10 @@ pub struct ServerConfig {
     /// Expiry of the entries written to Redis, seconds; 0 means none (rely on Redis's
     /// `maxmemory-policy`).
     pub redis_ttl_s: u64,
-    /// Estimated working memory that the running compute jobs may hold together,
-    /// bytes; a job that does not fit is shed with 503.
+    /// Estimated working memory that the admitted compute jobs may hold together,
+    /// bytes; a job that does not fit is shed with 503 (one that needs more than all of
+    /// it runs only while no other job does). Taken out of `cache_bytes` up to a
+    /// quarter of it. 0 (the default): a quarter of `cache_bytes`, at least 256 MiB.
     pub compute_memory_bytes: u64,
     /// Bytes that replies still being sent may hold together; past it a request is
     /// answered 503 with `Retry-After` instead of another large body.
@@ -173,8 +179,8 @@ impl Default for ServerConfig {
             redis_timeout_ms: 100,
             redis_retry_ms: 1000,
             redis_ttl_s: 86_400,
-            compute_memory_bytes: 2 << 30,
-            reply_bytes: 256 << 20,
+            compute_memory_bytes: 0,
+            reply_bytes: 128 << 20,
             ahead_threads: 1,
             ahead_tiles: 4096,
             warm_threads: 1,
@@ -186,14 +192,28 @@ impl Default for ServerConfig {
 }
 
 impl ServerConfig {
-    /// Bytes the tiles' kept state may hold: `kept_share` of `cache_bytes`.
+    /// Estimated working memory the admitted compute jobs may hold together.
+    pub fn compute_bytes(&self) -> u64 {
+        match self.compute_memory_bytes {
+            0 => (self.cache_bytes / 4).max(256 << 20),
+            n => n,
+        }
+    }
+
+    /// The part of `cache_bytes` the computations take: theirs, up to a quarter.
+    fn computing_share(&self) -> u64 {
+        self.compute_bytes().min(self.cache_bytes / 4)
+    }
+
+    /// Bytes the tiles' kept state may hold: `kept_share` of `cache_bytes` less the
+    /// computations' part.
     pub fn kept_bytes(&self) -> u64 {
-        (self.cache_bytes as f64 * self.kept_share) as u64
+        ((self.cache_bytes - self.computing_share()) as f64 * self.kept_share) as u64
     }
 
     /// Bytes the encoded responses may hold: the rest of `cache_bytes`.
     pub fn response_bytes(&self) -> u64 {
-        self.cache_bytes - self.kept_bytes()
+        self.cache_bytes - self.computing_share() - self.kept_bytes()
     }
 
     /// Checks the values that serde cannot (ranges, header syntax, URL schemes).
@@ -255,8 +275,11 @@ impl ServerConfig {
         if !(0.0..=0.9).contains(&self.kept_share) {
             return Err(invalid("server.kept_share", "must be within [0, 0.9]"));
         }
-        if self.compute_memory_bytes < 1 << 20 {
-            return Err(invalid("server.compute_memory_bytes", "must be at least 1 MiB"));
+        if self.compute_memory_bytes != 0 && self.compute_memory_bytes < 1 << 20 {
+            return Err(invalid(
+                "server.compute_memory_bytes",
+                "must be at least 1 MiB (or 0 for a quarter of server.cache_bytes)",
+            ));
         }
         if self.reply_bytes < 1 << 20 {
             return Err(invalid("server.reply_bytes", "must be at least 1 MiB"));

@@ -195,9 +195,10 @@ fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
 /// started then got 503s).
 #[test]
 fn readiness_waits_for_the_next_keyframes_too() {
-    // A slow clock (a level-0 span of `low` lasts 100 real seconds), so no keyframe
-    // boundary passes while the next keyframes are asked for.
-    let mut s = Serving::spawn(&config(0.1, AREAS));
+    // A slow clock (a level-0 span of `low` lasts 100 real seconds; t ≈ 1.8e8 s), so
+    // no keyframe boundary passes while the next keyframes are asked for.
+    let slow = [("worlds.default.clock", "{ offset = 0.0, rate = 0.1 }")];
+    let mut s = Serving::spawn(&config_with(0.1, AREAS, &slow));
     let (seen, metrics) = s.watch_readiness(Duration::from_secs(120));
     assert_eq!(seen.last().unwrap().0, 200);
     assert_eq!(

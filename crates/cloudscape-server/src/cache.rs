@@ -72,9 +72,14 @@ const BACKLOG_SHARE_OF_BUDGET: f64 = 0.8;
 /// Busy seconds over which the queue's working rate is measured (older time is
 /// forgotten proportionally).
 const RATE_WINDOW_S: f64 = 60.0;
-/// Busy seconds measured before the measured rate replaces the assumed one (one
-/// estimated CPU-second per second per compute thread).
-const RATE_MIN_S: f64 = 2.0;
+/// Busy seconds measured before the measured rate replaces the assumed one.
+const RATE_MIN_S: f64 = 1.0;
+/// The rate assumed before one is measured, estimated CPU-seconds per second per
+/// compute thread: a quarter of what the estimates promise, since the first burst
+/// comes before any measurement, and a machine shared with other work runs several
+/// times slower than the calibration did (a 1024² `fast` view, 1.5 CPU-s estimated,
+/// took 5 s alone on the 2-core development machine at load average 6).
+const ASSUMED_RATE_PER_THREAD: f64 = 0.25;
 
 /// The estimated work admitted to the queue and not done yet, and the rate at which
 /// the queue does estimated work (estimated CPU-seconds per second of wall time while
@@ -83,7 +88,7 @@ const RATE_MIN_S: f64 = 2.0;
 /// parallelism) into one number, so the backlog's time is in real seconds.
 struct Backlog {
     state: Mutex<BacklogState>,
-    /// Compute threads: the rate assumed before any is measured.
+    /// Compute threads (the measured rate is bounded by a multiple of them).
     threads: f64,
 }
 
@@ -104,7 +109,7 @@ struct BacklogState {
 impl BacklogState {
     fn rate(&self, threads: f64) -> f64 {
         if self.busy_s < RATE_MIN_S {
-            threads
+            ASSUMED_RATE_PER_THREAD * threads
         } else {
             (self.done_cpu_s / self.busy_s).clamp(0.05 * threads, 4.0 * threads)
         }
@@ -808,9 +813,10 @@ mod tests {
 
     #[test]
     fn the_backlog_admits_what_fits_the_budget_behind_the_work_already_admitted() {
-        // Two threads, nothing measured yet: 2 estimated CPU-seconds a second. A 10 s
-        // budget leaves 8 s (BACKLOG_SHARE_OF_BUDGET) for the work ahead and one's own.
-        let backlog = Backlog::new(2);
+        // Eight threads, nothing measured yet: 2 estimated CPU-seconds a second
+        // (ASSUMED_RATE_PER_THREAD). A 10 s budget leaves 8 s
+        // (BACKLOG_SHARE_OF_BUDGET) for the work ahead and one's own.
+        let backlog = Backlog::new(8);
         let budget = Some(Duration::from_secs(10));
         let a = backlog.admit(6.0, budget).expect("nothing ahead");
         let b = backlog.admit(6.0, budget).expect("12 CPU-s: 6 s");

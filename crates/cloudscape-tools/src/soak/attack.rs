@@ -4,9 +4,9 @@
 //! - **Render burst (refused)**: eight 89-byte requests for
 //!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
 //!   each on the development machine) at once. They must be refused up front.
-//! - **Render burst (admitted)**: eight heavy renders that are within the limits
-//!   one at a time (by default 2048² `balanced`, about 5 CPU-seconds each; choose
-//!   one that fits a smaller budget), all at once. The
+//! - **Render burst (admitted)**: one heavy render alone, then eight that are within
+//!   the limits one at a time (by default 2048² `balanced`, about 5 CPU-seconds each;
+//!   choose one that fits a smaller budget), all at once. The
 //!   server may shed or time them out, but must stop the work nobody waits for.
 //!   Recovery: the time from the burst until an uncached cheap request (a density
 //!   tile never asked before) answers 200 again. Target: at most 2 × the budget.
@@ -384,10 +384,25 @@ fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -
 /// the queue is free again within 2 × the budget.
 fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
     let run = salt() % 100_000;
+    // One of them alone first, as a user would send one: how long it takes here (and
+    // the queue measures its rate from it).
+    let started = Instant::now();
+    let alone = get(
+        client,
+        &render_url(o, o.burst + 1, &o.heavy_size, &o.heavy_quality, 1 + run),
+    );
+    let alone_s = started.elapsed().as_secs_f64();
     let urls: Vec<String> = (0..o.burst)
         .map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run))
         .collect();
     let mut b = burst_and_recover(o, client, &urls);
+    b.figures.insert("alone_s".to_string(), alone_s);
+    if alone.status != Some(200) {
+        b.notes.push(format!(
+            "one render alone was answered {:?} ({:?})",
+            alone.status, alone.error_code
+        ));
+    }
     if let Some(ra) = b.answers.iter().filter_map(|a| a.retry_after).max() {
         b.figures.insert("max_retry_after_s".to_string(), ra as f64);
     }

@@ -197,23 +197,19 @@ impl Backlog {
     }
 
     /// The job of `ticket` left the queue: before it ran (`ran` false), or after
-    /// (`completed`: it did all its work; a stopped job is credited the share of the
-    /// rate it had while it ran, so stopping leaves the measured rate as it was).
+    /// (`completed`: it did all its work, which is credited to the rate; a job stopped
+    /// at its budget is credited nothing: how far it got is unknown, and work that
+    /// does not finish in its budget is what the rate must warn of).
     fn finish(&self, ticket: u64, ran: bool, completed: bool) {
         let mut s = self.lock();
-        let now = Instant::now();
-        let rate = s.rate(self.threads);
-        s.tick(now);
+        s.tick(Instant::now());
         let Some((cpu_s, started)) = s.jobs.remove(&ticket) else {
             return;
         };
-        if let (true, Some(at)) = (ran, started) {
-            let share = rate / s.running.max(1) as f64;
-            s.done_cpu_s += if completed {
-                cpu_s
-            } else {
-                (now.duration_since(at).as_secs_f64() * share).min(cpu_s)
-            };
+        if ran && started.is_some() {
+            if completed {
+                s.done_cpu_s += cpu_s;
+            }
             s.running = s.running.saturating_sub(1);
         }
     }

@@ -370,12 +370,13 @@ async fn replies_held_by_clients_that_do_not_read_stay_within_the_reply_budget()
 #[test]
 fn the_attack_scenario_holds_against_the_real_binary() {
     let _serial = SERIAL.blocking_lock();
-    // The CI smoke run of `cloudscape fuzz --scenario attack`: a 6 s budget, so the
-    // admitted burst is 1024² `fast` renders (~1.5 CPU-s each, 8 at once; one alone
-    // takes up to 5 s on a machine shared with other work).
+    // The CI smoke run of `cloudscape fuzz --scenario attack`: a 10 s budget, and the
+    // admitted burst 512² `fast` renders (~1 CPU-s each, 8 at once; one alone takes
+    // 0.5 s on an idle 2-core machine and a few seconds on one shared with other
+    // work, where a 1024² one took over 6 s).
     let server = ServeProcess::start(
         &[],
-        &[("RUST_LOG", "error"), ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "6000")],
+        &[("RUST_LOG", "error"), ("CLOUDSCAPE_SERVER_REQUEST_TIMEOUT_MS", "10000")],
     );
     let dir = tempfile::tempdir().unwrap();
     let report = dir.path().join("attack.json");
@@ -387,11 +388,11 @@ fn the_attack_scenario_holds_against_the_real_binary() {
             "--target",
             &server.base,
             "--budget",
-            "6",
+            "10",
         ])
         .args([
             "--heavy-size",
-            "1024x1024",
+            "512x512",
             "--heavy-quality",
             "fast",
             "--rss-limit-mib",
@@ -435,7 +436,7 @@ fn the_attack_scenario_holds_against_the_real_binary() {
         admitted["figures"]["admitted"], admitted["figures"]["admitted_finished"],
         "{stdout}"
     );
-    assert!(admitted["figures"]["recovery_s"].as_f64().unwrap() <= 12.0, "{stdout}");
+    assert!(admitted["figures"]["recovery_s"].as_f64().unwrap() <= 20.0, "{stdout}");
     // No answer over the 64 MiB response limit (126 MB before).
     let amp = attack("amplification");
     assert!(

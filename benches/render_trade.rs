@@ -14,8 +14,9 @@ use std::time::Instant;
 use cloudscape_core::products::atlas;
 use cloudscape_core::render::Quality;
 use cloudscape_core::render::image::{Image, PngSpace, encode_png, rmse, ssim};
-use cloudscape_core::render::scene::{self, RenderRequest};
+use cloudscape_core::render::scene::RenderRequest;
 use cloudscape_core::render::tile::ShadedTile;
+use cloudscape_core::view;
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 
 use cloudscape_tools::bench::quality::{
@@ -52,7 +53,7 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Measured {
     let tiles: Vec<ShadedTile> = shade_grids(world, req, &plan, grids).unwrap();
     let billboards_s = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
-    let (image, noise) = scene::draw(&tiles, req, sun);
+    let (image, noise) = view::draw(&tiles, req, sun);
     let draw_s = t2.elapsed().as_secs_f64();
     Measured {
         times: StageTimes {

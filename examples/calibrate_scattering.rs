@@ -23,7 +23,7 @@
 
 use cloudscape_core::render::image::Image;
 use cloudscape_core::render::light::Octaves;
-use cloudscape_core::render::{Quality, ShadingParams, scene};
+use cloudscape_core::render::{Quality, ShadingParams};
 use cloudscape_core::world::{Config, DEFAULT_CONFIG};
 use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau};
 
@@ -102,7 +102,7 @@ fn main() -> Result<(), String> {
         // The path tracer (`Quality::Reference`), or PNGs of an external renderer.
         let reference = match &external {
             Some(dir) => read_reference(&dir.join(format!("scene{i}.png")), size)?,
-            None => scene::draw(&tiles, &ref_req, sun).0,
+            None => cloudscape_core::view::draw(&tiles, &ref_req, sun).0,
         };
         let tau = view_tau(&tiles, &ref_req);
         let req = request(s, preset, size)?;
@@ -153,7 +153,7 @@ fn main() -> Result<(), String> {
                         let mut req = request(s, preset, size)?;
                         req.params = params;
                         let tiles = shade_grids(&p.world, &req, &p.plan, p.grids.clone())?;
-                        let img = scene::draw_billboards(&tiles, &req, req.sun.ok_or("no sun")?);
+                        let img = cloudscape_core::view::draw_billboards(&tiles, &req, req.sun.ok_or("no sun")?);
                         let c = compare(&img, &p.reference, &p.tau, size, size);
                         for r in c.radiance_ratio.iter().flatten() {
                             sum += r.ln().powi(2);

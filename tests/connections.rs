@@ -614,3 +614,121 @@ fn metric_labels_stay_in_a_fixed_set_under_random_methods_and_paths() {
     assert!(methods.contains("other"), "the odd methods are counted as `other`");
     assert!(after.contains("route=\"unmatched\""), "unknown paths are `unmatched`");
 }
+
+/// The JSON error `{"error": code, "message"}` of an answer, or why it is not one.
+fn json_error(a: &Answer) -> Result<String, String> {
+    if !a
+        .header("content-type")
+        .is_some_and(|t| t.starts_with("application/json"))
+    {
+        return Err(format!(
+            "{}: type {:?}, body {:?}",
+            a.status,
+            a.header("content-type"),
+            a.body
+        ));
+    }
+    let body: serde_json::Value =
+        serde_json::from_slice(&a.body).map_err(|e| format!("{}: not JSON ({e}): {:?}", a.status, a.body))?;
+    match (body["error"].as_str(), body["message"].as_str()) {
+        (Some(code), Some(m)) if !m.is_empty() => Ok(code.to_string()),
+        _ => Err(format!("{}: {body}", a.status)),
+    }
+}
+
+#[test]
+fn a_panicking_handler_answers_500_keeps_its_connection_frees_its_counts_and_logs_one_line() {
+    // The test build's route that panics (the `test-panic` feature of
+    // cloudscape-server). A backtrace would be asked for: the server still logs one line.
+    let mut server = ServeProcess::start(&[], &[("RUST_LOG", "warn"), ("RUST_BACKTRACE", "full")]);
+    let addr = format!("127.0.0.1:{}", server.port);
+    let panics = 12;
+    for _ in 0..panics / 2 {
+        // Twice on one kept-alive connection, then a healthy request on it: a panic
+        // costs its request, not the connection.
+        let mut c = Connection::open(&addr, Duration::from_secs(20)).unwrap();
+        for _ in 0..2 {
+            let (a, alive) = c
+                .exchange(b"GET /__test/panic HTTP/1.1\r\nhost: t\r\n\r\n", false)
+                .expect("an answer, not a closed connection");
+            assert_eq!(a.status, 500);
+            assert_eq!(json_error(&a), Ok("internal".to_string()));
+            assert_eq!(a.header("cache-control"), Some("no-store"));
+            assert!(alive, "the connection stays open");
+        }
+        let (a, _) = c.exchange(b"GET /healthz HTTP/1.1\r\nhost: t\r\n\r\n", false).unwrap();
+        assert_eq!(a.status, 200);
+    }
+    assert!(
+        settles_to_one_open(&server),
+        "{} connections open",
+        open_connections(&server)
+    );
+    assert_eq!(
+        metric(&server, "cloudscape_http_requests_in_flight", &[]),
+        1.0,
+        "only /metrics"
+    );
+    assert_eq!(
+        metric(
+            &server,
+            "cloudscape_http_requests_total",
+            &[("route", "/__test/panic"), ("status", "500")]
+        ),
+        panics as f64,
+        "each panic is counted as the 500 it answered"
+    );
+
+    let mut stderr = server.child.stderr.take().unwrap();
+    assert!(server.terminate(), "the server exits cleanly");
+    let mut log = String::new();
+    stderr.read_to_string(&mut log).unwrap();
+    let panic_lines: Vec<&str> = log.lines().filter(|l| l.contains("panic")).collect();
+    assert_eq!(panic_lines.len(), panics, "one line a panic:\n{log}");
+    for line in &panic_lines {
+        assert!(line.contains("ERROR") && line.contains("src/lib.rs:"), "{line}");
+        assert!(line.len() < 1024, "{line}");
+    }
+    assert!(!log.contains("backtrace") && log.len() < panics * 1024, "{log}");
+}
+
+#[test]
+fn refusals_of_the_http_layer_carry_the_json_error() {
+    // The default head buffer (96 KiB) holds a target over hyper's 65 534 bytes; a head
+    // over the buffer is answered with the rest still being sent, which the server
+    // reads before it closes (else the reset could destroy the answer).
+    let server = ServeProcess::start(&[], &[QUIET]);
+    let addr = format!("127.0.0.1:{}", server.port);
+    let long_target = format!("GET /{} HTTP/1.1\r\nhost: t\r\n\r\n", "a".repeat(70_000));
+    let big_head = format!(
+        "GET /healthz HTTP/1.1\r\nhost: t\r\nx-pad: {}\r\n\r\n",
+        "a".repeat(120_000)
+    );
+    for (request, status, code) in [
+        (
+            "GET /healthz HTTP/1.1\r\nhost: t\r\nno colon here\r\n\r\n",
+            400,
+            "malformed_request",
+        ),
+        (
+            "GET /healthz HTTP/1.1\r\nhost: t\r\nbad name: x\r\n\r\n",
+            400,
+            "malformed_request",
+        ),
+        ("GET /he\x01lthz HTTP/1.1\r\nhost: t\r\n\r\n", 400, "malformed_request"),
+        ("GET /healthz HTTP/9.9\r\nhost: t\r\n\r\n", 400, "malformed_request"),
+        (long_target.as_str(), 414, "uri_too_long"),
+        (big_head.as_str(), 431, "headers_too_large"),
+    ] {
+        let mut c = Connection::open(&addr, Duration::from_secs(20)).unwrap();
+        let shown: String = request.chars().take(60).collect();
+        let (a, alive) = c
+            .exchange(request.as_bytes(), false)
+            .unwrap_or_else(|e| panic!("{shown:?}: {e:?}"));
+        assert_eq!(a.status, status, "{shown:?}");
+        assert_eq!(json_error(&a), Ok(code.to_string()), "{shown:?}");
+        assert!(!alive, "{shown:?}: the connection closes after a refusal");
+    }
+    // The server goes on serving.
+    assert_eq!(healthz_on_a_new_connection(server.port).0.status, 200);
+}

@@ -21,7 +21,8 @@ use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
 use cloudscape_core::products::{atlas, billboards, coverage, precipitation, shadow, splats};
-use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
+use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, shade_tile};
+use cloudscape_core::view::render;
 use cloudscape_core::world::{ALGORITHM_VERSION, Config, Keyframe};
 
 const TABLE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/determinism/hashes.toml");

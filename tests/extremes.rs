@@ -8,7 +8,8 @@
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Grid, Region};
 use cloudscape_core::products::{atlas, billboards, coverage, shadow};
-use cloudscape_core::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, render, shade_tile};
+use cloudscape_core::render::{Camera, Phase, Quality, RenderRequest, ShadingParams, Sun, TileId, shade_tile};
+use cloudscape_core::view::render;
 use cloudscape_core::world::{Config, Keyframe, Limits, World};
 
 /// 2^40 cells.

@@ -51,6 +51,9 @@ fn expected_status(code: &str) -> Option<&'static [u16]> {
         "region_too_large" | "series_too_long" | "too_much_work" | "response_too_large" => &[413],
         "overloaded" | "timeout" | "reply_memory_full" => &[503],
         "method_not_allowed" => &[405],
+        "malformed_request" => &[400],
+        "uri_too_long" => &[414],
+        "headers_too_large" => &[431],
         _ => return None,
     })
 }
@@ -427,6 +430,219 @@ fn every_route_answers_a_product_or_a_json_error_under_hostile_parameters() {
         "the server's peak RSS {peak} kB is over {MAX_RSS_KB} kB"
     );
     assert!(server.terminate(), "the server exits cleanly after all of that");
+}
+
+/// A valid value of each parameter the OpenAPI document lists, by route template and
+/// name: the starting point that one parameter at a time is made hostile from, so that
+/// the hostile value goes as deep into its parser as a valid one does. `None` for a
+/// parameter nobody gave a value yet (the test then says which).
+fn example(route: &str, name: &str) -> Option<&'static str> {
+    Some(match (name, route.rsplit('/').next().unwrap_or("")) {
+        ("world", _) => "default",
+        ("z", "{product}") => "1",
+        ("zoom", _) => "19",
+        ("x" | "y", "{product}") => "-1",
+        ("product", _) => "coverage.png",
+        ("t", _) => "20.5",
+        ("t0", _) => "0",
+        ("t1", _) => "30",
+        ("dt", _) => "20",
+        ("x" | "y", _) => "1234.5",
+        ("z", "sample" | "position") => "1050",
+        ("z", "cube") => "1000/1200",
+        ("bbox", _) => "0,0,2000,2000",
+        ("layer", _) => "low",
+        ("level", _) => "1",
+        ("quality", _) => "fast",
+        ("sun", _) => "135.5,30.25",
+        ("samples", _) => "4",
+        ("size", _) => "16x9",
+        // Above every layer, looking up: a valid view that costs little.
+        ("camera", _) => "0,-2000,9000,0,80,60",
+        ("coords", "position") => "POINT(500.5 -250)",
+        ("coords", "area") => "POLYGON((0 0, 2000 0, 1000 2000, 0 0))",
+        // A long fraction: a parser that cuts it by byte counts meets the multibyte
+        // characters inserted below at every place.
+        ("datetime", _) => "1970-01-01T00:01:00.12345678Z",
+        ("parameter-name", _) => "cloud_cover,density",
+        ("f", "position" | "area" | "cube") => "CoverageJSON",
+        ("f", _) => "json",
+        ("crs", _) => "cloudscape-local-metres",
+        _ => return None,
+    })
+}
+
+/// One parameter of a route: its name, whether it is a path segment, whether it is
+/// required, and its valid value.
+struct Param {
+    name: String,
+    in_path: bool,
+    required: bool,
+    example: &'static str,
+}
+
+/// The request target of `route` with every required parameter at its example value
+/// and parameter `hostile` (an index into `params`) set to `value`, percent-encoded.
+/// (`samples` comes with the one quality that takes it, and a render is always small:
+/// the default 640x360 takes seconds in a debug build.)
+fn target_with(route: &str, params: &[Param], hostile: usize, value: &str) -> String {
+    let mut path = route.to_string();
+    let mut query = Vec::new();
+    if params[hostile].name == "samples" {
+        query.push("quality=reference".to_string());
+    }
+    for (i, p) in params.iter().enumerate() {
+        let v = if i == hostile { value } else { p.example };
+        if p.in_path {
+            path = path.replace(&format!("{{{}}}", p.name), &encode(v.as_bytes()));
+        } else if i == hostile || p.required || p.name == "size" {
+            query.push(format!("{}={}", p.name, encode(v.as_bytes())));
+        }
+    }
+    format!("{path}?{}", query.join("&"))
+}
+
+/// The property of any answer to any request: never a 500 (or another 5xx than a 503
+/// with `Retry-After`), and every error the JSON `{"error", "message"}` with the status
+/// of its kind.
+fn check_any(target: &str, a: &Answer) -> Result<(), TestCaseError> {
+    if a.status < 400 {
+        return Ok(());
+    }
+    let ctype = a.header("content-type").unwrap_or("");
+    prop_assert!(
+        ctype.starts_with("application/json"),
+        "{target}: {} with `{ctype}`",
+        a.status
+    );
+    let body: serde_json::Value = serde_json::from_slice(&a.body)
+        .map_err(|e| TestCaseError::fail(format!("{target}: error body is not JSON: {e}")))?;
+    let code = body["error"].as_str().unwrap_or("");
+    prop_assert!(
+        body["message"].as_str().is_some_and(|m| !m.is_empty()),
+        "{target}: {body}"
+    );
+    let allowed = expected_status(code);
+    prop_assert!(
+        allowed.is_some_and(|s| s.contains(&a.status)),
+        "{target}: {} {body}",
+        a.status
+    );
+    if a.status == 503 {
+        prop_assert!(a.header("retry-after").is_some(), "{target}: 503 without Retry-After");
+    }
+    Ok(())
+}
+
+/// Any request on a fresh connection: the answer, or a failure if the connection closed
+/// without one (what a panicking handler did).
+fn try_get(server: &ServeProcess, target: &str) -> Result<Answer, TestCaseError> {
+    let addr = format!("127.0.0.1:{}", server.port);
+    let mut c = Connection::open(&addr, Duration::from_secs(60)).expect("connect");
+    let req = format!("GET {target} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n");
+    c.exchange(req.as_bytes(), false)
+        .map(|(a, _)| a)
+        .map_err(|e| TestCaseError::fail(format!("{target}: no answer ({e:?})")))
+}
+
+/// Every parameter of every route the OpenAPI document lists (path segments and query
+/// parameters, EDR's included), through the real router on a real socket: each
+/// multibyte character of 2, 3 and 4 bytes inserted at every place of the parameter's
+/// valid value, then arbitrary UTF-8 strings. Nothing panics or answers 500; every
+/// refusal is a JSON 4xx.
+#[test]
+fn every_parameter_of_every_route_takes_any_utf8_without_a_panic_or_a_500() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("config.toml");
+    std::fs::write(&config, test_world()).unwrap();
+    let server = ServeProcess::start(&["--config", config.to_str().unwrap()], &[("RUST_LOG", "error")]);
+    let doc: serde_json::Value = serde_json::from_str(&server.get("/openapi.json").text().unwrap()).unwrap();
+    let mut routes: Vec<(String, Vec<Param>)> = Vec::new();
+    for (route, item) in doc["paths"].as_object().unwrap() {
+        let mut params = Vec::new();
+        for p in item["get"]["parameters"].as_array().into_iter().flatten() {
+            let name = p["name"].as_str().unwrap().to_string();
+            let example = example(route, &name)
+                .unwrap_or_else(|| panic!("{route}: give parameter `{name}` an example value in example()"));
+            params.push(Param {
+                in_path: p["in"] == "path",
+                required: p["required"] == true,
+                name,
+                example,
+            });
+        }
+        if !params.is_empty() {
+            routes.push((route.clone(), params));
+        }
+    }
+    assert!(routes.len() >= 17, "{} routes with parameters", routes.len());
+
+    // The valid values are valid: each route answers its examples with a 2xx.
+    for (route, params) in &routes {
+        for (i, p) in params.iter().enumerate() {
+            let target = target_with(route, params, i, p.example);
+            let a = try_get(&server, &target).unwrap();
+            assert!(
+                a.status < 300,
+                "{target}: {} {}",
+                a.status,
+                String::from_utf8_lossy(&a.body)
+            );
+        }
+    }
+
+    // Every multibyte character at every place of every valid value.
+    let mut sent = 0;
+    for (route, params) in &routes {
+        for (i, p) in params.iter().enumerate() {
+            let places = p.example.char_indices().map(|(at, _)| at).chain([p.example.len()]);
+            for at in places {
+                for c in ['é', '€', '😀'] {
+                    let mut value = p.example.to_string();
+                    value.insert(at, c);
+                    let target = target_with(route, params, i, &value);
+                    try_get(&server, &target)
+                        .and_then(|a| check_any(&target, &a))
+                        .unwrap_or_else(|e| panic!("{e}"));
+                    sent += 1;
+                }
+            }
+        }
+    }
+    assert!(sent > 1000, "{sent} requests");
+
+    // Arbitrary UTF-8, and valid values with arbitrary strings spliced in.
+    let pairs: Vec<(usize, usize)> = routes
+        .iter()
+        .enumerate()
+        .flat_map(|(r, (_, params))| (0..params.len()).map(move |i| (r, i)))
+        .collect();
+    let hostile = (
+        prop::sample::select(pairs),
+        any::<String>(),
+        any::<prop::sample::Index>(),
+        any::<String>(),
+    );
+    runner(256)
+        .run(&hostile, |((r, i), whole, at, splice)| {
+            let (route, params) = &routes[r];
+            let example = params[i].example;
+            // The arbitrary string alone, and another spliced into the valid value at
+            // a character boundary.
+            let places: Vec<usize> = example.char_indices().map(|(p, _)| p).chain([example.len()]).collect();
+            let spliced = {
+                let mut v = example.to_string();
+                v.insert_str(places[at.index(places.len())], &splice);
+                v
+            };
+            for value in [whole, spliced] {
+                let target = target_with(route, params, i, &value);
+                check_any(&target, &try_get(&server, &target)?)?;
+            }
+            Ok(())
+        })
+        .unwrap();
+    assert!(server.terminate(), "the server exits cleanly");
 }
 
 /// Whether a failed run's stderr is the one clear sentence every refusal must be.

@@ -78,9 +78,9 @@ fn products(
     .unwrap();
     // Billboards (both encodings) and shadow in one call, the atlas and its manifest in
     // another, as the server encodes them.
-    let mut shaded_bytes = encode_shaded(&shaded, u64::MAX, Product::BillboardsJson);
+    let mut shaded_bytes = encode_shaded(&shaded, u64::MAX, true, Product::BillboardsJson);
     if with_atlas {
-        shaded_bytes.extend(encode_shaded(&shaded, u64::MAX, Product::AtlasPng));
+        shaded_bytes.extend(encode_shaded(&shaded, u64::MAX, true, Product::AtlasPng));
     }
     Product::ALL
         .iter()

@@ -172,3 +172,109 @@ fn an_unknown_environment_variable_is_named() {
     assert!(err.contains("cache_bytes"), "the known keys are listed: {err}");
     assert_eq!(err.lines().count(), 1, "{err}");
 }
+
+/// `cloudscape serve --config PATH` (with `env`): it must refuse to start, within a
+/// minute (else the test stops it and fails: the old server accepted these and ran),
+/// with one sentence on stderr and a non-zero exit. Returns the sentence.
+fn refused(path: &str, env: &[(&str, &str)]) -> String {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_cloudscape"))
+        .args(["serve", "--config", path, "--listen", "127.0.0.1:0"])
+        .env("CLOUDSCAPE_SERVER_WARM_THREADS", "0")
+        .envs(env.iter().copied())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("serve --config {path} {env:?} was not refused within a minute");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut err = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut err).unwrap();
+    assert_eq!(status.code(), Some(1), "{path}: {err}");
+    assert!(
+        err.starts_with("error: ") && err.trim_end().lines().count() == 1,
+        "{path}: {err}"
+    );
+    assert!(err.len() < 600, "{path}: a sentence, not {} bytes", err.len());
+    err
+}
+
+#[test]
+fn a_config_number_past_what_the_machine_can_do_is_refused_by_name_before_anything_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let write = |name: &str, text: &str| {
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    // Each was accepted, then killed or hung the process: one /series allocated 32 GB
+    // (abort), SIGTERM never finished draining, a request could allocate anything.
+    for (key, value) in [
+        ("server.max_series", "4294967295"),
+        ("server.drain_ms", "9223372036854775807"),
+        ("server.shutdown_timeout_ms", "9223372036854775807"),
+        ("server.request_timeout_ms", "9223372036854775807"),
+        ("server.compute_queue", "4294967295"),
+        ("server.cache_bytes", "4611686018427387904"),
+        ("server.reply_bytes", "9223372036854775807"),
+        ("limits.max_request_bytes", "9223372036854775807"),
+        ("limits.max_cells", "9223372036854775807"),
+    ] {
+        let path = write("config.toml", &test_config(&[(key, value)]));
+        let err = refused(&path, &[]);
+        assert!(
+            err.contains(&format!("invalid config: {key}: ")),
+            "{key} = {value}: {err}"
+        );
+    }
+    // The environment's overrides are held to the same bounds.
+    let path = write("config.toml", &test_config(&[]));
+    let err = refused(&path, &[("CLOUDSCAPE_SERVER_DRAIN_MS", "9223372036854775807")]);
+    assert!(err.contains("server.drain_ms"), "{err}");
+}
+
+#[test]
+fn a_config_file_is_read_with_a_size_limit_and_its_lists_are_bounded_before_they_are_checked() {
+    // A device that never ends (this read 6 GB in 9 s) and a directory.
+    let err = refused("/dev/zero", &[]);
+    assert!(
+        err.contains("/dev/zero") && err.contains("larger than 1024 KiB"),
+        "{err}"
+    );
+    assert!(refused("/", &[]).contains("cannot read config file /"));
+
+    let dir = tempfile::tempdir().unwrap();
+    let areas = |n: usize| {
+        let mut text = test_config(&[]);
+        for i in 0..n {
+            text += &format!("[[worlds.default.warm]]\nname = \"a{i}\"\nbbox = [0.0, 0.0, 10.0, 10.0]\n");
+        }
+        let path = dir.path().join(format!("areas-{n}.toml"));
+        std::fs::write(&path, text).unwrap();
+        path.to_str().unwrap().to_string()
+    };
+    // 10^5 play areas (7 MB) were refused after 34 s and 680 MB: now by their size.
+    assert!(refused(&areas(100_000), &[]).contains("larger than 1024 KiB"));
+    // Within the size, the count is bounded before any area is looked at.
+    let err = refused(&areas(5_000), &[]);
+    assert!(
+        err.contains("worlds.default.warm: has 5000 play areas; the most is 4096"),
+        "{err}"
+    );
+
+    // TOML that does not parse is one line that says where, never the line quoted whole.
+    let deep = dir.path().join("deep.toml");
+    let n = 200_000;
+    std::fs::write(&deep, format!("x = {}{}\n", "[".repeat(n), "]".repeat(n))).unwrap();
+    let err = refused(deep.to_str().unwrap(), &[]);
+    assert!(err.contains("line 1, column"), "{err}");
+}

@@ -1,14 +1,19 @@
 //! Scale-out on one machine: three `cloudscape serve` replicas behind Debian's nginx,
 //! run with docker/nginx.conf (the file docker/compose.yaml uses) with loopback ports
 //! and temporary paths substituted. Shows that replicas agree byte for byte, that
-//! nginx serves repeats from its cache and coalesces concurrent misses, and that a
-//! replica killed under load costs no request.
+//! nginx serves repeats from its cache and coalesces concurrent misses, that a
+//! replica killed under load costs no request, that a request which kills its
+//! upstream connection takes no replica out for anyone else, and that no request can
+//! poison what nginx caches for the next client.
 
 mod common;
 
+use std::io::{Read, Write};
+use std::net::{Shutdown, TcpListener, TcpStream};
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use common::{ServeProcess, client, free_port, metric, wait_until_ok};
@@ -291,4 +296,190 @@ fn killing_a_replica_under_load_loses_no_request() {
         "no request was retried on a live replica:\n{}",
         samples.join("\n")
     );
+}
+
+/// A relay in front of one replica that forwards both ways, except that a connection
+/// carrying a request whose bytes hold [`POISON`] is closed at once, unanswered: what
+/// a replica that crashes on a request (a panic, an abort) did to nginx.
+struct Relay {
+    port: u16,
+    stop: Arc<AtomicBool>,
+}
+
+/// The marker of a request that kills its upstream connection.
+const POISON: &[u8] = b"poison";
+
+impl Relay {
+    fn start(upstream: u16) -> Relay {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let port = listener.local_addr().unwrap().port();
+        listener.set_nonblocking(true).unwrap();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stopped = Arc::clone(&stop);
+        std::thread::spawn(move || {
+            while !stopped.load(Ordering::SeqCst) {
+                match listener.accept() {
+                    Ok((down, _)) => {
+                        down.set_nonblocking(false).unwrap();
+                        let up = TcpStream::connect(("127.0.0.1", upstream)).unwrap();
+                        Relay::pipe(down, up);
+                    }
+                    Err(_) => std::thread::sleep(Duration::from_millis(2)),
+                }
+            }
+        });
+        Relay { port, stop }
+    }
+
+    /// Copies `down` (nginx) to `up` (the replica) and back, each way on a thread;
+    /// poison from nginx closes both.
+    fn pipe(down: TcpStream, up: TcpStream) {
+        let (mut down_r, mut up_w) = (down.try_clone().unwrap(), up.try_clone().unwrap());
+        let (kill_down, kill_up) = (down.try_clone().unwrap(), up.try_clone().unwrap());
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 16 * 1024];
+            loop {
+                match down_r.read(&mut buf) {
+                    Ok(0) | Err(_) => break,
+                    Ok(n) if buf[..n].windows(POISON.len()).any(|w| w == POISON) => {
+                        let _ = kill_down.shutdown(Shutdown::Both);
+                        let _ = kill_up.shutdown(Shutdown::Both);
+                        return;
+                    }
+                    Ok(n) => {
+                        if up_w.write_all(&buf[..n]).is_err() {
+                            break;
+                        }
+                    }
+                }
+            }
+            let _ = up_w.shutdown(Shutdown::Write);
+        });
+        let (mut up_r, mut down_w) = (up, down);
+        std::thread::spawn(move || {
+            let _ = std::io::copy(&mut up_r, &mut down_w);
+            let _ = down_w.shutdown(Shutdown::Write);
+        });
+    }
+}
+
+impl Drop for Relay {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+    }
+}
+
+#[test]
+fn a_request_that_kills_its_upstream_connection_takes_no_replica_out_for_the_others() {
+    let replicas = start_replicas();
+    let relays: Vec<Relay> = replicas.iter().map(|r| Relay::start(r.port)).collect();
+    let nginx = Nginx::start(&[relays[0].port, relays[1].port, relays[2].port]);
+    let sample = |i: usize, extra: &str| format!("/v1/worlds/default/sample?x={}&y=300&z=1050&t=20{extra}", i * 150);
+
+    // nginx retries a request that failed on a kept-alive upstream connection without
+    // counting the try (the connection may just have gone stale), which would blur the
+    // count of tries below: first let the connections of its start-up checks expire
+    // (the upstream keepalive_timeout, 4 s).
+    std::thread::sleep(Duration::from_secs(5));
+    // Three requests that each kill every upstream connection they are sent on, all to
+    // one shard, so the same replicas see each failure.
+    for _ in 0..3 {
+        let a = get(&nginx.base, &sample(0, "&poison"), &[]);
+        assert_eq!(a.status, 502, "the poisoned request itself fails");
+    }
+    // Everyone else is served, on every shard: no replica was taken out.
+    let failures: Vec<String> = (1..=60)
+        .map(|i| (i, get(&nginx.base, &sample(i, ""), &[])))
+        .filter(|(_, a)| a.status != 200)
+        .map(|(i, a)| format!("{}: {}", sample(i, ""), a.status))
+        .collect();
+    assert!(failures.is_empty(), "other clients failed: {failures:?}");
+    // Each poisoned request was tried on two replicas, not on all three.
+    let log = std::fs::read_to_string(nginx.dir.path().join("access.log")).unwrap();
+    let poisoned: Vec<&str> = log.lines().filter(|l| l.contains("poison")).collect();
+    assert_eq!(poisoned.len(), 3, "{log}");
+    for line in poisoned {
+        let tried = line
+            .split("upstream=")
+            .nth(1)
+            .unwrap_or("")
+            .split(" upstream_status")
+            .next()
+            .unwrap_or("");
+        assert_eq!(tried.matches("127.0.0.1:").count(), 2, "{line}");
+    }
+    // The replicas served all the others.
+    let served: f64 = replicas
+        .iter()
+        .map(|r| metric(r, "cloudscape_computations_total", &[("kind", "sample")]))
+        .sum();
+    assert!(served >= 60.0, "{served}");
+}
+
+/// A raw request to nginx; the status and the body.
+fn raw(base: &str, request: &str) -> (u16, Vec<u8>) {
+    let addr = base.strip_prefix("http://").unwrap();
+    let mut s = TcpStream::connect(addr).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    s.write_all(request.as_bytes()).unwrap();
+    let mut answer = Vec::new();
+    s.read_to_end(&mut answer).unwrap();
+    let text = String::from_utf8_lossy(&answer).into_owned();
+    let (head, body) = text.split_once("\r\n\r\n").unwrap_or((&text, ""));
+    let status = head.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
+    (status, body.as_bytes().to_vec())
+}
+
+#[test]
+fn a_tilejson_request_with_a_forged_host_does_not_change_what_the_next_client_gets() {
+    let replicas = start_replicas();
+    let nginx = Nginx::start(&ports(&replicas));
+    let path = "/v1/worlds/default/tilejson.json?layer=low";
+    let authority = nginx.base.strip_prefix("http://").unwrap().to_string();
+    let template = |body: &[u8]| {
+        let doc: serde_json::Value = serde_json::from_slice(body).unwrap();
+        doc["tiles"][0].as_str().unwrap().to_string()
+    };
+    // A forged Host and X-Forwarded-Proto, then an absolute-form request line naming
+    // another host: what each gets is its own business...
+    let forged = [
+        format!("GET {path} HTTP/1.1\r\nHost: evil.example\r\nX-Forwarded-Proto: https\r\nConnection: close\r\n\r\n"),
+        format!(
+            "GET http://evil.example{path} HTTP/1.1\r\nHost: {authority}\r\nX-Forwarded-Proto: https\r\nConnection: close\r\n\r\n"
+        ),
+    ];
+    for request in &forged {
+        let (status, body) = raw(&nginx.base, request);
+        assert_eq!(status, 200, "{request}");
+        assert!(
+            !template(&body).starts_with("https://"),
+            "nginx says how it was reached: {}",
+            template(&body)
+        );
+    }
+    // ...and the next client, asking the plain URL, gets the templates of the address
+    // it reached nginx at (port included), every time.
+    for _ in 0..3 {
+        let a = get(&nginx.base, path, &[]);
+        assert_eq!(a.status, 200);
+        let t = template(&a.body);
+        assert!(t.starts_with(&format!("{}/v1/worlds/default/zoom/", nginx.base)), "{t}");
+        assert_ne!(a.cache, "HIT", "a document built from a request's Host is never cached");
+    }
+    // A replica says so itself: private, and varying with what it was built from.
+    let r = client().get(format!("{}{path}", replicas[0].base)).send().unwrap();
+    let header = |n: &str| {
+        r.headers()
+            .get_all(n)
+            .iter()
+            .map(|v| v.to_str().unwrap().to_string())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    assert!(
+        header("cache-control").starts_with("private"),
+        "{}",
+        header("cache-control")
+    );
+    assert!(header("vary").contains("host, x-forwarded-proto"), "{}", header("vary"));
 }

@@ -17,7 +17,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
-use cloudscape_core::world::Config;
+use cloudscape_core::world::{Config, read_config_text};
 
 pub(crate) use out::write_out;
 
@@ -99,8 +99,9 @@ pub(crate) fn load_config(path: Option<&str>) -> Result<Config, String> {
     let Some(p) = path else {
         return Ok(Config::embedded());
     };
-    let config = Config::from_file(p).map_err(|e| e.to_string())?;
-    let text = std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?;
+    // Read once: a pipe (`--config <(…)`) gives its text only once.
+    let text = read_config_text(p).map_err(|e| e.to_string())?;
+    let config = Config::parse(&text).map_err(|e| e.to_string())?;
     let settings = cloudscape_server::ServerConfig::parse(&text).map_err(|e| e.to_string())?;
     cloudscape_server::check_config(&config, &settings).map_err(|e| e.to_string())?;
     Ok(config)

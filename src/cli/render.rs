@@ -6,8 +6,9 @@ use clap::Args;
 
 use cloudscape_client::TileClient;
 use cloudscape_core::render::pathtrace::DEFAULT_SAMPLES;
-use cloudscape_core::render::scene::{RenderRequest, parse_size, render};
+use cloudscape_core::render::scene::{RenderRequest, parse_size};
 use cloudscape_core::render::{Camera, Phase, Quality, ShadingParams, Sun};
+use cloudscape_core::view::render;
 
 #[derive(Args)]
 pub struct RenderArgs {

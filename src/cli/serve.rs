@@ -10,7 +10,7 @@ use clap::Args;
 
 use cloudscape_core::world::authored::{Area, Influence, Shape};
 use cloudscape_core::world::warm::WarmArea;
-use cloudscape_core::world::{Config, DEFAULT_CONFIG, World, WorldClock};
+use cloudscape_core::world::{Config, ConfigError, DEFAULT_CONFIG, World, WorldClock, read_config_text};
 use cloudscape_server::{Server, ServerConfig};
 
 /// Sections whose keys the environment may override.
@@ -86,11 +86,10 @@ pub(crate) fn effective_config(
     vars: impl IntoIterator<Item = (String, String)>,
 ) -> Result<(Config, ServerConfig), String> {
     let text = match file {
-        Some(p) => std::fs::read_to_string(p).map_err(|e| format!("cannot read config file {p}: {e}"))?,
+        Some(p) => read_config_text(p).map_err(|e| e.to_string())?,
         None => DEFAULT_CONFIG.to_string(),
     };
-    let mut doc: toml::Table =
-        toml::from_str(&text).map_err(|e| format!("invalid config: {}", e.to_string().trim()))?;
+    let mut doc: toml::Table = toml::from_str(&text).map_err(|e| ConfigError::toml(&text, &e).to_string())?;
     let mut set = |section: &str, key: &str, value: toml::Value| -> Result<(), String> {
         let table = doc
             .entry(section)
@@ -107,13 +106,13 @@ pub(crate) fn effective_config(
         let Some(rest) = name.strip_prefix("CLOUDSCAPE_") else {
             continue;
         };
-        let Some(section) = ENV_SECTIONS
+        let Some((section, key)) = ENV_SECTIONS
             .iter()
-            .find(|s| rest.starts_with(&format!("{}_", s.to_uppercase())))
+            .find_map(|s| Some((s, rest.strip_prefix(&format!("{}_", s.to_uppercase()))?)))
         else {
             continue;
         };
-        let key = rest[section.len() + 1..].to_lowercase();
+        let key = key.to_lowercase();
         let known = known_keys(section)?;
         if !known.contains(&key) {
             return Err(format!(
@@ -290,6 +289,8 @@ pub fn run(a: ServeArgs) -> Result<(), String> {
         return Ok(());
     }
     init_logging(a.log_format);
+    // A panic is one log line, never a backtrace a client could have written per request.
+    cloudscape_server::log_panics_in_one_line();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()

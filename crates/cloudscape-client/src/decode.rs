@@ -7,16 +7,12 @@ use std::io::Cursor;
 use serde::Deserialize;
 
 use cloudscape_core::products::Product;
-use cloudscape_core::products::billboards::{BinBillboards, BinEnd, decode_bin};
-use cloudscape_core::render::camera::View;
-use cloudscape_core::render::composite::composite;
-use cloudscape_core::render::keyframe::between;
-use cloudscape_core::render::light::Lighting;
-use cloudscape_core::render::scene::{LayerBand, background, mean_shadow, plan_bands};
-use cloudscape_core::render::shade::Billboard;
+use cloudscape_core::products::billboards::BinBillboards;
+use cloudscape_core::render::scene::{LayerBand, plan_bands};
 use cloudscape_core::render::splats::SplatSheet;
-use cloudscape_core::render::tile::{TILE_COLUMNS, TileId, shadow_lookup, shadow_shift};
+use cloudscape_core::render::tile::TileId;
 use cloudscape_core::render::{Quality, RenderError, RenderRequest, Rendered, Sun};
+use cloudscape_core::view::{HeldTile, held};
 use cloudscape_core::world::{Keyframe, keyframe_span, prefetch_at};
 
 use crate::ClientError;
@@ -60,37 +56,6 @@ struct SplatManifest {
     count: usize,
     size: usize,
     columns: usize,
-}
-
-/// A tile's ground shadow map at both ends of its keyframe span, decoded from
-/// `shadow.png`.
-struct ShadowMap {
-    origin: [f64; 2],
-    column: f64,
-    /// Added to a ground point before the lookup (`render::tile::shadow_shift`).
-    shift: [f64; 2],
-    /// Transmittance at the span's start and end, 256×256 each, row 0 = south.
-    ends: [Vec<f32>; 2],
-    /// Where the drawn time falls in the span.
-    fraction: f64,
-}
-
-impl ShadowMap {
-    /// Bilinear lookup of each end, blended (as `ShadedTile::shadow_at`); 1 outside
-    /// the tile.
-    fn at(&self, x: f64, y: f64) -> f64 {
-        let (x, y) = (x + self.shift[0], y + self.shift[1]);
-        let [a, b] = &self.ends;
-        let a = shadow_lookup(a, self.origin, self.column, x, y);
-        let b = shadow_lookup(b, self.origin, self.column, x, y);
-        (1.0 - self.fraction) * a + self.fraction * b
-    }
-
-    /// The mean transmittance drawn.
-    fn mean(&self) -> f64 {
-        let mean = |v: &[f32]| v.iter().map(|&v| v as f64).sum::<f64>() / v.len().max(1) as f64;
-        (1.0 - self.fraction) * mean(&self.ends[0]) + self.fraction * mean(&self.ends[1])
-    }
 }
 
 /// Percent-encodes a path segment or query value (RFC 3986 unreserved kept).
@@ -148,81 +113,6 @@ pub fn decode_splat_sheet(manifest: &[u8], png: &[u8]) -> Result<SplatSheet, Str
     })
 }
 
-/// Decodes a tile's `shadow.png` (R the span's start, G its end) for the billboard
-/// tile it belongs to, to be drawn a `fraction` of the way through the span.
-fn decode_shadow_map(png: &[u8], tile: &BinBillboards, base: f64, fraction: f64) -> Result<ShadowMap, String> {
-    let n = TILE_COLUMNS;
-    let (width, height, channels, samples) = decode_png(png)?;
-    if (width, height, channels) != (n, n, 3) {
-        return Err(format!(
-            "expected a {n}×{n} RGB shadow map, got {width}×{height}×{channels}"
-        ));
-    }
-    // PNG row 0 is north; the map's row 0 is south.
-    let end = |e: usize| {
-        let mut values = Vec::with_capacity(n * n);
-        for row in (0..n).rev() {
-            values.extend(
-                samples[3 * row * n..3 * (row + 1) * n]
-                    .chunks_exact(3)
-                    .map(|p| p[e] as f32 / 255.0),
-            );
-        }
-        values
-    };
-    let sun = Sun::new(tile.sun_azimuth_deg as f64, tile.sun_elevation_deg as f64).unwrap_or(Sun {
-        azimuth_deg: 0.0,
-        elevation_deg: 90.0,
-    });
-    Ok(ShadowMap {
-        origin: tile.origin,
-        column: tile.size as f64 / n as f64,
-        shift: shadow_shift(sun, base),
-        ends: [end(0), end(1)],
-        fraction,
-    })
-}
-
-/// The billboards of a decoded `billboards.bin` at time `t`, by the animation rule
-/// (`render::keyframe`): both ends of each record, moved and blended. Version-1
-/// records (one time) draw as they are, their optical depth the sheet's.
-pub fn billboards_at(decoded: &BinBillboards, sheet: &SplatSheet, t: f64) -> Vec<Billboard> {
-    let [t0, t1] = decoded.keyframe.unwrap_or([t, t]);
-    let span = t1 - t0;
-    let f = if span > 0.0 {
-        ((t - t0) / span).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    decoded
-        .records
-        .iter()
-        .enumerate()
-        .map(|(i, r)| {
-            let centre = [
-                decoded.origin[0] + r.offset[0] as f64,
-                decoded.origin[1] + r.offset[1] as f64,
-                r.offset[2] as f64,
-            ];
-            let end = |e: &BinEnd| Billboard {
-                index: [i as i64, 0, 0],
-                centre,
-                radius: r.radius,
-                density: 0.0,
-                tau: 0.0,
-                splat: e.splat,
-                splat_tau: e.splat_tau.unwrap_or_else(|| sheet.tau(e.splat as usize) as f32),
-                opacity: e.opacity as f32 / 255.0,
-                tau_sun: e.tau_sun,
-                sun_transmittance: e.sun_transmittance as f32 / 255.0,
-                colour: e.colour,
-            };
-            let velocity = r.velocity.map(|v| v as f64);
-            between(&end(&r.ends[0]), &end(&r.ends[1]), velocity, f * span, f)
-        })
-        .collect()
-}
-
 /// The path of a world's discovery document.
 pub fn world_path(world: &str) -> String {
     format!("/v1/worlds/{}", encode(world))
@@ -242,16 +132,25 @@ pub fn check_remote(req: &RenderRequest) -> Result<(), ClientError> {
     Ok(())
 }
 
-/// A remote render once the world's discovery document is known: the paths to fetch
-/// ([`RemoteRender::paths`]) and how their bodies become a picture
-/// ([`RemoteRender::compose`]).
+/// A remote render once the world's discovery document is known: the tiles to draw
+/// and the keyframe each needs ([`RemoteRender::tiles`]), their URLs
+/// ([`RemoteRender::keyframe_path`]), and how the decoded keyframes become a picture
+/// ([`RemoteRender::draw`]).
 pub struct RemoteRender {
     world: String,
     req: RenderRequest,
     info: RemoteWorld,
-    bands: Vec<LayerBand>,
     tiles: Vec<(usize, TileId)>,
     query: String,
+}
+
+/// One tile of a remote render: its layer, address and the keyframe that holds the
+/// request's time.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlannedTile {
+    pub layer: usize,
+    pub tile: TileId,
+    pub keyframe: Keyframe,
 }
 
 impl RemoteRender {
@@ -259,8 +158,7 @@ impl RemoteRender {
     /// local `cloudscape render`.
     pub fn plan(world: &str, info: RemoteWorld, req: &RenderRequest) -> Result<RemoteRender, ClientError> {
         check_remote(req)?;
-        let bands = info.bands();
-        let tiles = plan_bands(&bands, info.maxzoom, req)?;
+        let tiles = plan_bands(&info.bands(), info.maxzoom, req)?;
         let mut query = format!("quality={}", req.quality.as_str());
         if let Some(sun) = req.sun {
             query.push_str(&format!("&sun={},{}", sun.azimuth_deg, sun.elevation_deg));
@@ -269,94 +167,99 @@ impl RemoteRender {
             world: world.to_string(),
             req: *req,
             info,
-            bands,
             tiles,
             query,
         })
     }
 
-    /// The keyframe span of a tile of `layer` that holds the request's time.
-    fn keyframe(&self, layer: usize, tile: TileId) -> Keyframe {
-        Keyframe::on_grid(self.req.t, keyframe_span(self.info.layers[layer].dt, tile.z))
+    /// The keyframe span of a tile of `layer` that holds `t`.
+    fn keyframe_at(&self, layer: usize, tile: TileId, t: f64) -> Keyframe {
+        Keyframe::on_grid(t, keyframe_span(self.info.layers[layer].dt, tile.z))
     }
 
-    /// A tile product's keyframe URL: `t` is the keyframe's own time, so the answer
-    /// is immutable and every client in the span asks the same URL.
-    fn tile_path(&self, layer: usize, tile: TileId, product: Product) -> String {
-        self.tile_path_at(layer, tile, product, self.keyframe(layer, tile).t0)
+    /// The tiles to draw, each with the keyframe that holds the request's time, in the
+    /// order [`RemoteRender::draw`] takes them.
+    pub fn tiles(&self) -> Vec<PlannedTile> {
+        self.tiles
+            .iter()
+            .map(|&(layer, tile)| PlannedTile {
+                layer,
+                tile,
+                keyframe: self.keyframe_at(layer, tile, self.req.t),
+            })
+            .collect()
     }
 
-    /// A tile product's URL at keyframe time `t0`.
-    fn tile_path_at(&self, layer: usize, tile: TileId, product: Product, t0: f64) -> String {
+    /// The next keyframe of every tile whose span the request's time is past the
+    /// tile's prefetch point ([`cloudscape_core::world::prefetch_at`], in the second
+    /// half of the span): what an animating client fetches ahead of need.
+    pub fn prefetch(&self) -> Vec<PlannedTile> {
+        self.tiles()
+            .into_iter()
+            .filter(|p| {
+                let k = p.keyframe;
+                k.fraction(self.req.t) >= prefetch_at(p.tile.z, p.tile.x, p.tile.y) && k.t1 > k.t0
+            })
+            .map(|p| PlannedTile {
+                keyframe: self.keyframe_at(p.layer, p.tile, p.keyframe.t1),
+                ..p
+            })
+            .collect()
+    }
+
+    /// What names a tile's keyframes whatever their time: the world, layer, tile,
+    /// quality and sun of its URLs.
+    pub fn variant(&self, p: &PlannedTile) -> String {
         format!(
-            "/v1/worlds/{}/tiles/{}/{}/{}/{}?t={}&{}&layer={}",
-            encode(&self.world),
-            tile.z,
-            tile.x,
-            tile.y,
-            product.name(),
-            t0,
-            self.query,
-            encode(&self.info.layers[layer].name)
+            "{}|{}|{}/{}/{}|{}",
+            self.world, p.layer, p.tile.z, p.tile.x, p.tile.y, self.query
         )
     }
 
-    /// What to fetch, in the order [`RemoteRender::compose`] takes the bodies: the
-    /// splat manifest and sheet, then each tile's `billboards.bin` and `shadow.png`.
-    pub fn paths(&self) -> Vec<String> {
-        let mut paths = splat_paths(self.req.quality).to_vec();
-        for &(layer, tile) in &self.tiles {
-            paths.push(self.tile_path(layer, tile, Product::BillboardsBin));
-            paths.push(self.tile_path(layer, tile, Product::ShadowPng));
-        }
-        paths
+    /// The URL of a tile's keyframe: `billboards.bin` (self-contained), or with
+    /// `delta` `billboards.delta.bin` (coded on the keyframe before it, which the
+    /// client holds). `t` is the keyframe's own time, so the answer is immutable.
+    pub fn keyframe_path(&self, p: &PlannedTile, delta: bool) -> String {
+        let product = if delta {
+            Product::BillboardsDelta
+        } else {
+            Product::BillboardsBin
+        };
+        format!(
+            "/v1/worlds/{}/tiles/{}/{}/{}/{}?t={}&{}&layer={}",
+            encode(&self.world),
+            p.tile.z,
+            p.tile.x,
+            p.tile.y,
+            product.name(),
+            p.keyframe.t0,
+            self.query,
+            encode(&self.info.layers[p.layer].name)
+        )
     }
 
-    /// The next keyframe's products of every tile whose span the request's time is
-    /// past the tile's prefetch point ([`cloudscape_core::world::prefetch_at`], in the
-    /// second half of the span): what an animating client fetches ahead of need.
-    pub fn prefetch_paths(&self) -> Vec<String> {
-        let mut paths = Vec::new();
-        for &(layer, tile) in &self.tiles {
-            let k = self.keyframe(layer, tile);
-            if k.fraction(self.req.t) >= prefetch_at(tile.z, tile.x, tile.y) && k.t1 > k.t0 {
-                for product in [Product::BillboardsBin, Product::ShadowPng] {
-                    paths.push(self.tile_path_at(layer, tile, product, k.t1));
-                }
-            }
-        }
-        paths
-    }
-
-    /// Composites the fetched bodies (in [`RemoteRender::paths`] order; `base` names
-    /// the server in errors).
-    pub fn compose(self, base: &str, bodies: &[Vec<u8>]) -> Result<Rendered, ClientError> {
-        let paths = self.paths();
-        if bodies.len() != paths.len() {
+    /// Draws the decoded keyframes of [`RemoteRender::tiles`] (in that order), as a
+    /// local render draws them (`cloudscape_core::view::held`); `base` names the server
+    /// in errors.
+    pub fn draw(self, base: &str, keyframes: Vec<BinBillboards>) -> Result<Rendered, ClientError> {
+        if keyframes.len() != self.tiles.len() {
             return Err(ClientError::Decode {
                 url: base.to_string(),
-                message: format!("{} bodies for {} paths", bodies.len(), paths.len()),
+                message: format!("{} keyframes for {} tiles", keyframes.len(), self.tiles.len()),
             });
         }
-        let decode_error = |i: usize| {
-            let url = format!("{base}{}", paths[i]);
-            move |message: String| ClientError::Decode { url, message }
-        };
-        let sheet = decode_splat_sheet(&bodies[0], &bodies[1]).map_err(decode_error(1))?;
-        let mut billboards = Vec::new();
-        let mut shadows = Vec::new();
-        let mut served_sun = None;
-        for (k, &(layer, tile)) in self.tiles.iter().enumerate() {
-            let (bin, shadow) = (2 + 2 * k, 3 + 2 * k);
-            let decoded = decode_bin(&bodies[bin]).map_err(decode_error(bin))?;
-            served_sun.get_or_insert((decoded.sun_azimuth_deg, decoded.sun_elevation_deg));
-            billboards.extend(billboards_at(&decoded, &sheet, self.req.t));
-            let fraction = self.keyframe(layer, tile).fraction(self.req.t);
-            shadows.push(
-                decode_shadow_map(&bodies[shadow], &decoded, self.bands[layer].base, fraction)
-                    .map_err(decode_error(shadow))?,
-            );
-        }
+        let served_sun = keyframes.first().map(|k| (k.sun_azimuth_deg, k.sun_elevation_deg));
+        let held: Vec<HeldTile> = self
+            .tiles
+            .iter()
+            .zip(keyframes)
+            .map(|(&(layer, _), keyframe)| HeldTile {
+                layer,
+                base: self.info.layers[layer].base,
+                keyframe,
+                served_shadow: None,
+            })
+            .collect();
         // Every tile is shaded for the centre of the request's sun bucket, which the
         // tiles report; the sky and ground use the same.
         let req = &self.req;
@@ -373,22 +276,11 @@ impl RemoteRender {
                 .into());
             }
         };
-        let view = View::perspective(&req.camera, req.width, req.height);
-        let lighting = Lighting::new(sun.bucket().centre(), req.params);
-        let far = mean_shadow(
-            self.tiles
-                .iter()
-                .zip(&shadows)
-                .map(|(&(layer, _), s)| (layer, s.mean())),
-        );
-        let mut image = background(&view, &lighting, far, |x, y| {
-            shadows.iter().map(|s| s.at(x, y)).product()
-        });
-        composite(&mut image, &billboards, &lighting, &view);
+        let image = held::draw(&held, req, sun);
         Ok(Rendered {
             image,
             tiles: self.tiles,
-            billboards: billboards.len(),
+            billboards: held.iter().map(|t| t.keyframe.records.len()).sum(),
             sun,
             noise: None,
         })
@@ -412,28 +304,5 @@ mod tests {
     fn names_are_encoded() {
         assert_eq!(encode("a b/c"), "a%20b%2Fc");
         assert_eq!(encode("stratocumulus"), "stratocumulus");
-    }
-
-    #[test]
-    fn shadow_lookup_matches_the_tile_rule() {
-        let n = TILE_COLUMNS;
-        let mut values = vec![1.0f32; n * n];
-        values[0] = 0.0; // south-west column
-        let mut map = ShadowMap {
-            origin: [1000.0, 2000.0],
-            column: 100.0,
-            shift: [0.0, 0.0],
-            ends: [values, vec![1.0f32; n * n]],
-            fraction: 0.0,
-        };
-        assert_eq!(map.at(1050.0, 2050.0), 0.0);
-        assert_eq!(map.at(900.0, 2050.0), 1.0, "outside the tile");
-        assert!(
-            (map.at(1100.0, 2050.0) - 0.5).abs() < 1e-9,
-            "halfway to the next column"
-        );
-        // A quarter of the way to an end without the shadow: a quarter lit.
-        map.fraction = 0.25;
-        assert!((map.at(1050.0, 2050.0) - 0.25).abs() < 1e-9);
     }
 }

@@ -1,9 +1,9 @@
-//! A thin client of the tile server: fetches billboard tiles, shadow maps and the splat
-//! sheet over HTTP, revalidating with ETags, and composites them exactly as
-//! `cloudscape render` does locally (same level choice, same compositor, same
-//! background), so a remote render matches a local one up to the 8-bit quantisation of
-//! the served shadow maps (the compositor takes each splat's optical depth from the
-//! sheet's count and the record's f32 `tau_sun`, not the 8-bit texels).
+//! A thin client of the tile server: fetches the billboard keyframes of the tiles a view
+//! needs over HTTP (a tile's first keyframe self-contained, the next ones as deltas on
+//! the keyframe held, `billboards.delta.bin`), revalidating other bodies with ETags, and
+//! draws them as `cloudscape render` does locally (`cloudscape_core::view::held`: same
+//! level choice, same bytes, same derived ground shadows, same compositor), so a remote
+//! render is the local one, pixel for pixel.
 //!
 //! Used by `cloudscape render --server URL`. Knows HTTP only as a client; nothing here
 //! depends on the server's code. The parts:
@@ -16,6 +16,8 @@
 
 pub mod decode;
 #[cfg(feature = "async")]
+mod keyframes;
+#[cfg(feature = "async")]
 mod store;
 
 #[cfg(feature = "blocking")]
@@ -25,7 +27,7 @@ mod nonblocking;
 
 #[cfg(feature = "blocking")]
 pub use blocking::TileClient;
-pub use decode::{RemoteLayer, RemoteRender, RemoteWorld};
+pub use decode::{PlannedTile, RemoteLayer, RemoteRender, RemoteWorld};
 #[cfg(feature = "async")]
 pub use nonblocking::AsyncTileClient;
 

@@ -1,23 +1,30 @@
 //! The async fetcher (feature `async`), for a tokio runtime the caller brings; the
 //! blocking one drives it.
 
+use std::sync::Arc;
 use std::time::Duration;
 
+use cloudscape_core::products::billboards::{BinBillboards, decode_bin_after};
 use cloudscape_core::render::splats::SplatSheet;
 use cloudscape_core::render::{Quality, RenderRequest, Rendered};
 use serde::Deserialize;
 
-use crate::decode::{RemoteRender, RemoteWorld, check_remote, decode_splat_sheet, splat_paths, world_path};
+use crate::decode::{
+    PlannedTile, RemoteRender, RemoteWorld, check_remote, decode_splat_sheet, splat_paths, world_path,
+};
+use crate::keyframes::HeldKeyframes;
 use crate::store::{Head, Store, check_base};
 use crate::{ClientError, FetchStats};
 
-/// An async HTTP client of one server that keeps every body it fetched: an immutable
-/// one (a keyframe) is reused without asking again, any other is revalidated with its
-/// ETag (`If-None-Match`) instead of downloaded again.
+/// An async HTTP client of one server that keeps what it fetched: the keyframes of
+/// tiles decoded (the next keyframe of a held one is fetched as a delta on it), any
+/// other immutable body as it is (reused without asking again), the rest with its ETag
+/// (revalidated with `If-None-Match` instead of downloaded again).
 pub struct AsyncTileClient {
     base: String,
     http: reqwest::Client,
     store: Store,
+    keyframes: HeldKeyframes,
     /// Fetch the next keyframes ahead of need (see [`AsyncTileClient::set_prefetch`]).
     prefetch: bool,
 }
@@ -41,6 +48,7 @@ impl AsyncTileClient {
             base,
             http,
             store: Store::default(),
+            keyframes: HeldKeyframes::default(),
             prefetch: true,
         })
     }
@@ -115,25 +123,45 @@ impl AsyncTileClient {
     }
 
     /// Renders `req` from the tiles the server at this client's base serves for
-    /// `world`: the same level choice, compositor and background as a local
-    /// `cloudscape render`. Billboard presets only.
+    /// `world`: the same level choice and drawing as a local `cloudscape render`.
+    /// Billboard presets only.
     pub async fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
         check_remote(req)?;
         let plan = RemoteRender::plan(world, self.world(world).await?, req)?;
-        let mut bodies = Vec::new();
-        for path in plan.paths() {
-            bodies.push(self.get(&path).await?);
+        let mut keyframes = Vec::new();
+        for p in plan.tiles() {
+            keyframes.push(BinBillboards::clone(&*self.keyframe(&plan, &p).await?));
         }
         if self.prefetch {
-            for path in plan.prefetch_paths() {
-                if self.store.is_held(&path) {
+            for p in plan.prefetch() {
+                if self.keyframes.get(&plan.variant(&p), p.keyframe.t0).is_some() {
                     continue;
                 }
                 self.store.stats.prefetched += 1;
-                self.get(&path).await?;
+                self.keyframe(&plan, &p).await?;
             }
         }
-        plan.compose(&self.base, &bodies)
+        plan.draw(&self.base, keyframes)
+    }
+
+    /// A tile's keyframe, decoded: held already, or fetched as a delta on the keyframe
+    /// before it when that is held, else self-contained.
+    async fn keyframe(&mut self, plan: &RemoteRender, p: &PlannedTile) -> Result<Arc<BinBillboards>, ClientError> {
+        let variant = plan.variant(p);
+        if let Some(k) = self.keyframes.get(&variant, p.keyframe.t0) {
+            self.store.stats.reused += 1;
+            return Ok(k);
+        }
+        let previous = self.keyframes.ending_at(&variant, p.keyframe.t0);
+        let path = plan.keyframe_path(p, previous.is_some());
+        let bytes = self.get(&path).await?;
+        let decoded = decode_bin_after(&bytes, previous.as_deref()).map_err(|message| ClientError::Decode {
+            url: format!("{}{path}", self.base),
+            message,
+        })?;
+        let decoded = Arc::new(decoded);
+        self.keyframes.insert(&variant, p.keyframe.t0, Arc::clone(&decoded));
+        Ok(decoded)
     }
 
     /// Whether [`render`](Self::render) also fetches the next keyframe of every tile

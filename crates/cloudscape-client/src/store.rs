@@ -60,11 +60,6 @@ impl Store {
         Some(s.body.clone())
     }
 
-    /// Whether an immutable body of `path` is held.
-    pub(crate) fn is_held(&self, path: &str) -> bool {
-        self.bodies.get(path).is_some_and(|s| s.immutable)
-    }
-
     /// The ETag to revalidate `path` with, if a body is stored; counts the request.
     pub(crate) fn begin(&mut self, path: &str) -> Option<&str> {
         self.stats.requests += 1;

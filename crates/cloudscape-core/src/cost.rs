@@ -411,7 +411,7 @@ mod tests {
                 &format!("render {} {size}² ({tiles} tiles)", q.as_str()),
                 est,
                 &mut || {
-                    crate::render::render(&world, &config, &req).unwrap().image.to_png();
+                    crate::view::render(&world, &config, &req).unwrap().image.to_png();
                 },
             );
         }

@@ -372,14 +372,8 @@ impl ComputeQueue {
         metrics.queue_depth.set(self.depth() as i64);
         let result = match result {
             Ok(Ok(r)) => r,
-            Ok(Err(panic)) => {
-                let what = panic
-                    .downcast_ref::<&str>()
-                    .map(|s| s.to_string())
-                    .or_else(|| panic.downcast_ref::<String>().cloned())
-                    .unwrap_or_else(|| "a computation panicked".to_string());
-                Err(ApiError::Internal(what))
-            }
+            // The panic hook has logged it; the client gets no internals.
+            Ok(Err(_panic)) => Err(ApiError::Panicked),
             Err(_) => Err(ApiError::Internal("a computation was lost".to_string())),
         };
         // A fired token means the loops may have skipped work: never keep the result.

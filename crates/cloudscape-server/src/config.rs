@@ -217,18 +217,49 @@ impl ServerConfig {
     }
 
     /// Checks the values that serde cannot (ranges, header syntax, URL schemes).
+    /// Every number has a range: a value past it would not mean more of the same but
+    /// kill the process or hang it (a `/series` of 4e9 points allocates 32 GB at once;
+    /// a `drain_ms` of 2^63 never lets SIGTERM finish). The byte budgets are also held
+    /// to the machine's memory, by [`crate::check_config`].
     pub fn validate(&self) -> Result<(), ConfigError> {
-        if !(1..=64).contains(&self.frames_per_step) {
-            return Err(invalid("server.frames_per_step", "must be within [1, 64]"));
-        }
-        for (key, v) in [
-            ("server.request_timeout_ms", self.request_timeout_ms),
-            ("server.header_read_timeout_ms", self.header_read_timeout_ms),
-            ("server.idle_timeout_ms", self.idle_timeout_ms),
-            ("server.write_timeout_ms", self.write_timeout_ms),
+        const MINUTE: u64 = 60_000;
+        const HOUR: u64 = 60 * MINUTE;
+        for (key, value, least, most) in [
+            ("server.frames_per_step", self.frames_per_step as u64, 1, 64),
+            ("server.compute_queue", self.compute_queue as u64, 0, 1 << 16),
+            // The longest time a request may run, and the shutdown's phases: minutes.
+            ("server.request_timeout_ms", self.request_timeout_ms, 1, 10 * MINUTE),
+            ("server.drain_ms", self.drain_ms, 0, 10 * MINUTE),
+            ("server.shutdown_timeout_ms", self.shutdown_timeout_ms, 0, 10 * MINUTE),
+            ("server.shutdown_grace_ms", self.shutdown_grace_ms, 0, 10 * MINUTE),
+            (
+                "server.header_read_timeout_ms",
+                self.header_read_timeout_ms,
+                1,
+                10 * MINUTE,
+            ),
+            ("server.idle_timeout_ms", self.idle_timeout_ms, 1, HOUR),
+            ("server.write_timeout_ms", self.write_timeout_ms, 1, 10 * MINUTE),
+            // The kernel's default limit of descriptors a process may have (nr_open).
+            ("server.max_connections", self.max_connections as u64, 0, 1 << 20),
+            ("server.max_header_bytes", self.max_header_bytes as u64, 8192, 1 << 20),
+            // A point of a series holds about half a KiB between its key, its frames
+            // and its JSON: 65 536 points are some 32 MiB, the most one request should.
+            ("server.max_series", self.max_series as u64, 1, 1 << 16),
+            ("server.redis_timeout_ms", self.redis_timeout_ms, 0, MINUTE),
+            ("server.redis_retry_ms", self.redis_retry_ms, 0, HOUR),
+            // Ten years, within Redis's own limit on EX.
+            ("server.redis_ttl_s", self.redis_ttl_s, 0, 10 * 365 * 86_400),
+            ("server.ahead_threads", self.ahead_threads as u64, 0, 64),
+            ("server.ahead_tiles", self.ahead_tiles as u64, 0, 1 << 20),
+            ("server.warm_threads", self.warm_threads as u64, 0, 64),
+            ("server.max_warm_tiles", self.max_warm_tiles as u64, 0, 1 << 20),
+            // 0: a quarter of `cache_bytes` (checked below: else at least 1 MiB).
+            ("server.compute_memory_bytes", self.compute_memory_bytes, 0, u64::MAX),
+            ("server.reply_bytes", self.reply_bytes, 1 << 20, u64::MAX),
         ] {
-            if v == 0 {
-                return Err(invalid(key, "must be positive"));
+            if !(least..=most).contains(&value) {
+                return Err(invalid(key, &format!("must be within [{least}, {most}], got {value}")));
             }
         }
         if self.shutdown_grace_ms > self.shutdown_timeout_ms {
@@ -236,9 +267,6 @@ impl ServerConfig {
                 "server.shutdown_grace_ms",
                 "must be at most server.shutdown_timeout_ms",
             ));
-        }
-        if !(8192..=1 << 20).contains(&self.max_header_bytes) {
-            return Err(invalid("server.max_header_bytes", "must be within [8192, 1048576]"));
         }
         for (key, v) in [
             ("server.cache_control", &self.cache_control),
@@ -281,21 +309,6 @@ impl ServerConfig {
                 "must be at least 1 MiB (or 0 for a quarter of server.cache_bytes)",
             ));
         }
-        if self.reply_bytes < 1 << 20 {
-            return Err(invalid("server.reply_bytes", "must be at least 1 MiB"));
-        }
-        if self.ahead_threads > 64 {
-            return Err(invalid("server.ahead_threads", "must be within [0, 64]"));
-        }
-        if self.ahead_tiles > 1 << 20 {
-            return Err(invalid("server.ahead_tiles", "must be at most 1048576"));
-        }
-        if self.warm_threads > 64 {
-            return Err(invalid("server.warm_threads", "must be within [0, 64]"));
-        }
-        if self.max_warm_tiles > 1 << 20 {
-            return Err(invalid("server.max_warm_tiles", "must be at most 1048576"));
-        }
         for origin in &self.cors_origins {
             crate::cors::check_origin(origin).map_err(|e| invalid("server.cors_origins", &e))?;
         }
@@ -334,8 +347,7 @@ impl ServerConfig {
     /// Parses and validates the `[server]` section of a configuration's TOML text;
     /// every other section is left to `Config::parse`.
     pub fn parse(text: &str) -> Result<ServerConfig, ConfigError> {
-        let raw: RawServerSection =
-            toml::from_str(text).map_err(|e| ConfigError::Parse(e.to_string().trim().replace('\n', " ")))?;
+        let raw: RawServerSection = toml::from_str(text).map_err(|e| ConfigError::toml(text, &e))?;
         raw.server.validate()?;
         Ok(raw.server)
     }

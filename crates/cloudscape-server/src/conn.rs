@@ -16,6 +16,14 @@
 //!   a canned `503` with `Retry-After` and is closed; nothing waits.
 //! - **Accept errors** (EMFILE, ENFILE, ENOBUFS…): back off 10 ms doubling to 1 s,
 //!   log at most once per interval, keep accepting once descriptors free up.
+//! - **Refusals of the HTTP layer**: hyper answers a request it cannot parse itself
+//!   (400 for a malformed request line or header, 414 for a target over 65 534
+//!   bytes, 431 for a head over the buffer), with no body and no hook to give it
+//!   one. The socket wrapper recognises such an answer (exactly a bodiless 400, 414
+//!   or 431 head, written while no handler runs) and sends the JSON error of
+//!   [`ApiError`] in its place; then, closing, it reads what the client still sends
+//!   (at most 64 KiB for at most a second), so that the answer is not destroyed by
+//!   the reset a close with unread bytes causes.
 //! - **Shutdown**: every connection gets hyper's `graceful_shutdown` (idle ones close
 //!   at once); after `shutdown_grace` the ones not running a handler are closed
 //!   (slowloris, slow readers); handlers still running get up to `shutdown_timeout`.
@@ -29,7 +37,7 @@ use std::io;
 use std::pin::{Pin, pin};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::task::{Context, Poll};
+use std::task::{Context, Poll, ready};
 use std::time::{Duration, Instant};
 
 use axum::Router;
@@ -42,6 +50,7 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{Semaphore, watch};
 
 use crate::config::ServerConfig;
+use crate::error::ApiError;
 use crate::metrics::{CloseReason, Metrics};
 
 /// The connection limits, resolved from `[server]` and the process's file limit.
@@ -218,11 +227,110 @@ impl Drop for Handling {
     }
 }
 
-/// A socket that records in [`Activity`] when bytes move and when a write waits.
+/// A socket that records in [`Activity`] when bytes move and when a write waits, and
+/// that answers hyper's own refusals with the JSON error (see the module notes).
 struct Watched {
     stream: TcpStream,
     activity: Arc<Activity>,
+    /// The largest request head, for the message of a 431.
+    max_header_bytes: usize,
+    /// The JSON answer sent in place of a refusal of hyper's, and how much of it is
+    /// written.
+    answer: Option<(Vec<u8>, usize)>,
+    /// Once a refusal is answered and the write side shut: until when closing reads
+    /// what the client still sends.
+    linger: Option<(Pin<Box<tokio::time::Sleep>>, usize)>,
 }
+
+/// What closing after a refusal reads at most before the socket is dropped.
+const LINGER_BYTES: usize = 64 << 10;
+const LINGER: Duration = Duration::from_secs(1);
+
+impl Watched {
+    fn new(stream: TcpStream, activity: Arc<Activity>, max_header_bytes: usize) -> Watched {
+        Watched {
+            stream,
+            activity,
+            max_header_bytes,
+            answer: None,
+            linger: None,
+        }
+    }
+
+    fn note_write(activity: &Activity, r: &Poll<io::Result<usize>>) {
+        match r {
+            Poll::Pending => activity.write_waits(),
+            Poll::Ready(Ok(n)) if *n > 0 => activity.wrote(),
+            Poll::Ready(_) => {}
+        }
+    }
+
+    /// Writes what is left of the answer to a refusal, if any.
+    fn poll_answer(&mut self, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        if let Some((bytes, done)) = &mut self.answer {
+            while *done < bytes.len() {
+                let r = Pin::new(&mut self.stream).poll_write(cx, &bytes[*done..]);
+                Self::note_write(&self.activity, &r);
+                match ready!(r)? {
+                    0 => return Poll::Ready(Err(io::ErrorKind::WriteZero.into())),
+                    n => *done += n,
+                }
+            }
+        }
+        Poll::Ready(Ok(()))
+    }
+
+    /// Takes `bytes`, which hyper is writing, in place of a refusal of its own: true
+    /// when they were one (the JSON answer then goes out instead).
+    fn answered_refusal(&mut self, bytes: &[u8]) -> bool {
+        // A refusal is only ever written while no handler runs: hyper answers it
+        // instead of calling the service.
+        if self.answer.is_some() || self.activity.handlers.load(Ordering::Relaxed) != 0 {
+            return false;
+        }
+        match hyper_refusal(bytes, self.max_header_bytes) {
+            Some(error) => {
+                self.answer = Some((error.http1_response(), 0));
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// The error of a refusal hyper writes by itself, if `head` is exactly one: the head
+/// of a bodiless `400`, `414` or `431` with no headers but `content-length: 0`,
+/// `date` and `connection` (hyper's `on_error` answer to a parse error). A response of
+/// a handler is never that: every error of ours has a JSON body.
+fn hyper_refusal(head: &[u8], max_header_bytes: usize) -> Option<ApiError> {
+    if head.len() > 512 {
+        return None;
+    }
+    let text = std::str::from_utf8(head).ok()?.strip_suffix("\r\n\r\n")?;
+    let mut lines = text.split("\r\n");
+    let status = lines.next()?.strip_prefix("HTTP/1.1 ")?.get(..3)?;
+    let mut bodiless = false;
+    for line in lines {
+        let (name, value) = line.split_once(": ")?;
+        match name {
+            "content-length" if value == "0" => bodiless = true,
+            "date" | "connection" => {}
+            _ => return None,
+        }
+    }
+    if !bodiless {
+        return None;
+    }
+    match status {
+        "400" => Some(ApiError::MalformedRequest),
+        "414" => Some(ApiError::UriTooLong { max: MAX_TARGET_BYTES }),
+        "431" => Some(ApiError::HeadersTooLarge { max: max_header_bytes }),
+        _ => None,
+    }
+}
+
+/// The longest request target hyper reads (its `MAX_URI_LEN`); a longer one gets 414.
+pub const MAX_TARGET_BYTES: usize = u16::MAX as usize - 1;
 
 impl AsyncRead for Watched {
     fn poll_read(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &mut ReadBuf<'_>) -> Poll<io::Result<()>> {
@@ -235,30 +343,42 @@ impl AsyncRead for Watched {
     }
 }
 
-impl Watched {
-    fn note_write(&self, r: &Poll<io::Result<usize>>) {
-        match r {
-            Poll::Pending => self.activity.write_waits(),
-            Poll::Ready(Ok(n)) if *n > 0 => self.activity.wrote(),
-            Poll::Ready(_) => {}
-        }
-    }
-}
-
 impl AsyncWrite for Watched {
-    fn poll_write(mut self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<io::Result<usize>> {
-        let r = Pin::new(&mut self.stream).poll_write(cx, buf);
-        self.note_write(&r);
+    fn poll_write(self: Pin<&mut Self>, cx: &mut Context<'_>, buf: &[u8]) -> Poll<io::Result<usize>> {
+        let this = self.get_mut();
+        ready!(this.poll_answer(cx))?;
+        if this.answered_refusal(buf) {
+            // hyper's bytes count as written; ours go out now or at the flush.
+            if let Poll::Ready(Err(e)) = this.poll_answer(cx) {
+                return Poll::Ready(Err(e));
+            }
+            return Poll::Ready(Ok(buf.len()));
+        }
+        let r = Pin::new(&mut this.stream).poll_write(cx, buf);
+        Self::note_write(&this.activity, &r);
         r
     }
 
     fn poll_write_vectored(
-        mut self: Pin<&mut Self>,
+        self: Pin<&mut Self>,
         cx: &mut Context<'_>,
         bufs: &[io::IoSlice<'_>],
     ) -> Poll<io::Result<usize>> {
-        let r = Pin::new(&mut self.stream).poll_write_vectored(cx, bufs);
-        self.note_write(&r);
+        let this = self.get_mut();
+        ready!(this.poll_answer(cx))?;
+        let total: usize = bufs.iter().map(|b| b.len()).sum();
+        let first = bufs.iter().find(|b| !b.is_empty()).map_or(&[][..], |b| &b[..]);
+        if total <= 512 && first.starts_with(b"HTTP/1.1 4") {
+            let bytes: Vec<u8> = bufs.iter().flat_map(|b| b.iter().copied()).collect();
+            if this.answered_refusal(&bytes) {
+                if let Poll::Ready(Err(e)) = this.poll_answer(cx) {
+                    return Poll::Ready(Err(e));
+                }
+                return Poll::Ready(Ok(total));
+            }
+        }
+        let r = Pin::new(&mut this.stream).poll_write_vectored(cx, bufs);
+        Self::note_write(&this.activity, &r);
         r
     }
 
@@ -266,12 +386,40 @@ impl AsyncWrite for Watched {
         self.stream.is_write_vectored()
     }
 
-    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_flush(cx)
+    fn poll_flush(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        ready!(this.poll_answer(cx))?;
+        Pin::new(&mut this.stream).poll_flush(cx)
     }
 
-    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
-        Pin::new(&mut self.stream).poll_shutdown(cx)
+    fn poll_shutdown(self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<io::Result<()>> {
+        let this = self.get_mut();
+        ready!(this.poll_answer(cx))?;
+        if this.answer.is_none() {
+            return Pin::new(&mut this.stream).poll_shutdown(cx);
+        }
+        // After a refusal: shut the write side, then read what the client still
+        // sends before the socket is dropped (see the module notes).
+        if this.linger.is_none() {
+            ready!(Pin::new(&mut this.stream).poll_shutdown(cx))?;
+            this.linger = Some((Box::pin(tokio::time::sleep(LINGER)), 0));
+        }
+        let Some((deadline, read)) = &mut this.linger else {
+            return Poll::Ready(Ok(()));
+        };
+        if deadline.as_mut().poll(cx).is_ready() {
+            return Poll::Ready(Ok(()));
+        }
+        let mut sink = [0u8; 4096];
+        while *read < LINGER_BYTES {
+            let mut buf = ReadBuf::new(&mut sink);
+            match ready!(Pin::new(&mut this.stream).poll_read(cx, &mut buf)) {
+                Ok(()) if buf.filled().is_empty() => break,
+                Ok(()) => *read += buf.filled().len(),
+                Err(_) => break,
+            }
+        }
+        Poll::Ready(Ok(()))
     }
 }
 
@@ -409,13 +557,9 @@ fn refuse(mut stream: TcpStream, refusals: &Arc<Semaphore>) {
     };
     tokio::spawn(async move {
         let _permit = permit;
-        let body = r#"{"error":"overloaded","message":"the server has as many connections as it serves at once; retry shortly"}"#;
-        let answer = format!(
-            "HTTP/1.1 503 Service Unavailable\r\ncontent-type: application/json\r\nretry-after: 1\r\nconnection: close\r\ncontent-length: {}\r\n\r\n{body}",
-            body.len()
-        );
+        let answer = ApiError::ConnectionCap.http1_response();
         let answered = tokio::time::timeout(Duration::from_millis(500), async {
-            stream.write_all(answer.as_bytes()).await?;
+            stream.write_all(&answer).await?;
             stream.shutdown().await
         });
         if !matches!(answered.await, Ok(Ok(()))) {
@@ -439,6 +583,22 @@ fn refuse(mut stream: TcpStream, refusals: &Arc<Semaphore>) {
     });
 }
 
+/// Counts an open connection until dropped.
+struct Open(prometheus::IntGauge);
+
+impl Open {
+    fn count(gauge: &prometheus::IntGauge) -> Open {
+        gauge.inc();
+        Open(gauge.clone())
+    }
+}
+
+impl Drop for Open {
+    fn drop(&mut self) {
+        self.0.dec();
+    }
+}
+
 /// What one connection task needs.
 struct Connection {
     app: Router,
@@ -450,18 +610,20 @@ struct Connection {
 impl Connection {
     async fn run(mut self, stream: TcpStream) {
         let metrics = Arc::clone(&self.metrics);
-        metrics.connections_open.inc();
+        // A guard, so that the count comes back however the connection ends (a panic
+        // that escaped the router's catch unwinds through here).
+        let _open = Open::count(&metrics.connections_open);
         let reason = self.serve(stream).await;
-        metrics.connections_open.dec();
         metrics.connections_closed.with_label_values(&[reason.label()]).inc();
     }
 
     async fn serve(&mut self, stream: TcpStream) -> CloseReason {
         let activity = Arc::new(Activity::new());
-        let io = TokioIo::new(Watched {
+        let io = TokioIo::new(Watched::new(
             stream,
-            activity: Arc::clone(&activity),
-        });
+            Arc::clone(&activity),
+            self.limits.max_header_bytes,
+        ));
         let service = {
             let activity = Arc::clone(&activity);
             let app = TowerToHyperService::new(self.app.clone());
@@ -549,6 +711,45 @@ mod tests {
             shutdown_grace: Duration::from_millis(100),
             shutdown_timeout: Duration::from_secs(5),
         }
+    }
+
+    #[test]
+    fn hyper_refusals_are_recognised_and_nothing_else() {
+        let date = "date: Sun, 06 Dec 2026 18:17:09 GMT\r\n";
+        for (status, want) in [
+            ("400 Bad Request", ApiError::MalformedRequest),
+            ("414 URI Too Long", ApiError::UriTooLong { max: 65_534 }),
+            (
+                "431 Request Header Fields Too Large",
+                ApiError::HeadersTooLarge { max: 9000 },
+            ),
+        ] {
+            let head = format!("HTTP/1.1 {status}\r\nconnection: close\r\ncontent-length: 0\r\n{date}\r\n");
+            assert_eq!(hyper_refusal(head.as_bytes(), 9000), Some(want), "{head}");
+        }
+        for head in [
+            // A body, a type, another status, another version, a head cut short.
+            format!("HTTP/1.1 400 Bad Request\r\ncontent-length: 12\r\n{date}\r\n"),
+            "HTTP/1.1 400 Bad Request\r\ncontent-type: application/json\r\ncontent-length: 0\r\n\r\n".to_string(),
+            format!("HTTP/1.1 404 Not Found\r\ncontent-length: 0\r\n{date}\r\n"),
+            format!("HTTP/1.0 400 Bad Request\r\ncontent-length: 0\r\n{date}\r\n"),
+            "HTTP/1.1 400 Bad Request\r\ncontent-length: 0\r\n".to_string(),
+            "HTTP/1.1 400 Bad Request\r\n\r\n".to_string(),
+        ] {
+            assert_eq!(hyper_refusal(head.as_bytes(), 9000), None, "{head}");
+        }
+        // The answer that replaces one: a JSON error that says so.
+        let answer = ApiError::HeadersTooLarge { max: 9000 }.http1_response();
+        let text = String::from_utf8(answer).unwrap();
+        let (head, body) = text.split_once("\r\n\r\n").unwrap();
+        assert!(
+            head.starts_with("HTTP/1.1 431 Request Header Fields Too Large\r\n"),
+            "{head}"
+        );
+        assert!(head.contains(&format!("content-length: {}", body.len())), "{head}");
+        let body: serde_json::Value = serde_json::from_str(body).unwrap();
+        assert_eq!(body["error"], "headers_too_large");
+        assert!(body["message"].as_str().unwrap().contains("9000 bytes"));
     }
 
     #[test]

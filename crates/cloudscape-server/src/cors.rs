@@ -137,16 +137,16 @@ mod tests {
             let text = std::fs::read_to_string(path).unwrap();
             let lower = text.to_lowercase();
             let mut rest = lower.as_str();
-            while let Some(i) = rest.find("x-cloudscape-") {
-                let name: String = rest[i..]
+            while let Some((_, after)) = rest.split_once("x-cloudscape-") {
+                let name: String = after
                     .chars()
                     .take_while(|c| c.is_ascii_alphanumeric() || *c == '-')
                     .collect();
                 let name = name.trim_end_matches('-');
-                if name.len() > "x-cloudscape-".len() {
-                    named.push(name.to_string());
+                if !name.is_empty() {
+                    named.push(format!("x-cloudscape-{name}"));
                 }
-                rest = &rest[i + 13..];
+                rest = after;
             }
         }
         assert!(named.len() >= 5, "{named:?}");

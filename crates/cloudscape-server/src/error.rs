@@ -2,7 +2,11 @@
 //!
 //! Every failure a client can cause maps to a status and a stable machine code in a
 //! JSON body `{"error": code, "message": sentence}`. Nothing a client sends produces a
-//! 500: a 500 means a bug (a panicking job), and is logged as one.
+//! 500: a 500 means a bug (a panicking handler or job), and is logged as one.
+//!
+//! The same body goes out on the paths that never reach a handler: the refusals of the
+//! HTTP layer itself (a malformed request, an overlong target, an oversized head), which
+//! [`crate::conn`] writes as raw HTTP/1.1 with [`ApiError::http1_response`].
 
 use axum::http::{HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -87,6 +91,25 @@ pub enum ApiError {
     /// The server is shutting down.
     #[error("the server is shutting down")]
     Draining,
+    /// The connection is over `server.max_connections` (answered by the connection
+    /// layer, which then closes it).
+    #[error("the server has as many connections as it serves at once; retry shortly")]
+    ConnectionCap,
+    /// The request is not HTTP/1.1 that the server can read (its request line or a
+    /// header is malformed); refused by the HTTP layer before any route sees it.
+    #[error("the request is not valid HTTP/1.1: its request line or a header is malformed")]
+    MalformedRequest,
+    /// The request target is longer than the HTTP layer reads.
+    #[error("the request target is longer than {max} bytes")]
+    UriTooLong { max: usize },
+    /// The request head (request line and headers) is larger than
+    /// `server.max_header_bytes`.
+    #[error("the request line and headers are larger than {max} bytes (server.max_header_bytes)")]
+    HeadersTooLarge { max: usize },
+    /// A handler or a computation panicked: a bug. The panic itself is logged where it
+    /// happened (one line, by the process's panic hook); the client learns no more.
+    #[error("the server failed on this request (a bug, logged on the server)")]
+    Panicked,
     #[error("internal error: {0}")]
     Internal(String),
 }
@@ -123,11 +146,14 @@ impl ApiError {
             UnknownProduct(_) => (StatusCode::NOT_FOUND, "unknown_product"),
             NotFound(_) => (StatusCode::NOT_FOUND, "not_found"),
             MethodNotAllowed => (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
-            Overloaded(_) | Cancelled => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
+            Overloaded(_) | Cancelled | ConnectionCap => (StatusCode::SERVICE_UNAVAILABLE, "overloaded"),
             Timeout { .. } => (StatusCode::SERVICE_UNAVAILABLE, "timeout"),
             ReplyMemoryFull { .. } => (StatusCode::SERVICE_UNAVAILABLE, "reply_memory_full"),
             Draining => (StatusCode::SERVICE_UNAVAILABLE, "draining"),
-            Internal(_) => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
+            MalformedRequest => (StatusCode::BAD_REQUEST, "malformed_request"),
+            UriTooLong { .. } => (StatusCode::URI_TOO_LONG, "uri_too_long"),
+            HeadersTooLarge { .. } => (StatusCode::REQUEST_HEADER_FIELDS_TOO_LARGE, "headers_too_large"),
+            Internal(_) | Panicked => (StatusCode::INTERNAL_SERVER_ERROR, "internal"),
         }
     }
 }
@@ -187,17 +213,44 @@ impl From<RenderError> for ApiError {
     }
 }
 
+impl ApiError {
+    /// The JSON body of this error.
+    fn body(&self) -> ErrorBody {
+        ErrorBody {
+            error: self.status_and_code().1,
+            message: self.to_string(),
+        }
+    }
+
+    /// The whole answer as HTTP/1.1 bytes, for the connection layer, which answers
+    /// some requests before (or instead of) hyper and axum: status line, the headers
+    /// [`IntoResponse`] gives, `connection: close`, and the JSON body.
+    pub fn http1_response(&self) -> Vec<u8> {
+        let status = self.status_and_code().0;
+        let body = serde_json::to_vec(&self.body()).unwrap_or_default();
+        let mut head = format!(
+            "HTTP/1.1 {} {}\r\ncontent-type: application/json\r\ncache-control: no-store\r\n",
+            status.as_u16(),
+            status.canonical_reason().unwrap_or("")
+        );
+        if status == StatusCode::SERVICE_UNAVAILABLE {
+            head += &format!("retry-after: {}\r\n", self.retry_after());
+        }
+        head += &format!("connection: close\r\ncontent-length: {}\r\n\r\n", body.len());
+        let mut out = head.into_bytes();
+        out.extend_from_slice(&body);
+        out
+    }
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        let (status, code) = self.status_and_code();
-        if status.is_server_error() && status != StatusCode::SERVICE_UNAVAILABLE {
+        let (status, _) = self.status_and_code();
+        // A panic was logged by the panic hook, where it happened: one line is enough.
+        if status.is_server_error() && status != StatusCode::SERVICE_UNAVAILABLE && self != ApiError::Panicked {
             tracing::error!(error = %self, "request failed");
         }
-        let body = ErrorBody {
-            error: code,
-            message: self.to_string(),
-        };
-        let mut response = (status, axum::Json(body)).into_response();
+        let mut response = (status, axum::Json(self.body())).into_response();
         let headers = response.headers_mut();
         headers.insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
         if status == StatusCode::SERVICE_UNAVAILABLE {

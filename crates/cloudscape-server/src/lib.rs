@@ -21,6 +21,11 @@
 //! key, known before any work, so `If-None-Match` answers 304 without computing. Bytes are deterministic, so a key's ETag never
 //! names two different bodies.
 
+// Slicing a `str` by byte positions panics inside a multibyte character, and every
+// string here may come from a client: parsers split at ASCII separators
+// (`split_once`, `strip_prefix`) or use `str::get`.
+#![deny(clippy::string_slice)]
+
 mod ahead;
 pub mod allocator;
 mod annotations;
@@ -36,9 +41,11 @@ mod extract;
 mod kept;
 mod key;
 mod lightning;
+mod machine;
 mod metrics;
 mod openapi;
 mod ops;
+mod panics;
 pub mod params;
 mod queries;
 mod recipe;
@@ -75,17 +82,39 @@ use cloudscape_core::world::{Config, ConfigError};
 pub use config::ServerConfig;
 pub use encode::Coding;
 pub use error::ApiError;
+pub use panics::log_in_one_line as log_panics_in_one_line;
 pub use state::{Lifecycle, Readiness};
 
 use self::render::{splats_bytes, splats_key};
 use self::state::AppState;
 
 /// Checks what a server would refuse at start beyond what `Config::parse` and
-/// `ServerConfig::parse` check: world clocks that read a time outside [0, 1e12] now,
-/// and play areas kept warm (`[[worlds.NAME.warm]]`) that name unknown products or
+/// `ServerConfig::parse` check: byte budgets over what this machine has (each of them
+/// alone could be spent), world clocks that read a time outside [0, 1e12] now, and
+/// play areas kept warm (`[[worlds.NAME.warm]]`) that name unknown products or
 /// qualities, reach tiles that cannot be served, or need more than
 /// `server.max_warm_tiles` tile variants together.
 pub fn check_config(config: &Config, settings: &ServerConfig) -> Result<(), ConfigError> {
+    if let Some((memory, source)) = machine::memory() {
+        for (key, bytes) in [
+            ("server.cache_bytes", settings.cache_bytes),
+            ("server.compute_memory_bytes", settings.compute_memory_bytes),
+            ("server.reply_bytes", settings.reply_bytes),
+            ("limits.max_request_bytes", config.limits.max_request_bytes),
+            ("limits.max_response_bytes", config.limits.max_response_bytes),
+        ] {
+            if bytes > memory {
+                return Err(ConfigError::invalid(
+                    key,
+                    format!(
+                        "{bytes} bytes ({:.1} GiB) is more than {source}, {memory} bytes ({:.1} GiB)",
+                        bytes as f64 / (1u64 << 30) as f64,
+                        memory as f64 / (1u64 << 30) as f64
+                    ),
+                ));
+            }
+        }
+    }
     warm::check(config, settings, warm::unix_now()).map(|_| ())
 }
 
@@ -268,7 +297,11 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/readyz", get(ops::readyz))
         .route("/metrics", get(ops::metrics))
         .route("/openapi.json", get(openapi::openapi))
-        .merge(web::routes())
+        .merge(web::routes());
+    // The tests' way to make a handler panic (see the `test-panic` feature).
+    #[cfg(any(test, feature = "test-panic"))]
+    let routes = routes.route("/__test/panic", get(test_panic));
+    let routes = routes
         .fallback(|req: Request| async move { ApiError::NotFound(req.uri().path().chars().take(200).collect()) })
         .method_not_allowed_fallback(|| async { ApiError::MethodNotAllowed })
         // No brotli (tower-http's `compression-br` feature is off): its encoder holds
@@ -276,7 +309,10 @@ fn router(state: Arc<AppState>) -> Router {
         // billboards.json added 325 MiB of RSS, against 4 MiB for gzip and 18 MiB for
         // zstd), memory outside the reply budget.
         .layer(CompressionLayer::new())
-        .layer(middleware::from_fn(tag_coding));
+        .layer(middleware::from_fn(tag_coding))
+        // A panicking handler answers 500 with the JSON error (see `panics`), under
+        // CORS and `observe` like any answer, so it is counted and logged as a 500.
+        .layer(panics::catch());
     // CORS outside compression and the handlers, so errors carry it too; inside
     // `observe`, so preflights are counted and logged like any request.
     let routes = match cors::layer(&state.settings.cors_origins) {
@@ -286,6 +322,12 @@ fn router(state: Arc<AppState>) -> Router {
     routes
         .layer(middleware::from_fn_with_state(Arc::clone(&state), observe))
         .with_state(state)
+}
+
+/// `GET /__test/panic`: panics (tests only).
+#[cfg(any(test, feature = "test-panic"))]
+async fn test_panic() -> Response {
+    panic!("the test route panicked, as asked")
 }
 
 const REQUEST_ID: HeaderName = HeaderName::from_static("x-request-id");

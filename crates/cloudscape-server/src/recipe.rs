@@ -118,6 +118,20 @@ impl TileRecipe {
         let (world, layer, tile, product) = (&self.world.world, self.layer, self.tile, self.product);
         let region = tile.region()?;
         let shading = self.shading(keyframe);
+        // A delta codes a keyframe on its predecessor only when both were lit alike:
+        // the same sun bucket (a fixed sun, or the clock's at both starts).
+        let previous_lit_alike = keyframe.index > 0
+            && !keyframe.is_instant()
+            && shading.is_some_and(|(q, sun)| {
+                let span = keyframe.span();
+                let before = Keyframe {
+                    index: keyframe.index - 1,
+                    t0: (keyframe.index - 1) as f64 * span,
+                    t1: keyframe.t0,
+                };
+                self.shading(before)
+                    .is_some_and(|(q0, s0)| q0 == q && s0.bucket() == sun.bucket())
+            });
         let work = match shading {
             Some((q, sun)) => cost::shade_tile(world, layer, tile, keyframe, q, sun)?,
             None => cost::density(world, layer, tile.z, region, keyframe.t0)?,
@@ -165,7 +179,7 @@ impl TileRecipe {
                     // Shading was the long part: stop here rather than encode for nobody.
                     cancel.check().map_err(|_| ApiError::Cancelled)?;
                     let encoding = std::time::Instant::now();
-                    let mut all = encode_shaded(&shaded, limits.max_response_bytes, product);
+                    let mut all = encode_shaded(&shaded, limits.max_response_bytes, previous_lit_alike, product);
                     metrics.observe_stage("encoding", encoding.elapsed());
                     let i = all
                         .iter()

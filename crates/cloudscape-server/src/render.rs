@@ -15,8 +15,9 @@ use cloudscape_core::products::{sky, splats};
 use cloudscape_core::render::image::png_noise;
 use cloudscape_core::render::light::Lighting;
 use cloudscape_core::render::pathtrace::DEFAULT_SAMPLES;
-use cloudscape_core::render::scene::{RenderRequest, parse_size, render_cancellable};
+use cloudscape_core::render::scene::{RenderRequest, parse_size};
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
+use cloudscape_core::view::render_cancellable;
 
 use cloudscape_core::world::SnappedTime;
 

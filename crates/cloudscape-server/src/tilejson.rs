@@ -13,14 +13,18 @@
 //!
 //! URLs are absolute: `server.public_url` when set (the address clients use behind
 //! a proxy or CDN), else `http://` (or `https://` when a proxy says so in
-//! `X-Forwarded-Proto`) and the request's `Host`.
+//! `X-Forwarded-Proto`) and the request's `Host`. A document built from the request's
+//! headers is that client's alone: it says `Cache-Control: private` and `Vary: Host,
+//! X-Forwarded-Proto`, so no shared cache (nginx, a CDN) keeps it under the plain URL
+//! and hands another client the templates of a `Host` an attacker chose. With
+//! `public_url` the document is the same for everyone and caches like discovery.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::extract::{FromRequestParts, State};
 use axum::http::request::Parts;
-use axum::http::{HeaderMap, Uri};
+use axum::http::{HeaderMap, HeaderValue, Uri, header};
 use axum::response::Response;
 use serde::Serialize;
 use utoipa::openapi::RefOr;
@@ -90,11 +94,22 @@ pub struct TileJsonExtra {
     pub t: Option<f64>,
 }
 
+/// Where the absolute URLs of a document start.
+struct PublicBase {
+    /// Scheme and authority (and `public_url`'s path), no trailing slash.
+    url: String,
+    /// Taken from the request's headers (no `public_url`): the document is private.
+    from_request: bool,
+}
+
 /// The scheme and authority clients reach this server at: `server.public_url`, else
 /// the request's `Host` (`X-Forwarded-Proto: https` makes it https).
-fn public_base(s: &AppState, uri: &Uri, headers: &HeaderMap) -> Result<String, ApiError> {
+fn public_base(s: &AppState, uri: &Uri, headers: &HeaderMap) -> Result<PublicBase, ApiError> {
     if !s.settings.public_url.is_empty() {
-        return Ok(s.settings.public_url.trim_end_matches('/').to_string());
+        return Ok(PublicBase {
+            url: s.settings.public_url.trim_end_matches('/').to_string(),
+            from_request: false,
+        });
     }
     let host = uri
         .authority()
@@ -122,7 +137,20 @@ fn public_base(s: &AppState, uri: &Uri, headers: &HeaderMap) -> Result<String, A
         .get("x-forwarded-proto")
         .and_then(|v| v.to_str().ok())
         .is_some_and(|v| v.trim().eq_ignore_ascii_case("https"));
-    Ok(format!("{}://{host}", if https { "https" } else { "http" }))
+    Ok(PublicBase {
+        url: format!("{}://{host}", if https { "https" } else { "http" }),
+        from_request: true,
+    })
+}
+
+/// `cache_control` for one client only: its directives with `public` (and the shared
+/// caches' `s-maxage`) replaced by `private`.
+fn private(cache_control: &str) -> String {
+    let kept = cache_control.split(',').map(str::trim).filter(|d| {
+        let name = d.split('=').next().unwrap_or("").to_ascii_lowercase();
+        !d.is_empty() && !matches!(name.as_str(), "public" | "private" | "s-maxage")
+    });
+    std::iter::once("private").chain(kept).collect::<Vec<_>>().join(", ")
 }
 
 /// The query that every tile URL of the document carries: `t` (or the `{t}`
@@ -151,7 +179,7 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
         ("sun" = Option<String>, Query, description = "AZ,EL, passed on to the tile URLs"),
     ),
     responses(
-        (status = 200, body = TileJson, description = "TileJSON 3.0.0. zoom = max_level - level (our level 0 is the finest); scheme tms (y counts north); absolute URLs from server.public_url or the request's Host"),
+        (status = 200, body = TileJson, description = "TileJSON 3.0.0. zoom = max_level - level (our level 0 is the finest); scheme tms (y counts north); absolute URLs from server.public_url, else from the request's Host and X-Forwarded-Proto (then Cache-Control: private and Vary: Host, X-Forwarded-Proto: no shared cache keeps it)"),
         (status = 400, body = crate::error::ErrorBody, description = "Malformed parameter or Host"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world, layer or product"),
         (status = 422, body = crate::error::ErrorBody, description = "t out of range"),
@@ -179,7 +207,7 @@ pub async fn tilejson(
     parse_sun(&params)?;
     let base = public_base(&s, &uri, &headers)?;
     let max_level = s.worlds.config().limits.max_level;
-    let world_url = format!("{base}/v1/worlds/{}", encode_segment(&w.name));
+    let world_url = format!("{}/v1/worlds/{}", base.url, encode_segment(&w.name));
     let query = tile_query(&params, &layer.name, t);
     let doc = TileJson {
         tilejson: TILEJSON_VERSION,
@@ -216,7 +244,14 @@ pub async fn tilejson(
             t,
         },
     };
-    json_response(&headers, &s.settings.cache_control_other, &doc)
+    if !base.from_request {
+        return json_response(&headers, &s.settings.cache_control_other, &doc);
+    }
+    let mut response = json_response(&headers, &private(&s.settings.cache_control_other), &doc)?;
+    response
+        .headers_mut()
+        .append(header::VARY, HeaderValue::from_static("host, x-forwarded-proto"));
+    Ok(response)
 }
 
 /// A world name as one URL path segment.
@@ -280,5 +315,15 @@ mod tests {
         assert_eq!(tile_query(&p, "low cu", None), "t={t}&layer=low%20cu&quality=fast");
         assert_eq!(tile_query(&Params(vec![]), "a", Some(120.0)), "t=120&layer=a");
         assert_eq!(encode_segment("my world"), "my%20world");
+    }
+
+    #[test]
+    fn a_document_of_the_request_host_is_private() {
+        assert_eq!(private("public, max-age=60"), "private, max-age=60");
+        assert_eq!(
+            private("max-age=60, s-maxage=600, PUBLIC, stale-while-revalidate=30"),
+            "private, max-age=60, stale-while-revalidate=30"
+        );
+        assert_eq!(private(""), "private");
     }
 }

@@ -18,7 +18,6 @@ use utoipa::openapi::schema::{ObjectBuilder, Type};
 use utoipa::{IntoResponses, PartialSchema};
 
 use cloudscape_core::products::Product;
-use cloudscape_core::products::billboards;
 use cloudscape_core::render::Quality;
 use cloudscape_core::world::Keyframe;
 
@@ -45,7 +44,7 @@ pub struct TileCell {
     /// Tile row (north; TileJSON scheme tms); negative allowed
     #[param(example = 0)]
     y: i64,
-    /// density.npy | density.f32 | density.u8 | density.ktx2 | coverage.png | billboards.json | billboards.bin | atlas.png | atlas.json | shadow.png | precipitation.png
+    /// density.npy | density.f32 | density.u8 | density.ktx2 | coverage.png | billboards.json | billboards.bin | billboards.delta.bin | billboards.v2.bin | atlas.png | atlas.json | shadow.png | precipitation.png
     #[param(example = "density.u8")]
     product: TileProduct,
 }
@@ -88,7 +87,7 @@ pub struct TileBytes;
 impl IntoResponses for TileBytes {
     fn responses() -> BTreeMap<String, RefOr<utoipa::openapi::response::Response>> {
         product_bytes(
-            "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded, `.ktx2` a KTX 2.0 R8 3D texture. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. billboards.json/.bin: shaded metaball instances at both ends of the keyframe. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map (R at t0, G at t1). precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top; A 255 where precipitating). docs/formats.md has every layout. Headers: ETag, X-Cloudscape-T and X-Cloudscape-T1 (the keyframe's span), X-Cloudscape-Frame.",
+            "The product's bytes. Density grids are C order, shape (depth, 256, 256), row = y, col = x; `.npy` is numpy format 1.0 (<f4), `.f32` raw little-endian, `.u8` density × 255 rounded, `.ktx2` a KTX 2.0 R8 3D texture. coverage.png: RGB weather map (R max density, G opacity, B cloud top), linear. billboards.json: shaded metaball instances at both ends of the keyframe. billboards.bin: the same keyframe as quantised lattice states (version 3, self-contained); billboards.delta.bin: coded on the tile's previous keyframe (version 3, delta form; self-contained where the previous was lit otherwise); billboards.v2.bin: version 2's 56-byte records. atlas.png/.json: impostor atlas and manifest. shadow.png: ground shadow map (R at t0, G at t1). precipitation.png: RGBA data, no colour management (R rate, mm/h = 100·(R/255)²; G 255 where snow at sea level; B streak top; A 255 where precipitating). docs/formats.md has every layout. Headers: ETag, X-Cloudscape-T and X-Cloudscape-T1 (the keyframe's span), X-Cloudscape-Frame.",
         )
     }
 }
@@ -156,9 +155,8 @@ pub async fn tile(
         if product == Product::BillboardsJson && bytes.is_empty() {
             return Err(ApiError::ResponseTooLarge(format!(
                 "billboards.json of this tile is over the {} MiB response limit (limits.max_response_bytes): \
-                 fetch billboards.bin, the same billboards in {}-byte records, or ask for a lower quality",
+                 fetch billboards.bin, the same billboards in a few bytes each, or ask for a lower quality",
                 max_response_bytes >> 20,
-                billboards::BIN_RECORD_BYTES
             )));
         }
         Ok(HeaderMap::new())

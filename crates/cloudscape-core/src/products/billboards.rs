@@ -357,6 +357,9 @@ pub struct BinBillboards {
     pub algorithm_version: Option<u32>,
     /// The billboards, in the order the tile lists them.
     pub records: Vec<BinRecord>,
+    /// Version 3: the lattice sites and their quantised states, which the next
+    /// keyframe's delta form is decoded against.
+    pub lattice: Option<super::keyframe_bin::LatticeKeyframe>,
 }
 
 /// One end of a record of `billboards.bin`.
@@ -391,10 +394,21 @@ pub struct BinRecord {
     pub ends: [BinEnd; 2],
 }
 
-/// Decodes `billboards.bin` of version 2 or 1; `Err` names what is wrong.
+/// Decodes a self-contained `billboards.bin` of version 3, 2 or 1; `Err` names what
+/// is wrong. A version-3 delta needs its previous keyframe: [`decode_bin_after`].
 pub fn decode_bin(bytes: &[u8]) -> Result<BinBillboards, String> {
+    decode_bin_after(bytes, None)
+}
+
+/// Decodes `billboards.bin` of any version a client may hold the previous keyframe
+/// of: a version-3 delta is decoded against `previous` (the same tile's keyframe that
+/// ends where it starts), anything else alone.
+pub fn decode_bin_after(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillboards, String> {
     if bytes.len() < BIN_V1_SIZES.0 || bytes[0..4] != BIN_MAGIC {
         return Err("not a cloudscape billboards.bin (bad magic or short header)".into());
+    }
+    if u16::from_le_bytes([bytes[4], bytes[5]]) == super::keyframe_bin::VERSION {
+        return super::keyframe_bin::decode(bytes, previous);
     }
     let u16_at = |o: usize| u16::from_le_bytes([bytes[o], bytes[o + 1]]);
     let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().expect("4 bytes"));
@@ -483,6 +497,7 @@ pub fn decode_bin(bytes: &[u8]) -> Result<BinBillboards, String> {
         }),
         algorithm_version: v2.then(|| u32_at(152)),
         records,
+        lattice: None,
     })
 }
 

@@ -10,6 +10,7 @@ use crate::world::Layer;
 
 use super::atlas::{self, Atlas};
 use super::grid::{GridFormat, encode_density};
+use super::keyframe_bin::{self, Form, Quantisation};
 use super::{billboards, coverage, ktx2, precipitation, shadow};
 
 /// What a tile URL can ask for (`/tiles/{z}/{x}/{y}/{product}`).
@@ -27,8 +28,15 @@ pub enum Product {
     CoveragePng,
     /// `billboards.json`: the shaded billboards as JSON.
     BillboardsJson,
-    /// `billboards.bin`: the same, in the compact binary layout.
+    /// `billboards.bin`: one keyframe of the shaded billboards, quantised and coded
+    /// (version 3, self-contained: what a client's first view of a tile fetches).
     BillboardsBin,
+    /// `billboards.delta.bin`: the same keyframe coded on the tile's previous one
+    /// (version 3, delta form): what a client holding the previous keyframe fetches.
+    BillboardsDelta,
+    /// `billboards.v2.bin`: the same billboards in version 2's 56-byte records, both
+    /// ends at full precision (kept for clients of version 2 until the next version).
+    BillboardsV2,
     /// `atlas.png`: the billboards' impostors.
     AtlasPng,
     /// `atlas.json`: the atlas manifest.
@@ -53,8 +61,8 @@ pub enum Encoder {
 /// When a shaded product is encoded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Encoding {
-    /// Whenever its tile is shaded: a millisecond or less (`billboards.bin`,
-    /// `shadow.png`), so a client that fetches both causes one shading.
+    /// Whenever its tile is shaded: a few milliseconds or less (`billboards.bin` and its
+    /// delta form), so a client's first view and its next keyframes cause one shading.
     Eager,
     /// Only when asked for: as long as the shading or longer (`billboards.json`, the
     /// atlas, whose two halves come from one build).
@@ -84,7 +92,7 @@ const KTX2: &str = "image/ktx2";
 
 impl Product {
     /// Every tile product, in the order the API lists them.
-    pub const ALL: [Product; 11] = [
+    pub const ALL: [Product; 13] = [
         Product::DensityNpy,
         Product::DensityF32,
         Product::DensityU8,
@@ -92,6 +100,8 @@ impl Product {
         Product::CoveragePng,
         Product::BillboardsJson,
         Product::BillboardsBin,
+        Product::BillboardsDelta,
+        Product::BillboardsV2,
         Product::AtlasPng,
         Product::AtlasJson,
         Product::ShadowPng,
@@ -139,6 +149,25 @@ impl Product {
             ),
             Product::BillboardsBin => (
                 "billboards.bin",
+                OCTETS,
+                "tile_shaded",
+                Encoder::Shaded(|s| keyframe_bin::encode(s.tile, Form::SelfContained, Quantisation::DEFAULT)),
+            ),
+            Product::BillboardsDelta => (
+                "billboards.delta.bin",
+                OCTETS,
+                "tile_shaded",
+                Encoder::Shaded(|s| {
+                    let form = if s.previous_lit_alike {
+                        Form::Delta
+                    } else {
+                        Form::SelfContained
+                    };
+                    keyframe_bin::encode(s.tile, form, Quantisation::DEFAULT)
+                }),
+            ),
+            Product::BillboardsV2 => (
+                "billboards.v2.bin",
                 OCTETS,
                 "tile_shaded",
                 Encoder::Shaded(|s| billboards::encode_bin(s.tile)),
@@ -218,6 +247,10 @@ pub struct ShadedProducts<'a> {
     /// `billboards.json` over this many bytes is encoded as no bytes
     /// ([`billboards::encode_json_within`]).
     pub max_json_bytes: u64,
+    /// Whether the tile's previous keyframe was shaded with the same light (quality and
+    /// sun bucket): only then does `billboards.delta.bin` code this one on it (else it
+    /// is the self-contained form).
+    pub previous_lit_alike: bool,
     /// Built on first use: `atlas.png` and `atlas.json` share it, each taking its part.
     atlas: Option<Atlas>,
 }
@@ -233,8 +266,12 @@ impl Product {
     /// When the product is encoded from its shaded tile.
     pub fn encoding(self) -> Encoding {
         match self {
-            Product::BillboardsBin | Product::ShadowPng => Encoding::Eager,
-            Product::BillboardsJson | Product::AtlasPng | Product::AtlasJson => Encoding::OnRequest,
+            Product::BillboardsBin | Product::BillboardsDelta => Encoding::Eager,
+            Product::BillboardsJson
+            | Product::BillboardsV2
+            | Product::ShadowPng
+            | Product::AtlasPng
+            | Product::AtlasJson => Encoding::OnRequest,
             _ => Encoding::Grid,
         }
     }
@@ -249,11 +286,17 @@ impl Product {
 
 /// The shaded products of `tile` that are worth encoding when `wanted` is asked for:
 /// `wanted`, what shares its work, and every [`Encoding::Eager`] product, in
-/// [`Product::ALL`] order.
-pub fn encode_shaded(tile: &ShadedTile, max_json_bytes: u64, wanted: Product) -> Vec<(Product, Vec<u8>)> {
+/// [`Product::ALL`] order. `previous_lit_alike`: see [`ShadedProducts`].
+pub fn encode_shaded(
+    tile: &ShadedTile,
+    max_json_bytes: u64,
+    previous_lit_alike: bool,
+    wanted: Product,
+) -> Vec<(Product, Vec<u8>)> {
     let mut products = ShadedProducts {
         tile,
         max_json_bytes,
+        previous_lit_alike,
         atlas: None,
     };
     Product::ALL
@@ -290,6 +333,8 @@ mod tests {
             [
                 Product::BillboardsJson,
                 Product::BillboardsBin,
+                Product::BillboardsDelta,
+                Product::BillboardsV2,
                 Product::AtlasPng,
                 Product::AtlasJson,
                 Product::ShadowPng
@@ -326,19 +371,22 @@ mod tests {
             2,
         );
         let names = |wanted| {
-            encode_shaded(&shaded, u64::MAX, wanted)
+            encode_shaded(&shaded, u64::MAX, true, wanted)
                 .into_iter()
                 .map(|(p, _)| p.name())
                 .collect::<Vec<_>>()
         };
-        assert_eq!(names(Product::ShadowPng), ["billboards.bin", "shadow.png"]);
+        assert_eq!(
+            names(Product::ShadowPng),
+            ["billboards.bin", "billboards.delta.bin", "shadow.png"]
+        );
         assert_eq!(
             names(Product::BillboardsJson),
-            ["billboards.json", "billboards.bin", "shadow.png"]
+            ["billboards.json", "billboards.bin", "billboards.delta.bin"]
         );
         assert_eq!(
             names(Product::AtlasJson),
-            ["billboards.bin", "atlas.png", "atlas.json", "shadow.png"]
+            ["billboards.bin", "billboards.delta.bin", "atlas.png", "atlas.json"]
         );
     }
 }

@@ -6,6 +6,7 @@ pub mod billboards;
 pub mod catalogue;
 pub mod coverage;
 pub mod grid;
+pub mod keyframe_bin;
 pub mod ktx2;
 pub mod precipitation;
 pub mod shadow;

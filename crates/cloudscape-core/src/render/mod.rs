@@ -53,11 +53,13 @@
 //! ```
 //!
 //! `cloudscape render` and `GET /render.png` render a camera view with
-//! [`render`]. From above every layer, looking up, the view holds no tile and
-//! only the sky is drawn:
+//! [`crate::view::render`] (which draws the billboards as a client draws them once
+//! served). From above every layer, looking up, the view holds no tile and only the
+//! sky is drawn:
 //!
 //! ```rust
-//! use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, render, scene};
+//! use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, scene};
+//! use cloudscape_core::view::render;
 //! use cloudscape_core::world::Config;
 //!
 //! let config = Config::embedded();
@@ -107,7 +109,7 @@ pub mod tile;
 
 pub use camera::Camera;
 pub use light::{Phase, ShadingParams};
-pub use scene::{RenderRequest, Rendered, render};
+pub use scene::{RenderRequest, Rendered};
 pub use sun::{Sun, SunBucket};
 pub use tile::{ShadedTile, TileId, shade_tile};
 

@@ -14,11 +14,9 @@
 use rayon::prelude::*;
 
 use crate::cancel::Cancel;
-use crate::density::SimError;
 use crate::world::{Config, Keyframe, World};
 
 use super::camera::{Camera, View};
-use super::composite::composite_cancellable;
 use super::image::Image;
 use super::light::{Lighting, ShadingParams};
 use super::march::{self, MarchParams, Volume};
@@ -307,28 +305,6 @@ pub fn tile_keyframe(world: &World, layer: usize, tile: TileId, req: &RenderRequ
     }
 }
 
-/// Draws shaded tiles with the billboard compositor over sky and shadowed ground.
-pub fn draw_billboards(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> Image {
-    draw_billboards_cancellable(tiles, req, sun, &Cancel::never())
-}
-
-fn draw_billboards_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
-    let view = View::perspective(&req.camera, req.width, req.height);
-    let lighting = Lighting::new(sun.bucket().centre(), req.params);
-    let far = mean_shadow(tiles.iter().map(|t| {
-        (
-            t.layer,
-            t.shadow.iter().map(|&v| v as f64).sum::<f64>() / t.shadow.len().max(1) as f64,
-        )
-    }));
-    let mut image = background(&view, &lighting, far, |x, y| {
-        tiles.iter().map(|t| t.shadow_at(x, y, req.t)).product()
-    });
-    let all: Vec<_> = tiles.iter().flat_map(|t| t.billboards_at(req.t)).collect();
-    composite_cancellable(&mut image, &all, &lighting, &view, cancel);
-    image
-}
-
 /// The reference volumes of shaded tiles: each tile's density (with its halo, so
 /// interpolation is seamless) answering for the tile's own box.
 pub fn volumes(tiles: &[ShadedTile]) -> Vec<Volume> {
@@ -406,30 +382,28 @@ pub fn draw_path_traced_with(
     pathtrace::render_cancellable(volumes, Environment::world(&lighting), params, &view, cancel)
 }
 
-/// Draws shaded tiles with the renderer of `req.quality`: the path tracer
-/// (`reference`, with its noise), the marcher (`reference-single`) or the billboard
-/// compositor.
-pub fn draw(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> (Image, Option<Noise>) {
-    draw_cancellable(tiles, req, sun, &Cancel::never())
-}
-
-/// [`draw`] that stops early once `cancel` fires (the caller then discards the image).
-fn draw_cancellable(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> (Image, Option<Noise>) {
+/// Draws shaded tiles with a volumetric renderer: the path tracer (`reference`, with
+/// its noise) or the marcher (`reference-single`); `None` for a billboard preset,
+/// which a client draws from the served products (`view::draw`).
+pub fn draw_volumetric(
+    tiles: &[ShadedTile],
+    req: &RenderRequest,
+    sun: Sun,
+    cancel: &Cancel,
+) -> Option<(Image, Option<Noise>)> {
     match req.quality {
         Quality::Reference => {
             let traced = draw_path_traced_cancellable(&volumes(tiles), req, sun, cancel);
-            (traced.image, Some(traced.noise))
+            Some((traced.image, Some(traced.noise)))
         }
         Quality::ReferenceSingle => {
             let params = MarchParams::with_step(reference_step(tiles, req.quality));
-            (
+            Some((
                 draw_single_cancellable(&volumes(tiles), req, sun, &params, cancel),
                 None,
-            )
+            ))
         }
-        Quality::Fast | Quality::Balanced | Quality::Accurate => {
-            (draw_billboards_cancellable(tiles, req, sun, cancel), None)
-        }
+        Quality::Fast | Quality::Balanced | Quality::Accurate => None,
     }
 }
 
@@ -482,39 +456,6 @@ pub fn mean_shadow(tiles: impl Iterator<Item = (usize, f64)>) -> f64 {
 fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     let t = ((x - e0) / (e1 - e0)).clamp(0.0, 1.0);
     t * t * (3.0 - 2.0 * t)
-}
-
-/// Renders a request: the billboard compositor for `fast | balanced | accurate`, the
-/// path tracer for `reference`, the ray marcher for `reference-single`.
-pub fn render(world: &World, config: &Config, req: &RenderRequest) -> Result<Rendered, RenderError> {
-    render_cancellable(world, config, req, &Cancel::never())
-}
-
-/// [`render`] that stops early once `cancel` fires (then an error): between tiles,
-/// between the compositor's bands and between the ray marcher's rows.
-pub fn render_cancellable(
-    world: &World,
-    config: &Config,
-    req: &RenderRequest,
-    cancel: &Cancel,
-) -> Result<Rendered, RenderError> {
-    let sun = request_sun(config, req);
-    let tiles = prepare_cancellable(world, config, req, cancel)?;
-    let ids = tiles.iter().map(|t| (t.layer, t.tile)).collect();
-    let (image, noise) = draw_cancellable(&tiles, req, sun, cancel);
-    cancel.check().map_err(SimError::from)?;
-    let billboards = if req.quality.is_volumetric() {
-        0
-    } else {
-        tiles.iter().map(|t| t.billboards.len()).sum()
-    };
-    Ok(Rendered {
-        image,
-        tiles: ids,
-        billboards,
-        sun,
-        noise,
-    })
 }
 
 #[cfg(test)]

@@ -878,7 +878,7 @@ mod tests {
         let sun = Sun::new(200.0, 35.0).unwrap();
         let params = ShadingParams::default();
         let encode = |s: &ShadedTile| {
-            let mut all = encode_shaded(s, u64::MAX, Product::BillboardsBin);
+            let mut all = encode_shaded(s, u64::MAX, true, Product::BillboardsBin);
             all.sort_by_key(|(p, _)| p.name());
             (all, s.density.data.clone())
         };

@@ -1,6 +1,7 @@
 //! The TOML configuration: parsing, validation and world lookup.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
+use std::io::Read;
 
 use serde::Deserialize;
 
@@ -45,6 +46,94 @@ impl ConfigError {
             message: message.into(),
         }
     }
+
+    /// TOML `text` that does not parse, as one line: where (line, column and the
+    /// line's first 60 characters) and why. Not toml's own display, which quotes the
+    /// offending line whole (a 1 MiB line of brackets, for one) over several lines.
+    pub fn toml(text: &str, e: &toml::de::Error) -> ConfigError {
+        let reason: String = e.message().trim().replace('\n', " ").chars().take(300).collect();
+        let Some((before, _)) = e.span().and_then(|span| text.split_at_checked(span.start)) else {
+            return ConfigError::Parse(reason);
+        };
+        let line = before.matches('\n').count() + 1;
+        let start = before.rsplit('\n').next().unwrap_or("");
+        let column = start.chars().count() + 1;
+        let whole = text.lines().nth(line - 1).unwrap_or("").trim();
+        let mut shown: String = whole.chars().take(60).collect();
+        if whole.chars().nth(60).is_some() {
+            shown.push('…');
+        }
+        ConfigError::Parse(format!("line {line}, column {column} (`{shown}`): {reason}"))
+    }
+}
+
+/// The largest config file read, bytes: 80 times the embedded config. A larger file
+/// (or a device such as /dev/zero) is refused after this many bytes, not read whole.
+pub const MAX_CONFIG_BYTES: u64 = 1 << 20;
+
+/// The text of the config file `path`, read up to [`MAX_CONFIG_BYTES`] (refused
+/// beyond). Pipes and process substitution (`--config <(…)`) work; a device that
+/// never ends is refused once the limit is read.
+pub fn read_config_text(path: &str) -> Result<String, ConfigError> {
+    let failed = |source: std::io::Error| ConfigError::Read {
+        path: path.to_string(),
+        source,
+    };
+    let too_large = || {
+        failed(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "it is larger than {} KiB, the most a config may be",
+                MAX_CONFIG_BYTES >> 10
+            ),
+        ))
+    };
+    let file = std::fs::File::open(path).map_err(failed)?;
+    if file.metadata().is_ok_and(|m| m.is_file() && m.len() > MAX_CONFIG_BYTES) {
+        return Err(too_large());
+    }
+    let mut bytes = Vec::new();
+    file.take(MAX_CONFIG_BYTES + 1)
+        .read_to_end(&mut bytes)
+        .map_err(failed)?;
+    if bytes.len() as u64 > MAX_CONFIG_BYTES {
+        return Err(too_large());
+    }
+    String::from_utf8(bytes).map_err(|_| {
+        failed(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            "it is not UTF-8 text",
+        ))
+    })
+}
+
+/// The most entries of each list a config may hold, checked before any entry is
+/// looked at: enough for any world we can imagine, few enough that checking them (and
+/// evaluating the authored weather in every cell) stays cheap.
+mod most {
+    /// `[worlds.NAME]` tables.
+    pub const WORLDS: usize = 1024;
+    /// `[presets.NAME]` tables.
+    pub const PRESETS: usize = 1024;
+    /// Layers of one world.
+    pub const LAYERS: usize = 64;
+    /// Events and regions of one world together (each is evaluated in every cell of
+    /// the layers it drives).
+    pub const AUTHORED: usize = 256;
+    /// Points of a storm's path.
+    pub const PATH_POINTS: usize = 1024;
+    /// Ellipsoids of one layer.
+    pub const ELLIPSOIDS: usize = 1024;
+    /// Play areas of one world kept warm.
+    pub const WARM_AREAS: usize = 4096;
+}
+
+/// Refuses a list at `key` of `len` entries over `max`.
+fn at_most(key: &str, len: usize, max: usize, what: &str) -> Result<(), ConfigError> {
+    if len > max {
+        return Err(invalid(key, format!("has {len} {what}; the most is {max}")));
+    }
+    Ok(())
 }
 
 fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
@@ -97,6 +186,27 @@ impl Default for Limits {
             max_response_bytes: default_max_response_bytes(),
             max_path_samples: default_max_path_samples(),
         }
+    }
+}
+
+impl Limits {
+    /// Checks each limit against the range the machine's arithmetic and the request
+    /// paths hold: positive, and no larger than the bounds below (whatever the memory,
+    /// `max_request_bytes` refuses the requests that would not fit it).
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        for (key, value, least, most) in [
+            ("limits.max_columns", self.max_columns, 1, 1 << 24),
+            ("limits.max_cells", self.max_cells, 1, 1 << 40),
+            ("limits.max_level", self.max_level as u64, 0, 40),
+            ("limits.max_request_bytes", self.max_request_bytes, 1 << 20, 1 << 44),
+            ("limits.max_response_bytes", self.max_response_bytes, 1 << 10, 1 << 40),
+            ("limits.max_path_samples", self.max_path_samples, 1, 1 << 40),
+        ] {
+            if !(least..=most).contains(&value) {
+                return Err(invalid(key, format!("must be within [{least}, {most}], got {value}")));
+            }
+        }
+        Ok(())
     }
 }
 
@@ -282,38 +392,20 @@ impl Config {
 
     /// Reads and validates a config file.
     pub fn from_file(path: &str) -> Result<Config, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.to_string(),
-            source,
-        })?;
-        Config::parse(&text)
+        Config::parse(&read_config_text(path)?)
     }
 
     /// Parses and validates TOML text.
     pub fn parse(text: &str) -> Result<Config, ConfigError> {
-        let raw: RawConfig = toml::from_str(text).map_err(|e| {
-            // toml's message already names the key ("unknown field `x`", with its path).
-            ConfigError::Parse(e.to_string().trim().replace('\n', " "))
-        })?;
+        // toml's message names the key ("unknown field `x`"), ours the place.
+        let raw: RawConfig = toml::from_str(text).map_err(|e| ConfigError::toml(text, &e))?;
+        at_most("worlds", raw.worlds.len(), most::WORLDS, "worlds")?;
+        at_most("presets", raw.presets.len(), most::PRESETS, "presets")?;
         for (name, preset) in &raw.presets {
             validate_preset(&format!("presets.{name}"), preset)?;
         }
         let limits = raw.limits;
-        if limits.max_columns == 0 || limits.max_cells == 0 || limits.max_path_samples == 0 {
-            return Err(invalid(
-                "limits",
-                "max_columns, max_cells and max_path_samples must be positive",
-            ));
-        }
-        if limits.max_request_bytes < 1 << 20 || limits.max_response_bytes < 1 << 10 {
-            return Err(invalid(
-                "limits",
-                "max_request_bytes must be at least 1 MiB and max_response_bytes at least 1 KiB",
-            ));
-        }
-        if limits.max_level > 40 {
-            return Err(invalid("limits.max_level", "must be at most 40"));
-        }
+        limits.validate()?;
         if !(-90.0..=90.0).contains(&raw.sun.latitude) {
             return Err(invalid("sun.latitude", "must be within [-90, 90]"));
         }
@@ -334,6 +426,24 @@ impl Config {
                     "a world needs at least one layer",
                 ));
             }
+            at_most(
+                &format!("worlds.{wname}.layers"),
+                rw.layers.len(),
+                most::LAYERS,
+                "layers",
+            )?;
+            at_most(
+                &format!("worlds.{wname}.events"),
+                rw.events.len() + rw.regions.len(),
+                most::AUTHORED,
+                "events and regions together",
+            )?;
+            at_most(
+                &format!("worlds.{wname}.warm"),
+                rw.warm.len(),
+                most::WARM_AREAS,
+                "play areas",
+            )?;
             if !(rw.freezing_level.is_finite() && (-1e4..=1e5).contains(&rw.freezing_level)) {
                 return Err(invalid(
                     format!("worlds.{wname}.freezing_level"),
@@ -408,10 +518,11 @@ impl Config {
                 return Err(invalid(format!("worlds.{wname}.clock.{field}"), message));
             }
             let mut warm: Vec<WarmArea> = Vec::new();
+            let mut names = BTreeSet::new();
             for (i, rw) in rw.warm.into_iter().enumerate() {
                 let key = format!("worlds.{wname}.warm[{i}]");
                 let area = warm_area(&key, rw, &layers, &limits)?;
-                if warm.iter().any(|w| w.name == area.name) {
+                if !names.insert(area.name.clone()) {
                     return Err(invalid(
                         format!("{key}.name"),
                         format!("duplicate play area name `{}`", area.name),
@@ -554,6 +665,7 @@ fn event(key: &str, e: RawEvent) -> Result<Influence, ConfigError> {
                 return Err(invalid(format!("{key}.radii"), "must be within [1, 1e9] metres"));
             }
             let path = e.path.unwrap_or_default();
+            at_most(&format!("{key}.path"), path.len(), most::PATH_POINTS, "points")?;
             if !path.is_empty() && e.velocity.is_some() {
                 return Err(invalid(
                     format!("{key}.velocity"),
@@ -944,6 +1056,12 @@ fn validate_layer(key: &str, l: &Layer) -> Result<(), ConfigError> {
             ),
         ));
     }
+    at_most(
+        &format!("{key}.ellipsoids"),
+        l.ellipsoids.len(),
+        most::ELLIPSOIDS,
+        "ellipsoids",
+    )?;
     for (i, el) in l.ellipsoids.iter().enumerate() {
         if !(el.centre.iter().all(|v| v.is_finite()) && el.radii.iter().all(|r| r.is_finite() && *r > 0.0)) {
             return Err(invalid(
@@ -994,6 +1112,42 @@ mod tests {
     #[test]
     fn unknown_key_is_named() {
         assert_rejected_naming("[limits]", "[limits]\nbogus_key = 3", "bogus_key");
+    }
+
+    #[test]
+    fn toml_errors_are_one_bounded_line_that_says_where() {
+        let text = format!(
+            "[limits]\nmax_level = 3\nx = {}{}\n",
+            "[".repeat(10_000),
+            "]".repeat(10_000)
+        );
+        let e = Config::parse(&text).unwrap_err().to_string();
+        assert!(e.starts_with("invalid config: line 3, column "), "{e}");
+        assert!(!e.contains('\n') && e.len() < 500, "{e}");
+        let e = Config::parse("[limits]\nmax_level = 3\nmax_level = 4\n")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 3") && e.contains("max_level = 4"), "{e}");
+    }
+
+    #[test]
+    fn limits_and_lists_are_bounded_by_name() {
+        assert_rejected_naming("max_columns = 2048", "max_columns = 0", "limits.max_columns");
+        assert_rejected_naming(
+            "max_cells = 8388608",
+            "max_cells = 9223372036854775807",
+            "limits.max_cells: must be within",
+        );
+        let many = (0..=most::AUTHORED)
+            .map(|i| format!("[[worlds.overcast.regions]]\nbox = [0.0, 0.0, 1.0, 1.0]\nmix = {{ stratocumulus = 0.1 }}\nramp = {i}.0\n"))
+            .collect::<String>();
+        let e = Config::parse(&format!("{DEFAULT_CONFIG}\n{many}"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("worlds.overcast.events: has 257 events and regions together"),
+            "{e}"
+        );
     }
 
     #[test]

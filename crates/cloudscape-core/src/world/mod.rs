@@ -13,7 +13,9 @@ mod keyframe;
 pub mod warm;
 
 pub use clock::WorldClock;
-pub use config::{Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, SunConfig};
+pub use config::{
+    Config, ConfigError, DEFAULT_CONFIG, DEFAULT_FREEZING_LEVEL, Limits, MAX_CONFIG_BYTES, SunConfig, read_config_text,
+};
 pub use keyframe::{Keyframe, MAX_KEYFRAME_DOUBLINGS, PREFETCH_FROM, PREFETCH_SPREAD, keyframe_span, prefetch_at};
 
 use serde::Deserialize;
@@ -47,7 +49,10 @@ use serde::Deserialize;
 ///    keyframe's end is the next keyframe's start (one instant shaded per keyframe,
 ///    no jump at the boundary); each instant is shaded over the tile, its halo and
 ///    the box the wind moves it to over a span.
-pub const ALGORITHM_VERSION: u32 = 11;
+/// 12: `billboards.bin` is version 3 (lattice sites, quantised, coded in planes; a
+///    self-contained and a delta form, `products::keyframe_bin`); version 2 is
+///    `billboards.v2.bin`.
+pub const ALGORITHM_VERSION: u32 = 12;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -35,10 +35,10 @@ fn invalid(name: &str, message: impl Into<String>) -> ApiError {
 /// which must be one parenthesised group: `POINT (1 2)` gives `1 2`.
 fn wkt_body<'a>(value: &'a str, keyword: &str) -> Result<&'a str, ApiError> {
     let v = value.trim();
-    let open = v
-        .find('(')
+    let (word, rest) = v
+        .split_once('(')
         .ok_or_else(|| invalid("coords", format!("must be WKT {keyword}(…), got `{}`", truncated(v))))?;
-    let word = v[..open].trim();
+    let word = word.trim();
     if !word.eq_ignore_ascii_case(keyword) {
         return Err(invalid(
             "coords",
@@ -48,9 +48,7 @@ fn wkt_body<'a>(value: &'a str, keyword: &str) -> Result<&'a str, ApiError> {
             ),
         ));
     }
-    v[open..]
-        .strip_prefix('(')
-        .and_then(|b| b.strip_suffix(')'))
+    rest.strip_suffix(')')
         .ok_or_else(|| invalid("coords", format!("unbalanced parentheses in `{}`", truncated(v))))
 }
 
@@ -242,9 +240,11 @@ fn digits(s: &str) -> Option<i64> {
 }
 
 /// Seconds since the epoch of an ISO 8601 extended date or date-time with a zone.
+/// Split only at ASCII separators (never by byte counts), so that no input, whatever
+/// characters it holds, is cut inside one.
 fn parse_iso(s: &str) -> Option<f64> {
-    let (date, time) = match s.find(['T', 't']) {
-        Some(i) => (&s[..i], Some(&s[i + 1..])),
+    let (date, time) = match s.split_once(['T', 't']) {
+        Some((date, time)) => (date, Some(time)),
         None => (s, None),
     };
     let mut d = date.split('-');
@@ -257,14 +257,19 @@ fn parse_iso(s: &str) -> Option<f64> {
         let (clock, offset) = if let Some(c) = time.strip_suffix(['Z', 'z']) {
             (c, 0)
         } else {
-            let i = time.rfind(['+', '-'])?;
-            let (oh, om) = time[i + 1..].split_once(':')?;
+            let (clock, zone) = time.rsplit_once(['+', '-'])?;
+            // The sign is the one byte between them.
+            let sign = if time.as_bytes().get(clock.len()) == Some(&b'-') {
+                -1
+            } else {
+                1
+            };
+            let (oh, om) = zone.split_once(':')?;
             let (oh, om) = (digits(oh)?, digits(om)?);
             if oh > 23 || om > 59 {
                 return None;
             }
-            let sign = if &time[i..=i] == "-" { -1 } else { 1 };
-            (&time[..i], sign * (oh * 3600 + om * 60))
+            (clock, sign * (oh * 3600 + om * 60))
         };
         let mut c = clock.split(':');
         let (h, mi, sec) = (digits(c.next()?)?, digits(c.next()?)?, c.next().unwrap_or("00"));
@@ -273,11 +278,14 @@ fn parse_iso(s: &str) -> Option<f64> {
         if c.next().is_some() || h > 23 || mi > 59 || whole > 59 {
             return None;
         }
+        // Any number of fraction digits (RFC 3339), all of them digits: `.5e3` or
+        // `.5é` is not a fraction.
         let fraction = if fraction.is_empty() {
             0.0
-        } else {
-            digits(&fraction[..fraction.len().min(9)])?;
+        } else if fraction.bytes().all(|b| b.is_ascii_digit()) {
             format!("0.{fraction}").parse::<f64>().ok()?
+        } else {
+            return None;
         };
         seconds += (h * 3600 + mi * 60 + whole - offset) as f64 + fraction;
     }
@@ -470,6 +478,18 @@ mod tests {
             "1970-01-01T00:00:00",
             "1970-01-01T24:00:00Z",
             "soon",
+            // Multibyte characters where digits belong, at every place a parser could
+            // cut by byte counts.
+            "2024-05-01T12:00:00.12345678éZ",
+            "2024-05-01T12:00:00.1234567890éZ",
+            "2024-05-01T12:00:00.éZ",
+            "2024-05-01T12:00:00.5e3Z",
+            "2024-05-01T12:00:00+0é:00",
+            "2024-05-01T12:00:00é+01:00",
+            "2024-05-0éT12:00:00Z",
+            "é024-05-01T12:00:00Z",
+            "2024-é5-01",
+            "2024-05-01Té",
         ] {
             assert!(
                 matches!(

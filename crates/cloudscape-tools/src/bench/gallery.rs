@@ -7,8 +7,9 @@ use std::time::Instant;
 
 use crate::chart::{SheetCell, contact_sheet};
 use cloudscape_core::render::image::{rmse, ssim, to_u8};
-use cloudscape_core::render::scene::{RenderRequest, render};
+use cloudscape_core::render::scene::RenderRequest;
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
+use cloudscape_core::view::render;
 use cloudscape_core::world::Config;
 
 /// One view of the gallery.

@@ -9,8 +9,9 @@ use std::time::Instant;
 
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::render::image::rmse;
-use cloudscape_core::render::scene::{RenderRequest, draw_billboards, plan, prepare, request_sun};
+use cloudscape_core::render::scene::{RenderRequest, plan, prepare, request_sun};
 use cloudscape_core::render::{Camera, Quality, ShadedTile, ShadingParams, TileId, shade_tile};
+use cloudscape_core::view::draw_billboards;
 use cloudscape_core::world::{Config, Keyframe, MAX_KEYFRAME_DOUBLINGS, World, keyframe_span};
 
 use super::{BenchRun, Effort, fmt_s, time};

@@ -311,7 +311,7 @@ fn measure(world: &World, config: &Config, req: &RenderRequest) -> Result<Measur
         let r = split_reference(&tiles, req, sun);
         (r.image, Some(r.halves))
     } else {
-        (scene::draw(&tiles, req, sun).0, None)
+        (cloudscape_core::view::draw(&tiles, req, sun).0, None)
     };
     let draw_s = t2.elapsed().as_secs_f64();
     Ok(Measured {

@@ -33,7 +33,7 @@ struct Profile {
 /// Encodes and compresses a shaded tile as the server does, timing both.
 fn encode(shaded: &ShadedTile, p: &mut Profile) {
     let t = Instant::now();
-    let all = encode_shaded(shaded, u64::MAX, Product::BillboardsBin);
+    let all = encode_shaded(shaded, u64::MAX, true, Product::BillboardsBin);
     p.encoding = t.elapsed();
     let t = Instant::now();
     for (product, bytes) in &all {

@@ -14,7 +14,7 @@
 use cloudscape_core::products::Product;
 
 /// Longest request target the HTTP layer (the `http` crate's `Uri`) accepts; longer
-/// ones are refused with a bare 414 before routing.
+/// ones are refused with a 414 (and the JSON error) before routing.
 pub const MAX_URI_BYTES: usize = 65_534;
 
 /// What a generated request is, for judging its answer.
@@ -24,8 +24,8 @@ pub enum Kind {
     /// content type, a 304, or a JSON error (`{"error", "message"}`).
     Route,
     /// Malformed at the HTTP level (raw bytes, header floods, bad methods, targets over
-    /// [`MAX_URI_BYTES`]): the HTTP layer may answer with a bare 4xx (400, 414, 431) or
-    /// close the connection.
+    /// [`MAX_URI_BYTES`]): the HTTP layer may answer with a 4xx (400, 414, 431) with the
+    /// JSON error body, or close the connection.
     Protocol,
 }
 

@@ -196,7 +196,13 @@ pub fn judge(req: &FuzzRequest, a: &Answer) -> Option<String> {
         return Some("503 without Retry-After".into());
     }
     if req.kind == Kind::Protocol {
-        return None;
+        // Refused by the HTTP layer or the router: a 4xx carries the JSON error like
+        // any other (a connection closed without an answer is judged elsewhere).
+        let refused = (400..500).contains(&a.status) && req.method != "HEAD";
+        let json = ctype.starts_with("application/json")
+            && serde_json::from_slice::<serde_json::Value>(&a.body)
+                .is_ok_and(|b| b["error"].as_str().is_some_and(|c| !c.is_empty()));
+        return (refused && !json).then(|| format!("{} from the HTTP layer without a JSON error body", a.status));
     }
     // A compressed body (the request may have asked for one) is judged by its type.
     let compressed = a

@@ -1,5 +1,5 @@
 //! Play areas kept warm (`[[worlds.NAME.warm]]`) and the world clock, over real sockets:
-//! readiness waits for the first keyframes, the first request for a warm keyframe is a
+//! readiness waits for the current and next keyframes, the first request for a warm keyframe is a
 //! cache hit, next keyframes are ready before the clock reaches them, discovery lists
 //! the areas and the clock, and bad areas or clocks stop the server at start with the
 //! key named.
@@ -129,8 +129,8 @@ fn unix_now() -> f64 {
 fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
     let mut s = Serving::spawn(&config(1.0, AREAS));
     let (seen, metrics) = s.watch_readiness(Duration::from_secs(120));
-    // Not ready while the first keyframes are computed: every 503 says how many are
-    // left, and at the first 200 each variant has its first keyframe.
+    // Not ready while the keyframes are computed: every 503 says how many variants are
+    // left, and at the first 200 each variant has its current and next keyframes.
     for (status, body) in &seen[..seen.len() - 1] {
         assert_eq!(*status, 503, "{body}");
         assert_eq!(body["status"], "starting", "{body}");
@@ -186,6 +186,49 @@ fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
     assert_eq!(again.headers()["etag"], etag);
     assert_eq!(again.bytes().unwrap(), body);
     assert_eq!(plain.json("/v1/worlds/default")["warm"], serde_json::json!([]));
+}
+
+/// Ready means ready for the players: at the first 200 of `/readyz` every warm
+/// variant has its next keyframe in the cache as well as its current one, so the
+/// players who arrive then and fetch next keyframes at their prefetch points compute
+/// nothing (before, readiness came with most next keyframes pending, and 200 players
+/// started then got 503s).
+#[test]
+fn readiness_waits_for_the_next_keyframes_too() {
+    // A slow clock (a level-0 span of `low` lasts 100 real seconds; t ≈ 1.8e8 s), so
+    // no keyframe boundary passes while the next keyframes are asked for.
+    let slow = [("worlds.default.clock", "{ offset = 0.0, rate = 0.1 }")];
+    let mut s = Serving::spawn(&config_with(0.1, AREAS, &slow));
+    let (seen, metrics) = s.watch_readiness(Duration::from_secs(120));
+    assert_eq!(seen.last().unwrap().0, 200);
+    assert_eq!(
+        parse_metric(&metrics, "cloudscape_warm_pending", &[]),
+        0.0,
+        "ready with warm keyframes pending"
+    );
+    let now = s.json("/v1/worlds/default")["clock"]["now"].as_f64().unwrap();
+    let computed = |s: &Serving| s.metric("cloudscape_computations_total", &[]);
+    let before = computed(&s);
+    let next = |dt: f64, z: u32| {
+        let span = dt * f64::from(1u32 << z);
+        ((now / span).floor() + 1.0) * span
+    };
+    for (layer, dt) in [("low", 10.0), ("high", 20.0)] {
+        for (z, quality) in [(0, "fast"), (0, "balanced"), (1, "fast"), (1, "balanced")] {
+            let t = next(dt, z);
+            let path = format!("/v1/worlds/default/tiles/{z}/0/0/billboards.bin?t={t}&layer={layer}&quality={quality}");
+            assert_eq!(s.get(&path).status().as_u16(), 200, "{path}");
+        }
+        // The port's tile: (1, 0) of `low`'s 25.6 km tiles, (0, 0) of `high`'s 51.2 km.
+        let (t, x) = (next(dt, 0), if layer == "low" { 1 } else { 0 });
+        let path = format!("/v1/worlds/default/tiles/0/{x}/0/density.u8?t={t}&layer={layer}");
+        assert_eq!(s.get(&path).status().as_u16(), 200, "{path}");
+    }
+    assert_eq!(
+        computed(&s),
+        before,
+        "a request computed a next keyframe of a play area"
+    );
 }
 
 #[test]

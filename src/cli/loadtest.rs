@@ -69,6 +69,11 @@ pub struct LoadtestArgs {
     /// The preset players fetch: fast (the viewer's default), balanced or accurate.
     #[arg(long, default_value = "fast")]
     quality: String,
+    /// The tile format players fetch: v3 (billboards.bin for a tile's first keyframe,
+    /// billboards.delta.bin after, as the viewer) or v2 (billboards.v2.bin and
+    /// shadow.png for every keyframe, as clients did before version 3).
+    #[arg(long, default_value = "v3")]
+    wire: String,
     /// Send from the start but measure only after this long (the first views are cold).
     #[arg(long, default_value = "0s")]
     warmup: String,
@@ -143,6 +148,7 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         places: a.places,
         server_pid: a.pid,
         warmup,
+        wire: loadtest::Wire::parse(&a.wire).ok_or_else(|| format!("--wire must be v3 or v2, got `{}`", a.wire))?,
         quality: match cloudscape_core::render::Quality::parse(&a.quality) {
             Some(q) if !q.is_volumetric() => q,
             _ => {

@@ -38,8 +38,8 @@ pub use self::geometry::GeometryKind;
 use self::geometry::{Geometry, TravelMode};
 use self::record::{BoundaryLatency, Counts, Latency, Outcome, Recorder, SecondSummary};
 use self::sharing::LevelSharing;
-pub use self::workload::FetchMode;
 use self::workload::{Agent, GROUP_SIZE, GameServer, Player, RequestKind, Role, TICK_SECONDS, WorldView};
+pub use self::workload::{FetchMode, Wire};
 
 /// Most requests in flight in the open loop; past it the schedule waits (and the wait
 /// counts in the latency, which is measured from the intended send time).
@@ -113,6 +113,8 @@ pub struct LoadSpec {
     pub warmup: Duration,
     /// The preset players fetch.
     pub quality: cloudscape_core::render::Quality,
+    /// The tile format players fetch.
+    pub wire: Wire,
 }
 
 /// What went wrong before or around the run (failed requests during it are counted, not errors).
@@ -431,8 +433,9 @@ pub struct Report {
     pub revalidated_ratio: Option<f64>,
     /// Body bytes received.
     pub body_bytes: u64,
-    /// The preset the players fetched.
+    /// The preset the players fetched, and the tile format.
     pub quality: &'static str,
+    pub wire: Wire,
     /// What a player received for its first view, bytes on the wire (compressed as
     /// negotiated): the mean over players of their first tick's bodies (keyframes and
     /// splat sheets), warm-up or not; `None` without players.
@@ -799,7 +802,15 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
         let horizon = (spec.warmup + spec.duration).as_secs_f64() + 2.0 * TICK_SECONDS;
         let geometry = Geometry::new(spec.geometry, places, spec.seed, found.towns, horizon);
         let mut agents: Vec<Agent> = (0..players)
-            .map(|i| Agent::new(Role::Player(Player::new(i, spec.seed, spec.fetch, spec.quality))))
+            .map(|i| {
+                Agent::new(Role::Player(Player::new(
+                    i,
+                    spec.seed,
+                    spec.fetch,
+                    spec.quality,
+                    spec.wire,
+                )))
+            })
             .collect();
         agents.extend((0..servers).map(|i| Agent::new(Role::GameServer(GameServer::new(i, groups)))));
 
@@ -916,6 +927,7 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             revalidated_ratio: (fetched + revalidated > 0).then(|| revalidated as f64 / (fetched + revalidated) as f64),
             body_bytes: rec.bytes(),
             quality: spec.quality.as_str(),
+            wire: spec.wire,
             first_view_bytes_per_player: (players > 0).then(|| rec.first_view_bytes() as f64 / players as f64),
             bytes_per_player_s: (players > 0).then(|| rec.player_bytes() as f64 / players as f64 / elapsed.max(1e-9)),
             cache,
@@ -998,6 +1010,7 @@ pub struct SweepReport {
     pub world: String,
     pub fetch: FetchMode,
     pub quality: &'static str,
+    pub wire: Wire,
     pub clock: f64,
     pub clock_source: ClockSource,
     /// The world the groups moved through (as the last step saw it).
@@ -1079,6 +1092,7 @@ pub fn sweep(
         world: spec.world.clone(),
         fetch: spec.fetch,
         quality: spec.quality.as_str(),
+        wire: spec.wire,
         clock: last.as_ref().map_or(1.0, |r| r.clock),
         clock_source: last.as_ref().map_or(ClockSource::Default, |r| r.clock_source),
         geometry: last.as_ref().map(|r| r.geometry.clone()),
@@ -1125,7 +1139,7 @@ impl SweepReport {
         });
         let mut md = format!(
             "`cloudscape loadtest --sweep` against `{}`, world `{}`: mmo scenario, groups of {GROUP_SIZE} players \
-             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles {} (prefetching the \
+             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles ({}) {} (prefetching the \
              next keyframe past {:.0}–{:.0} % of a span, by tile) with `Accept-Encoding: zstd, gzip` as browsers \
              do; world clock {} s per second ({}). Generator: {}. Each step: {:.0} s of warm-up \
              (the players' first views) then {:.0} s measured. A step holds when its p99 ≤ {SWEEP_P99_MS} ms \
@@ -1145,6 +1159,10 @@ impl SweepReport {
             self.world,
             workload::PARTY_SPREAD,
             self.quality,
+            match self.wire {
+                Wire::V3 => "`billboards.bin` for a tile's first keyframe, `billboards.delta.bin` after",
+                Wire::V2 => "`billboards.v2.bin` and `shadow.png` for every keyframe, `--wire v2`",
+            },
             match self.fetch {
                 FetchMode::Keyframes => "by keyframe URL (immutable, never revalidated)",
                 FetchMode::Poll => "every second at the current time, revalidating (`--poll`)",
@@ -1335,8 +1353,12 @@ impl Report {
         }
         if let (Some(first), Some(steady)) = (self.first_view_bytes_per_player, self.bytes_per_player_s) {
             s += &format!(
-                "bytes a player received ({}, on the wire): first view {:.0} KB, then {:.1} KB/s\n",
+                "bytes a player received ({}, {}, on the wire): first view {:.0} KB, then {:.1} KB/s\n",
                 self.quality,
+                match self.wire {
+                    Wire::V3 => "billboards.bin and deltas",
+                    Wire::V2 => "billboards.v2.bin and shadow.png",
+                },
                 first / 1e3,
                 steady / 1e3
             );
@@ -1583,6 +1605,7 @@ mod tests {
             server_pid: None,
             warmup: Duration::ZERO,
             quality: workload::DEFAULT_QUALITY,
+            wire: Wire::V3,
         };
         assert!(matches!(run(&spec, |_| {}), Err(LoadError::Spec(_))));
         let spec = LoadSpec {
@@ -1625,6 +1648,7 @@ mod tests {
             server_pid: None,
             warmup: Duration::ZERO,
             quality: workload::DEFAULT_QUALITY,
+            wire: Wire::V3,
         };
         let server = Some(ServerClock {
             offset: 0.0,
@@ -1685,6 +1709,7 @@ mod tests {
             world: "default".into(),
             fetch: FetchMode::Keyframes,
             quality: "fast",
+            wire: Wire::V3,
             clock: 1.0,
             clock_source: ClockSource::Server,
             geometry: None,

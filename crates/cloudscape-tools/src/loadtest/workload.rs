@@ -38,6 +38,31 @@ const SERIES_EVERY: u64 = 4;
 /// keyframe before when it holds that one. The ground shadow is derived from them.
 const FIRST_KEYFRAME: &str = "billboards.bin";
 const NEXT_KEYFRAME: &str = "billboards.delta.bin";
+/// What a client of `billboards.bin` version 2 fetched per tile keyframe (`--wire v2`):
+/// both ends in full precision and the served shadow map, whatever it held.
+const V2_PRODUCTS: [&str; 2] = ["billboards.v2.bin", "shadow.png"];
+
+/// The tile format players fetch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Wire {
+    /// `billboards.bin` version 3: self-contained for a tile's first keyframe, a delta
+    /// on the held keyframe for the next ones; ground shadows derived (the viewer).
+    V3,
+    /// As clients did before version 3: `billboards.v2.bin` and `shadow.png` for every
+    /// keyframe (the baseline of the bytes-per-player figures).
+    V2,
+}
+
+impl Wire {
+    pub fn parse(s: &str) -> Option<Wire> {
+        match s {
+            "v3" => Some(Wire::V3),
+            "v2" => Some(Wire::V2),
+            _ => None,
+        }
+    }
+}
 /// Most a player stands from its group's centre, metres, each way.
 pub const PARTY_SPREAD: f64 = 300.0;
 
@@ -152,7 +177,8 @@ impl WorldView {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TileProduct {
     pub keyframe: KeyframeKey,
-    /// 1 when fetched as a delta on the keyframe before (`billboards.delta.bin`).
+    /// 1 when fetched as a delta on the keyframe before (`billboards.delta.bin`); with
+    /// [`Wire::V2`] the product's place in its pair (billboards, shadow).
     pub product: u8,
 }
 
@@ -174,6 +200,8 @@ pub struct Player {
     mode: FetchMode,
     /// The preset it fetches.
     quality: Quality,
+    /// The tile format it fetches.
+    wire: Wire,
     /// Keyframes held (their answers never change): never asked again, and the next
     /// keyframe of a held one is fetched as a delta on it.
     held: HashSet<KeyframeKey>,
@@ -182,7 +210,7 @@ pub struct Player {
 }
 
 impl Player {
-    pub fn new(index: usize, seed: u64, mode: FetchMode, quality: Quality) -> Player {
+    pub fn new(index: usize, seed: u64, mode: FetchMode, quality: Quality, wire: Wire) -> Player {
         let k = seed ^ (index as u64).wrapping_mul(0x1_0000_0001);
         Player {
             index,
@@ -197,6 +225,7 @@ impl Player {
             fetched_splats: false,
             mode,
             quality,
+            wire,
             held: HashSet::new(),
             wanted: HashSet::new(),
         }
@@ -317,18 +346,25 @@ impl Player {
                 let before = key(Keyframe::on_grid(t0 - 0.5 * span, span).t0);
                 let delta = t0 > 0.0 && (self.held.contains(&before) || asked.contains(&before));
                 asked.insert(this);
-                out.push(Request {
-                    kind,
-                    path: format!("{}&t={t0}", url(if delta { NEXT_KEYFRAME } else { FIRST_KEYFRAME })),
-                    resource: None,
-                    etag: None,
-                    first_view,
-                    group,
-                    tile: Some(TileProduct {
-                        keyframe: this,
-                        product: delta as u8,
-                    }),
-                });
+                let products: &[&str] = match self.wire {
+                    Wire::V3 if delta => &[NEXT_KEYFRAME],
+                    Wire::V3 => &[FIRST_KEYFRAME],
+                    Wire::V2 => &V2_PRODUCTS,
+                };
+                for (i, product) in products.iter().enumerate() {
+                    out.push(Request {
+                        kind,
+                        path: format!("{}&t={t0}", url(product)),
+                        resource: None,
+                        etag: None,
+                        first_view,
+                        group,
+                        tile: Some(TileProduct {
+                            keyframe: this,
+                            product: if self.wire == Wire::V2 { i as u8 } else { delta as u8 },
+                        }),
+                    });
+                }
             }
         }
         // What the view no longer needs is let go (a viewer's memory is bounded too).
@@ -512,7 +548,13 @@ mod tests {
     fn players_fetch_each_keyframe_once_and_the_next_one_past_its_prefetch_point() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes, DEFAULT_QUALITY)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         let tiles: Vec<_> = first.iter().filter(|r| r.kind == RequestKind::Tile).collect();
@@ -567,10 +609,45 @@ mod tests {
     }
 
     #[test]
+    fn version_2_players_fetch_both_products_of_every_keyframe() {
+        let w = world();
+        let geo = towns(1);
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V2,
+        )));
+        agent.plan(&w, &geo, 0.0);
+        let first: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
+        let count = |p: &str| first.iter().filter(|r| r.path.contains(p)).count();
+        assert!(count("/billboards.v2.bin?") > 0);
+        assert_eq!(count("/billboards.v2.bin?"), count("/shadow.png?"));
+        assert_eq!(count("/billboards.v2.bin?") + count("/shadow.png?"), first.len());
+        for r in &first {
+            agent.answered(r, true, None);
+        }
+        // Past every prefetch point: the next keyframes, both products again, no delta.
+        agent.plan(&w, &geo, 16.5);
+        let next = drain(&mut agent);
+        assert!(
+            !next.is_empty() && next.iter().all(|r| !r.path.contains("delta")),
+            "{next:?}"
+        );
+    }
+
+    #[test]
     fn a_failed_request_is_asked_again() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes, DEFAULT_QUALITY)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         for r in &first {
@@ -591,7 +668,13 @@ mod tests {
     fn tile_requests_name_their_keyframe_and_group() {
         let w = world();
         let geo = towns(4);
-        let mut agent = Agent::new(Role::Player(Player::new(17, 1, FetchMode::Keyframes, DEFAULT_QUALITY)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            17,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         for r in drain(&mut agent).iter().filter(|r| r.kind == RequestKind::Tile) {
             assert_eq!(r.group, 2);
@@ -613,6 +696,7 @@ mod tests {
                         seed,
                         FetchMode::Keyframes,
                         DEFAULT_QUALITY,
+                        Wire::V3,
                     )))
                 })
                 .collect();
@@ -638,7 +722,13 @@ mod tests {
     fn polling_players_fetch_their_planned_tiles_and_revalidate() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Poll, DEFAULT_QUALITY)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Poll,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let reqs = drain(&mut agent);
         assert_eq!(reqs[0].kind, RequestKind::Splats);
@@ -671,7 +761,7 @@ mod tests {
             .flat_map(|g| (0..72).map(move |i| (g, i as f64 * 100.0)))
             .find(|&(g, s)| geo.position(g, s)[2] > 500.0)
             .expect("a group in flight within 2 h");
-        let p = Player::new(g * GROUP_SIZE, 2, FetchMode::Keyframes, DEFAULT_QUALITY);
+        let p = Player::new(g * GROUP_SIZE, 2, FetchMode::Keyframes, DEFAULT_QUALITY, Wire::V3);
         let cam = p.camera(&geo, s);
         let c = geo.position(g, s);
         assert!(cam.position[2] >= c[2] + 2.0 && cam.position[2] <= c[2] + 50.0);

@@ -20,7 +20,7 @@ use std::fmt::Write as _;
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::density::{self, Region};
 use cloudscape_core::products::grid::{GridFormat, encode_cells, encode_density};
-use cloudscape_core::products::{atlas, billboards, coverage, precipitation, shadow, splats};
+use cloudscape_core::products::{atlas, billboards, coverage, keyframe_bin, precipitation, shadow, splats};
 use cloudscape_core::render::{Camera, Quality, RenderRequest, ShadingParams, Sun, TileId, shade_tile};
 use cloudscape_core::view::render;
 use cloudscape_core::world::{ALGORITHM_VERSION, Config, Keyframe};
@@ -150,7 +150,16 @@ fn tile_products() -> BTreeMap<String, String> {
                 .unwrap();
                 let key = format!("{key}/{}/{}", quality.as_str(), sun.bucket().id());
                 put(format!("billboards.json {key}"), billboards::encode_json(&s));
-                put(format!("billboards.bin {key}"), billboards::encode_bin(&s));
+                put(format!("billboards.v2.bin {key}"), billboards::encode_bin(&s));
+                for (form, name) in [
+                    (keyframe_bin::Form::SelfContained, "billboards.bin"),
+                    (keyframe_bin::Form::Delta, "billboards.delta.bin"),
+                ] {
+                    put(
+                        format!("{name} {key}"),
+                        keyframe_bin::encode(&s, form, keyframe_bin::Quantisation::DEFAULT),
+                    );
+                }
                 put(format!("shadow.png {key}"), shadow::encode_png_map(&s));
                 let a = atlas::build(&s);
                 put(format!("atlas.png {key}"), a.png);

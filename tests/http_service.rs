@@ -895,14 +895,14 @@ async fn render_tile_products_share_one_shading_per_sun_bucket() {
     assert_eq!(&atlas.bytes().await.unwrap()[..8], PNG_SIGNATURE);
     assert!(get("atlas.json", q).await.json_body().await.is_object());
     assert_eq!(&get("shadow.png", q).await.bytes().await.unwrap()[..8], PNG_SIGNATURE);
-    // Five products, two shadings: the billboards (json and bin) and the shadow come
-    // from one, and only what is asked or every view needs is encoded from it
-    // (`Product::encoding`); the impostor atlas (png and json), drawn only on request,
-    // from a second one.
+    // Five products, three shadings: the billboards (json and bin) come from one, and
+    // only what is asked or every view needs is encoded from it (`Product::encoding`);
+    // the impostor atlas (png and json), drawn only on request, from a second one; the
+    // shadow map, which clients derive from the billboards, from a third.
     assert_eq!(
         s.metric("cloudscape_computations_total", &[("kind", "tile_shaded")])
             .await,
-        2.0
+        3.0
     );
 
     // A sun in the same ~8° bucket is the same product; another bucket or quality is not.
@@ -915,7 +915,7 @@ async fn render_tile_products_share_one_shading_per_sun_bucket() {
     assert_eq!(
         s.metric("cloudscape_computations_total", &[("kind", "tile_shaded")])
             .await,
-        4.0
+        5.0
     );
 }
 

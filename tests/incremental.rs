@@ -76,9 +76,12 @@ fn products(
         None => density::density(world, layer, tile.z, region, keyframe.t0),
     }
     .unwrap();
-    // Billboards (both encodings) and shadow in one call, the atlas and its manifest in
-    // another, as the server encodes them.
-    let mut shaded_bytes = encode_shaded(&shaded, u64::MAX, true, Product::BillboardsJson);
+    // Billboards (every encoding) and shadow in a few calls, the atlas and its manifest
+    // in another, as the server encodes them.
+    let mut shaded_bytes = Vec::new();
+    for wanted in [Product::BillboardsJson, Product::BillboardsV2, Product::ShadowPng] {
+        shaded_bytes.extend(encode_shaded(&shaded, u64::MAX, true, wanted));
+    }
     if with_atlas {
         shaded_bytes.extend(encode_shaded(&shaded, u64::MAX, true, Product::AtlasPng));
     }

@@ -42,6 +42,8 @@ fn a_request_after_the_boundary_is_served_from_what_was_computed_ahead() {
     let r = http.get(url("105")).send().unwrap();
     assert_eq!(r.status(), 200);
     assert_eq!(r.headers()["x-cloudscape-t"], "100");
+    // Watched: asked for again (a tile asked for once gets nothing computed ahead).
+    assert_eq!(http.get(url("106")).send().unwrap().status(), 200);
     // The next keyframe is computed ahead, without any request for it.
     assert_eq!(
         wait_for(&server, "cloudscape_ahead_computed_total", 1.0, Duration::from_secs(60)),
@@ -80,12 +82,12 @@ fn a_request_after_the_boundary_is_served_from_what_was_computed_ahead() {
         .unwrap();
     assert_eq!(next, direct);
     assert_eq!(metric(&plain, "cloudscape_ahead_computed_total", &[]), 0.0);
-    // The shadow map of the same keyframe came with the billboards: served from ahead too.
-    let shadow = http
-        .get(url("110").replace("billboards.bin", "shadow.png"))
+    // The delta form of the same keyframe came with the billboards: served from ahead too.
+    let delta = http
+        .get(url("110").replace("billboards.bin", "billboards.delta.bin"))
         .send()
         .unwrap();
-    assert_eq!(shadow.status(), 200);
+    assert_eq!(delta.status(), 200);
     assert_eq!(metric(&server, "cloudscape_ahead_served_total", &[]), 2.0);
 }
 
@@ -106,9 +108,11 @@ fn compute_ahead_never_delays_a_request_past_its_budget() {
             server.base
         )
     };
-    // Watch 12 tiles: 12 keyframes planned ahead.
+    // Watch 12 tiles (each asked for twice): 12 keyframes planned ahead.
     for x in 0..12 {
-        assert_eq!(http.get(tile(x, 3)).send().unwrap().status(), 200);
+        for t in [3, 4] {
+            assert_eq!(http.get(tile(x, t)).send().unwrap().status(), 200);
+        }
     }
     // While compute-ahead still has some of those 12 to compute, 12 requests for
     // tiles nobody watched, 3 at a time. Requests keep priority, so compute-ahead
@@ -145,8 +149,8 @@ fn compute_ahead_never_delays_a_request_past_its_budget() {
     );
     assert_eq!(metric(&server, "cloudscape_timeouts_total", &[]), 0.0);
     assert_eq!(metric(&server, "cloudscape_shed_total", &[]), 0.0);
-    // What waited gets its turn once the requests are done: at least the 12 watched
-    // tiles' next keyframes (the 12 requests planned theirs too).
+    // What waited gets its turn once the requests are done: the 12 watched tiles'
+    // next keyframes (the 12 requests, one each, planned none).
     let done = wait_for(
         &server,
         "cloudscape_ahead_computed_total",
@@ -157,6 +161,52 @@ fn compute_ahead_never_delays_a_request_past_its_budget() {
         done >= 12.0,
         "{done} computed ahead, {computed_before} before the requests"
     );
+}
+
+/// A crawler buys no compute: tiles asked for once (5,000 of them cost the server 1.7
+/// cores for a minute before) get no keyframe computed ahead, while a tile asked for
+/// twice still does.
+#[test]
+fn a_crawl_of_one_off_tiles_computes_nothing_ahead() {
+    let (server, _config) = start(&[]);
+    let http = client();
+    let tile = |x: i64, y: i64, t: f64| {
+        format!(
+            "{}/v1/worlds/default/tiles/0/{x}/{y}/billboards.bin?t={t}&quality=fast&sun=120,40",
+            server.base
+        )
+    };
+    // The crawl: 24 tiles, once each, at times in the middle of their spans.
+    for i in 0..24 {
+        let r = http
+            .get(tile(i % 6, 20 + i / 6, 205.0 + f64::from(i as u8 % 4)))
+            .send()
+            .unwrap();
+        assert_eq!(r.status(), 200);
+    }
+    // Followed (the hot set knows them), but nothing planned for them.
+    assert!(eventually(Duration::from_secs(10), || metric(
+        &server,
+        "cloudscape_ahead_hot_tiles",
+        &[]
+    ) == 24.0));
+    assert_eq!(metric(&server, "cloudscape_ahead_pending", &[]), 0.0);
+    // A player's tile, asked for at two keyframes, after the crawl: its next keyframe
+    // is planned after theirs would have been, with a later deadline, so once it is
+    // computed ahead any keyframe planned for the crawl would have been too.
+    for t in [203.0, 211.0] {
+        assert_eq!(http.get(tile(40, 40, t)).send().unwrap().status(), 200);
+    }
+    assert_eq!(
+        wait_for(&server, "cloudscape_ahead_computed_total", 1.0, Duration::from_secs(60)),
+        1.0
+    );
+    assert!(eventually(Duration::from_secs(10), || metric(
+        &server,
+        "cloudscape_ahead_pending",
+        &[]
+    ) == 0.0));
+    assert_eq!(metric(&server, "cloudscape_ahead_computed_total", &[]), 1.0);
 }
 
 #[test]

@@ -130,8 +130,8 @@ fn a_second_replica_gets_products_from_redis_with_identical_bytes_and_etags() {
     let a = serve_with_redis(&redis.url(), &[("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0")]);
     let density = "/v1/worlds/default/tiles/0/3/-2/density.npy?t=40";
     let billboards = "/v1/worlds/default/tiles/0/1/1/billboards.json?t=40&sun=120,30";
-    // shadow.png: encoded with the billboards from every shading (`Product::encoding`).
-    let atlas = "/v1/worlds/default/tiles/0/1/1/shadow.png?t=40&sun=120,30";
+    // billboards.delta.bin: encoded with the billboards from every shading (`Product::encoding`).
+    let atlas = "/v1/worlds/default/tiles/0/1/1/billboards.delta.bin?t=40&sun=120,30";
     let (status, etag_a, body_a, _) = get(&a, density);
     assert_eq!(status, 200);
     assert_eq!(
@@ -177,6 +177,115 @@ fn a_second_replica_gets_products_from_redis_with_identical_bytes_and_etags() {
         metric(&b, "cloudscape_cache_hits_total", &[("kind", "tile_density")]),
         1.0
     );
+}
+
+/// Anything that can write to Redis must not be able to poison the replicas: a tile's
+/// key overwritten with garbage (the attack of issue 39: 17 bytes served as a 110 KB
+/// PNG with the genuine ETag and `immutable`), or with another tile's genuine value, is
+/// a miss on every replica, counted, and the request computes the genuine bytes (and
+/// writes them over the planted value).
+#[test]
+fn garbage_written_under_a_tiles_key_is_never_served() {
+    let redis = RedisServer::start();
+    let quiet = [("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0")];
+    let a = serve_with_redis(&redis.url(), &quiet);
+    let shadow = "/v1/worlds/default/tiles/0/1/1/shadow.png?t=40&sun=120,30";
+    let other = "/v1/worlds/default/tiles/0/2/1/shadow.png?t=40&sun=120,30";
+    let (status, etag, genuine, _) = get(&a, shadow);
+    assert_eq!(status, 200);
+    assert_eq!(get(&a, other).0, 200);
+    let keys = redis.wait_for_keys(4);
+    let key_of = |tile: &str| {
+        keys.iter()
+            .find(|k| k.contains(tile) && k.contains("|p=shadow.png"))
+            .unwrap_or_else(|| panic!("{tile} in {keys:?}"))
+            .clone()
+    };
+    let (key, other_key) = (key_of("|x=1|y=1|"), key_of("|x=2|y=1|"));
+    let mut c = redis.connection().unwrap();
+    let set = |c: &mut redis::Connection, value: &[u8]| {
+        redis::cmd("SET").arg(&key).arg(value).query::<()>(c).unwrap();
+    };
+    for (n, planted) in [
+        b"17 bytes of junk!".to_vec(),
+        redis::cmd("GET").arg(&other_key).query::<Vec<u8>>(&mut c).unwrap(),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        set(&mut c, &planted);
+        // A fresh replica: nothing in memory, so it asks Redis.
+        let b = serve_with_redis(&redis.url(), &quiet);
+        let (status, etag_b, body, _) = get(&b, shadow);
+        assert_eq!(status, 200);
+        assert_eq!(etag_b, etag);
+        assert!(body == genuine, "planted value {n} was served ({} bytes)", body.len());
+        assert_eq!(
+            metric(&b, "cloudscape_redis_rejected_total", &[("kind", "tile_shaded")]),
+            1.0,
+            "planted value {n}"
+        );
+        assert_eq!(metric(&b, "cloudscape_redis_hits_total", &[]), 0.0);
+        assert_eq!(
+            metric(&b, "cloudscape_computations_total", &[("kind", "tile_shaded")]),
+            1.0
+        );
+        // The genuine bytes are written over the planted value: the next replica hits.
+        let start = Instant::now();
+        while redis::cmd("GET").arg(&key).query::<Vec<u8>>(&mut c).unwrap() == planted {
+            assert!(start.elapsed() < Duration::from_secs(10), "the planted value stayed");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let d = serve_with_redis(&redis.url(), &quiet);
+        assert!(get(&d, shadow).2 == genuine);
+        assert_eq!(
+            metric(&d, "cloudscape_redis_hits_total", &[("kind", "tile_shaded")]),
+            1.0
+        );
+    }
+}
+
+/// With `server.redis_secret`, values are sealed with a keyed MAC: a replica without the
+/// secret (or with another) cannot write a value the fleet serves.
+#[test]
+fn with_a_secret_only_replicas_holding_it_share_values() {
+    let redis = RedisServer::start();
+    let fleet = [
+        ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
+        ("CLOUDSCAPE_SERVER_REDIS_SECRET", "the fleet's secret, 32 bytes ok"),
+    ];
+    let density = "/v1/worlds/default/tiles/0/3/-2/density.u8?t=40";
+    // An intruder with Redis access but another secret writes first.
+    let intruder = serve_with_redis(
+        &redis.url(),
+        &[
+            ("CLOUDSCAPE_SERVER_AHEAD_THREADS", "0"),
+            ("CLOUDSCAPE_SERVER_REDIS_SECRET", "not the fleet's secret at all"),
+        ],
+    );
+    assert_eq!(get(&intruder, density).0, 200);
+    redis.wait_for_keys(1);
+    let a = serve_with_redis(&redis.url(), &fleet);
+    assert_eq!(get(&a, density).0, 200);
+    assert_eq!(
+        metric(&a, "cloudscape_redis_rejected_total", &[("kind", "tile_density")]),
+        1.0
+    );
+    assert_eq!(
+        metric(&a, "cloudscape_computations_total", &[("kind", "tile_density")]),
+        1.0
+    );
+    // Once a's value is written, another replica of the fleet takes it.
+    std::thread::sleep(Duration::from_millis(500));
+    let b = serve_with_redis(&redis.url(), &fleet);
+    assert_eq!(get(&b, density).0, 200);
+    assert_eq!(
+        metric(&b, "cloudscape_redis_hits_total", &[("kind", "tile_density")]),
+        1.0
+    );
+    let out = common::print_config(&[], &[("CLOUDSCAPE_SERVER_REDIS_SECRET", "short")]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("server.redis_secret"));
 }
 
 /// Settings that make failures show quickly: a 150 ms Redis deadline, 300 ms back-off,

@@ -1,5 +1,5 @@
 //! Play areas kept warm (`[[worlds.NAME.warm]]`) and the world clock, over real sockets:
-//! readiness waits for the first keyframes, the first request for a warm keyframe is a
+//! readiness waits for the current and next keyframes, the first request for a warm keyframe is a
 //! cache hit, next keyframes are ready before the clock reaches them, discovery lists
 //! the areas and the clock, and bad areas or clocks stop the server at start with the
 //! key named.
@@ -20,7 +20,7 @@ const OFFSET: f64 = -1.6e9;
 /// two qualities, and a box in tile (1, 0) of `low` at level 0 with a grid product too.
 const AREAS: &str = r#"[
     { name = "town", polygon = [[1000.0, 1000.0], [9000.0, 2000.0], [8000.0, 9000.0]], levels = [0, 1], qualities = ["fast", "balanced"] },
-    { name = "port", bbox = [30000.0, 1000.0, 35000.0, 6000.0], products = ["billboards.bin", "shadow.png", "density.u8"] },
+    { name = "port", bbox = [30000.0, 1000.0, 35000.0, 6000.0], products = ["billboards.bin", "billboards.delta.bin", "density.u8"] },
 ]"#;
 
 /// Tile variants of [`AREAS`] per area: `town` 2 layers × 2 levels × 2 qualities (one
@@ -129,8 +129,8 @@ fn unix_now() -> f64 {
 fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
     let mut s = Serving::spawn(&config(1.0, AREAS));
     let (seen, metrics) = s.watch_readiness(Duration::from_secs(120));
-    // Not ready while the first keyframes are computed: every 503 says how many are
-    // left, and at the first 200 each variant has its first keyframe.
+    // Not ready while the keyframes are computed: every 503 says how many variants are
+    // left, and at the first 200 each variant has its current and next keyframes.
     for (status, body) in &seen[..seen.len() - 1] {
         assert_eq!(*status, 503, "{body}");
         assert_eq!(body["status"], "starting", "{body}");
@@ -160,7 +160,7 @@ fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
         for (z, quality) in [(0, "fast"), (0, "balanced"), (1, "fast"), (1, "balanced")] {
             let span = dt * f64::from(1u32 << z);
             let t0 = (now / span).floor() * span;
-            for product in ["billboards.bin", "shadow.png"] {
+            for product in ["billboards.bin", "billboards.delta.bin"] {
                 let path = format!("/v1/worlds/default/tiles/{z}/0/0/{product}?t={t0}&layer={layer}&quality={quality}");
                 let r = s.get(&path);
                 assert_eq!(r.status().as_u16(), 200, "{path}");
@@ -186,6 +186,49 @@ fn readiness_waits_for_the_warm_keyframes_and_the_first_view_is_a_cache_hit() {
     assert_eq!(again.headers()["etag"], etag);
     assert_eq!(again.bytes().unwrap(), body);
     assert_eq!(plain.json("/v1/worlds/default")["warm"], serde_json::json!([]));
+}
+
+/// Ready means ready for the players: at the first 200 of `/readyz` every warm
+/// variant has its next keyframe in the cache as well as its current one, so the
+/// players who arrive then and fetch next keyframes at their prefetch points compute
+/// nothing (before, readiness came with most next keyframes pending, and 200 players
+/// started then got 503s).
+#[test]
+fn readiness_waits_for_the_next_keyframes_too() {
+    // A slow clock (a level-0 span of `low` lasts 100 real seconds; t ≈ 1.8e8 s), so
+    // no keyframe boundary passes while the next keyframes are asked for.
+    let slow = [("worlds.default.clock", "{ offset = 0.0, rate = 0.1 }")];
+    let mut s = Serving::spawn(&config_with(0.1, AREAS, &slow));
+    let (seen, metrics) = s.watch_readiness(Duration::from_secs(120));
+    assert_eq!(seen.last().unwrap().0, 200);
+    assert_eq!(
+        parse_metric(&metrics, "cloudscape_warm_pending", &[]),
+        0.0,
+        "ready with warm keyframes pending"
+    );
+    let now = s.json("/v1/worlds/default")["clock"]["now"].as_f64().unwrap();
+    let computed = |s: &Serving| s.metric("cloudscape_computations_total", &[]);
+    let before = computed(&s);
+    let next = |dt: f64, z: u32| {
+        let span = dt * f64::from(1u32 << z);
+        ((now / span).floor() + 1.0) * span
+    };
+    for (layer, dt) in [("low", 10.0), ("high", 20.0)] {
+        for (z, quality) in [(0, "fast"), (0, "balanced"), (1, "fast"), (1, "balanced")] {
+            let t = next(dt, z);
+            let path = format!("/v1/worlds/default/tiles/{z}/0/0/billboards.bin?t={t}&layer={layer}&quality={quality}");
+            assert_eq!(s.get(&path).status().as_u16(), 200, "{path}");
+        }
+        // The port's tile: (1, 0) of `low`'s 25.6 km tiles, (0, 0) of `high`'s 51.2 km.
+        let (t, x) = (next(dt, 0), if layer == "low" { 1 } else { 0 });
+        let path = format!("/v1/worlds/default/tiles/0/{x}/0/density.u8?t={t}&layer={layer}");
+        assert_eq!(s.get(&path).status().as_u16(), 200, "{path}");
+    }
+    assert_eq!(
+        computed(&s),
+        before,
+        "a request computed a next keyframe of a play area"
+    );
 }
 
 #[test]
@@ -214,7 +257,7 @@ fn next_keyframes_are_ready_before_the_clock_reaches_them() {
     }));
     let before = s.metric("cloudscape_computations_total", &[]);
     let r = s.get(&format!(
-        "/v1/worlds/default/tiles/0/0/0/shadow.png?t={t0}&layer=low&quality=fast"
+        "/v1/worlds/default/tiles/0/0/0/billboards.delta.bin?t={t0}&layer=low&quality=fast"
     ));
     assert_eq!(r.status().as_u16(), 200);
     assert_eq!(s.metric("cloudscape_computations_total", &[]), before);
@@ -249,7 +292,10 @@ fn discovery_lists_the_clock_and_the_play_areas() {
     );
     assert_eq!(town["margin"], 0.0);
     assert_eq!(town["levels"], serde_json::json!([0, 1]));
-    assert_eq!(town["products"], serde_json::json!(["billboards.bin", "shadow.png"]));
+    assert_eq!(
+        town["products"],
+        serde_json::json!(["billboards.bin", "billboards.delta.bin"])
+    );
     assert_eq!(town["qualities"], serde_json::json!(["fast", "balanced"]));
     assert_eq!(town["layers"], serde_json::json!(["low", "high"]));
     assert_eq!(town["tiles"], TOWN_TILES);

@@ -23,7 +23,7 @@ pub struct BenchArgs {
     #[arg(long)]
     plots: Option<String>,
     /// Measure only these sections (comma-separated: machine, automaton, fields,
-    /// tiles, encoders, quality, http, rosa, scaling, keyframes, stages, precipitation-day);
+    /// tiles, encoders, quality, http, rosa, scaling, keyframes, stages, precipitation-day, wire);
     /// the others are left as they are.
     #[arg(long, value_delimiter = ',')]
     only: Option<Vec<String>>,

@@ -66,6 +66,13 @@ pub struct FuzzArgs {
     /// attack: run only these attacks (comma-separated names; all by default).
     #[arg(long, value_delimiter = ',')]
     only: Vec<String>,
+    /// attack: tile requests of the crawl over random seeds, levels, times and
+    /// products (0: no crawl); set --rss-limit-mib to the cache budget + 512.
+    #[arg(long, default_value_t = 0)]
+    crawl: usize,
+    /// attack: seconds of quiet after the crawl before its RSS is read again.
+    #[arg(long, default_value_t = 30.0)]
+    crawl_idle: f64,
 }
 
 pub fn run(a: FuzzArgs) -> Result<(), String> {
@@ -111,6 +118,15 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
     if a.burst == 0 || a.burst > 64 {
         return Err(format!("--burst must be within [1, 64], got {}", a.burst));
     }
+    if a.crawl > 1_000_000 {
+        return Err(format!("--crawl must be within [0, 1000000], got {}", a.crawl));
+    }
+    if !(a.crawl_idle.is_finite() && (0.0..=3600.0).contains(&a.crawl_idle)) {
+        return Err(format!(
+            "--crawl-idle must be within [0, 3600] seconds, got {}",
+            a.crawl_idle
+        ));
+    }
     let report = attack::run(&AttackOptions {
         target: a.target.trim_end_matches('/').to_string(),
         pid: a.pid,
@@ -120,6 +136,8 @@ fn run_attack(a: FuzzArgs) -> Result<(), String> {
         heavy_size: a.heavy_size,
         heavy_quality: a.heavy_quality,
         only: a.only,
+        crawl: a.crawl,
+        crawl_idle_s: a.crawl_idle,
         world: "default".to_string(),
         progress: true,
     })?;

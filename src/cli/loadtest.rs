@@ -66,6 +66,14 @@ pub struct LoadtestArgs {
     /// Groups share this many places: more players watching the same tiles.
     #[arg(long)]
     places: Option<usize>,
+    /// The preset players fetch: fast (the viewer's default), balanced or accurate.
+    #[arg(long, default_value = "fast")]
+    quality: String,
+    /// The tile format players fetch: v3 (billboards.bin for a tile's first keyframe,
+    /// billboards.delta.bin after, as the viewer) or v2 (billboards.v2.bin and
+    /// shadow.png for every keyframe, as clients did before version 3).
+    #[arg(long, default_value = "v3")]
+    wire: String,
     /// Send from the start but measure only after this long (the first views are cold).
     #[arg(long, default_value = "0s")]
     warmup: String,
@@ -140,6 +148,16 @@ pub fn run(a: LoadtestArgs) -> Result<(), String> {
         places: a.places,
         server_pid: a.pid,
         warmup,
+        wire: loadtest::Wire::parse(&a.wire).ok_or_else(|| format!("--wire must be v3 or v2, got `{}`", a.wire))?,
+        quality: match cloudscape_core::render::Quality::parse(&a.quality) {
+            Some(q) if !q.is_volumetric() => q,
+            _ => {
+                return Err(format!(
+                    "--quality must be fast, balanced or accurate, got `{}`",
+                    a.quality
+                ));
+            }
+        },
     };
     if a.sweep {
         // Steps given by hand run to the last, for a whole curve; the default steps

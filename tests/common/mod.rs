@@ -128,6 +128,11 @@ impl ServeProcess {
         // would compete with what each test measures. A test that wants them passes
         // `("CLOUDSCAPE_SERVER_WARM_THREADS", "1")` in `env` (tests/warm.rs has its own).
         cmd.env("CLOUDSCAPE_SERVER_WARM_THREADS", "0");
+        // Its stderr is a pipe read only if it never becomes ready: at `info` every
+        // `/readyz` poll logs a line, and a start-up of half a minute (play areas kept
+        // warm, a loaded machine) fills the pipe, after which the server blocks on its
+        // next log line. Warnings only, unless `env` says otherwise.
+        cmd.env("RUST_LOG", "warn");
         for (k, v) in env {
             cmd.env(k, v);
         }

@@ -6,8 +6,16 @@
 //! variant, a demand count that decays with a half-life of [`DEMAND_HALF_LIFE`], the
 //! latest keyframe asked, and the rate at which the asked `t` advances against the
 //! server's own clock (world seconds per real second, 1 until measured). The next
-//! keyframe of each variant is planned with a deadline: the real time at which that
-//! clock reaches it.
+//! keyframe of a *watched* variant is planned with a deadline: the real time at which
+//! that clock reaches it.
+//!
+//! Watched means asked for by a second request (the same keyframe again, another
+//! keyframe, another client: players come back to the tiles around them, a crawler
+//! does not), or lying in a play area (`crate::warm`), where players are expected. A
+//! tile asked for once is followed, but nothing is computed for it: a crawl of
+//! one-off tiles would otherwise buy a keyframe nobody asks for per tile it touches.
+//! When the hot set is full, a variant asked for once is forgotten before a watched
+//! one, so a crawl cannot push the players' tiles out either.
 //!
 //! A background task ([`run`]) computes planned keyframes most urgent first (earliest
 //! deadline, then most demanded), through the same cache and compute queue as the
@@ -73,6 +81,9 @@ struct HotTile {
     recipe: Arc<dyn Recipe>,
     /// Requests, decayed with [`DEMAND_HALF_LIFE`].
     demand: f64,
+    /// Asked for by more than one request, or in a play area: only then are its next
+    /// keyframes computed ahead.
+    watched: bool,
     last_seen: Instant,
     /// The first request: the clock rate is measured from it.
     first: (Instant, f64),
@@ -139,29 +150,38 @@ impl HotSet {
         self.tiles.lock().unwrap_or_else(|e| e.into_inner())
     }
 
-    /// A request asked for `keyframe` of `recipe`'s variant at `t`: counts the demand,
-    /// notes a planned keyframe that is not ready yet as missed, and plans the next
-    /// keyframe.
-    pub fn watched(&self, metrics: &Metrics, recipe: &Arc<dyn Recipe>, keyframe: Keyframe, t: f64) {
+    /// A request asked for `keyframe` of `recipe`'s variant at `t` (`in_area`: the tile
+    /// lies in a play area): counts the demand, notes a planned keyframe that is not
+    /// ready yet as missed, and plans the next keyframe once the variant is watched.
+    pub fn watched(&self, metrics: &Metrics, recipe: &Arc<dyn Recipe>, keyframe: Keyframe, t: f64, in_area: bool) {
         if self.threads == 0 || keyframe.is_instant() {
             return;
         }
         let now = Instant::now();
         let variant = recipe.variant();
         let mut tiles = self.lock();
-        if !tiles.contains_key(&variant) && tiles.len() >= self.capacity {
-            // Full: forget the least watched.
-            if let Some(coldest) = tiles
+        let seen = tiles.contains_key(&variant);
+        if !seen && tiles.len() >= self.capacity {
+            // Full: forget a variant asked for once (the longest ago), else the least
+            // watched.
+            let coldest = tiles
                 .iter()
-                .min_by(|a, b| a.1.decayed(now).total_cmp(&b.1.decayed(now)))
-                .map(|(k, _)| k.clone())
-            {
+                .filter(|(_, h)| !h.watched && !h.running)
+                .min_by_key(|(_, h)| h.last_seen)
+                .or_else(|| {
+                    tiles
+                        .iter()
+                        .min_by(|a, b| a.1.decayed(now).total_cmp(&b.1.decayed(now)))
+                })
+                .map(|(k, _)| k.clone());
+            if let Some(coldest) = coldest {
                 tiles.remove(&coldest);
             }
         }
         let hot = tiles.entry(variant).or_insert_with(|| HotTile {
             recipe: Arc::clone(recipe),
             demand: 0.0,
+            watched: false,
             last_seen: now,
             first: (now, t),
             latest: (keyframe, t, now),
@@ -172,6 +192,7 @@ impl HotSet {
         });
         hot.demand = hot.decayed(now) + 1.0;
         hot.last_seen = now;
+        hot.watched |= seen || in_area;
         if let Some((planned, _)) = hot.planned
             && planned.index == keyframe.index
             && hot.done != Some(keyframe.index)
@@ -187,7 +208,7 @@ impl HotSet {
         let next = hot.recipe.keyframe(latest.t1);
         let already =
             hot.planned.is_some_and(|(p, _)| p.index >= next.index) || hot.done.is_some_and(|d| d >= next.index);
-        if next.index > latest.index && !already {
+        if hot.watched && next.index > latest.index && !already {
             let wait = ((next.t0 - t_latest) / hot.clock_rate()).clamp(0.0, 86_400.0);
             hot.planned = Some((next, now + Duration::from_secs_f64(wait)));
             drop(tiles);
@@ -304,4 +325,79 @@ async fn compute(cache: &Arc<ResponseCache>, m: &Arc<Metrics>, job: &Planned) ->
         m.ahead_lag.observe(late.as_secs_f64());
     }
     computed
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A variant of its own name, keyframes 10 s apart, nothing to compute.
+    struct Tile(String);
+
+    impl Recipe for Tile {
+        fn variant(&self) -> String {
+            self.0.clone()
+        }
+        fn keyframe(&self, t: f64) -> Keyframe {
+            Keyframe::on_grid(t, 10.0)
+        }
+        fn key(&self, keyframe: Keyframe) -> CacheKey {
+            CacheKey(format!("{}|k={}", self.0, keyframe.index))
+        }
+        fn family(&self) -> &'static str {
+            "tile_shaded"
+        }
+        fn plan(&self, _: Keyframe) -> Result<(Work, AheadJob), ApiError> {
+            Ok((Work::default(), Box::new(|_: &Cancel| Err(ApiError::Cancelled))))
+        }
+    }
+
+    fn ask(hot: &HotSet, m: &Metrics, name: &str, t: f64, in_area: bool) {
+        let recipe: Arc<dyn Recipe> = Arc::new(Tile(name.into()));
+        hot.watched(m, &recipe, Keyframe::on_grid(t, 10.0), t, in_area);
+    }
+
+    fn planned(hot: &HotSet) -> Vec<String> {
+        let mut v: Vec<String> = hot
+            .lock()
+            .iter()
+            .filter(|(_, h)| h.planned.is_some())
+            .map(|(k, _)| k.clone())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn only_watched_tiles_get_their_next_keyframe_planned() {
+        let (hot, m) = (HotSet::new(4096, 1), Metrics::new());
+        // A crawl: a hundred tiles asked for once each.
+        for i in 0..100 {
+            ask(&hot, &m, &format!("crawl/{i}"), 105.0, false);
+        }
+        assert!(planned(&hot).is_empty(), "{:?}", planned(&hot));
+        // A player's tile, asked again (the same keyframe, or the next one).
+        ask(&hot, &m, "player/a", 105.0, false);
+        ask(&hot, &m, "player/a", 107.0, false);
+        ask(&hot, &m, "player/b", 105.0, false);
+        ask(&hot, &m, "player/b", 112.0, false);
+        // A tile in a play area, from its first request.
+        ask(&hot, &m, "town/c", 105.0, true);
+        assert_eq!(planned(&hot), ["player/a", "player/b", "town/c"]);
+        assert_eq!(hot.lock()["player/b"].planned.unwrap().0.index, 12);
+    }
+
+    #[test]
+    fn a_full_hot_set_forgets_tiles_asked_for_once_first() {
+        let (hot, m) = (HotSet::new(4, 1), Metrics::new());
+        ask(&hot, &m, "player", 105.0, false);
+        ask(&hot, &m, "player", 106.0, false);
+        for i in 0..20 {
+            ask(&hot, &m, &format!("crawl/{i}"), 105.0, false);
+        }
+        let tiles = hot.lock();
+        assert_eq!(tiles.len(), 4);
+        assert!(tiles.contains_key("player"), "the crawl pushed the player's tile out");
+        assert!(tiles.contains_key("crawl/19"));
+    }
 }

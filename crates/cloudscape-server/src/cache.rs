@@ -11,6 +11,14 @@
 //! `Retry-After` on a shed answer is the real wait: jobs queued × their recent
 //! mean time / compute threads.
 //!
+//! Admission counts the queue, not one job ([`Backlog`]): a request's job is admitted
+//! only if the estimated work already admitted ahead of it (what running jobs have
+//! left, and every queued job) plus its own can be done within the request's time
+//! budget at the rate the queue has been working. A burst of expensive requests is
+//! then answered by admitting what can finish and shedding the rest with 503 and a
+//! `Retry-After` of the backlog's time, instead of admitting a queue-full that all
+//! time out together at the budget.
+//!
 //! With a [`SharedCache`] (Redis) configured, the one computation of a key first asks
 //! it, and stores what it computed there afterwards without waiting.
 
@@ -58,8 +66,158 @@ pub enum Asker {
     Warm,
 }
 
+/// The share of the time budget that the backlog ahead of a request and the request's
+/// own work may fill: the rest is the margin for estimates that come out low.
+const BACKLOG_SHARE_OF_BUDGET: f64 = 0.8;
+/// Busy seconds over which the queue's working rate is measured (older time is
+/// forgotten proportionally).
+const RATE_WINDOW_S: f64 = 60.0;
+/// Busy seconds measured before the measured rate replaces the assumed one.
+const RATE_MIN_S: f64 = 1.0;
+/// The rate assumed before one is measured, estimated CPU-seconds per second per
+/// compute thread: a quarter of what the estimates promise, since the first burst
+/// comes before any measurement, and a machine shared with other work runs several
+/// times slower than the calibration did (a 1024² `fast` view, 1.5 CPU-s estimated,
+/// took 5 s alone on the 2-core development machine at load average 6).
+const ASSUMED_RATE_PER_THREAD: f64 = 0.25;
+
+/// The estimated work admitted to the queue and not done yet, and the rate at which
+/// the queue does estimated work (estimated CPU-seconds per second of wall time while
+/// any job runs). The rate is measured, not assumed: it folds the estimates' error,
+/// the machine's speed and whatever else runs on it (other processes, the jobs' own
+/// parallelism) into one number, so the backlog's time is in real seconds.
+struct Backlog {
+    state: Mutex<BacklogState>,
+    /// Compute threads (the measured rate is bounded by a multiple of them).
+    threads: f64,
+}
+
+#[derive(Default)]
+struct BacklogState {
+    /// Admitted jobs by ticket: estimated CPU-seconds, and when each started running.
+    jobs: HashMap<u64, (f64, Option<Instant>)>,
+    next: u64,
+    running: usize,
+    /// Wall seconds with at least one job running, and the estimated CPU-seconds done
+    /// meanwhile (both decayed together over [`RATE_WINDOW_S`]).
+    busy_s: f64,
+    done_cpu_s: f64,
+    /// When `busy_s` was last brought up to date.
+    last: Option<Instant>,
+}
+
+impl BacklogState {
+    fn rate(&self, threads: f64) -> f64 {
+        if self.busy_s < RATE_MIN_S {
+            ASSUMED_RATE_PER_THREAD * threads
+        } else {
+            (self.done_cpu_s / self.busy_s).clamp(0.05 * threads, 4.0 * threads)
+        }
+    }
+
+    /// Adds the wall time since the last event to the busy time, if any job ran.
+    fn tick(&mut self, now: Instant) {
+        if let Some(last) = self.last
+            && self.running > 0
+        {
+            self.busy_s += now.duration_since(last).as_secs_f64();
+            if self.busy_s > RATE_WINDOW_S {
+                let keep = RATE_WINDOW_S / self.busy_s;
+                self.busy_s *= keep;
+                self.done_cpu_s *= keep;
+            }
+        }
+        self.last = Some(now);
+    }
+
+    /// Estimated CPU-seconds still to do of the admitted jobs: a running job has done
+    /// its share of the rate for as long as it has run (and has a tenth of its
+    /// estimate left while it runs: it is not done until it ends).
+    fn remaining(&self, now: Instant, rate: f64) -> f64 {
+        let per_job = rate / self.running.max(1) as f64;
+        self.jobs
+            .values()
+            .map(|&(cpu_s, started)| match started {
+                Some(at) => (cpu_s - now.duration_since(at).as_secs_f64() * per_job).max(0.1 * cpu_s),
+                None => cpu_s,
+            })
+            .sum()
+    }
+}
+
+impl Backlog {
+    fn new(threads: usize) -> Backlog {
+        Backlog {
+            state: Mutex::new(BacklogState::default()),
+            threads: threads as f64,
+        }
+    }
+
+    fn lock(&self) -> std::sync::MutexGuard<'_, BacklogState> {
+        self.state.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Seconds the admitted work still needs at the measured rate.
+    fn seconds(&self) -> f64 {
+        let s = self.lock();
+        let rate = s.rate(self.threads);
+        s.remaining(Instant::now(), rate) / rate
+    }
+
+    /// Admits a job of `cpu_s` estimated CPU-seconds: its ticket, or, when `within` is
+    /// given and the work ahead of it plus its own would take longer than that (at the
+    /// measured rate), the seconds until it would fit. A job that finds nothing ahead
+    /// is always admitted (whether one job alone fits its budget is the 413 check's).
+    fn admit(&self, cpu_s: f64, within: Option<Duration>) -> Result<u64, f64> {
+        let mut s = self.lock();
+        let now = Instant::now();
+        let rate = s.rate(self.threads);
+        let ahead = s.remaining(now, rate);
+        if let Some(budget) = within {
+            let fits = BACKLOG_SHARE_OF_BUDGET * budget.as_secs_f64();
+            let done_in = (ahead + cpu_s) / rate;
+            if !s.jobs.is_empty() && done_in > fits {
+                return Err(done_in - fits);
+            }
+        }
+        let ticket = s.next;
+        s.next += 1;
+        s.jobs.insert(ticket, (cpu_s.max(0.0), None));
+        Ok(ticket)
+    }
+
+    fn start(&self, ticket: u64) {
+        let mut s = self.lock();
+        let now = Instant::now();
+        s.tick(now);
+        if let Some(job) = s.jobs.get_mut(&ticket) {
+            job.1 = Some(now);
+            s.running += 1;
+        }
+    }
+
+    /// The job of `ticket` left the queue: before it ran (`ran` false), or after
+    /// (`completed`: it did all its work, which is credited to the rate; a job stopped
+    /// at its budget is credited nothing: how far it got is unknown, and work that
+    /// does not finish in its budget is what the rate must warn of).
+    fn finish(&self, ticket: u64, ran: bool, completed: bool) {
+        let mut s = self.lock();
+        s.tick(Instant::now());
+        let Some((cpu_s, started)) = s.jobs.remove(&ticket) else {
+            return;
+        };
+        if ran && started.is_some() {
+            if completed {
+                s.done_cpu_s += cpu_s;
+            }
+            s.running = s.running.saturating_sub(1);
+        }
+    }
+}
+
 /// Bounded CPU work: at most `capacity` jobs running or waiting for a rayon thread,
-/// holding at most `memory_mib` MiB of estimated working memory between them.
+/// holding at most `memory_mib` MiB of estimated working memory between them, and no
+/// more estimated work than requests' time budget lets them finish ([`Backlog`]).
 pub struct ComputeQueue {
     slots: Arc<Semaphore>,
     capacity: usize,
@@ -73,19 +231,31 @@ pub struct ComputeQueue {
     /// the next job) and they all crawl to the end of their budget together; with
     /// them the oldest jobs run at full speed and finish, FIFO.
     running: Arc<Semaphore>,
+    /// The estimated work admitted and not done yet.
+    backlog: Arc<Backlog>,
+    /// A request's time budget: its job must fit the backlog in it.
+    budget: Duration,
 }
 
 impl ComputeQueue {
-    pub fn new(capacity: usize, memory_bytes: u64) -> ComputeQueue {
+    pub fn new(capacity: usize, memory_bytes: u64, budget: Duration) -> ComputeQueue {
         let memory_mib = (memory_bytes >> 20).clamp(1, Semaphore::MAX_PERMITS as u64 >> 1) as u32;
+        let threads = rayon::current_num_threads().max(1);
         ComputeQueue {
+            backlog: Arc::new(Backlog::new(threads)),
+            budget,
             slots: Arc::new(Semaphore::new(capacity)),
             capacity,
             memory: Arc::new(Semaphore::new(memory_mib as usize)),
             memory_mib,
             mean_job_s: Arc::new(AtomicU64::new(NO_JOB_YET)),
-            running: Arc::new(Semaphore::new(rayon::current_num_threads().max(1))),
+            running: Arc::new(Semaphore::new(threads)),
         }
+    }
+
+    /// Seconds the admitted work still needs at the queue's measured rate.
+    pub fn backlog_seconds(&self) -> f64 {
+        self.backlog.seconds()
     }
 
     /// Jobs running or queued.
@@ -134,6 +304,25 @@ impl ComputeQueue {
         let Ok(memory) = self.memory.clone().try_acquire_many_owned(mib) else {
             return Err(shed());
         };
+        // Requests must fit the backlog in their budget; background work (ahead, warm)
+        // has no budget, but counts in the backlog of the requests behind it.
+        let within = (by == Asker::Request).then_some(self.budget);
+        let ticket = match self.backlog.admit(work.cpu_s, within) {
+            Ok(ticket) => ticket,
+            Err(wait_s) => {
+                metrics.shed.with_label_values(&[kind]).inc();
+                let retry = (wait_s.ceil() as u32).clamp(RETRY_AFTER_S.0, RETRY_AFTER_S.1);
+                return Err(ApiError::Overloaded(retry.max(self.retry_after())));
+            }
+        };
+        // Leaves the backlog however this call ends (answered, shed, dropped with its
+        // request).
+        let ticket = Ticket {
+            backlog: Arc::clone(&self.backlog),
+            id: ticket,
+            ran: false,
+            completed: false,
+        };
         metrics.queue_depth.set(self.depth() as i64);
         // Wait (in order) for one of the `threads` running places, or until nobody
         // waits for this job any more.
@@ -156,7 +345,9 @@ impl ComputeQueue {
         let (tx, rx) = oneshot::channel();
         let mean = Arc::clone(&self.mean_job_s);
         let job_cancel = cancel.clone();
+        let mut ticket = ticket;
         rayon::spawn(move || {
+            ticket.start();
             let started = Instant::now();
             let result = if job_cancel.is_fired() {
                 Ok(Err(ApiError::Cancelled))
@@ -170,6 +361,8 @@ impl ComputeQueue {
                 let m = if m == NO_JOB_YET { took } else { f64::from_bits(m) };
                 Some((m + MEAN_JOB_WEIGHT * (took - m)).to_bits())
             });
+            ticket.completed = !job_cancel.is_fired() && matches!(result, Ok(Ok(_)));
+            drop(ticket);
             drop(running);
             drop(memory);
             drop(permit);
@@ -189,6 +382,27 @@ impl ComputeQueue {
             return Err(ApiError::Cancelled);
         }
         result
+    }
+}
+
+/// A job's place in the [`Backlog`], given back when dropped.
+struct Ticket {
+    backlog: Arc<Backlog>,
+    id: u64,
+    ran: bool,
+    completed: bool,
+}
+
+impl Ticket {
+    fn start(&mut self) {
+        self.ran = true;
+        self.backlog.start(self.id);
+    }
+}
+
+impl Drop for Ticket {
+    fn drop(&mut self) {
+        self.backlog.finish(self.id, self.ran, self.completed);
     }
 }
 
@@ -278,6 +492,25 @@ impl AheadKeys {
 /// The share of the cache budget one entry may take at most.
 pub const MAX_ENTRY_FRACTION: u64 = 4;
 
+/// What one entry costs the response cache besides its key's and its bytes' own
+/// allocations: moka's entry (its value handle, access and write order nodes, hash
+/// table slot, timestamps and weight) and the `Bytes` handle, rounded up.
+const ENTRY_OVERHEAD: usize = 512;
+
+/// The weight of an entry: the allocations of its key and bytes, as the allocator
+/// sizes them, and the cache's own overhead per entry.
+fn entry_weight(key: &CacheKey, bytes: &Bytes) -> usize {
+    crate::allocator::allocation(key.0.len()) + crate::allocator::allocation(bytes.len()) + ENTRY_OVERHEAD
+}
+
+/// `bytes` in an allocation of exactly their length, as [`entry_weight`] counts them: a
+/// `Bytes` made from a `Vec` keeps the vector's whole capacity (an encoder's buffer
+/// grown by doubling holds up to twice its length), and a slice keeps the whole
+/// buffer it was cut from.
+fn exact(bytes: Bytes) -> Bytes {
+    Bytes::copy_from_slice(&bytes)
+}
+
 /// What a computation yields: the bytes of its key, and the bytes of sibling keys the
 /// same work produced (the other products of one shaded tile).
 pub type WithSiblings = (Bytes, Vec<(CacheKey, Bytes)>);
@@ -307,7 +540,7 @@ impl ResponseCache {
                 if v.len() > max_entry {
                     u32::MAX
                 } else {
-                    (k.weight() + v.len()).try_into().unwrap_or(u32::MAX)
+                    entry_weight(k, v).try_into().unwrap_or(u32::MAX)
                 }
             })
             .max_capacity(max_bytes)
@@ -401,7 +634,7 @@ impl ResponseCache {
         let Computation { kind, key, work, job } = computation;
         if let Some(shared) = &self.shared {
             if let Lookup::Hit(bytes) = shared.get(m, kind, &key).await {
-                return Ok(bytes);
+                return Ok(exact(bytes));
             }
             // Work nobody waits for yet (ahead, warm) is done by one replica: the others
             // come back for the bytes (the warm worker and compute-ahead retry a
@@ -410,6 +643,14 @@ impl ResponseCache {
                 return Err(ApiError::Overloaded(1));
             }
         }
+        // Copied into exact allocations on the compute thread, where the copy costs
+        // least.
+        let job = move |cancel: &Cancel| {
+            job(cancel).map(|(bytes, siblings)| {
+                let siblings: Vec<(CacheKey, Bytes)> = siblings.into_iter().map(|(k, b)| (k, exact(b))).collect();
+                (exact(bytes), siblings)
+            })
+        };
         let (bytes, siblings) = match self.queue.run(m, (kind, by), work, cancel, job).await {
             Ok(done) => done,
             Err(e) => {
@@ -477,6 +718,9 @@ impl ResponseCache {
         {
             self.cache.invalidate(key).await;
         }
+        // Evicted down to the budget now: moka otherwise batches its eviction, and a
+        // burst of megabyte entries overshoots the budget until it does.
+        self.cache.run_pending_tasks().await;
         result
     }
 
@@ -493,7 +737,7 @@ impl ResponseCache {
         let init = async move {
             tokio::task::spawn_blocking(move || {
                 let start = std::time::Instant::now();
-                let out = coding.compress(&bytes);
+                let out = coding.compress(&bytes).map(exact);
                 (out, start.elapsed())
             })
             .await
@@ -537,6 +781,11 @@ impl ResponseCache {
         }
     }
 
+    /// Seconds the compute jobs admitted still need, at the queue's measured rate.
+    pub fn backlog_seconds(&self) -> f64 {
+        self.queue.backlog_seconds()
+    }
+
     /// Compute jobs running or queued.
     pub fn queue_depth(&self) -> usize {
         self.queue.depth()
@@ -545,5 +794,38 @@ impl ResponseCache {
     /// Places left in the compute queue.
     pub fn queue_free(&self) -> usize {
         self.queue.capacity - self.queue.depth()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_backlog_admits_what_fits_the_budget_behind_the_work_already_admitted() {
+        // Eight threads, nothing measured yet: 2 estimated CPU-seconds a second
+        // (ASSUMED_RATE_PER_THREAD). A 10 s budget leaves 8 s
+        // (BACKLOG_SHARE_OF_BUDGET) for the work ahead and one's own.
+        let backlog = Backlog::new(8);
+        let budget = Some(Duration::from_secs(10));
+        let a = backlog.admit(6.0, budget).expect("nothing ahead");
+        let b = backlog.admit(6.0, budget).expect("12 CPU-s: 6 s");
+        // 18 CPU-s would take 9 s: over by about a second.
+        let wait = backlog.admit(6.0, budget).unwrap_err();
+        assert!((wait - 1.0).abs() < 0.1, "{wait}");
+        // A smaller job still fits; background work is admitted whatever the backlog.
+        let c = backlog.admit(3.0, budget).expect("15 CPU-s: 7.5 s");
+        let d = backlog.admit(40.0, None).expect("no budget");
+        // One job alone is always admitted (the 413 check judges a job on its own).
+        let empty = Backlog::new(2);
+        empty.admit(100.0, budget).expect("nothing ahead");
+        // Work leaves the backlog when its job ends, run or not.
+        backlog.start(a);
+        backlog.finish(a, true, true);
+        for t in [b, c, d] {
+            backlog.finish(t, false, false);
+        }
+        assert_eq!(backlog.seconds(), 0.0);
+        backlog.admit(6.0, budget).expect("the backlog is empty again");
     }
 }

@@ -16,13 +16,17 @@ fn invalid(key: &str, message: &str) -> ConfigError {
 pub struct ServerConfig {
     /// Address to listen on.
     pub listen: String,
-    /// Byte budget of the in-memory caches: the encoded responses, and the state tiles
-    /// keep between keyframes (`kept_share` of it).
+    /// Memory budget of what the server holds: the computations running or queued
+    /// (their estimated working memory, `compute_memory_bytes`, up to a quarter of
+    /// this), the state tiles keep between keyframes (`kept_share` of the rest) and the
+    /// encoded responses (the remainder). Peak RSS stays within this plus 512 MiB
+    /// (replies being sent, the process itself, the allocator's overhead).
     pub cache_bytes: u64,
-    /// The share of `cache_bytes` that tiles may keep between keyframes (the density
-    /// grids of their latest keyframe ends and, at level 0, the automaton's runs:
-    /// `crate::kept`), in [0, 0.9]; the responses get the rest. 0 keeps nothing, and
-    /// every keyframe is computed as if the tile had never been seen.
+    /// The share of `cache_bytes` (less the computations' part) that tiles may keep
+    /// between keyframes (the density grids of their latest keyframe ends and, at level
+    /// 0, the automaton's runs: `crate::kept`), in [0, 0.9]; the responses get the
+    /// rest. 0 keeps nothing, and every keyframe is computed as if the tile had never
+    /// been seen.
     pub kept_share: f64,
     /// Compute jobs that may be running or queued at once; 0 means 4 × cores.
     /// A request that finds the queue full is shed with 503.
@@ -65,8 +69,21 @@ pub struct ServerConfig {
     /// Most time points one `/series` request may ask for.
     pub max_series: u32,
     /// URL of an optional Redis shared by replicas as a second-level cache
-    /// (`redis://HOST:PORT/DB`, `redis+unix:///PATH`); empty means none.
+    /// (`redis://HOST:PORT/DB`, `rediss://` for TLS, `redis+unix:///PATH`; a user and
+    /// password for Redis `AUTH` go in it: `redis://USER:PASSWORD@HOST:PORT/DB`); empty
+    /// means none.
     pub redis_url: String,
+    /// Key of the MAC that seals every value written to Redis (`crate::shared::Seal`):
+    /// with it, only replicas that hold it can write a value the others will serve.
+    /// Empty: values carry a digest only (garbage, truncated values and values under
+    /// another key's name are refused; a deliberate forger is not). At least 16 bytes.
+    pub redis_secret: String,
+    /// PEM certificates to trust for a `rediss://` Redis instead of the system's roots;
+    /// empty means the system's.
+    pub redis_ca_file: String,
+    /// Largest product written to Redis, bytes; larger ones are computed by each replica
+    /// that needs them (and lookups read no more than this).
+    pub redis_max_value_bytes: u64,
     /// Longest a Redis lookup or write may take (connecting included) before the
     /// request goes on without it, milliseconds.
     pub redis_timeout_ms: u64,
@@ -75,8 +92,10 @@ pub struct ServerConfig {
     /// Expiry of the entries written to Redis, seconds; 0 means none (rely on Redis's
     /// `maxmemory-policy`).
     pub redis_ttl_s: u64,
-    /// Estimated working memory that the running compute jobs may hold together,
-    /// bytes; a job that does not fit is shed with 503.
+    /// Estimated working memory that the admitted compute jobs may hold together,
+    /// bytes; a job that does not fit is shed with 503 (one that needs more than all of
+    /// it runs only while no other job does). Taken out of `cache_bytes` up to a
+    /// quarter of it. 0 (the default): a quarter of `cache_bytes`, at least 256 MiB.
     pub compute_memory_bytes: u64,
     /// Bytes that replies still being sent may hold together; past it a request is
     /// answered 503 with `Retry-After` instead of another large body.
@@ -127,7 +146,7 @@ fn origin_list<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<String>, D:
 }
 
 /// URL schemes of the Redis connections the server can open (plain TCP or a Unix socket).
-const REDIS_SCHEMES: [&str; 3] = ["redis://", "redis+unix://", "unix://"];
+const REDIS_SCHEMES: [&str; 4] = ["redis://", "rediss://", "redis+unix://", "unix://"];
 
 fn default_listen() -> String {
     "127.0.0.1:8080".to_string()
@@ -154,11 +173,14 @@ impl Default for ServerConfig {
             max_header_bytes: 96 << 10,
             max_series: 256,
             redis_url: String::new(),
+            redis_secret: String::new(),
+            redis_ca_file: String::new(),
+            redis_max_value_bytes: 8 << 20,
             redis_timeout_ms: 100,
             redis_retry_ms: 1000,
             redis_ttl_s: 86_400,
-            compute_memory_bytes: 2 << 30,
-            reply_bytes: 256 << 20,
+            compute_memory_bytes: 0,
+            reply_bytes: 128 << 20,
             ahead_threads: 1,
             ahead_tiles: 4096,
             warm_threads: 1,
@@ -170,14 +192,28 @@ impl Default for ServerConfig {
 }
 
 impl ServerConfig {
-    /// Bytes the tiles' kept state may hold: `kept_share` of `cache_bytes`.
+    /// Estimated working memory the admitted compute jobs may hold together.
+    pub fn compute_bytes(&self) -> u64 {
+        match self.compute_memory_bytes {
+            0 => (self.cache_bytes / 4).max(256 << 20),
+            n => n,
+        }
+    }
+
+    /// The part of `cache_bytes` the computations take: theirs, up to a quarter.
+    fn computing_share(&self) -> u64 {
+        self.compute_bytes().min(self.cache_bytes / 4)
+    }
+
+    /// Bytes the tiles' kept state may hold: `kept_share` of `cache_bytes` less the
+    /// computations' part.
     pub fn kept_bytes(&self) -> u64 {
-        (self.cache_bytes as f64 * self.kept_share) as u64
+        ((self.cache_bytes - self.computing_share()) as f64 * self.kept_share) as u64
     }
 
     /// Bytes the encoded responses may hold: the rest of `cache_bytes`.
     pub fn response_bytes(&self) -> u64 {
-        self.cache_bytes - self.kept_bytes()
+        self.cache_bytes - self.computing_share() - self.kept_bytes()
     }
 
     /// Checks the values that serde cannot (ranges, header syntax, URL schemes).
@@ -218,12 +254,8 @@ impl ServerConfig {
             ("server.ahead_tiles", self.ahead_tiles as u64, 0, 1 << 20),
             ("server.warm_threads", self.warm_threads as u64, 0, 64),
             ("server.max_warm_tiles", self.max_warm_tiles as u64, 0, 1 << 20),
-            (
-                "server.compute_memory_bytes",
-                self.compute_memory_bytes,
-                1 << 20,
-                u64::MAX,
-            ),
+            // 0: a quarter of `cache_bytes` (checked below: else at least 1 MiB).
+            ("server.compute_memory_bytes", self.compute_memory_bytes, 0, u64::MAX),
             ("server.reply_bytes", self.reply_bytes, 1 << 20, u64::MAX),
         ] {
             if !(least..=most).contains(&value) {
@@ -247,11 +279,35 @@ impl ServerConfig {
         if !self.redis_url.is_empty() && !REDIS_SCHEMES.iter().any(|s| self.redis_url.starts_with(s)) {
             return Err(invalid(
                 "server.redis_url",
-                "must start with redis:// or redis+unix:// (or be empty for no Redis)",
+                "must start with redis://, rediss:// or redis+unix:// (or be empty for no Redis)",
+            ));
+        }
+        if !self.redis_secret.is_empty() && self.redis_secret.len() < 16 {
+            return Err(invalid(
+                "server.redis_secret",
+                "must be at least 16 bytes (or empty for a digest without a key)",
+            ));
+        }
+        if !self.redis_ca_file.is_empty() && !self.redis_url.starts_with("rediss://") {
+            return Err(invalid(
+                "server.redis_ca_file",
+                "is for a TLS Redis: server.redis_url must start with rediss://",
+            ));
+        }
+        if !(1 << 10..=512 << 20).contains(&self.redis_max_value_bytes) {
+            return Err(invalid(
+                "server.redis_max_value_bytes",
+                "must be within [1024, 536870912] (Redis refuses larger values)",
             ));
         }
         if !(0.0..=0.9).contains(&self.kept_share) {
             return Err(invalid("server.kept_share", "must be within [0, 0.9]"));
+        }
+        if self.compute_memory_bytes != 0 && self.compute_memory_bytes < 1 << 20 {
+            return Err(invalid(
+                "server.compute_memory_bytes",
+                "must be at least 1 MiB (or 0 for a quarter of server.cache_bytes)",
+            ));
         }
         for origin in &self.cors_origins {
             crate::cors::check_origin(origin).map_err(|e| invalid("server.cors_origins", &e))?;

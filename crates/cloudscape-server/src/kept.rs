@@ -24,6 +24,10 @@ use cloudscape_core::render::tile::{KeptTile, ShadingCounts};
 
 use crate::metrics::Metrics;
 
+/// What one kept state costs besides its own allocations: the `Kept` and its
+/// `KeptTile` structs and moka's entry, rounded up.
+const ENTRY_OVERHEAD: u64 = 2048;
+
 /// One tile's kept state and the bytes it held when last weighed.
 pub struct Kept {
     state: Mutex<KeptTile>,
@@ -49,8 +53,11 @@ impl KeptStates {
     pub fn new(max_bytes: u64, metrics: &Metrics) -> Option<KeptStates> {
         (max_bytes > 0).then(|| KeptStates {
             cache: Cache::builder()
-                .weigher(|_: &String, v: &Arc<Kept>| {
-                    u32::try_from(v.bytes.load(Ordering::Relaxed).max(1)).unwrap_or(u32::MAX)
+                // The state's own allocations (capacities, as `KeptTile::bytes` counts
+                // them) and the entry's: its key, its `Kept`, moka's nodes.
+                .weigher(|k: &String, v: &Arc<Kept>| {
+                    let entry = crate::allocator::allocation(k.len()) as u64 + ENTRY_OVERHEAD;
+                    u32::try_from(v.bytes.load(Ordering::Relaxed) + entry).unwrap_or(u32::MAX)
                 })
                 .max_capacity(max_bytes)
                 .build(),
@@ -104,8 +111,10 @@ impl KeptStates {
         }
         entry.bytes.store(state.bytes() as u64, Ordering::Relaxed);
         drop(state);
-        // Inserted again to be weighed again (moka weighs on insert).
+        // Inserted again to be weighed again (moka weighs on insert), and evicted down
+        // to the budget at once rather than when moka next gets round to it.
         self.cache.insert(key.to_string(), entry);
+        self.cache.run_pending_tasks();
         out
     }
 

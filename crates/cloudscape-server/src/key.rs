@@ -143,11 +143,6 @@ impl CacheKey {
     pub fn etag(&self) -> String {
         format!("\"{}\"", stable_hash_hex(self.0.as_bytes()))
     }
-
-    /// Bytes this key occupies in the cache.
-    pub fn weight(&self) -> usize {
-        self.0.len() + 64
-    }
 }
 
 /// Content codings the compression layer may add; the ETag of a compressed

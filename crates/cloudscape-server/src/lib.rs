@@ -27,6 +27,7 @@
 #![deny(clippy::string_slice)]
 
 mod ahead;
+pub mod allocator;
 mod annotations;
 mod cache;
 pub mod config;
@@ -204,7 +205,9 @@ impl Server {
 /// Start-up work: one small computation per layer of every configured world, through
 /// the simulation, so that a replica only says it is ready once it can answer (and
 /// its thread pools are warm), then the splat sheets of every quality into the cache,
-/// and the first keyframes of the play areas kept warm (`warm`, computed meanwhile).
+/// and the current and next keyframes of the play areas kept warm (`warm`, computed
+/// meanwhile): a replica that says it is ready can take its share of the players at
+/// once, prefetches included.
 /// Ready when it succeeds; never ready if it fails.
 async fn start_up(state: Arc<AppState>) {
     let began = Instant::now();
@@ -242,12 +245,12 @@ async fn start_up(state: Arc<AppState>) {
         }
         Err(e) => Err(e),
     };
-    if result.is_ok() && state.warm.first_pending() > 0 {
+    if result.is_ok() && state.warm.start_pending() > 0 {
         tracing::info!(
-            variants = state.warm.first_pending(),
-            "start-up: waiting for the first keyframes of the play areas kept warm"
+            variants = state.warm.start_pending(),
+            "start-up: waiting for the current and next keyframes of the play areas kept warm"
         );
-        state.warm.first_ready().await;
+        state.warm.started().await;
     }
     match result {
         Ok(()) => {

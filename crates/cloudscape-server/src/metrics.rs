@@ -31,6 +31,10 @@ pub struct Metrics {
     pub compute_seconds: HistogramVec,
     /// Compute jobs running or queued.
     pub queue_depth: IntGauge,
+    /// Seconds the admitted compute jobs still need at the queue's measured rate
+    /// (updated when scraped): a request whose job would not finish within its budget
+    /// behind them is shed.
+    pub backlog_seconds: prometheus::Gauge,
     /// Requests refused with 503 because the queue was full, by product kind.
     pub shed: IntCounterVec,
     /// Requests whose time budget ran out.
@@ -44,6 +48,11 @@ pub struct Metrics {
     pub reply_bytes: IntGauge,
     /// Bytes held by the response cache (updated when scraped).
     pub cache_bytes: IntGauge,
+    /// The allocator's figures (`crate::allocator::Stats`; updated when scraped, absent
+    /// when jemalloc is not the allocator), by `what`: `allocated` (held by the
+    /// program), `active`, `resident` (its pages in memory, free ones included: the
+    /// difference with `allocated` is its overhead), `retained`.
+    pub allocator_bytes: IntGaugeVec,
     /// 1 while ready, 0 while starting or draining.
     pub ready: IntGauge,
     /// Shared-cache (Redis) lookups that found the bytes, by product kind.
@@ -52,6 +61,11 @@ pub struct Metrics {
     pub redis_misses: IntCounterVec,
     /// Shared-cache calls that failed or timed out, by operation (`get`, `set`).
     pub redis_errors: IntCounterVec,
+    /// Values read from Redis whose seal did not hold (garbage, another key's value, a
+    /// forgery, another secret), by product kind: treated as misses, never served.
+    pub redis_rejected: IntCounterVec,
+    /// Products not written to Redis: over `server.redis_max_value_bytes`.
+    pub redis_oversize: IntCounter,
     /// Lookups that skipped Redis because it failed recently.
     pub redis_skipped: IntCounter,
     /// Entries written to the shared cache.
@@ -213,6 +227,7 @@ impl Metrics {
                 &m.refused,
                 &m.redis_hits,
                 &m.redis_misses,
+                &m.redis_rejected,
             ] {
                 v.with_label_values(&[kind]);
             }
@@ -295,6 +310,15 @@ impl Metrics {
             ),
             compute_seconds: histogram("cloudscape_compute_duration_seconds", "compute time", &["kind"]),
             queue_depth: gauge("cloudscape_compute_queue_depth", "compute jobs running or queued"),
+            backlog_seconds: {
+                let g = prometheus::Gauge::new(
+                    "cloudscape_compute_backlog_seconds",
+                    "seconds the admitted compute jobs still need at the queue's measured rate",
+                )
+                .expect("valid metric");
+                registry.register(Box::new(g.clone())).expect("unique metric");
+                g
+            },
             shed: counter(
                 "cloudscape_shed_total",
                 "requests shed with 503: compute queue full",
@@ -320,6 +344,18 @@ impl Metrics {
                 "bytes of replies being sent (server.reply_bytes budget)",
             ),
             cache_bytes: gauge("cloudscape_cache_bytes", "bytes held by the response cache"),
+            allocator_bytes: {
+                let g = IntGaugeVec::new(
+                    Opts::new(
+                        "cloudscape_allocator_bytes",
+                        "jemalloc's figures: allocated (held by the program), active, resident (its pages in memory), retained",
+                    ),
+                    &["what"],
+                )
+                .expect("valid metric");
+                registry.register(Box::new(g.clone())).expect("unique metric");
+                g
+            },
             ready: gauge("cloudscape_ready", "1 when ready to serve"),
             redis_hits: counter("cloudscape_redis_hits_total", "shared (Redis) cache hits", &["kind"]),
             redis_misses: counter(
@@ -336,6 +372,15 @@ impl Metrics {
                 "cloudscape_redis_errors_total",
                 "shared (Redis) cache calls that failed or timed out",
                 &["op"],
+            ),
+            redis_rejected: counter(
+                "cloudscape_redis_rejected_total",
+                "values read from Redis whose seal check failed: treated as misses, never served",
+                &["kind"],
+            ),
+            redis_oversize: plain_counter(
+                "cloudscape_redis_oversize_total",
+                "products not written to Redis: over server.redis_max_value_bytes",
             ),
             redis_skipped: plain_counter(
                 "cloudscape_redis_skipped_total",

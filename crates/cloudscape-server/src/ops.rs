@@ -16,8 +16,8 @@ use crate::state::{AppState, Lifecycle};
 pub struct Status {
     /// `ok`, `starting`, `failed` or `draining`.
     pub status: &'static str,
-    /// While starting: the tile variants of the play areas kept warm whose first
-    /// keyframe is not computed yet (readiness waits for them).
+    /// While starting: the tile variants of the play areas kept warm whose current and
+    /// next keyframes are not both computed yet (readiness waits for them).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub warm_pending: Option<usize>,
 }
@@ -47,7 +47,7 @@ pub async fn healthz() -> Response {
 #[utoipa::path(get, path = "/readyz", tag = "operations",
     responses(
         (status = 200, body = Status, description = "Ready to serve"),
-        (status = 503, body = Status, description = "Starting (start-up work, then the first keyframes of the play areas kept warm), start-up failed, or draining after SIGTERM"),
+        (status = 503, body = Status, description = "Starting (start-up work, then the current and next keyframes of the play areas kept warm), start-up failed, or draining after SIGTERM"),
     ))]
 pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
     let unavailable = |status| no_store(StatusCode::SERVICE_UNAVAILABLE, status);
@@ -55,7 +55,7 @@ pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
         Lifecycle::Ready => no_store(StatusCode::OK, Status::of("ok")),
         Lifecycle::Starting => unavailable(Status {
             status: "starting",
-            warm_pending: Some(s.warm.first_pending()),
+            warm_pending: Some(s.warm.start_pending()),
         }),
         Lifecycle::Failed => unavailable(Status::of("failed")),
         Lifecycle::Draining => unavailable(Status::of("draining")),
@@ -71,6 +71,17 @@ pub async fn metrics(State(s): State<Arc<AppState>>) -> Response {
         s.metrics.kept_tiles.set(kept.tiles() as i64);
     }
     s.metrics.queue_depth.set(s.cache.queue_depth() as i64);
+    s.metrics.backlog_seconds.set(s.cache.backlog_seconds());
+    if let Some(a) = crate::allocator::Stats::read() {
+        for (what, v) in [
+            ("allocated", a.allocated),
+            ("active", a.active),
+            ("resident", a.resident),
+            ("retained", a.retained),
+        ] {
+            s.metrics.allocator_bytes.with_label_values(&[what]).set(v as i64);
+        }
+    }
     let mut r = s.metrics.render().into_response();
     r.headers_mut().insert(
         header::CONTENT_TYPE,

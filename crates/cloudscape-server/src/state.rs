@@ -81,10 +81,11 @@ impl AppState {
             0 => 4 * std::thread::available_parallelism().map_or(1, |n| n.get()),
             n => n as usize,
         };
+        let budget = Duration::from_millis(settings.request_timeout_ms);
         let cache = ResponseCache::new(
             settings.response_bytes(),
-            ComputeQueue::new(queue, settings.compute_memory_bytes),
-            Duration::from_millis(settings.request_timeout_ms),
+            ComputeQueue::new(queue, settings.compute_bytes(), budget),
+            budget,
             SharedCache::new(&settings)?,
         );
         let metrics = Arc::new(Metrics::new());

@@ -146,8 +146,6 @@ pub async fn tile(
         t,
         canonical,
     );
-    let watched: Arc<dyn crate::ahead::Recipe> = Arc::clone(&recipe) as _;
-    s.ahead.watched(&s.metrics, &watched, keyframe, t);
     let max_response_bytes = config.limits.max_response_bytes;
     let plan = {
         let recipe = Arc::clone(&recipe);
@@ -163,5 +161,11 @@ pub async fn tile(
         }
         Ok(HeaderMap::new())
     };
-    cached.respond_with(&s, &headers, plan, refuse_oversized_json).await
+    let watched: Arc<dyn crate::ahead::Recipe> = Arc::clone(&recipe) as _;
+    let response = cached.respond_with(&s, &headers, plan, refuse_oversized_json).await?;
+    // Only an answered request watches the tile: a crawler retrying a 503 has not
+    // asked for it twice.
+    let in_area = s.warm.covers(&recipe.world.fingerprint, layer_index, tile);
+    s.ahead.watched(&s.metrics, &watched, keyframe, t, in_area);
+    Ok(response)
 }

@@ -4,11 +4,12 @@
 //!
 //! A play area names levels, products, qualities and layers; the tiles of a level are
 //! those its box or polygon (grown by its `margin`) reaches. A *variant* is one
-//! computation per keyframe of one tile of one layer: the shaded products that one
-//! shading encodes (`billboards.bin` and `shadow.png`, and `precipitation.png` on a
-//! layer that can precipitate) are one variant per quality; `billboards.json` and the
-//! atlas (its image and manifest are one build) are one each; every grid product is
-//! one. The count of all areas is capped by `server.max_warm_tiles`, checked with the
+//! computation per keyframe of one tile of one layer: the shaded products that every
+//! shading encodes (`billboards.bin` and `billboards.delta.bin`, and
+//! `precipitation.png` on a layer that can precipitate) are one variant per quality;
+//! each shaded product encoded only on request (`billboards.json`, `shadow.png`,
+//! `billboards.v2.bin`, the atlas whose image and manifest are one build) is one; every
+//! grid product is one. The count of all areas is capped by `server.max_warm_tiles`, checked with the
 //! config ([`variants`]).
 //!
 //! Each variant is a [`TileRecipe`] as a request for its URL would build it (world,
@@ -29,7 +30,11 @@
 //! at most `server.warm_threads` at once, so that it is in the cache before clients
 //! fetch it (the viewer and `cloudscape loadtest` fetch the next keyframe from half the
 //! span on). Before the server is ready every keyframe is urgent and may use every
-//! compute thread: `/readyz` waits for the first keyframe of every variant.
+//! compute thread: `/readyz` waits until every variant has its current keyframe and
+//! its next one in the cache. (Waiting for the current ones alone said ready while
+//! most next ones were still to compute: the players who arrived then asked for them
+//! at their prefetch points, the replica computed them for requests and the warm
+//! worker at once, and shed part of the load it had just said it could take.)
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -40,6 +45,7 @@ use tokio::sync::Notify;
 
 use cloudscape_core::fields::noise::mix64;
 use cloudscape_core::products::Product;
+use cloudscape_core::products::catalogue::Encoding;
 use cloudscape_core::render::scene::VIEW_DISTANCE;
 use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::render::{Quality, TileId};
@@ -236,26 +242,20 @@ fn names(key: &str, area: &WarmArea) -> Result<(Vec<Product>, Vec<Quality>), Con
 
 /// The computations that make `products` of one tile of `layer`, each named by the
 /// product it asks for: the shaded ones (once per quality), then the grid ones. A
-/// shading encodes `billboards.bin` and `shadow.png` whatever it is asked for, and
-/// `precipitation.png` on a layer that can precipitate
+/// shading encodes the eager products (`billboards.bin`, `billboards.delta.bin`)
+/// whatever it is asked for, and `precipitation.png` on a layer that can precipitate
 /// (`cloudscape_core::products::catalogue::encode_shaded`, `recipe::TileRecipe::plan`),
-/// so those ride along with any shading.
+/// so those ride along with any shading; each product encoded only on request takes a
+/// shading of its own (one for the atlas's two halves).
 fn computations(products: &[Product], layer: &Layer) -> (Vec<Product>, Vec<Product>) {
-    let wants = |p: Product| products.contains(&p);
-    let mut shaded = Vec::new();
-    if wants(Product::BillboardsJson) {
-        shaded.push(Product::BillboardsJson);
-    }
-    if let Some(&atlas) = products
-        .iter()
-        .find(|p| matches!(p, Product::AtlasPng | Product::AtlasJson))
-    {
-        shaded.push(atlas);
+    let mut shaded: Vec<Product> = Vec::new();
+    for &p in products.iter().filter(|p| p.encoding() == Encoding::OnRequest) {
+        if !shaded.iter().any(|&q| q.shares_work_with(p)) {
+            shaded.push(p);
+        }
     }
     if shaded.is_empty()
-        && let Some(&eager) = products
-            .iter()
-            .find(|p| matches!(p, Product::BillboardsBin | Product::ShadowPng))
+        && let Some(&eager) = products.iter().find(|p| p.encoding() == Encoding::Eager)
     {
         shaded.push(eager);
     }
@@ -393,9 +393,9 @@ struct Progress {
     done: Vec<u64>,
     /// True while a computation of it runs.
     running: bool,
-    /// True once a keyframe of it was computed (or it was given up): readiness waits
-    /// for every variant's first.
-    first: bool,
+    /// True once its current and next keyframes were both in the cache at once (or it
+    /// was given up): readiness waits for every variant's.
+    ready: bool,
     /// Given up after failures: no longer kept.
     dropped: bool,
     /// Not tried again before this (after a refusal).
@@ -410,11 +410,14 @@ pub struct Warm {
     progress: Mutex<Vec<Progress>>,
     /// `server.warm_threads` (0: no area is kept warm).
     threads: usize,
-    /// Variants whose first keyframe is not computed yet.
-    first_pending: AtomicUsize,
-    first_done: Notify,
+    /// Variants that have not yet had their current and next keyframes at once.
+    start_pending: AtomicUsize,
+    started: Notify,
     /// Variants per (world, area index), for discovery.
     counts: BTreeMap<(String, usize), usize>,
+    /// The tiles of the areas, by (world fingerprint, layer, tile): where compute-ahead
+    /// follows a tile from its first request (`crate::ahead`).
+    covered: std::collections::HashSet<(String, usize, TileId)>,
     wake: Notify,
 }
 
@@ -480,16 +483,27 @@ impl Warm {
             }
         }
         parts.metrics.warm_tiles.set(tiles.len() as i64);
+        let covered = tiles
+            .iter()
+            .map(|t| (t.recipe.world.fingerprint.clone(), t.recipe.layer, t.recipe.tile))
+            .collect();
         let progress = tiles.iter().map(|_| Progress::default()).collect();
         Warm {
-            first_pending: AtomicUsize::new(tiles.len()),
+            start_pending: AtomicUsize::new(tiles.len()),
             tiles,
             progress: Mutex::new(progress),
             threads,
-            first_done: Notify::new(),
+            started: Notify::new(),
             counts,
+            covered,
             wake: Notify::new(),
         }
+    }
+
+    /// Whether `tile` of `layer` of the world with `fingerprint` is one a play area
+    /// keeps warm (in any product or quality).
+    pub fn covers(&self, fingerprint: &str, layer: usize, tile: TileId) -> bool {
+        !self.covered.is_empty() && self.covered.contains(&(fingerprint.to_string(), layer, tile))
     }
 
     /// Whether play areas are kept warm (`server.warm_threads` > 0).
@@ -502,21 +516,33 @@ impl Warm {
         self.counts.get(&(world.to_string(), area)).copied().unwrap_or(0)
     }
 
-    /// Variants whose first keyframe is not computed yet.
-    pub fn first_pending(&self) -> usize {
-        self.first_pending.load(Ordering::SeqCst)
+    /// Variants that have not yet had their current and next keyframes in the cache
+    /// at once (readiness waits for them).
+    pub fn start_pending(&self) -> usize {
+        self.start_pending.load(Ordering::SeqCst)
     }
 
-    /// Returns once every variant's first keyframe is computed (or given up).
-    pub async fn first_ready(&self) {
+    /// Returns once every variant has had its current and next keyframes in the cache
+    /// at once (or was given up).
+    pub async fn started(&self) {
         loop {
             // Registered before the check: a notification between them is not lost.
-            let notified = self.first_done.notified();
-            if self.first_pending() == 0 {
+            let notified = self.started.notified();
+            if self.start_pending() == 0 {
                 return;
             }
             notified.await;
         }
+    }
+
+    /// Marks variant `p` started (its current and next keyframes in the cache, or given
+    /// up); true when it was the last.
+    fn mark_started(&self, p: &mut Progress) -> bool {
+        if p.ready {
+            return false;
+        }
+        p.ready = true;
+        self.start_pending.fetch_sub(1, Ordering::SeqCst) == 1
     }
 
     fn lock(&self) -> std::sync::MutexGuard<'_, Vec<Progress>> {
@@ -524,14 +550,17 @@ impl Warm {
     }
 
     /// The most urgent keyframe to compute at Unix second `unix` (current keyframes
-    /// first, then by when clients will ask), the keyframes not computed yet, and the
-    /// Unix second at which the next current keyframe begins.
-    fn due(&self, unix: f64) -> (Option<Due>, usize, f64) {
+    /// first, then by when clients will ask), the keyframes not computed yet, the Unix
+    /// second at which the next current keyframe begins, and whether the last variant
+    /// not started yet has just had its current and next keyframes at once (then
+    /// [`Warm::notify_started`] is due, once the caller has published `pending`).
+    fn due(&self, unix: f64) -> (Option<Due>, usize, f64, bool) {
         let now = Instant::now();
         let mut progress = self.lock();
         let mut best: Option<((u8, f64, u64), Due)> = None;
         let mut pending = 0;
         let mut change = f64::INFINITY;
+        let mut all_started = false;
         for (index, (tile, p)) in self.tiles.iter().zip(progress.iter_mut()).enumerate() {
             if p.dropped {
                 continue;
@@ -542,6 +571,10 @@ impl Warm {
                 change = change.min(tile.clock.unix_at(current.t1));
             }
             let next = tile.recipe.keyframe(current.t1);
+            let next_done = next.index <= current.index || p.done.contains(&next.index);
+            if p.done.contains(&current.index) && next_done {
+                all_started |= self.mark_started(p);
+            }
             let keyframes = [(false, current), (true, next)];
             for (is_next, k) in keyframes {
                 if (is_next && k.index <= current.index) || p.done.contains(&k.index) {
@@ -567,7 +600,12 @@ impl Warm {
                 }
             }
         }
-        (best.map(|(_, d)| d), pending, change)
+        (best.map(|(_, d)| d), pending, change, all_started)
+    }
+
+    /// Wakes [`Warm::started`]'s waiters.
+    fn notify_started(&self) {
+        self.started.notify_waiters();
     }
 
     fn start(&self, index: usize) {
@@ -605,11 +643,8 @@ impl Warm {
                 }
             }
         }
-        if !p.first && (!p.done.is_empty() || p.dropped) {
-            p.first = true;
-            if self.first_pending.fetch_sub(1, Ordering::SeqCst) == 1 {
-                self.first_done.notify_waiters();
-            }
+        if p.dropped && self.mark_started(p) {
+            self.notify_started();
         }
     }
 }
@@ -643,8 +678,11 @@ pub async fn run(
         let phase = phase();
         let starting = phase == Phase::Starting;
         let unix = unix_now();
-        let (due, pending, change) = warm.due(unix);
+        let (due, pending, change, all_started) = warm.due(unix);
         metrics.warm_pending.set(pending as i64);
+        if all_started {
+            warm.notify_started();
+        }
         let busy = running.load(Ordering::SeqCst);
         let wait = match due {
             None => Duration::from_secs_f64((change - unix).clamp(0.01, IDLE_POLL.as_secs_f64())),
@@ -731,7 +769,7 @@ mod tests {
         let c = config("name = \"town\"\nbbox = [10300.0, 10300.0, 15300.0, 15300.0]\nlevels = [0, 1, 2]").unwrap();
         let all = variants(&c, 4096).unwrap();
         let list = &all["default"];
-        // Three layers × three levels, each one shading (billboards.bin + shadow.png) in `fast`.
+        // Three layers × three levels, each one shading (billboards.bin and its delta) in `fast`.
         assert_eq!(list.len(), 9, "{list:?}");
         assert!(list.iter().all(|v| v.tile.x == 0 && v.tile.y == 0));
         assert!(
@@ -755,12 +793,17 @@ mod tests {
             ],
             layer,
         );
-        assert_eq!(shaded, [Product::AtlasJson]);
+        // shadow.png and the atlas are each encoded on request: a shading each (the
+        // atlas's halves share one); billboards.bin comes with either.
+        assert_eq!(shaded, [Product::ShadowPng, Product::AtlasJson]);
         // The cumulus layer precipitates: its map comes with the shading.
         assert!(layer.preset.precipitates());
         assert_eq!(grid, [Product::DensityU8]);
-        let (shaded, grid) = computations(&[Product::ShadowPng, Product::BillboardsBin], layer);
-        assert_eq!((shaded.as_slice(), grid.len()), ([Product::ShadowPng].as_slice(), 0));
+        let (shaded, grid) = computations(&[Product::BillboardsDelta, Product::BillboardsBin], layer);
+        assert_eq!(
+            (shaded.as_slice(), grid.len()),
+            ([Product::BillboardsDelta].as_slice(), 0)
+        );
     }
 
     #[test]

@@ -278,7 +278,7 @@ impl Product {
 
     /// True when `self` and `other` come from one piece of work (the atlas's image
     /// and manifest), so asking for one encodes both.
-    fn shares_work_with(self, other: Product) -> bool {
+    pub fn shares_work_with(self, other: Product) -> bool {
         let atlas = |p| matches!(p, Product::AtlasPng | Product::AtlasJson);
         self == other || (atlas(self) && atlas(other))
     }

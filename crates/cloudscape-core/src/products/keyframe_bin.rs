@@ -83,7 +83,7 @@
 //! | 190 | u16 | lattice levels n |
 //! | 192 | f32 | τ_floor |
 //! | 196 | u16 | planes P (12) |
-//! | 198 | u16 | reserved (0) |
+//! | 198 | u16 | shadow widening `w`, thousandths of the radius |
 //!
 //! Then n level records of 88 bytes (level k = 0 at the bottom):
 //!
@@ -168,8 +168,8 @@ impl Quantisation {
     /// The default: the coarsest steps that keep the gallery's pictures within the
     /// stated error (`cloudscape bench --only wire`, BENCHMARKS.md "Bytes on the wire").
     pub const DEFAULT: Quantisation = Quantisation {
-        colour_bits: 7,
-        tau_sun_steps: 12,
+        colour_bits: 6,
+        tau_sun_steps: 8,
     };
 }
 
@@ -383,6 +383,11 @@ pub struct LatticeKeyframe {
     pub start: Vec<SiteState>,
     /// States at t1.
     pub end: Vec<SiteState>,
+    /// How much wider than a ball its ground shadow is drawn, in radii: the texel of
+    /// the light buffer the server shades with (`QualitySettings::light_texel`), so a
+    /// shadow derived from the billboards is as sharp as the server's `shadow.png`
+    /// (`view::held`).
+    pub shadow_widening: f32,
 }
 
 /// The quantiser and dequantiser of the states.
@@ -645,6 +650,10 @@ fn held_by(previous: &SiteGeometry, k: usize, i: i64, j: i64) -> bool {
 /// for an instant (no span) has no previous keyframe: its delta form is the
 /// self-contained one.
 pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
+    let q = Quantisation {
+        colour_bits: q.colour_bits.clamp(1, 8),
+        tau_sun_steps: q.tau_sun_steps.max(1),
+    };
     let form = if tile.keyframe.is_instant() || tile.keyframe.t0 <= 0.0 {
         Form::SelfContained
     } else {
@@ -708,12 +717,12 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
     out.extend_from_slice(&geometry.vertical_spacing.to_le_bytes());
     out.extend_from_slice(&geometry.base.to_le_bytes());
     out.extend_from_slice(&geometry.radius.to_le_bytes());
-    out.push(q.colour_bits.clamp(1, 8));
-    out.push(q.tau_sun_steps.max(1));
+    out.push(q.colour_bits);
+    out.push(q.tau_sun_steps);
     out.extend_from_slice(&(geometry.levels.len() as u16).to_le_bytes());
     out.extend_from_slice(&TAU_SUN_FLOOR.to_le_bytes());
     out.extend_from_slice(&(PLANES as u16).to_le_bytes());
-    out.extend_from_slice(&0u16.to_le_bytes());
+    out.extend_from_slice(&((s.light_texel * 1000.0).round().clamp(0.0, 65535.0) as u16).to_le_bytes());
     debug_assert_eq!(out.len(), FIXED_BYTES);
     for l in &geometry.levels {
         for v in l.offset.iter().chain(&l.velocity) {
@@ -930,6 +939,7 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
         quantisation,
         start,
         end,
+        shadow_widening: h.u16(198)? as f32 / 1000.0,
     };
     let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count);
     if records.len() != h.u32(156)? as usize {

@@ -7,9 +7,11 @@
 //!   base, `T = exp(−Σ_b τ_b P(q_b))` over the balls `b` of every held tile of the
 //!   layer at that end, `τ_b` the ball's splat optical depth, `P` the splat profile
 //!   (`S(√q) / S(0)`, `render::splats`) and `q_b` the squared distance, in radii, from
-//!   the ball's centre to the sun ray through `p`. This is the server's light buffer
-//!   toward the sun (`render::shade`) evaluated at the column centres rather than
-//!   through a texel grid. A ground point reads the map where the sun ray from it
+//!   the ball's centre to the sun ray through `p`. The footprint is widened by the
+//!   keyframe's shadow widening `w` (the server's light-buffer texel, in radii): radius
+//!   `r √(1 + w²)`, optical depth `τ / (1 + w²)`, so the derived map is as sharp as the
+//!   server's light buffer toward the sun (`render::shade`), which it otherwise
+//!   reproduces at the column centres. A ground point reads the map where the sun ray from it
 //!   crosses the base ([`shadow_shift`]), bilinearly, the two ends blended by the
 //!   span's fraction, as `shadow.png` is read. A version-2 client's served shadow maps
 //!   are drawn the same way ([`HeldTile::served_shadow`]).
@@ -161,8 +163,16 @@ fn derive_shadow<'a>(target: &HeldTile, sources: impl Iterator<Item = &'a HeldTi
         let k = &source.keyframe;
         let span = k.keyframe.map_or(0.0, |k| k[1] - k[0]);
         for r in &k.records {
-            let radius = r.radius as f64;
-            if !(radius > 0.0) {
+            // The footprint widened by the server's light-buffer texel (a Gaussian-like
+            // blur: the variances add), its optical depth spread to keep the integral.
+            let w = source
+                .keyframe
+                .lattice
+                .as_ref()
+                .map_or(0.0, |l| l.shadow_widening as f64);
+            let spread = 1.0 + w * w;
+            let radius = r.radius as f64 * spread.sqrt();
+            if !(radius > 0.0 && radius.is_finite()) {
                 continue;
             }
             let a = radius / s[2];
@@ -172,7 +182,7 @@ fn derive_shadow<'a>(target: &HeldTile, sources: impl Iterator<Item = &'a HeldTi
             ];
             let inv_r2 = 1.0 / (radius * radius);
             for (e, end) in r.ends.iter().enumerate() {
-                let tau = source.tau(end) as f64;
+                let tau = source.tau(end) as f64 / spread;
                 if !(tau > 0.0) {
                     continue;
                 }

@@ -12,7 +12,7 @@ use super::authored::Area;
 
 /// The products an area keeps warm when it names none: what the viewer and game clients
 /// fetch per tile (one shading gives both).
-pub const DEFAULT_WARM_PRODUCTS: [&str; 2] = ["billboards.bin", "shadow.png"];
+pub const DEFAULT_WARM_PRODUCTS: [&str; 2] = ["billboards.bin", "billboards.delta.bin"];
 /// The quality an area keeps warm when it names none: the viewer's default.
 pub const DEFAULT_WARM_QUALITY: &str = "fast";
 

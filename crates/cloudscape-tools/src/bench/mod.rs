@@ -26,6 +26,7 @@ mod pipeline;
 pub mod quality;
 mod stages;
 mod weather;
+pub mod wire;
 
 use std::time::{Duration, Instant};
 
@@ -186,7 +187,7 @@ pub fn fmt_rate(r: f64) -> String {
 type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
 
 /// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
-pub const SECTION_NAMES: [&str; 12] = [
+pub const SECTION_NAMES: [&str; 13] = [
     "machine",
     "automaton",
     "fields",
@@ -199,6 +200,7 @@ pub const SECTION_NAMES: [&str; 12] = [
     "keyframes",
     "stages",
     "precipitation-day",
+    "wire",
 ];
 
 /// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names) and
@@ -213,7 +215,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ));
     }
     let mut out = BenchRun::default();
-    let steps: [(&str, SectionFn); 12] = [
+    let steps: [(&str, SectionFn); 13] = [
         ("machine", |e, o| {
             o.sections.push(machine(e));
             Ok(())
@@ -229,6 +231,7 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
         ("keyframes", keyframes::keyframes),
         ("keyframe stages", stages::stages),
         ("precipitation over a day", weather::precipitation_day),
+        ("bytes on the wire", wire::wire),
     ];
     for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {
         if only.is_some_and(|names| !names.iter().any(|n| n == id)) {

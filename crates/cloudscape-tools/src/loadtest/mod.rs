@@ -38,8 +38,8 @@ pub use self::geometry::GeometryKind;
 use self::geometry::{Geometry, TravelMode};
 use self::record::{BoundaryLatency, Counts, Latency, Outcome, Recorder, SecondSummary};
 use self::sharing::LevelSharing;
-pub use self::workload::FetchMode;
 use self::workload::{Agent, GROUP_SIZE, GameServer, Player, RequestKind, Role, TICK_SECONDS, WorldView};
+pub use self::workload::{FetchMode, Wire};
 
 /// Most requests in flight in the open loop; past it the schedule waits (and the wait
 /// counts in the latency, which is measured from the intended send time).
@@ -111,6 +111,10 @@ pub struct LoadSpec {
     /// Requests are sent from the start but only those sent after this long are
     /// measured (the players' first views, all cold, are warm-up).
     pub warmup: Duration,
+    /// The preset players fetch.
+    pub quality: cloudscape_core::render::Quality,
+    /// The tile format players fetch.
+    pub wire: Wire,
 }
 
 /// What went wrong before or around the run (failed requests during it are counted, not errors).
@@ -429,6 +433,16 @@ pub struct Report {
     pub revalidated_ratio: Option<f64>,
     /// Body bytes received.
     pub body_bytes: u64,
+    /// The preset the players fetched, and the tile format.
+    pub quality: &'static str,
+    pub wire: Wire,
+    /// What a player received for its first view, bytes on the wire (compressed as
+    /// negotiated): the mean over players of their first tick's bodies (keyframes and
+    /// splat sheets), warm-up or not; `None` without players.
+    pub first_view_bytes_per_player: Option<f64>,
+    /// What a player received per second over the measured run (tiles it turned or
+    /// moved to, next keyframes, splat sheets), bytes on the wire; `None` without players.
+    pub bytes_per_player_s: Option<f64>,
     /// From the server's /metrics; `None` when it could not be read.
     pub cache: Option<CacheFigures>,
     /// What the server computed and how busy it was; `None` when /metrics could not be read.
@@ -581,6 +595,7 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
         at,
         micros,
         bytes,
+        first_view: req.first_view,
         after_boundary,
         keyframe: req.tile.map(|t| t.keyframe),
         group: req.group,
@@ -611,8 +626,14 @@ async fn closed_agent(shared: Arc<Shared>, mut agent: Agent, phase: f64) {
             }
             let sent = Instant::now();
             let (outcome, etag, retry) = send(&shared, &req, sent).await;
-            if sent >= shared.measure_from {
-                shared.recorder.lock().unwrap().record(outcome);
+            {
+                let mut rec = shared.recorder.lock().unwrap();
+                if req.first_view {
+                    rec.record_first_view(outcome.bytes);
+                }
+                if sent >= shared.measure_from {
+                    rec.record(outcome);
+                }
             }
             agent.answered(&req, outcome.status == Some(200), etag);
             if outcome.status == Some(503) || outcome.status.is_none() {
@@ -675,8 +696,14 @@ async fn open_loop(shared: Arc<Shared>, agents: Vec<Arc<Mutex<Agent>>>, rate: f6
         let shared = shared.clone();
         tasks.spawn(async move {
             let (outcome, etag, _) = send(&shared, &req, intended).await;
-            if intended >= shared.measure_from {
-                shared.recorder.lock().unwrap().record(outcome);
+            {
+                let mut rec = shared.recorder.lock().unwrap();
+                if req.first_view {
+                    rec.record_first_view(outcome.bytes);
+                }
+                if intended >= shared.measure_from {
+                    rec.record(outcome);
+                }
             }
             agent.lock().unwrap().answered(&req, outcome.status == Some(200), etag);
             drop(permit);
@@ -775,7 +802,15 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
         let horizon = (spec.warmup + spec.duration).as_secs_f64() + 2.0 * TICK_SECONDS;
         let geometry = Geometry::new(spec.geometry, places, spec.seed, found.towns, horizon);
         let mut agents: Vec<Agent> = (0..players)
-            .map(|i| Agent::new(Role::Player(Player::new(i, spec.seed, spec.fetch))))
+            .map(|i| {
+                Agent::new(Role::Player(Player::new(
+                    i,
+                    spec.seed,
+                    spec.fetch,
+                    spec.quality,
+                    spec.wire,
+                )))
+            })
             .collect();
         agents.extend((0..servers).map(|i| Agent::new(Role::GameServer(GameServer::new(i, groups)))));
 
@@ -891,6 +926,10 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             by_kind,
             revalidated_ratio: (fetched + revalidated > 0).then(|| revalidated as f64 / (fetched + revalidated) as f64),
             body_bytes: rec.bytes(),
+            quality: spec.quality.as_str(),
+            wire: spec.wire,
+            first_view_bytes_per_player: (players > 0).then(|| rec.first_view_bytes() as f64 / players as f64),
+            bytes_per_player_s: (players > 0).then(|| rec.player_bytes() as f64 / players as f64 / elapsed.max(1e-9)),
             cache,
             server,
             generator: GeneratorFigures {
@@ -949,6 +988,10 @@ pub struct SweepStep {
     pub sharing: Vec<LevelSharing>,
     /// Body bytes per second received.
     pub bytes_per_s: f64,
+    /// Bytes a player received per second ([`Report::bytes_per_player_s`]) and for its
+    /// first view ([`Report::first_view_bytes_per_player`]).
+    pub bytes_per_player_s: Option<f64>,
+    pub first_view_bytes_per_player: Option<f64>,
     /// Within [`SWEEP_P99_MS`] and no 503.
     pub holds: bool,
 }
@@ -962,10 +1005,12 @@ impl SweepStep {
 /// A capacity sweep: the steps run, and the most players a step held.
 #[derive(Clone, Debug, Serialize)]
 pub struct SweepReport {
-    /// The server, world, fetch mode and world clock every step ran with ([`LoadSpec`]).
+    /// The server, world, fetch mode, quality and world clock every step ran with ([`LoadSpec`]).
     pub target: String,
     pub world: String,
     pub fetch: FetchMode,
+    pub quality: &'static str,
+    pub wire: Wire,
     pub clock: f64,
     pub clock_source: ClockSource,
     /// The world the groups moved through (as the last step saw it).
@@ -1032,6 +1077,8 @@ pub fn sweep(
             generator_lag_p99_ms: r.generator.lag.p99_ms,
             sharing: r.sharing.clone(),
             bytes_per_s: r.body_bytes as f64 / r.elapsed_s.max(1e-9),
+            bytes_per_player_s: r.bytes_per_player_s,
+            first_view_bytes_per_player: r.first_view_bytes_per_player,
             holds,
         });
         last = Some(r);
@@ -1044,6 +1091,8 @@ pub fn sweep(
         target: spec.target.clone(),
         world: spec.world.clone(),
         fetch: spec.fetch,
+        quality: spec.quality.as_str(),
+        wire: spec.wire,
         clock: last.as_ref().map_or(1.0, |r| r.clock),
         clock_source: last.as_ref().map_or(ClockSource::Default, |r| r.clock_source),
         geometry: last.as_ref().map(|r| r.geometry.clone()),
@@ -1090,7 +1139,7 @@ impl SweepReport {
         });
         let mut md = format!(
             "`cloudscape loadtest --sweep` against `{}`, world `{}`: mmo scenario, groups of {GROUP_SIZE} players \
-             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles {} (prefetching the \
+             (within {:.0} m of the group's centre), {geometry}. Players fetch `{}` tiles ({}) {} (prefetching the \
              next keyframe past {:.0}–{:.0} % of a span, by tile) with `Accept-Encoding: zstd, gzip` as browsers \
              do; world clock {} s per second ({}). Generator: {}. Each step: {:.0} s of warm-up \
              (the players' first views) then {:.0} s measured. A step holds when its p99 ≤ {SWEEP_P99_MS} ms \
@@ -1101,13 +1150,19 @@ impl SweepReport {
              measured itself); *requests per keyframe*: tile requests per distinct tile keyframe at \
              level 0; *shared*: share of the distinct keyframes (all levels) asked for by two groups or more; \
              *warm*: keyframes of the server's play areas computed during the step; *shading reused*: share of \
-             the instants the server's tile jobs shaded that were the previous keyframe's end, kept.\n\n\
-             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | generator lag | computations | ahead computed / served / missed | ahead lag | warm | shading reused | requests per keyframe (level 0) | shared | MB/s | holds |\n\
-             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+             the instants the server's tile jobs shaded that were the previous keyframe's end, kept; *KB/s a \
+             player*: bytes on the wire a player received per second of the measured run, and *first view* \
+             its first tick's.\n\n\
+             | players | places | requests/s | p50 | p99 | max | 503 | p99 after a boundary / elsewhere | server CPU | generator CPU | generator lag | computations | ahead computed / served / missed | ahead lag | warm | shading reused | requests per keyframe (level 0) | shared | MB/s | KB/s a player | first view | holds |\n\
+             |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
             self.target,
             self.world,
             workload::PARTY_SPREAD,
-            workload::CLIENT_QUALITY.as_str(),
+            self.quality,
+            match self.wire {
+                Wire::V3 => "`billboards.bin` for a tile's first keyframe, `billboards.delta.bin` after",
+                Wire::V2 => "`billboards.v2.bin` and `shadow.png` for every keyframe, `--wire v2`",
+            },
             match self.fetch {
                 FetchMode::Keyframes => "by keyframe URL (immutable, never revalidated)",
                 FetchMode::Poll => "every second at the current time, revalidating (`--poll`)",
@@ -1135,7 +1190,7 @@ impl SweepReport {
             let f = s.server.clone().unwrap_or_default();
             let l0 = s.sharing.iter().find(|l| l.level == 0);
             md += &format!(
-                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {:.1} ms | {} | {} / {} / {} | {} | {} | {} | {} | {} | {:.2} | {} |\n",
+                "| {} | {} | {:.0} | {:.1} ms | {:.1} ms | {:.0} ms | {} | {:.1} / {:.1} ms | {} | {} | {:.1} ms | {} | {} / {} / {} | {} | {} | {} | {} | {} | {:.2} | {} | {} | {} |\n",
                 s.players,
                 s.places,
                 s.throughput_rps,
@@ -1158,6 +1213,9 @@ impl SweepReport {
                 l0.map_or("–".into(), |l| format!("{:.1}", l.requests_per_keyframe)),
                 percent(s.overall_sharing().map(|o| o.shared_by_2_groups)),
                 s.bytes_per_s / 1e6,
+                s.bytes_per_player_s.map_or("–".into(), |b| format!("{:.1}", b / 1e3)),
+                s.first_view_bytes_per_player
+                    .map_or("–".into(), |b| format!("{:.0} KB", b / 1e3)),
                 if s.holds { "yes" } else { "**no**" },
             );
         }
@@ -1292,6 +1350,18 @@ impl Report {
         );
         if let Some(r) = self.revalidated_ratio {
             s += &format!("tiles revalidated (304): {:.1} %\n", 100.0 * r);
+        }
+        if let (Some(first), Some(steady)) = (self.first_view_bytes_per_player, self.bytes_per_player_s) {
+            s += &format!(
+                "bytes a player received ({}, {}, on the wire): first view {:.0} KB, then {:.1} KB/s\n",
+                self.quality,
+                match self.wire {
+                    Wire::V3 => "billboards.bin and deltas",
+                    Wire::V2 => "billboards.v2.bin and shadow.png",
+                },
+                first / 1e3,
+                steady / 1e3
+            );
         }
         let b = &self.boundary;
         if b.after_boundary_requests > 0 {
@@ -1534,6 +1604,8 @@ mod tests {
             places: None,
             server_pid: None,
             warmup: Duration::ZERO,
+            quality: workload::DEFAULT_QUALITY,
+            wire: Wire::V3,
         };
         assert!(matches!(run(&spec, |_| {}), Err(LoadError::Spec(_))));
         let spec = LoadSpec {
@@ -1575,6 +1647,8 @@ mod tests {
             places: None,
             server_pid: None,
             warmup: Duration::ZERO,
+            quality: workload::DEFAULT_QUALITY,
+            wire: Wire::V3,
         };
         let server = Some(ServerClock {
             offset: 0.0,
@@ -1626,12 +1700,16 @@ mod tests {
             generator_lag_p99_ms: 0.25,
             sharing: vec![level(0, 10, 40, 0.5), level(2, 2, 30, 1.0)],
             bytes_per_s: 1e6,
+            bytes_per_player_s: Some(10_000.0),
+            first_view_bytes_per_player: Some(500_000.0),
             holds: true,
         };
         let report = SweepReport {
             target: "http://x:1".into(),
             world: "default".into(),
             fetch: FetchMode::Keyframes,
+            quality: "fast",
+            wire: Wire::V3,
             clock: 1.0,
             clock_source: ClockSource::Server,
             geometry: None,
@@ -1651,7 +1729,7 @@ mod tests {
             md.contains("| 16 | 1 | 20 | 1.0 ms | 9.0 ms | 12 ms | 0 | 5.0 / 9.0 ms | 120 % | 3 % | 0.2 ms |"),
             "{md}"
         );
-        assert!(md.contains("| 4.0 | 58 % | 1.00 | yes |"), "{md}");
+        assert!(md.contains("| 4.0 | 58 % | 1.00 | 10.0 | 500 KB | yes |"), "{md}");
         assert!(md.contains("**16 players** in **1 distinct places**"), "{md}");
         assert!(md.contains("| 16 | 2 | 2 | 30 | 15.0 | 1.50 | 100 % |"), "{md}");
         let png = report.plot().unwrap();

@@ -28,6 +28,8 @@ pub struct Outcome {
     /// send time in the open loop.
     pub micros: u64,
     pub bytes: u64,
+    /// Part of a player's first view.
+    pub first_view: bool,
     /// Sent in the first real second after a level-0 keyframe boundary.
     pub after_boundary: bool,
     /// The tile keyframe asked for, and the asking agent's group (for the sharing figures).
@@ -75,6 +77,10 @@ pub struct Recorder {
     totals: Counts,
     by_kind: BTreeMap<RequestKind, Counts>,
     bytes: u64,
+    /// Body bytes of players' requests (tiles, prefetches, splat sheets) measured.
+    player_bytes: u64,
+    /// Body bytes of the players' first views, warm-up or not.
+    first_view_bytes: u64,
     /// Tile requests by keyframe.
     sharing: SharingLog,
     /// CPU use in each second of the run, as a share of one core: the generator's and
@@ -102,6 +108,8 @@ impl Default for Recorder {
             totals: Counts::default(),
             by_kind: BTreeMap::new(),
             bytes: 0,
+            player_bytes: 0,
+            first_view_bytes: 0,
             sharing: SharingLog::default(),
             cpu: Vec::new(),
             lag: histogram(),
@@ -186,6 +194,9 @@ impl Recorder {
         self.totals.add(o.status);
         self.by_kind.entry(o.kind).or_default().add(o.status);
         self.bytes += o.bytes;
+        if matches!(o.kind, RequestKind::Tile | RequestKind::Prefetch | RequestKind::Splats) {
+            self.player_bytes += o.bytes;
+        }
         if let Some(k) = o.keyframe {
             self.sharing.record(k, o.group);
         }
@@ -245,6 +256,21 @@ impl Recorder {
         self.bytes
     }
 
+    /// Notes the body of a request of a player's first view, measured or not.
+    pub fn record_first_view(&mut self, bytes: u64) {
+        self.first_view_bytes += bytes;
+    }
+
+    /// Body bytes of the players' measured requests.
+    pub fn player_bytes(&self) -> u64 {
+        self.player_bytes
+    }
+
+    /// Body bytes of the players' first views.
+    pub fn first_view_bytes(&self) -> u64 {
+        self.first_view_bytes
+    }
+
     pub fn timeline(&self) -> Vec<SecondSummary> {
         (0..self.per_second.len().max(self.cpu.len()))
             .map(|i| {
@@ -301,6 +327,7 @@ mod tests {
                 at: i as f64 * 0.6,
                 micros: 1000 * (i as u64 + 1),
                 bytes: 10,
+                first_view: false,
                 after_boundary: i == 4,
                 keyframe: None,
                 group: 0,

@@ -24,8 +24,8 @@ pub const GROUP_SIZE: usize = 8;
 pub const TICK_SECONDS: f64 = 1.0;
 /// The viewer's default screen, pixels (web/viewer.js).
 const SCREEN: (usize, usize) = (800, 450);
-/// The preset MMO clients fetch (the viewer's default).
-pub const CLIENT_QUALITY: Quality = Quality::Fast;
+/// The preset MMO clients fetch unless told (`--quality`; the viewer's default).
+pub const DEFAULT_QUALITY: Quality = Quality::Fast;
 /// Past a fraction of a keyframe span a player fetches the next keyframe: each tile's
 /// own, between these (`cloudscape_core::world::prefetch_at`, as the viewer does).
 pub const PREFETCH_AT: (f64, f64) = (PREFETCH_FROM, PREFETCH_FROM + PREFETCH_SPREAD);
@@ -33,8 +33,36 @@ pub const PREFETCH_AT: (f64, f64) = (PREFETCH_FROM, PREFETCH_FROM + PREFETCH_SPR
 const REGION_SIDE: f64 = 10_000.0;
 /// A game server asks for a /series (the last minute) every this many queries.
 const SERIES_EVERY: u64 = 4;
-/// The tile products a player fetches (the viewer's).
-const PLAYER_PRODUCTS: [&str; 2] = ["billboards.bin", "shadow.png"];
+/// What a player fetches of a tile's keyframe (the viewer's, `web/viewer.js`): its
+/// billboards, self-contained when it holds nothing of the tile, as a delta on the
+/// keyframe before when it holds that one. The ground shadow is derived from them.
+const FIRST_KEYFRAME: &str = "billboards.bin";
+const NEXT_KEYFRAME: &str = "billboards.delta.bin";
+/// What a client of `billboards.bin` version 2 fetched per tile keyframe (`--wire v2`):
+/// both ends in full precision and the served shadow map, whatever it held.
+const V2_PRODUCTS: [&str; 2] = ["billboards.v2.bin", "shadow.png"];
+
+/// The tile format players fetch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Wire {
+    /// `billboards.bin` version 3: self-contained for a tile's first keyframe, a delta
+    /// on the held keyframe for the next ones; ground shadows derived (the viewer).
+    V3,
+    /// As clients did before version 3: `billboards.v2.bin` and `shadow.png` for every
+    /// keyframe (the baseline of the bytes-per-player figures).
+    V2,
+}
+
+impl Wire {
+    pub fn parse(s: &str) -> Option<Wire> {
+        match s {
+            "v3" => Some(Wire::V3),
+            "v2" => Some(Wire::V2),
+            _ => None,
+        }
+    }
+}
 /// Most a player stands from its group's centre, metres, each way.
 pub const PARTY_SPREAD: f64 = 300.0;
 
@@ -75,6 +103,9 @@ pub struct Request {
     pub resource: Option<String>,
     /// The ETag the agent holds for `resource`, sent as `If-None-Match`.
     pub etag: Option<String>,
+    /// Part of a player's first view (its first tick): counted apart from the steady
+    /// state in the per-player bytes.
+    pub first_view: bool,
     /// The group of the agent that sends it (for the sharing figures).
     pub group: u32,
     /// The tile keyframe and product a tile request asks for.
@@ -142,17 +173,18 @@ impl WorldView {
     }
 }
 
-/// One product of one tile keyframe: what a player asks for and holds.
+/// One tile keyframe: what a player asks for and holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TileProduct {
     pub keyframe: KeyframeKey,
-    /// Index in the players' products (`billboards.bin`, `shadow.png`).
+    /// 1 when fetched as a delta on the keyframe before (`billboards.delta.bin`); with
+    /// [`Wire::V2`] the product's place in its pair (billboards, shadow).
     pub product: u8,
 }
 
-/// An MMO client: looks around from near its group's position and fetches
-/// `billboards.bin` and `shadow.png` for every tile its view needs (the viewer's
-/// products), at the levels the renderer's level choice gives ([`plan_bands`]).
+/// An MMO client: looks around from near its group's position and fetches the
+/// billboard keyframes of every tile its view needs (the viewer's), at the levels the
+/// renderer's level choice gives ([`plan_bands`]) for its quality.
 #[derive(Clone, Debug)]
 pub struct Player {
     index: usize,
@@ -166,14 +198,19 @@ pub struct Player {
     turn: f64,
     fetched_splats: bool,
     mode: FetchMode,
-    /// Keyframe products held (their answers never change): never asked again.
-    held: HashSet<TileProduct>,
+    /// The preset it fetches.
+    quality: Quality,
+    /// The tile format it fetches.
+    wire: Wire,
+    /// Keyframes held (their answers never change): never asked again, and the next
+    /// keyframe of a held one is fetched as a delta on it.
+    held: HashSet<KeyframeKey>,
     /// What the current view needs (kept to reuse its memory from tick to tick).
-    wanted: HashSet<TileProduct>,
+    wanted: HashSet<KeyframeKey>,
 }
 
 impl Player {
-    pub fn new(index: usize, seed: u64, mode: FetchMode) -> Player {
+    pub fn new(index: usize, seed: u64, mode: FetchMode, quality: Quality, wire: Wire) -> Player {
         let k = seed ^ (index as u64).wrapping_mul(0x1_0000_0001);
         Player {
             index,
@@ -187,6 +224,8 @@ impl Player {
             turn: (unit(k + 4) - 0.5) * 12.0,
             fetched_splats: false,
             mode,
+            quality,
+            wire,
             held: HashSet::new(),
             wanted: HashSet::new(),
         }
@@ -221,7 +260,7 @@ impl Player {
                 width,
                 height: SCREEN.1 * width / SCREEN.0,
                 t: world.t(s).clamp(0.0, 1e12),
-                quality: CLIENT_QUALITY,
+                quality: self.quality,
                 sun: None,
                 params: ShadingParams::default(),
                 samples: cloudscape_core::render::pathtrace::DEFAULT_SAMPLES,
@@ -234,16 +273,18 @@ impl Player {
         }
     }
 
-    /// The requests of one view refresh at `s`: the splat sheet once, then two
-    /// products per planned tile: in [`FetchMode::Keyframes`] those of its keyframe
-    /// (and of the next one past [`PREFETCH_AT`]) not held yet, in [`FetchMode::Poll`]
-    /// every one at the current time.
+    /// The requests of one view refresh at `s`: the splat sheet once, then per planned
+    /// tile in [`FetchMode::Keyframes`] its keyframe (and the next one past the tile's
+    /// prefetch point) when not held, each as a delta on the keyframe before when that
+    /// is held or asked first in this tick; in [`FetchMode::Poll`] every tile's
+    /// self-contained keyframe at the current time.
     pub fn requests(&mut self, world: &WorldView, geometry: &Geometry, s: f64) -> Vec<Request> {
         let t = world.t(s).clamp(0.0, 1e12);
-        let q = CLIENT_QUALITY.as_str();
+        let q = self.quality.as_str();
         let group = self.group as u32;
+        let first_view = !self.fetched_splats;
         let mut out = Vec::new();
-        if !self.fetched_splats {
+        if first_view {
             self.fetched_splats = true;
             for product in ["splats.json", "splats.png"] {
                 out.push(Request {
@@ -251,15 +292,18 @@ impl Player {
                     path: format!("/v1/{product}?quality={q}"),
                     resource: None,
                     etag: None,
+                    first_view,
                     group,
                     tile: None,
                 });
             }
         }
         self.wanted.clear();
+        let mut asked: HashSet<KeyframeKey> = HashSet::new();
         for (layer, tile) in self.tiles(world, geometry, s) {
             let name = &world.layers[layer];
-            let k = Keyframe::on_grid(t, keyframe_span(world.dts[layer], tile.z));
+            let span = keyframe_span(world.dts[layer], tile.z);
+            let k = Keyframe::on_grid(t, span);
             let key = |t0: f64| KeyframeKey {
                 layer: layer as u16,
                 z: tile.z,
@@ -273,42 +317,53 @@ impl Player {
                     world.name, tile.z, tile.x, tile.y
                 )
             };
-            for (p, product) in PLAYER_PRODUCTS.iter().enumerate() {
-                if self.mode == FetchMode::Poll {
-                    let resource = url(product);
-                    out.push(Request {
-                        kind: RequestKind::Tile,
-                        path: format!("{resource}&t={t}"),
-                        resource: Some(resource),
-                        etag: None,
-                        group,
-                        tile: Some(TileProduct {
-                            keyframe: key(k.t0),
-                            product: p as u8,
-                        }),
-                    });
+            if self.mode == FetchMode::Poll {
+                let resource = url(FIRST_KEYFRAME);
+                out.push(Request {
+                    kind: RequestKind::Tile,
+                    path: format!("{resource}&t={t}"),
+                    resource: Some(resource),
+                    etag: None,
+                    first_view,
+                    group,
+                    tile: Some(TileProduct {
+                        keyframe: key(k.t0),
+                        product: 0,
+                    }),
+                });
+                continue;
+            }
+            let prefetch = k.fraction(t) >= prefetch_at(tile.z, tile.x, tile.y) && k.t1 > k.t0;
+            for (kind, t0) in [(RequestKind::Tile, k.t0), (RequestKind::Prefetch, k.t1)] {
+                if kind == RequestKind::Prefetch && !prefetch {
                     continue;
                 }
-                let prefetch = k.fraction(t) >= prefetch_at(tile.z, tile.x, tile.y) && k.t1 > k.t0;
-                for (kind, t0) in [(RequestKind::Tile, k.t0), (RequestKind::Prefetch, k.t1)] {
-                    if kind == RequestKind::Prefetch && !prefetch {
-                        continue;
-                    }
-                    let held = TileProduct {
-                        keyframe: key(t0),
-                        product: p as u8,
-                    };
-                    self.wanted.insert(held);
-                    if !self.held.contains(&held) {
-                        out.push(Request {
-                            kind,
-                            path: format!("{}&t={t0}", url(product)),
-                            resource: None,
-                            etag: None,
-                            group,
-                            tile: Some(held),
-                        });
-                    }
+                let this = key(t0);
+                self.wanted.insert(this);
+                if self.held.contains(&this) {
+                    continue;
+                }
+                let before = key(Keyframe::on_grid(t0 - 0.5 * span, span).t0);
+                let delta = t0 > 0.0 && (self.held.contains(&before) || asked.contains(&before));
+                asked.insert(this);
+                let products: &[&str] = match self.wire {
+                    Wire::V3 if delta => &[NEXT_KEYFRAME],
+                    Wire::V3 => &[FIRST_KEYFRAME],
+                    Wire::V2 => &V2_PRODUCTS,
+                };
+                for (i, product) in products.iter().enumerate() {
+                    out.push(Request {
+                        kind,
+                        path: format!("{}&t={t0}", url(product)),
+                        resource: None,
+                        etag: None,
+                        first_view,
+                        group,
+                        tile: Some(TileProduct {
+                            keyframe: this,
+                            product: if self.wire == Wire::V2 { i as u8 } else { delta as u8 },
+                        }),
+                    });
                 }
             }
         }
@@ -326,7 +381,7 @@ impl Player {
             return;
         }
         if let Some(tile) = req.tile {
-            self.held.insert(tile);
+            self.held.insert(tile.keyframe);
         }
     }
 
@@ -383,6 +438,7 @@ impl GameServer {
             resource: Some(path.clone()),
             path,
             etag: None,
+            first_view: false,
             group: group as u32,
             tile: None,
         }
@@ -492,7 +548,13 @@ mod tests {
     fn players_fetch_each_keyframe_once_and_the_next_one_past_its_prefetch_point() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         let tiles: Vec<_> = first.iter().filter(|r| r.kind == RequestKind::Tile).collect();
@@ -500,6 +562,9 @@ mod tests {
         // t = 43 200 is every level's keyframe time: no prefetch yet.
         assert!(first.iter().all(|r| r.kind != RequestKind::Prefetch));
         assert!(tiles.iter().all(|r| r.path.ends_with("&t=43200") && r.etag.is_none()));
+        // A first view: every tile self-contained, every request counted as the first view.
+        assert!(tiles.iter().all(|r| r.path.contains("/billboards.bin?")), "{tiles:?}");
+        assert!(first.iter().all(|r| r.first_view));
         for r in &first {
             agent.answered(r, true, Some("\"e\"".into()));
         }
@@ -519,6 +584,8 @@ mod tests {
         for r in &early {
             let tile = r.tile.expect("a tile request");
             assert!(r.kind == RequestKind::Prefetch && r.path.ends_with("&t=43220"), "{r:?}");
+            // The keyframe before is held: the next one comes as a delta on it.
+            assert!(r.path.contains("/billboards.delta.bin?") && !r.first_view, "{r:?}");
             let (x, y) = (tile.keyframe.x, tile.keyframe.y);
             assert!(prefetch_at(tile.keyframe.z, x, y) <= 0.6, "{r:?}");
             agent.answered(r, true, None);
@@ -542,10 +609,45 @@ mod tests {
     }
 
     #[test]
+    fn version_2_players_fetch_both_products_of_every_keyframe() {
+        let w = world();
+        let geo = towns(1);
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V2,
+        )));
+        agent.plan(&w, &geo, 0.0);
+        let first: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
+        let count = |p: &str| first.iter().filter(|r| r.path.contains(p)).count();
+        assert!(count("/billboards.v2.bin?") > 0);
+        assert_eq!(count("/billboards.v2.bin?"), count("/shadow.png?"));
+        assert_eq!(count("/billboards.v2.bin?") + count("/shadow.png?"), first.len());
+        for r in &first {
+            agent.answered(r, true, None);
+        }
+        // Past every prefetch point: the next keyframes, both products again, no delta.
+        agent.plan(&w, &geo, 16.5);
+        let next = drain(&mut agent);
+        assert!(
+            !next.is_empty() && next.iter().all(|r| !r.path.contains("delta")),
+            "{next:?}"
+        );
+    }
+
+    #[test]
     fn a_failed_request_is_asked_again() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Keyframes)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         for r in &first {
@@ -566,7 +668,13 @@ mod tests {
     fn tile_requests_name_their_keyframe_and_group() {
         let w = world();
         let geo = towns(4);
-        let mut agent = Agent::new(Role::Player(Player::new(17, 1, FetchMode::Keyframes)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            17,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         for r in drain(&mut agent).iter().filter(|r| r.kind == RequestKind::Tile) {
             assert_eq!(r.group, 2);
@@ -582,7 +690,15 @@ mod tests {
         let run = |seed: u64| {
             let geo = Geometry::new(GeometryKind::Towns, 3, seed, Vec::new(), 600.0);
             let mut agents: Vec<Agent> = (0..24)
-                .map(|i| Agent::new(Role::Player(Player::new(i, seed, FetchMode::Keyframes))))
+                .map(|i| {
+                    Agent::new(Role::Player(Player::new(
+                        i,
+                        seed,
+                        FetchMode::Keyframes,
+                        DEFAULT_QUALITY,
+                        Wire::V3,
+                    )))
+                })
                 .collect();
             let mut paths = Vec::new();
             for tick in 0..30 {
@@ -606,12 +722,18 @@ mod tests {
     fn polling_players_fetch_their_planned_tiles_and_revalidate() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(0, 1, FetchMode::Poll)));
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Poll,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
         agent.plan(&w, &geo, 0.0);
         let reqs = drain(&mut agent);
         assert_eq!(reqs[0].kind, RequestKind::Splats);
         let tiles: Vec<_> = reqs.iter().filter(|r| r.kind == RequestKind::Tile).collect();
-        assert!(!tiles.is_empty() && tiles.len() % 2 == 0);
+        assert!(!tiles.is_empty());
         assert!(tiles.iter().all(|r| r.etag.is_none() && r.path.contains("&t=43200")));
         agent.answered(tiles[0], true, Some("\"abc\"".into()));
         // One second later: a new time, the same resources, the held ETag is sent.
@@ -639,7 +761,7 @@ mod tests {
             .flat_map(|g| (0..72).map(move |i| (g, i as f64 * 100.0)))
             .find(|&(g, s)| geo.position(g, s)[2] > 500.0)
             .expect("a group in flight within 2 h");
-        let p = Player::new(g * GROUP_SIZE, 2, FetchMode::Keyframes);
+        let p = Player::new(g * GROUP_SIZE, 2, FetchMode::Keyframes, DEFAULT_QUALITY, Wire::V3);
         let cam = p.camera(&geo, s);
         let c = geo.position(g, s);
         assert!(cam.position[2] >= c[2] + 2.0 && cam.position[2] <= c[2] + 50.0);

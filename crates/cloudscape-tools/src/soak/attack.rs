@@ -4,9 +4,9 @@
 //! - **Render burst (refused)**: eight 89-byte requests for
 //!   `render.png?size=4096x4096&quality=accurate` (about 55 CPU-seconds and 1.5 GB
 //!   each on the development machine) at once. They must be refused up front.
-//! - **Render burst (admitted)**: eight heavy renders that are within the limits
-//!   one at a time (by default 2048² `balanced`, about 5 CPU-seconds each; choose
-//!   one that fits a smaller budget), all at once. The
+//! - **Render burst (admitted)**: one heavy render alone, then eight that are within
+//!   the limits one at a time (by default 2048² `balanced`, about 5 CPU-seconds each;
+//!   choose one that fits a smaller budget), all at once. The
 //!   server may shed or time them out, but must stop the work nobody waits for.
 //!   Recovery: the time from the burst until an uncached cheap request (a density
 //!   tile never asked before) answers 200 again. Target: at most 2 × the budget.
@@ -14,6 +14,17 @@
 //!   for a 68-byte request before; now refused (413) over the response limit.
 //! - **Memory**: the server's peak RSS over the whole scenario (`VmHWM` of `--pid`),
 //!   against the bound given (the cache budget + 512 MiB by default).
+//! - **Crawl** (with `--crawl N`): N tile requests over random seeds, levels, tiles,
+//!   times, products and qualities, from 6 clients that retry a 503 after its
+//!   `Retry-After` as a crawler would; every one a new key, so the caches fill to
+//!   their budgets and the compute queue stays full. It reports the server's RSS
+//!   through the crawl (its peak must stay within the bound), after `--crawl-idle`
+//!   seconds of quiet (what is given back), the allocator's figures from `/metrics`,
+//!   and the keyframes computed ahead for tiles nobody will ask for again (none).
+//!
+//! The admitted render burst also counts what it admitted: every admitted render
+//! must finish within the budget (a 503 `timeout` breaks it; 503 `overloaded`, shed
+//! before any work, does not).
 //!
 //! Every answer is judged as the soak does: never a 5xx other than 503, never a 503
 //! without `Retry-After`. Connection attacks (idle, slowloris, unread replies) live in
@@ -24,7 +35,7 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
-use super::ServerMemory;
+use super::{ServerMemory, process_memory_kb};
 
 /// How to run the scenario.
 #[derive(Clone, Debug)]
@@ -47,6 +58,10 @@ pub struct AttackOptions {
     pub world: String,
     /// Run only the attacks named here (all when empty).
     pub only: Vec<String>,
+    /// Tile requests of the crawl (0: no crawl).
+    pub crawl: usize,
+    /// Seconds of quiet after the crawl before its RSS is read again.
+    pub crawl_idle_s: f64,
     /// Progress lines on stderr.
     pub progress: bool,
 }
@@ -140,6 +155,10 @@ pub fn attacks() -> Vec<Attack> {
         Attack {
             name: "amplification",
             run: amplification,
+        },
+        Attack {
+            name: "crawl",
+            run: crawl,
         },
     ]
 }
@@ -365,12 +384,43 @@ fn render_burst_refused(o: &AttackOptions, client: &reqwest::blocking::Client) -
 /// the queue is free again within 2 × the budget.
 fn render_burst_admitted(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
     let run = salt() % 100_000;
+    // One of them alone first, as a user would send one: how long it takes here (and
+    // the queue measures its rate from it).
+    let started = Instant::now();
+    let alone = get(
+        client,
+        &render_url(o, o.burst + 1, &o.heavy_size, &o.heavy_quality, 1 + run),
+    );
+    let alone_s = started.elapsed().as_secs_f64();
     let urls: Vec<String> = (0..o.burst)
         .map(|i| render_url(o, i, &o.heavy_size, &o.heavy_quality, 1 + run))
         .collect();
     let mut b = burst_and_recover(o, client, &urls);
+    b.figures.insert("alone_s".to_string(), alone_s);
+    if alone.status != Some(200) {
+        b.notes.push(format!(
+            "one render alone was answered {:?} ({:?})",
+            alone.status, alone.error_code
+        ));
+    }
     if let Some(ra) = b.answers.iter().filter_map(|a| a.retry_after).max() {
         b.figures.insert("max_retry_after_s".to_string(), ra as f64);
+    }
+    // Admitted: answered (200), or run and timed out at the budget. Shed up front
+    // (`overloaded`) is not admitted.
+    let finished = b.answers.iter().filter(|a| a.status == Some(200)).count();
+    let timed_out = b
+        .answers
+        .iter()
+        .filter(|a| a.error_code.as_deref() == Some("timeout"))
+        .count();
+    b.figures.insert("admitted".to_string(), (finished + timed_out) as f64);
+    b.figures.insert("admitted_finished".to_string(), finished as f64);
+    if timed_out > 0 {
+        b.notes.push(format!(
+            "{timed_out} of {} admitted renders timed out at the budget",
+            finished + timed_out
+        ));
     }
     outcome("render_burst_admitted", b.statuses, b.figures, b.notes)
 }
@@ -462,6 +512,149 @@ fn amplification(o: &AttackOptions, client: &reqwest::blocking::Client) -> Attac
         ("bytes_out_per_byte_in".to_string(), largest / request_bytes),
     ]);
     outcome("amplification", statuses, figures, notes)
+}
+
+/// Clients of the crawl.
+const CRAWL_CLIENTS: usize = 6;
+
+/// The crawl's request `i` of run `salt`: a tile of a random seed world at a random
+/// level, place, time, product and quality (SplitMix64 of the index: a run replays).
+fn crawl_url(o: &AttackOptions, salt: u64, i: u64) -> String {
+    let mut state = salt ^ i.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    let mut next = || {
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    const PRODUCTS: [&str; 6] = [
+        "billboards.bin",
+        "shadow.png",
+        "density.u8",
+        "coverage.png",
+        "billboards.json",
+        "atlas.png",
+    ];
+    const LEVELS: [u32; 7] = [0, 0, 0, 1, 1, 2, 3];
+    const QUALITIES: [&str; 3] = ["fast", "balanced", "accurate"];
+    let seed = next() % 1_000_000_000_000 + 1;
+    let z = LEVELS[(next() % 7) as usize];
+    let (x, y) = ((next() % 40) as i64 - 20, (next() % 40) as i64 - 20);
+    let t = next() % 1_000_000_000;
+    let product = PRODUCTS[(next() % 6) as usize];
+    let quality = QUALITIES[(next() % 3) as usize];
+    format!(
+        "{}/v1/worlds/{seed}/tiles/{z}/{x}/{y}/{product}?t={t}&quality={quality}",
+        o.target
+    )
+}
+
+/// One metric of the server's `/metrics` (the sum of its samples whose labels include
+/// `labels`); `None` when it cannot be read.
+fn server_metric(o: &AttackOptions, client: &reqwest::blocking::Client, name: &str, label: &str) -> Option<f64> {
+    let text = client.get(format!("{}/metrics", o.target)).send().ok()?.text().ok()?;
+    let mut sum = None;
+    for line in text.lines().filter(|l| !l.starts_with('#')) {
+        let (series, value) = line.rsplit_once(' ')?;
+        let (metric, labels) = series.split_once('{').unwrap_or((series, ""));
+        if metric == name && labels.contains(label) {
+            *sum.get_or_insert(0.0) += value.parse::<f64>().ok()?;
+        }
+    }
+    sum
+}
+
+/// The crawl: `o.crawl` new tiles, then quiet; the server's memory through both.
+fn crawl(o: &AttackOptions, client: &reqwest::blocking::Client) -> AttackOutcome {
+    let mut notes = Vec::new();
+    let mut figures = BTreeMap::new();
+    if o.crawl == 0 {
+        figures.insert("requests".to_string(), 0.0);
+        return outcome("crawl", BTreeMap::new(), figures, notes);
+    }
+    let salt = salt();
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let answers = std::sync::Mutex::new(Vec::new());
+    let rss_mib = |pid: u32| process_memory_kb(pid).map(|(rss, hwm)| (rss as f64 / 1024.0, hwm as f64 / 1024.0));
+    let ahead_before = server_metric(o, client, "cloudscape_ahead_computed_total", "").unwrap_or(0.0);
+    let started = Instant::now();
+    let mut peak_rss = 0.0f64;
+    std::thread::scope(|s| {
+        let workers: Vec<_> = (0..CRAWL_CLIENTS)
+            .map(|_| {
+                s.spawn(|| {
+                    loop {
+                        let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                        if i >= o.crawl {
+                            return;
+                        }
+                        let url = crawl_url(o, salt, i as u64);
+                        // As a crawler: a 503 is retried after its Retry-After (at
+                        // most 2 s, 8 times).
+                        let mut a = get(client, &url);
+                        for _ in 0..8 {
+                            if a.status != Some(503) {
+                                break;
+                            }
+                            std::thread::sleep(Duration::from_secs(a.retry_after.unwrap_or(1).clamp(1, 2) as u64));
+                            a = get(client, &url);
+                        }
+                        answers.lock().unwrap_or_else(|e| e.into_inner()).push(a);
+                    }
+                })
+            })
+            .collect();
+        while workers.iter().any(|w| !w.is_finished()) {
+            if let Some((rss, _)) = o.pid.and_then(rss_mib) {
+                peak_rss = peak_rss.max(rss);
+            }
+            if o.progress {
+                eprint!(
+                    "\rcrawl: {} of {} requests, RSS {:.0} MiB",
+                    next.load(std::sync::atomic::Ordering::Relaxed).min(o.crawl),
+                    o.crawl,
+                    peak_rss
+                );
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    });
+    if o.progress {
+        eprintln!();
+    }
+    let answers = answers.into_inner().unwrap_or_else(|e| e.into_inner());
+    let statuses = tally(&answers, &mut notes);
+    figures.insert("requests".to_string(), answers.len() as f64);
+    figures.insert("seconds".to_string(), started.elapsed().as_secs_f64());
+    let ahead = server_metric(o, client, "cloudscape_ahead_computed_total", "").unwrap_or(0.0) - ahead_before;
+    figures.insert("ahead_computed".to_string(), ahead);
+    if let Some((rss, hwm)) = o.pid.and_then(rss_mib) {
+        figures.insert("rss_end_mib".to_string(), rss);
+        figures.insert("peak_rss_mib".to_string(), hwm.max(peak_rss));
+    }
+    for what in ["allocated", "resident"] {
+        if let Some(v) = server_metric(o, client, "cloudscape_allocator_bytes", &format!("what=\"{what}\"")) {
+            figures.insert(format!("allocator_{what}_mib"), v / 1048576.0);
+        }
+    }
+    // Quiet: what does the server give back?
+    std::thread::sleep(Duration::from_secs_f64(o.crawl_idle_s));
+    if let Some((rss, _)) = o.pid.and_then(rss_mib) {
+        figures.insert("rss_idle_mib".to_string(), rss);
+    }
+    if let Some(v) = server_metric(o, client, "cloudscape_allocator_bytes", "what=\"resident\"") {
+        figures.insert("allocator_resident_idle_mib".to_string(), v / 1048576.0);
+    }
+    if let Some(peak) = figures.get("peak_rss_mib")
+        && *peak > o.rss_limit_mib as f64
+    {
+        notes.push(format!(
+            "the server's RSS peaked at {peak:.0} MiB, over the {} MiB bound",
+            o.rss_limit_mib
+        ));
+    }
+    outcome("crawl", statuses, figures, notes)
 }
 
 #[cfg(test)]

@@ -19,7 +19,7 @@
 // at noon, reddish toward a low sun; at the far horizon `fast` shows no brighter band
 // than `balanced` (issue 20). Saves screenshots in OUT_DIR and
 // prints figures (draw calls, billboards, frame time; the bytes a player receives: a
-// first view, then per second following the clock, at `fast` and `balanced`) for
+// first view, then per second following the clock, at `fast`, and other qualities on request) for
 // BENCHMARKS.md; no assertion depends on time.
 
 import { mkdirSync, writeFileSync } from 'node:fs';
@@ -55,9 +55,17 @@ const SCREENSHOT_TIMEOUT_MS = 300_000;
 const CLOCK_VIEW = { viewport: VIEWPORT, deviceScaleFactor: 0.25 };
 /**
  * How long the byte figures follow the clock, world seconds (the clock's own rate: the
- * server keeps the keyframes of its clock warm, not those of a faster one).
+ * server keeps the keyframes of its clock warm, not those of a faster one): two minutes.
  */
-const FIGURE_SPAN = 90;
+const FIGURE_SPAN = 120;
+/**
+ * The qualities whose bytes are measured: the viewer's default (`fast`), unless
+ * CLOUDSCAPE_VIEWER_FIGURES names others (`fast balanced`). On a 2-core machine that
+ * also runs SwiftShader, a server shading `balanced` tiles at the clock's new times
+ * does not keep up with the clock, so the page never settles within CI's budget; the
+ * loadtest's players (`cloudscape loadtest --quality balanced`) measure it instead.
+ */
+const FIGURE_QUALITIES = (process.env.CLOUDSCAPE_VIEWER_FIGURES || 'fast').split(/[ ,]+/).filter(Boolean);
 
 const { check, finish } = checks('browser');
 const figures = [];
@@ -527,12 +535,12 @@ try {
   }
 
   // --- The bytes a player receives (figures): the default view following the clock, at
-  // `fast` and `balanced`, each in a fresh context (nothing stored). First view: what
+  // each of FIGURE_QUALITIES, each in a fresh context (nothing stored). First view: what
   // the page fetched until its view was drawn (every resource, then tiles alone). Then
   // per second over FIGURE_SPAN world seconds of the clock (the embedded config's clock
   // runs at 1: world seconds are seconds). Bytes are Resource Timing's transferSize:
   // headers and compressed bodies, as the network carries them.
-  for (const q of ['fast', 'balanced']) {
+  for (const q of FIGURE_QUALITIES) {
     const bctx = await browser.newContext(CLOCK_VIEW);
     const b = await openPage(bctx);
     await b.page.goto(`${base}/?quality=${q}`);

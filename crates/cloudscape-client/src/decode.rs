@@ -27,6 +27,10 @@ pub struct RemoteLayer {
     /// Seconds per automaton step: the keyframe span of level z is
     /// `world::keyframe_span(dt, z)`.
     pub dt: f64,
+    /// Whether the layer can rain or snow: a client that draws weather fetches its
+    /// `precipitation.png` (discovery's `precipitates`; false when absent).
+    #[serde(default)]
+    pub precipitates: bool,
 }
 
 /// The parts of a remote world's discovery document the client uses.

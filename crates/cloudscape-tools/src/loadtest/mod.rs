@@ -26,6 +26,7 @@ pub mod record;
 pub mod sharing;
 pub mod workload;
 
+use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -443,6 +444,9 @@ pub struct Report {
     /// What a player received per second over the measured run (tiles it turned or
     /// moved to, next keyframes, splat sheets), bytes on the wire; `None` without players.
     pub bytes_per_player_s: Option<f64>,
+    /// [`Report::bytes_per_player_s`] by product (`billboards.bin`,
+    /// `billboards.delta.bin`, `precipitation.png`, …), bytes per player-second.
+    pub bytes_per_player_s_by_product: BTreeMap<&'static str, f64>,
     /// From the server's /metrics; `None` when it could not be read.
     pub cache: Option<CacheFigures>,
     /// What the server computed and how busy it was; `None` when /metrics could not be read.
@@ -599,6 +603,7 @@ async fn send(shared: &Shared, req: &workload::Request, from: Instant) -> (Outco
         after_boundary,
         keyframe: req.tile.map(|t| t.keyframe),
         group: req.group,
+        product: record::product_of(&req.path),
     };
     match result {
         Ok((status, etag, retry, bytes)) => (outcome(Some(status), bytes), etag, retry),
@@ -930,6 +935,14 @@ pub fn run(spec: &LoadSpec, mut progress: impl FnMut(Progress)) -> Result<Report
             wire: spec.wire,
             first_view_bytes_per_player: (players > 0).then(|| rec.first_view_bytes() as f64 / players as f64),
             bytes_per_player_s: (players > 0).then(|| rec.player_bytes() as f64 / players as f64 / elapsed.max(1e-9)),
+            bytes_per_player_s_by_product: if players > 0 {
+                rec.product_bytes()
+                    .into_iter()
+                    .map(|(p, b)| (p, b as f64 / players as f64 / elapsed.max(1e-9)))
+                    .collect()
+            } else {
+                BTreeMap::new()
+            },
             cache,
             server,
             generator: GeneratorFigures {
@@ -1362,6 +1375,15 @@ impl Report {
                 first / 1e3,
                 steady / 1e3
             );
+            let parts: Vec<String> = self
+                .bytes_per_player_s_by_product
+                .iter()
+                .filter(|(_, b)| **b > 0.0)
+                .map(|(p, b)| format!("{p} {:.1}", b / 1e3))
+                .collect();
+            if !parts.is_empty() {
+                s += &format!("  by product, KB/s: {}\n", parts.join(", "));
+            }
         }
         let b = &self.boundary;
         if b.after_boundary_requests > 0 {

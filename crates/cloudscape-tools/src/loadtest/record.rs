@@ -35,6 +35,26 @@ pub struct Outcome {
     /// The tile keyframe asked for, and the asking agent's group (for the sharing figures).
     pub keyframe: Option<KeyframeKey>,
     pub group: u32,
+    /// The product asked for ([`product_of`]), for the bytes by product.
+    pub product: &'static str,
+}
+
+/// The products whose bytes a report splits a player's traffic into.
+const PRODUCTS: [&str; 7] = [
+    "billboards.bin",
+    "billboards.delta.bin",
+    "billboards.v2.bin",
+    "shadow.png",
+    "precipitation.png",
+    "splats.json",
+    "splats.png",
+];
+
+/// The product a request path asks for (its last segment, without the query), one of
+/// [`PRODUCTS`], else `other`.
+pub fn product_of(path: &str) -> &'static str {
+    let name = path.split('?').next().unwrap_or("").rsplit('/').next().unwrap_or("");
+    PRODUCTS.iter().copied().find(|p| *p == name).unwrap_or("other")
 }
 
 /// Counts of one second (or one kind) of the run.
@@ -81,6 +101,8 @@ pub struct Recorder {
     player_bytes: u64,
     /// Body bytes of the players' first views, warm-up or not.
     first_view_bytes: u64,
+    /// Body bytes of players' requests measured, by product.
+    product_bytes: BTreeMap<&'static str, u64>,
     /// Tile requests by keyframe.
     sharing: SharingLog,
     /// CPU use in each second of the run, as a share of one core: the generator's and
@@ -110,6 +132,7 @@ impl Default for Recorder {
             bytes: 0,
             player_bytes: 0,
             first_view_bytes: 0,
+            product_bytes: BTreeMap::new(),
             sharing: SharingLog::default(),
             cpu: Vec::new(),
             lag: histogram(),
@@ -196,6 +219,7 @@ impl Recorder {
         self.bytes += o.bytes;
         if matches!(o.kind, RequestKind::Tile | RequestKind::Prefetch | RequestKind::Splats) {
             self.player_bytes += o.bytes;
+            *self.product_bytes.entry(o.product).or_default() += o.bytes;
         }
         if let Some(k) = o.keyframe {
             self.sharing.record(k, o.group);
@@ -271,6 +295,11 @@ impl Recorder {
         self.first_view_bytes
     }
 
+    /// Body bytes of the players' measured requests, by product.
+    pub fn product_bytes(&self) -> BTreeMap<&'static str, u64> {
+        self.product_bytes.clone()
+    }
+
     pub fn timeline(&self) -> Vec<SecondSummary> {
         (0..self.per_second.len().max(self.cpu.len()))
             .map(|i| {
@@ -331,8 +360,12 @@ mod tests {
                 after_boundary: i == 4,
                 keyframe: None,
                 group: 0,
+                product: product_of("/v1/worlds/w/tiles/0/0/0/billboards.delta.bin?t=20"),
             });
         }
+        assert_eq!(r.product_bytes().get("billboards.delta.bin"), Some(&r.player_bytes()));
+        assert_eq!(product_of("/v1/splats.png?quality=fast"), "splats.png");
+        assert_eq!(product_of("/v1/worlds/w/tiles/0/0/0/coverage.png?t=0"), "other");
         let t = r.totals();
         assert_eq!(
             (

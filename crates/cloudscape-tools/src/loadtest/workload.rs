@@ -41,6 +41,9 @@ const NEXT_KEYFRAME: &str = "billboards.delta.bin";
 /// What a client of `billboards.bin` version 2 fetched per tile keyframe (`--wire v2`):
 /// both ends in full precision and the served shadow map, whatever it held.
 const V2_PRODUCTS: [&str; 2] = ["billboards.v2.bin", "shadow.png"];
+/// What a player fetches besides the billboards of a layer that can rain or snow (the
+/// viewer's rain at the eye and haze), every keyframe in either wire.
+const PRECIPITATION: &str = "precipitation.png";
 
 /// The tile format players fetch.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -125,6 +128,9 @@ pub struct WorldView {
     pub bands: Vec<LayerBand>,
     /// Seconds per automaton step of each layer: its keyframe spans.
     pub dts: Vec<f64>,
+    /// Whether each layer can rain or snow: players fetch its `precipitation.png` with
+    /// every keyframe, as the viewer does.
+    pub precipitates: Vec<bool>,
     /// World-clock seconds at the start of the run.
     pub t0: f64,
     /// World seconds per real second.
@@ -139,6 +145,7 @@ impl WorldView {
             layers: world.layers.iter().map(|l| l.name.clone()).collect(),
             bands: world.bands(),
             dts: world.layers.iter().map(|l| l.dt).collect(),
+            precipitates: world.layers.iter().map(|l| l.precipitates).collect(),
             t0,
             clock,
         }
@@ -177,8 +184,9 @@ impl WorldView {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TileProduct {
     pub keyframe: KeyframeKey,
-    /// 1 when fetched as a delta on the keyframe before (`billboards.delta.bin`); with
-    /// [`Wire::V2`] the product's place in its pair (billboards, shadow).
+    /// 1 when fetched as a delta on the keyframe before (`billboards.delta.bin`), 2 for
+    /// the precipitation map; with [`Wire::V2`] the product's place in (billboards,
+    /// shadow, precipitation).
     pub product: u8,
 }
 
@@ -351,7 +359,9 @@ impl Player {
                     Wire::V3 => &[FIRST_KEYFRAME],
                     Wire::V2 => &V2_PRODUCTS,
                 };
-                for (i, product) in products.iter().enumerate() {
+                let weather = world.precipitates.get(layer).copied().unwrap_or(false);
+                let weather = if weather { &[PRECIPITATION][..] } else { &[] };
+                for (i, product) in products.iter().chain(weather).enumerate() {
                     out.push(Request {
                         kind,
                         path: format!("{}&t={t0}", url(product)),
@@ -361,7 +371,11 @@ impl Player {
                         group,
                         tile: Some(TileProduct {
                             keyframe: this,
-                            product: if self.wire == Wire::V2 { i as u8 } else { delta as u8 },
+                            product: match (self.wire, i) {
+                                (Wire::V3, 0) => delta as u8,
+                                (Wire::V3, _) => 2,
+                                (Wire::V2, i) => i as u8,
+                            },
                         }),
                     });
                 }
@@ -527,6 +541,7 @@ mod tests {
                 top: 2000.0,
                 cell_size: 100.0,
                 dt: 20.0,
+                precipitates: false,
             }],
         };
         WorldView::new(&remote, 43_200.0, 1.0)
@@ -635,6 +650,38 @@ mod tests {
             !next.is_empty() && next.iter().all(|r| !r.path.contains("delta")),
             "{next:?}"
         );
+    }
+
+    #[test]
+    fn players_fetch_the_precipitation_map_of_every_keyframe_of_a_layer_that_can_rain() {
+        let mut w = world();
+        w.precipitates = vec![true];
+        let geo = towns(1);
+        let mut agent = Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            Wire::V3,
+        )));
+        agent.plan(&w, &geo, 0.0);
+        let first: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
+        let count = |reqs: &[Request], p: &str| reqs.iter().filter(|r| r.path.contains(p)).count();
+        assert!(count(&first, "/billboards.bin?") > 0);
+        assert_eq!(count(&first, "/billboards.bin?"), count(&first, "/precipitation.png?"));
+        assert_eq!(2 * count(&first, "/precipitation.png?"), first.len());
+        for r in &first {
+            agent.answered(r, true, None);
+        }
+        // The next keyframes: a delta of the billboards, the precipitation map whole.
+        agent.plan(&w, &geo, 16.5);
+        let next: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
+        assert!(count(&next, "/billboards.delta.bin?") > 0, "{next:?}");
+        assert_eq!(
+            count(&next, "/billboards.delta.bin?"),
+            count(&next, "/precipitation.png?")
+        );
+        assert_eq!(count(&next, "/billboards.bin?"), 0);
     }
 
     #[test]

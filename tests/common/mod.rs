@@ -113,12 +113,31 @@ impl ServeProcess {
     /// no play area kept warm unless `env` says otherwise) and waits (up to 60 s) for
     /// `/readyz`. Panics with the server's stderr if it never
     /// becomes ready.
+    /// A port from [`free_port`] can be taken by another test's listener (one bound to
+    /// port 0) before the server binds it: then the server is started again on another.
     pub fn start(args: &[&str], env: &[(&str, &str)]) -> ServeProcess {
-        Self::start_on(free_port(), args, env)
+        let mut attempt = 0;
+        loop {
+            let mut server = Self::spawn_on(free_port(), args, env);
+            match server.ready_or_exit(Duration::from_secs(60)) {
+                Ok(()) => return server,
+                Err(e) if e.contains("Address already in use") && attempt < 4 => attempt += 1,
+                Err(e) => panic!("{}/readyz: the process exited before it answered; {e}", server.base),
+            }
+        }
     }
 
     /// As [`ServeProcess::start`] on a chosen port.
     pub fn start_on(port: u16, args: &[&str], env: &[(&str, &str)]) -> ServeProcess {
+        let mut server = Self::spawn_on(port, args, env);
+        if let Err(e) = server.ready_or_exit(Duration::from_secs(60)) {
+            panic!("{}/readyz: the process exited before it answered; {e}", server.base);
+        }
+        server
+    }
+
+    /// Spawns `cloudscape serve` on `port` without waiting for it.
+    fn spawn_on(port: u16, args: &[&str], env: &[(&str, &str)]) -> ServeProcess {
         let listen = format!("127.0.0.1:{port}");
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_cloudscape"));
         cmd.arg("serve").args(["--listen", &listen]).args(args);
@@ -141,26 +160,51 @@ impl ServeProcess {
             .stderr(Stdio::piped())
             .spawn()
             .expect("spawn cloudscape serve");
-        let mut server = ServeProcess {
+        ServeProcess {
             child,
             base: format!("http://{listen}"),
             port,
-        };
-        server.wait_ready(Duration::from_secs(60));
-        server
+        }
     }
 
-    fn wait_ready(&mut self, limit: Duration) {
-        wait_until_ok(&mut self.child, &format!("{}/readyz", self.base), limit, |child| {
-            // Its stderr ends once it is gone.
-            let _ = child.kill();
-            let mut err = String::new();
-            if let Some(mut e) = child.stderr.take() {
-                use std::io::Read;
-                let _ = e.read_to_string(&mut err);
+    /// Waits (up to `limit`, else panics with its stderr) for `/readyz` to answer 200;
+    /// the server's stderr if it exits first.
+    fn ready_or_exit(&mut self, limit: Duration) -> Result<(), String> {
+        let client = reqwest::blocking::Client::builder()
+            .no_proxy()
+            .timeout(Duration::from_secs(5))
+            .build()
+            .unwrap();
+        let url = format!("{}/readyz", self.base);
+        let start = Instant::now();
+        loop {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Err(format!("exit {status}; cloudscape serve: {}", self.stderr()));
             }
-            format!("cloudscape serve: {err}")
-        });
+            if let Ok(r) = client.get(&url).send()
+                && r.status() == reqwest::StatusCode::OK
+            {
+                return Ok(());
+            }
+            if start.elapsed() >= limit {
+                let _ = self.child.kill();
+                panic!(
+                    "{url} did not answer 200 within {limit:?}; cloudscape serve: {}",
+                    self.stderr()
+                );
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+    }
+
+    /// What the process wrote to stderr (all of it once it has exited).
+    fn stderr(&mut self) -> String {
+        let mut err = String::new();
+        if let Some(mut e) = self.child.stderr.take() {
+            use std::io::Read;
+            let _ = e.read_to_string(&mut err);
+        }
+        err
     }
 
     /// GET `path` (`/v1/worlds`, `/metrics`, …) with [`client`].

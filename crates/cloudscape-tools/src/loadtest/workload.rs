@@ -551,6 +551,17 @@ mod tests {
         Geometry::new(GeometryKind::Towns, places, 1, Vec::new(), 600.0)
     }
 
+    /// Player 0 of seed 1 fetching keyframes of the default quality in `wire`.
+    fn player(wire: Wire) -> Agent {
+        Agent::new(Role::Player(Player::new(
+            0,
+            1,
+            FetchMode::Keyframes,
+            DEFAULT_QUALITY,
+            wire,
+        )))
+    }
+
     fn drain(agent: &mut Agent) -> Vec<Request> {
         let mut reqs = Vec::new();
         while let Some(r) = agent.next_request() {
@@ -563,13 +574,7 @@ mod tests {
     fn players_fetch_each_keyframe_once_and_the_next_one_past_its_prefetch_point() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(
-            0,
-            1,
-            FetchMode::Keyframes,
-            DEFAULT_QUALITY,
-            Wire::V3,
-        )));
+        let mut agent = player(Wire::V3);
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         let tiles: Vec<_> = first.iter().filter(|r| r.kind == RequestKind::Tile).collect();
@@ -627,13 +632,7 @@ mod tests {
     fn version_2_players_fetch_both_products_of_every_keyframe() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(
-            0,
-            1,
-            FetchMode::Keyframes,
-            DEFAULT_QUALITY,
-            Wire::V2,
-        )));
+        let mut agent = player(Wire::V2);
         agent.plan(&w, &geo, 0.0);
         let first: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
         let count = |p: &str| first.iter().filter(|r| r.path.contains(p)).count();
@@ -657,13 +656,7 @@ mod tests {
         let mut w = world();
         w.precipitates = vec![true];
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(
-            0,
-            1,
-            FetchMode::Keyframes,
-            DEFAULT_QUALITY,
-            Wire::V3,
-        )));
+        let mut agent = player(Wire::V3);
         agent.plan(&w, &geo, 0.0);
         let first: Vec<_> = drain(&mut agent).into_iter().filter(|r| r.tile.is_some()).collect();
         let count = |reqs: &[Request], p: &str| reqs.iter().filter(|r| r.path.contains(p)).count();
@@ -688,13 +681,7 @@ mod tests {
     fn a_failed_request_is_asked_again() {
         let w = world();
         let geo = towns(1);
-        let mut agent = Agent::new(Role::Player(Player::new(
-            0,
-            1,
-            FetchMode::Keyframes,
-            DEFAULT_QUALITY,
-            Wire::V3,
-        )));
+        let mut agent = player(Wire::V3);
         agent.plan(&w, &geo, 0.0);
         let first = drain(&mut agent);
         for r in &first {

@@ -5,8 +5,12 @@
 //! Level choice (far = coarser): per layer, a quadtree over tiles. It starts from the
 //! coarsest tiles that cover [`VIEW_DISTANCE`] around the camera and splits a tile into
 //! its four children while one of its columns, at the tile's nearest distance from
-//! the eye, would span more than the preset's `lod_pixels` pixels. Tiles outside the
-//! view frustum or farther than `VIEW_DISTANCE` horizontally are dropped. The work is
+//! the eye, would span more than the preset's `lod_pixels` pixels. A tile is kept
+//! when its clouds or its shadow on the ground ([`ShadowReach`]) lie within the view
+//! frustum and within `VIEW_DISTANCE` horizontally; its shadow matters because a
+//! ground point reads the shadow of the tile its sun ray crosses, which is not the
+//! tile above it (without it, a layer whose clouds are out of view left the ground
+//! they shadow sunlit: a straight seam along the tile's shadowed edge). The work is
 //! bounded: at most [`MAX_RENDER_TILES`] tiles and [`MAX_RENDER_PIXELS`] pixels (the
 //! volumetric renderers at most [`MAX_REFERENCE_PIXELS`], and the path tracer at most
 //! `[limits] max_path_samples` samples × pixels); a bigger request is refused up front.
@@ -146,7 +150,8 @@ pub struct LayerBand {
     pub cell_size: f64,
 }
 
-/// The tiles (layer, tile) the camera sees, per the level choice above.
+/// The tiles (layer, tile) the camera sees, per the level choice above, for the
+/// request's sun (from the world clock when it names none).
 pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(usize, TileId)>, RenderError> {
     let bands: Vec<LayerBand> = world
         .layers
@@ -158,10 +163,56 @@ pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(
         })
         .collect();
     check_samples(req, config.limits.max_path_samples)?;
-    plan_bands(&bands, config.limits.max_level, req)
+    let req = RenderRequest {
+        sun: Some(request_sun(config, req)),
+        ..*req
+    };
+    plan_bands(&bands, config.limits.max_level, &req)
 }
 
-/// [`plan`] over layer bands, with levels up to `max_level`.
+/// Where a tile's shadow falls on the ground, for the level choice: the tile moved
+/// away from the sun by `(s_x, s_y) · z / s_z` for the altitudes `z` of its layer,
+/// each move at most [`VIEW_DISTANCE`] long (a lower sun throws shadows farther than
+/// the view reaches; their clouds are not fetched, and that ground stays sunlit).
+/// The sun is the centre of the request's sun bucket, which the tiles are shaded for
+/// (`render::tile::shadow_shift` reads the maps with it); with no sun, or the sun at
+/// or below the horizon, shadows fall straight down.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ShadowReach {
+    /// Horizontal move of a shadow per metre of altitude, away from the sun.
+    per_metre: [f64; 2],
+}
+
+impl ShadowReach {
+    fn new(sun: Option<Sun>) -> ShadowReach {
+        let per_metre = match sun.map(|s| s.bucket().centre().direction()) {
+            Some(s) if s[2] > 0.0 => {
+                let k = 1.0 / s[2].max(1f64.to_radians().sin());
+                [-s[0] * k, -s[1] * k]
+            }
+            _ => [0.0, 0.0],
+        };
+        ShadowReach { per_metre }
+    }
+
+    /// The move of the shadow of a point at altitude `z`.
+    fn offset(&self, z: f64) -> [f64; 2] {
+        let [x, y] = self.per_metre.map(|k| k * z.max(0.0));
+        let len = (x * x + y * y).sqrt();
+        let scale = if len > VIEW_DISTANCE { VIEW_DISTANCE / len } else { 1.0 };
+        [x * scale, y * scale]
+    }
+
+    /// The longest move of a layer reaching up to `top`, metres.
+    fn longest(&self, top: f64) -> f64 {
+        let [x, y] = self.offset(top);
+        (x * x + y * y).sqrt()
+    }
+}
+
+/// [`plan`] over layer bands, with levels up to `max_level`; shadows fall for the
+/// request's sun (straight down when it names none: a client that does not know the
+/// clock's sun yet plans that first, and the same tiles and more once it knows it).
 pub fn plan_bands(
     layers: &[LayerBand],
     max_level: u32,
@@ -175,6 +226,7 @@ pub fn plan_bands(
     let tan_v = tan_h * req.height as f64 / req.width as f64;
     let pixel_angle = 2.0 * tan_h / req.width as f64;
     let p = cam.position;
+    let reach = ShadowReach::new(req.sun);
     let mut out = Vec::new();
     for (li, l) in layers.iter().enumerate() {
         let (zb, zt) = (l.base, l.top);
@@ -184,7 +236,10 @@ pub fn plan_bands(
             z_top += 1;
         }
         let s = tile_size(z_top);
-        let range = |c: f64| ((c - VIEW_DISTANCE) / s).floor() as i64..=((c + VIEW_DISTANCE) / s).floor() as i64;
+        let far = VIEW_DISTANCE + reach.longest(zt);
+        let range = |c: f64| ((c - far) / s).floor() as i64..=((c + far) / s).floor() as i64;
+        // The shadow's moves for the layer's base and top.
+        let moves = [reach.offset(zb), reach.offset(zt)];
         let mut stack: Vec<TileId> = Vec::new();
         for y in range(p[1]) {
             for x in range(p[0]) {
@@ -198,17 +253,26 @@ pub fn plan_bands(
             let dx = (x0 - p[0]).max(0.0).max(p[0] - x1);
             let dy = (y0 - p[1]).max(0.0).max(p[1] - y1);
             let dz = (zb - p[2]).max(0.0).max(p[2] - zt);
-            if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE {
+            // The shadow's bounding rectangle on the ground.
+            let (mx0, mx1) = (moves[0][0].min(moves[1][0]), moves[0][0].max(moves[1][0]));
+            let (my0, my1) = (moves[0][1].min(moves[1][1]), moves[0][1].max(moves[1][1]));
+            let sdx = (x0 + mx0 - p[0]).max(0.0).max(p[0] - x1 - mx1);
+            let sdy = (y0 + my0 - p[1]).max(0.0).max(p[1] - y1 - my1);
+            if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE && (sdx * sdx + sdy * sdy).sqrt() > VIEW_DISTANCE {
                 continue;
             }
-            // Frustum culling: drop the box if all 8 corners are outside one plane. The
-            // box reaches down to the ground: the tile's shadow falls there even when
-            // its clouds are out of view (without it, a layer above the view's top edge
-            // lost its shadow on the near ground: a seam at the tile's edge).
+            // Frustum culling: drop the tile if all corners of its box, of the ground
+            // under it and of its shadow on the ground are outside one plane.
             let mut outside = [true; 5];
             for &cx in &[x0, x1] {
                 for &cy in &[y0, y1] {
-                    for &cz in &[zb.min(0.0), zt] {
+                    let corners = [
+                        [cx, cy, zb.min(0.0)],
+                        [cx, cy, zt],
+                        [cx + moves[0][0], cy + moves[0][1], 0.0],
+                        [cx + moves[1][0], cy + moves[1][1], 0.0],
+                    ];
+                    for [cx, cy, cz] in corners {
                         let r = [cx - p[0], cy - p[1], cz - p[2]];
                         let (a, b, f) = (
                             r[0] * right[0] + r[1] * right[1] + r[2] * right[2],

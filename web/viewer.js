@@ -1019,7 +1019,7 @@ function drawnLayers() {
  * view distance long; straight down before the sky is in (the plan then grows once
  * it is) or with the sun down.
  */
-function shadowReach() {
+function shadowMoves() {
   const s = skyIsCurrent() ? skyInfo.sun.direction : null;
   const k = s && s[2] > 0 ? 1 / Math.max(s[2], Math.sin(Math.PI / 180)) : 0;
   const perMetre = k ? [-s[0] * k, -s[1] * k] : [0, 0];
@@ -1045,7 +1045,7 @@ function plan() {
   const tanV = (tanH * h) / w;
   const pixelAngle = (2 * tanH) / w;
   const view = state.viewDistance;
-  const reach = shadowReach();
+  const reach = shadowMoves();
   for (let lod = LOD_PIXELS[state.quality]; ; lod *= 2) {
     const out = [];
     let tooMany = false;

@@ -187,8 +187,7 @@ impl RemoteRender {
         if self.req.sun.is_some() {
             return Ok(None);
         }
-        let Some(sun) = keyframe.and_then(|k| Sun::new(k.sun_azimuth_deg as f64, k.sun_elevation_deg as f64))
-        else {
+        let Some(sun) = keyframe.and_then(|k| Sun::new(k.sun_azimuth_deg as f64, k.sun_elevation_deg as f64)) else {
             return Ok(None);
         };
         let with_sun = RenderRequest {

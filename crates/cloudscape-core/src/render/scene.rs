@@ -564,6 +564,41 @@ mod tests {
     }
 
     #[test]
+    fn plan_takes_the_tiles_whose_shadows_fall_in_view() {
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let bands: Vec<LayerBand> = world
+            .layers
+            .iter()
+            .map(|l| LayerBand {
+                base: l.base,
+                top: l.top(),
+                cell_size: l.cell_size,
+            })
+            .collect();
+        let cirrus = world.layers.iter().position(|l| l.name == "cirrus").unwrap();
+        // The viewer's default view with a western sun at 28°: the cirrus tile south-west
+        // of the eye is out of view, and its shadow (moved 15 km east) lies ahead.
+        let mut r = req("12800,-6000,900,0,6,75", Quality::Fast);
+        (r.width, r.height) = (1280, 720);
+        r.sun = Some(Sun::new(275.0, 28.0).unwrap());
+        let with_sun = plan(&world, &config, &r).unwrap();
+        let straight_down = plan_bands(&bands, config.limits.max_level, &RenderRequest { sun: None, ..r }).unwrap();
+        let west = (cirrus, TileId { z: 0, x: -1, y: -1 });
+        assert!(with_sun.contains(&west), "{with_sun:?}");
+        assert!(!straight_down.contains(&west), "{straight_down:?}");
+        // Knowing the sun only adds tiles (a client that learns it later fetches more).
+        assert!(straight_down.iter().all(|t| with_sun.contains(t)));
+        // A sun at the horizon throws shadows at most the view distance far: the
+        // gallery's sunset view stays within the work limit.
+        let mut sunset = req("12800,12800,300,270,6,75", Quality::Balanced);
+        (sunset.width, sunset.height) = (640, 360);
+        sunset.sun = Some(Sun::new(270.0, 2.0).unwrap());
+        let tiles = plan(&world, &config, &sunset).unwrap();
+        assert!(tiles.len() <= MAX_RENDER_TILES, "{}", tiles.len());
+    }
+
+    #[test]
     fn size_parses() {
         assert_eq!(parse_size("512x256").unwrap(), (512, 256));
         assert_eq!(parse_size("0x5"), Err(ParseError::Size("0x5".into())));

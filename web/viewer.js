@@ -39,11 +39,15 @@
 
 import {
   CloudscapeClient,
+  LOD_PIXELS,
   ShadowDerivation,
   TILE_COLUMNS,
+  VIEW_DISTANCE,
+  cameraBasis as basis,
   fraction,
   keyframeOf,
   keyframeSun,
+  planTiles,
   prefetchAt,
   shadowShift,
   worldClock,
@@ -53,14 +57,6 @@ import {
 // Constants shared with the server (src/render/*.rs).
 // ---------------------------------------------------------------------------
 
-/** Splits a tile while one of its columns would cover more pixels than this (QualitySettings::lod_pixels). */
-const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
-/**
- * How far (horizontally, metres) the clouds are drawn and their shadows reach, unless
- * `view=` says otherwise: render::scene::VIEW_DISTANCE, so the default view plans the
- * tiles `cloudscape render` and the loadtest's players plan.
- */
-const VIEW_DISTANCE = 30000;
 /**
  * ShadingParams::default() (src/render/light.rs): what a version-1 billboards.bin (no
  * lighting in its header) is drawn with. Later versions carry albedo, phase, octaves
@@ -113,18 +109,7 @@ const smoothstep = (e0, e1, x) => {
   const t = clamp((x - e0) / (e1 - e0), 0, 1);
   return t * t * (3 - 2 * t);
 };
-const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-
-/** Camera basis as in src/render/camera.rs: yaw clockwise from north, pitch above the horizon. */
-function basis(cam) {
-  const yaw = rad(cam.yaw);
-  const pitch = rad(cam.pitch);
-  const forward = [Math.sin(yaw) * Math.cos(pitch), Math.cos(yaw) * Math.cos(pitch), Math.sin(pitch)];
-  const right = [Math.cos(yaw), -Math.sin(yaw), 0];
-  const up = cross(right, forward);
-  return { forward, right, up };
-}
 
 /**
  * Lighting of the current sky (`GET /v1/sky.json`, src/products/sky.rs): the server's
@@ -1013,109 +998,21 @@ function drawnLayers() {
 }
 
 /**
- * Where a tile's shadow falls on the ground, for the level choice (scene.rs
- * `ShadowReach`): the move of the shadow of a point at altitude z, away from the sun of
- * the loaded sky (the tiles' sun bucket's centre) by (s_x, s_y) · z / s_z, at most the
- * view distance long; straight down before the sky is in (the plan then grows once
- * it is) or with the sun down.
- */
-function shadowMoves() {
-  const s = skyIsCurrent() ? skyInfo.sun.direction : null;
-  const k = s && s[2] > 0 ? 1 / Math.max(s[2], Math.sin(Math.PI / 180)) : 0;
-  const perMetre = k ? [-s[0] * k, -s[1] * k] : [0, 0];
-  const limit = state.viewDistance;
-  return (z) => {
-    const [x, y] = perMetre.map((v) => v * Math.max(z, 0));
-    const len = Math.hypot(x, y);
-    const scale = len > limit ? limit / len : 1;
-    return [x * scale, y * scale];
-  };
-}
-
-/**
- * The tiles the camera sees (src/render/scene.rs `plan`): those whose clouds or whose
- * shadow on the ground lie in the view, coarsened until at most MAX_TILES remain.
+ * The tiles the camera sees, as `cloudscape render` plans them (the client's
+ * planTiles: scene.rs plan_bands, the view distance `view=` or the renderer's, the
+ * shadows thrown by the loaded sky's sun, which is the tiles' sun bucket's centre;
+ * straight down before the sky is in, and the plan grows once it is), coarsened until
+ * at most MAX_TILES remain.
  */
 function plan() {
-  const cam = state.camera;
-  const w = Math.max(1, canvas.clientWidth);
-  const h = Math.max(1, canvas.clientHeight);
-  const { forward, right, up } = basis(cam);
-  const tanH = Math.tan(rad(cam.fov) / 2);
-  const tanV = (tanH * h) / w;
-  const pixelAngle = (2 * tanH) / w;
-  const view = state.viewDistance;
-  const reach = shadowMoves();
+  const sun = skyIsCurrent() ? skyInfo.sun.direction : null;
+  const layers = drawnLayers().map((l) => l.name);
+  const [w, h] = [canvas.clientWidth, canvas.clientHeight];
   for (let lod = LOD_PIXELS[state.quality]; ; lod *= 2) {
-    const out = [];
-    let tooMany = false;
-    for (const l of drawnLayers()) {
-      const zb = l.base;
-      const zt = l.top;
-      const tileSize = (z) => TILE_COLUMNS * l.cell_size * 2 ** z;
-      let zTop = 0;
-      while (tileSize(zTop) < 2 * view && zTop < worldInfo.maxzoom) zTop++;
-      const s = tileSize(zTop);
-      // The shadow's moves for the layer's base and top.
-      const moves = [reach(zb), reach(zt)];
-      const far = view + Math.hypot(...moves[1]);
-      const stack = [];
-      for (let y = Math.floor((cam.y - far) / s); y <= Math.floor((cam.y + far) / s); y++) {
-        for (let x = Math.floor((cam.x - far) / s); x <= Math.floor((cam.x + far) / s); x++) stack.push([zTop, x, y]);
-      }
-      while (stack.length) {
-        const [z, x, y] = stack.pop();
-        const size = tileSize(z);
-        const x0 = x * size;
-        const y0 = y * size;
-        const x1 = x0 + size;
-        const y1 = y0 + size;
-        const dx = Math.max(x0 - cam.x, 0, cam.x - x1);
-        const dy = Math.max(y0 - cam.y, 0, cam.y - y1);
-        const dz = Math.max(zb - cam.z, 0, cam.z - zt);
-        // The shadow's bounding rectangle on the ground.
-        const [mx0, mx1] = [Math.min(moves[0][0], moves[1][0]), Math.max(moves[0][0], moves[1][0])];
-        const [my0, my1] = [Math.min(moves[0][1], moves[1][1]), Math.max(moves[0][1], moves[1][1])];
-        const sdx = Math.max(x0 + mx0 - cam.x, 0, cam.x - x1 - mx1);
-        const sdy = Math.max(y0 + my0 - cam.y, 0, cam.y - y1 - my1);
-        if (Math.hypot(dx, dy) > view && Math.hypot(sdx, sdy) > view) continue;
-        // Culled when all corners of its box, of the ground under it and of its
-        // shadow on the ground lie outside one plane of the frustum.
-        const outside = [true, true, true, true, true];
-        for (const cx of [x0, x1]) {
-          for (const cy of [y0, y1]) {
-            const corners = [
-              [cx, cy, Math.min(zb, 0)],
-              [cx, cy, zt],
-              [cx + moves[0][0], cy + moves[0][1], 0],
-              [cx + moves[1][0], cy + moves[1][1], 0],
-            ];
-            for (const [px, py, pz] of corners) {
-              const r = [px - cam.x, py - cam.y, pz - cam.z];
-              const a = dot(r, right);
-              const b = dot(r, up);
-              const f = dot(r, forward);
-              const tests = [f < 0, a > f * tanH, a < -f * tanH, b > f * tanV, b < -f * tanV];
-              for (let i = 0; i < 5; i++) outside[i] = outside[i] && tests[i];
-            }
-          }
-        }
-        if (outside.some(Boolean)) continue;
-        const dist = Math.max(Math.hypot(dx, dy, dz), 1);
-        const column = l.cell_size * 2 ** z;
-        if (z > 0 && column / (dist * pixelAngle) > lod) {
-          for (const [ox, oy] of [[0, 0], [1, 0], [0, 1], [1, 1]]) stack.push([z - 1, x * 2 + ox, y * 2 + oy]);
-          if (out.length + stack.length > 64 * MAX_TILES) {
-            tooMany = true;
-            break;
-          }
-          continue;
-        }
-        out.push({ layer: l.index, layerName: l.name, z, x, y, origin: [x0, y0], size });
-      }
-      if (tooMany) break;
+    const tiles = planTiles(worldInfo, state.camera, w, h, { lodPixels: lod, viewDistance: state.viewDistance, sun, layers, maxTiles: MAX_TILES });
+    if (tiles && tiles.length <= MAX_TILES) {
+      return tiles.map((t) => ({ layer: t.layerIndex, layerName: t.layer, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size }));
     }
-    if (!tooMany && out.length <= MAX_TILES) return out;
   }
 }
 
@@ -2461,16 +2358,11 @@ window.cloudscape = {
   /** True when nothing is being fetched or waits to be (prefetches included). */
   idle: () => inFlight === 0 && queue.length === 0 && prefetchQueue.length === 0,
   project,
-  /** The drawn tiles; `shadowRect`: where the tile's shadow maps lie on the ground ([x0, y0, x1, y1], metres). */
   tiles: () =>
-    drawnTiles().map((t) => {
-      const [sx, sy] = shadowShift(t.billboards, worldInfo.layers[t.layer].base);
-      return {
-        layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count,
-        version: t.billboards.header.version, form: t.billboards.header.form, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
-        shadowRect: [t.origin[0] - sx, t.origin[1] - sy, t.origin[0] + t.size - sx, t.origin[1] + t.size - sy],
-      };
-    }),
+    drawnTiles().map((t) => ({
+      layer: t.layerName, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size, count: t.billboards.count,
+      version: t.billboards.header.version, form: t.billboards.header.form, t0: t.t0, t1: t.t1, gen: `t=${t.t0}&${t.gen}`,
+    })),
   /** Whether the drawn time follows the world clock; `follow(on)` as the checkbox does. */
   following: () => state.follow,
   follow: (on) => setFollow(on),

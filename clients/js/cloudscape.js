@@ -1220,6 +1220,130 @@ export function shadowAtPoint(maps, tile, base, x, y, f) {
 }
 
 // ---------------------------------------------------------------------------------
+// The level choice of a view (crates/cloudscape-core/src/render/scene.rs plan_bands).
+// ---------------------------------------------------------------------------------
+
+/** How far (horizontally, metres) `cloudscape render` draws clouds (render::scene::VIEW_DISTANCE). */
+export const VIEW_DISTANCE = 30000;
+/** A tile splits while one of its columns would span more pixels than this (QualitySettings::lod_pixels). */
+export const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
+
+/**
+ * A camera's unit vectors (render::camera::Camera::basis): `camera` { yaw, pitch }
+ * in degrees, yaw clockwise from north, pitch above the horizon.
+ */
+export function cameraBasis(camera) {
+  const yaw = (camera.yaw * Math.PI) / 180;
+  const pitch = (camera.pitch * Math.PI) / 180;
+  const forward = [Math.sin(yaw) * Math.cos(pitch), Math.cos(yaw) * Math.cos(pitch), Math.sin(pitch)];
+  const right = [Math.cos(yaw), -Math.sin(yaw), 0];
+  const up = [
+    right[1] * forward[2] - right[2] * forward[1],
+    right[2] * forward[0] - right[0] * forward[2],
+    right[0] * forward[1] - right[1] * forward[0],
+  ];
+  return { forward, right, up };
+}
+
+/**
+ * The tiles a camera sees, as `cloudscape render` plans them (scene.rs plan_bands):
+ * per layer a quadtree from the coarsest tiles covering the view distance, a tile
+ * split while one of its columns, at the tile's nearest distance from the eye, would
+ * span more than `lodPixels`; a tile kept when its clouds or its shadow on the ground
+ * lie in the view frustum and within the view distance. The shadow of a point at
+ * altitude z lies (s_x, s_y) · z / s_z away from the sun `sun` (a unit vector toward
+ * it: the tiles' sun bucket's centre, sky.json's `sun.direction`), at most the view
+ * distance away; with no sun, or the sun down, straight below.
+ *
+ * `camera` { x, y, z, yaw, pitch, fov } (metres, degrees, horizontal FOV), the image
+ * `width` × `height` pixels. Options: `quality` (fast | balanced | accurate) or
+ * `lodPixels`; `viewDistance` (VIEW_DISTANCE); `layers` (names, default all);
+ * `maxTiles`: past 64 × maxTiles tiles under way the plan stops and gives null
+ * (`cloudscape render` refuses such a view; a client may plan coarser). Returns
+ * `{ layer, layerIndex, z, x, y, origin, size }` sorted by layer, level, y, x.
+ */
+export function planTiles(world, camera, width, height, options = {}) {
+  const lodPixels = options.lodPixels ?? LOD_PIXELS[options.quality ?? 'balanced'];
+  const view = options.viewDistance ?? VIEW_DISTANCE;
+  const maxTiles = options.maxTiles ?? Infinity;
+  const { forward, right, up } = cameraBasis(camera);
+  const w = Math.max(1, width);
+  const h = Math.max(1, height);
+  const tanH = Math.tan((camera.fov * Math.PI) / 360);
+  const tanV = (tanH * h) / w;
+  const pixelAngle = (2 * tanH) / w;
+  const s = options.sun;
+  const k = s && s[2] > 0 ? 1 / Math.max(s[2], Math.sin(Math.PI / 180)) : 0;
+  /** The move of the shadow of a point at altitude z. */
+  const move = (z) => {
+    const [x, y] = k ? [-s[0] * k * Math.max(z, 0), -s[1] * k * Math.max(z, 0)] : [0, 0];
+    const len = Math.hypot(x, y);
+    const scale = len > view ? view / len : 1;
+    return [x * scale, y * scale];
+  };
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const out = [];
+  for (const [layerIndex, l] of world.layers.entries()) {
+    if (options.layers && !options.layers.includes(l.name)) continue;
+    const [zb, zt] = [l.base, l.top];
+    const tileSize = (z) => (world.tile_size || TILE_COLUMNS) * l.cell_size * 2 ** z;
+    let zTop = 0;
+    while (tileSize(zTop) < 2 * view && zTop < world.maxzoom) zTop++;
+    const side = tileSize(zTop);
+    // The shadow's moves for the layer's base and top.
+    const moves = [move(zb), move(zt)];
+    const far = view + Math.hypot(...moves[1]);
+    const stack = [];
+    for (let y = Math.floor((camera.y - far) / side); y <= Math.floor((camera.y + far) / side); y++) {
+      for (let x = Math.floor((camera.x - far) / side); x <= Math.floor((camera.x + far) / side); x++) stack.push([zTop, x, y]);
+    }
+    while (stack.length) {
+      const [z, x, y] = stack.pop();
+      const size = tileSize(z);
+      const [x0, y0] = [x * size, y * size];
+      const [x1, y1] = [x0 + size, y0 + size];
+      const dx = Math.max(x0 - camera.x, 0, camera.x - x1);
+      const dy = Math.max(y0 - camera.y, 0, camera.y - y1);
+      const dz = Math.max(zb - camera.z, 0, camera.z - zt);
+      // The shadow's bounding rectangle on the ground.
+      const [mx0, mx1] = [Math.min(moves[0][0], moves[1][0]), Math.max(moves[0][0], moves[1][0])];
+      const [my0, my1] = [Math.min(moves[0][1], moves[1][1]), Math.max(moves[0][1], moves[1][1])];
+      const sdx = Math.max(x0 + mx0 - camera.x, 0, camera.x - x1 - mx1);
+      const sdy = Math.max(y0 + my0 - camera.y, 0, camera.y - y1 - my1);
+      if (Math.hypot(dx, dy) > view && Math.hypot(sdx, sdy) > view) continue;
+      // Culled when all corners of its box, of the ground under it and of its shadow
+      // on the ground lie outside one plane of the frustum.
+      const outside = [true, true, true, true, true];
+      for (const cx of [x0, x1]) {
+        for (const cy of [y0, y1]) {
+          const corners = [
+            [cx, cy, Math.min(zb, 0)],
+            [cx, cy, zt],
+            [cx + moves[0][0], cy + moves[0][1], 0],
+            [cx + moves[1][0], cy + moves[1][1], 0],
+          ];
+          for (const c of corners) {
+            const r = [c[0] - camera.x, c[1] - camera.y, c[2] - camera.z];
+            const [a, b, f] = [dot(r, right), dot(r, up), dot(r, forward)];
+            const tests = [f < 0, a > f * tanH, a < -f * tanH, b > f * tanV, b < -f * tanV];
+            for (let i = 0; i < 5; i++) outside[i] = outside[i] && tests[i];
+          }
+        }
+      }
+      if (outside.some(Boolean)) continue;
+      const dist = Math.max(Math.hypot(dx, dy, dz), 1);
+      if (z > 0 && (l.cell_size * 2 ** z) / (dist * pixelAngle) > lodPixels) {
+        for (const [ox, oy] of [[0, 0], [1, 0], [0, 1], [1, 1]]) stack.push([z - 1, x * 2 + ox, y * 2 + oy]);
+        if (out.length + stack.length > 64 * maxTiles) return null;
+        continue;
+      }
+      out.push({ layer: l.name, layerIndex, z, x, y, origin: [x0, y0], size });
+    }
+  }
+  return out.sort((a, b) => a.layerIndex - b.layerIndex || a.z - b.z || a.y - b.y || a.x - b.x);
+}
+
+// ---------------------------------------------------------------------------------
 // three.js: y up.
 // ---------------------------------------------------------------------------------
 

@@ -348,6 +348,49 @@ export function shadowMaps(tiles: HeldTile[]): DerivedShadow[];
 /** The transmittance a ground point (x, y) reads from a tile's maps a fraction `f` through its span. */
 export function shadowAtPoint(maps: DerivedShadow, tile: BillboardTile, base: number, x: number, y: number, f: number): number;
 
+/** How far (horizontally, metres) `cloudscape render` draws clouds. */
+export const VIEW_DISTANCE: 30000;
+/** A tile splits while one of its columns would span more pixels than this, by quality. */
+export const LOD_PIXELS: { fast: 8; balanced: 4; accurate: 2 };
+/** A camera: position in metres (x east, y north, z up); yaw clockwise from north, pitch above the horizon, horizontal FOV, degrees. */
+export interface Camera {
+  x: number;
+  y: number;
+  z: number;
+  yaw: number;
+  pitch: number;
+  fov: number;
+}
+/** A camera's unit vectors (render::camera::Camera::basis). */
+export function cameraBasis(camera: Pick<Camera, 'yaw' | 'pitch'>): {
+  forward: [number, number, number];
+  right: [number, number, number];
+  up: [number, number, number];
+};
+/** A tile of a plan: its layer by name and index in discovery's list. */
+export interface PlannedTile extends PlacedTile {
+  layerIndex: number;
+}
+/**
+ * The tiles a camera sees, as `cloudscape render` plans them (scene.rs plan_bands):
+ * clouds or their shadow (for `sun`, a unit vector toward it) in the view; null once
+ * more than 64 × maxTiles tiles are under way.
+ */
+export function planTiles(
+  world: World,
+  camera: Camera,
+  width: number,
+  height: number,
+  options?: {
+    quality?: 'fast' | 'balanced' | 'accurate';
+    lodPixels?: number;
+    viewDistance?: number;
+    sun?: [number, number, number] | null;
+    layers?: string[];
+    maxTiles?: number;
+  },
+): PlannedTile[] | null;
+
 export function zUpToYUp(p: ArrayLike<number>): [number, number, number];
 
 /** Typed arrays for a three.js InstancedMesh (y up). */

@@ -104,38 +104,44 @@ export async function readBoth(page, renderUrl) {
 }
 
 /**
- * The seam figure of the module docs: for each edge of the drawn tiles' shadow quads
- * that crosses the ground on screen, the mean |Δ luma| across it (sampled on the
- * screen along the edge, one pixel either side), and the mean over lines parallel to
- * it at ±4, ±8 and ±12 pixels. Returns the edges, worst (largest ratio) first.
+ * The seam figure of the module docs. `shifts` gives, by layer name, how far the
+ * layer's shadow maps lie from its tiles on the ground ((s_x, s_y) · base / s_z,
+ * render::tile::shadow_shift, subtracted); `near` the ground distance (m) within which
+ * edges are measured (the shadow fades to the mean beyond 70 % of the view distance).
+ * For each edge of a drawn tile's shadow quad on screen: the mean |Δ luma| across it
+ * (one and a half pixels either side), and the mean of the same over lines parallel
+ * to it at ±4, ±8 and ±12 pixels. Returns the edges, largest excess first.
  */
-export async function seams(page, lum, width, height) {
-  // The edges' ends on screen, from the viewer's own projection of ground points.
-  const edges = await page.evaluate(() => {
+export async function seams(page, lum, width, height, shifts, near) {
+  const edges = await page.evaluate(({ shifts, near }) => {
     const out = [];
+    const cam = window.cloudscape.state.camera;
     for (const t of window.cloudscape.tiles()) {
-      const [x0, y0, x1, y1] = t.shadowRect;
+      const [sx, sy] = shifts[t.layer];
+      const [x0, y0, x1, y1] = [t.origin[0] - sx, t.origin[1] - sy, t.origin[0] + t.size - sx, t.origin[1] + t.size - sy];
       const sides = [[[x0, y0], [x1, y0]], [[x1, y0], [x1, y1]], [[x1, y1], [x0, y1]], [[x0, y1], [x0, y0]]];
       for (const [a, b] of sides) {
-        // Sample the edge densely on the ground and keep the points that land on screen.
+        // The edge sampled densely on the ground, where it lands on screen.
         const pts = [];
-        for (let i = 0; i <= 400; i++) {
-          const f = i / 400;
-          const p = window.cloudscape.project([a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f, 0]);
+        for (let i = 0; i <= 2000; i++) {
+          const f = i / 2000;
+          const g = [a[0] + (b[0] - a[0]) * f, a[1] + (b[1] - a[1]) * f];
+          if (Math.hypot(g[0] - cam.x, g[1] - cam.y) > near) continue;
+          const p = window.cloudscape.project([g[0], g[1], 0]);
           if (p && p[0] >= 0 && p[1] >= 0 && p[0] < innerWidth && p[1] < innerHeight) pts.push(p);
         }
         if (pts.length >= 2) out.push({ tile: `${t.layer}/${t.z}/${t.x}/${t.y}`, pts });
       }
     }
     return out;
-  });
+  }, { shifts, near });
   const at = (x, y) => {
     const [xi, yi] = [Math.round(x), Math.round(y)];
     return xi >= 0 && yi >= 0 && xi < width && yi < height ? lum[yi * width + xi] : null;
   };
   const results = [];
   for (const e of edges) {
-    // Pixel steps along the edge's screen path, with the unit normal of each step.
+    // Along the edge's path on screen, a pixel at a time, across its normal at `offset`.
     const jumpAt = (offset) => {
       let sum = 0;
       let n = 0;
@@ -157,10 +163,23 @@ export async function seams(page, lum, width, height) {
       return n ? { jump: sum / n, n } : null;
     };
     const on = jumpAt(0);
-    const near = [-12, -8, -4, 4, 8, 12].map(jumpAt).filter(Boolean);
-    if (!on || on.n < 40 || near.length < 4) continue;
-    const beside = near.reduce((s, v) => s + v.jump, 0) / near.length;
-    results.push({ tile: e.tile, pixels: on.n, jump: on.jump, beside, excess: on.jump - beside });
+    const beside = [-12, -8, -4, 4, 8, 12].map(jumpAt).filter(Boolean);
+    if (!on || on.n < 40 || beside.length < 4) continue;
+    const mean = beside.reduce((s, v) => s + v.jump, 0) / beside.length;
+    results.push({ tile: e.tile, pixels: on.n, jump: on.jump, beside: mean, excess: on.jump - mean });
   }
   return results.sort((a, b) => b.excess - a.excess);
+}
+
+/**
+ * How far each layer's shadow maps lie from its tiles on the ground for the sun of
+ * `/v1/sky.json?sun=AZ,EL` (its bucket's centre, which the tiles are shaded for):
+ * { layer name: [dx, dy] } (render::tile::shadow_shift).
+ */
+export async function shadowShifts(base, world, sun) {
+  const sky = await (await fetch(`${base}/v1/sky.json?sun=${sun}`)).json();
+  const info = await (await fetch(`${base}/v1/worlds/${world}`)).json();
+  const s = sky.sun.direction;
+  const k = 1 / Math.max(s[2], Math.sin(Math.PI / 180));
+  return Object.fromEntries(info.layers.map((l) => [l.name, [s[0] * k * l.base, s[1] * k * l.base]]));
 }

@@ -39,7 +39,10 @@
 
 import {
   CloudscapeClient,
+  GLSL,
   LOD_PIXELS,
+  MAX_DETAIL_OCTAVES,
+  MIN_WAVELENGTH_PIXELS,
   ShadowDerivation,
   TILE_COLUMNS,
   VIEW_DISTANCE,
@@ -50,6 +53,7 @@ import {
   planTiles,
   prefetchAt,
   shadowShift,
+  skyUniforms,
   worldClock,
 } from '/client/cloudscape.js';
 
@@ -67,9 +71,6 @@ const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
   octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.6,
 };
-/** src/render/detail.rs: most detail octaves, and the footprint an octave must span. */
-const MAX_DETAIL_OCTAVES = 4;
-const MIN_WAVELENGTH_PIXELS = 2;
 /** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
@@ -220,6 +221,8 @@ let clockNow = null;
 let skyInfo = null;
 let skyUrlLoading = '';
 let skyTexture = null;
+/** The uniform values of the loaded sky (the client's skyUniforms). */
+let skyValues = null;
 
 performance.setResourceTimingBufferSize?.(100000);
 new PerformanceObserver((list) => {
@@ -262,17 +265,13 @@ function compile(vs, fs) {
   return { program: p, u: uniforms };
 }
 
-// Display mapping of src/render/light.rs `tone_map`: 1 − exp(−exposure · x), then gamma
-// 1/2.2, `exposure` from sky.json (1 when it names none). The scene is drawn in linear
-// radiance into a float target and mapped once at the end (toneProgram), so blending
-// happens in radiance as in the server's compositor; without float targets each pass
-// maps its own output (`display`), which blends in display values instead.
-const TONE = `
-uniform float exposure;
-uniform bool toneOut;
-vec3 tone(vec3 x) { return pow(1.0 - exp(-exposure * max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
-vec3 display(vec3 x) { return toneOut ? tone(x) : x; }
-`;
+// The server's light as GLSL (the client's GLSL chunks): the display mapping, the
+// atmosphere of sky.json, the ground, the octaves' phase correction, the splat
+// profile and the detail noise. The scene is drawn in linear radiance into a float
+// target and mapped once at the end (toneProgram), so blending happens in radiance as
+// in the server's compositor; without float targets each pass maps its own output
+// (`display`), which blends in display values instead.
+const { tone: TONE, atmosphere: ATMOSPHERE, ground: GROUND, octaves: OCTAVES, splat: SPLAT, detailNoise: DETAIL_NOISE } = GLSL;
 
 /** A vertex shader drawing one triangle over the whole screen (3 vertices, no buffers). */
 const FULL_SCREEN = `#version 300 es
@@ -280,89 +279,6 @@ const FULL_SCREEN = `#version 300 es
     vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
     gl_Position = vec4(p, 0.0, 1.0);
   }`;
-
-/** Lengths of the sky.json tables (src/render/sky.rs SUN_TABLE_LEN, MS_ALTITUDES). */
-const SUN_TABLE_LEN = 41;
-const MS_LEN = 12;
-
-// The atmosphere of src/render/sky.rs as GLSL: the sky table lookup (Sky::radiance)
-// and aerial perspective (Sky::aerial_lit, Hoffman & Preetham 2002 with the server's
-// coefficients and tables). Uniforms come from /v1/sky.json.
-const ATMOSPHERE = `
-const float PI = 3.14159265358979;
-uniform sampler2D skyTable;
-uniform vec2 skySize;          // columns, rows
-uniform vec3 sunDir, night;
-uniform vec3 betaR;            // Rayleigh scattering per metre
-uniform vec4 mie;              // scattering, extinction, scale height, g
-uniform vec4 air;              // Rayleigh scale height, scatter irradiance, top altitude, sun table step
-uniform vec3 sunT[${SUN_TABLE_LEN}];
-uniform vec3 multi[${MS_LEN}];
-vec3 skyRadiance(vec3 d) {
-  float e = asin(clamp(d.z, 0.0, 1.0));
-  float hd = length(d.xy);
-  float hs = length(sunDir.xy);
-  float phi = 0.0;
-  if (hd > 1e-6 && hs > 1e-6) phi = acos(clamp(dot(d.xy, sunDir.xy) / (hd * hs), -1.0, 1.0));
-  else if (hd > 1e-6) phi = acos(clamp(d.y / hd, -1.0, 1.0));
-  vec2 uv = vec2(phi / PI, sqrt(e / (0.5 * PI)));
-  vec2 tc = (uv * (skySize - 1.0) + 0.5) / skySize;
-  return texture(skyTable, tc).rgb + night;
-}
-float phaseR(float mu) { return 3.0 / (16.0 * PI) * (1.0 + mu * mu); }
-float phaseM(float mu, float g) {
-  float g2 = g * g;
-  float d = max(1.0 + g2 - 2.0 * g * mu, 1e-12);
-  return 3.0 / (8.0 * PI) * (1.0 - g2) * (1.0 + mu * mu) / ((2.0 + g2) * d * sqrt(d));
-}
-float meanDensity(float z0, float z1, float h) {
-  float dz = z1 - z0;
-  if (abs(dz) < 1e-3 * h) return exp(-0.5 * (z0 + z1) / h);
-  return h * (exp(-z0 / h) - exp(-z1 / h)) / dz;
-}
-vec3 sunAt(float h) {
-  float x = clamp(h / air.w, 0.0, float(${SUN_TABLE_LEN} - 1));
-  int i = min(int(x), ${SUN_TABLE_LEN} - 2);
-  return mix(sunT[i], sunT[i + 1], x - float(i));
-}
-vec3 multiAt(float h) {
-  float x = sqrt(clamp(h / air.z, 0.0, 1.0)) * float(${MS_LEN} - 1);
-  int i = min(int(x), ${MS_LEN} - 2);
-  return mix(multi[i], multi[i + 1], x - float(i));
-}
-// The air between the eye (altitude z0) and a point at offset v (altitude z1):
-// transmittance T and in-scattered light L; the sun's share scaled by vis.
-void aerial(vec3 v, float z0, float z1, float vis, out vec3 T, out vec3 L) {
-  float d = length(v);
-  if (!(d > 0.0)) { T = vec3(1.0); L = vec3(0.0); return; }
-  z0 = clamp(z0, 0.0, air.z);
-  z1 = clamp(z1, 0.0, air.z);
-  float mR = meanDensity(z0, z1, air.x);
-  float mM = meanDensity(z0, z1, mie.z);
-  float mu = dot(v / d, sunDir);
-  float h = 0.5 * (z0 + z1);
-  vec3 sr = betaR * mR;
-  float sm = mie.x * mM;
-  vec3 ext = sr + mie.y * mM;
-  T = exp(-ext * d);
-  vec3 src = (sr * phaseR(mu) + sm * phaseM(mu, mie.w)) * air.y * sunAt(h) * vis + (sr + sm) * multiAt(h);
-  L = src / ext * (1.0 - T);
-}
-`;
-
-// The ground (Lighting::ground_radiance): albedo · (sun · t · cos + sky light, turning
-// grey as the shadow deepens), seen through the air (its sunlit in-scatter shadowed too).
-const GROUND = `
-uniform vec3 sunGround, above, groundAlbedo;
-vec3 ground(vec3 v, float eyeZ, float t) {
-  float grey = dot(above, vec3(0.2126, 0.7152, 0.0722));
-  vec3 sky = t * above + (1.0 - t) * vec3(grey);
-  vec3 g = groundAlbedo * (sunGround * t * max(sunDir.z, 0.0) + sky);
-  vec3 T, L;
-  aerial(v, eyeZ, 0.0, t, T, L);
-  return g * T + L;
-}
-`;
 
 // Sky (with the sun's disc) and ground, per pixel from the view ray
 // (scene::background, Lighting::background). The ground's sun transmittance is the
@@ -454,50 +370,6 @@ const toneProgram = compile(
   void main() { colour = vec4(tone(texelFetch(scene, ivec2(gl_FragCoord.xy), 0).rgb), 1.0); }`,
 );
 
-// The detail noise of src/render/detail.rs as GLSL: fBm in [0, 1] of a 3-D gradient
-// noise, lacunarity 2, gain ½. The octave rule and constants are the server's; the
-// basis has a 32-bit integer hash (WebGL has no 64-bit integers), so the pattern is
-// not the server's bit for bit. `p` is the point in units of the first wavelength.
-const DETAIL_NOISE = `
-uint hash(ivec3 q) {
-  uvec3 p = uvec3(q);
-  uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
-  h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
-  return h;
-}
-vec3 grad(ivec3 q) {
-  uint h = hash(q);
-  vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
-  return g / max(length(g), 1e-6);
-}
-float gnoise(vec3 x) {
-  vec3 i = floor(x), f = x - i;
-  ivec3 b = ivec3(i);
-  vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
-  float n000 = dot(grad(b), f);
-  float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
-  float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
-  float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
-  float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
-  float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
-  float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
-  float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
-  float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
-                mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
-  return clamp(n * 1.15, -1.0, 1.0);
-}
-float detailNoise(vec3 p, int octaves) {
-  float sum = 0.0, norm = 0.0, amp = 1.0;
-  for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
-    if (o >= octaves) break;
-    sum += amp * gnoise(p + float(o) * 17.31);
-    norm += amp;
-    amp *= 0.5; p *= 2.0;
-  }
-  return clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
-}
-`;
-
 // Extinction of rain and snow, per km, at a rate R (mm/h, water equivalent). Rain:
 // σ = 0.25·R^0.63 (Atlas 1953, optical extinction by rainfall; geometric optics on a
 // Marshall–Palmer drop spectrum gives the same exponent, π·N0/Λ³ = 0.37·R^0.63).
@@ -512,24 +384,6 @@ const PRECIPITATION = `
     return snow ? 3.0 * pow(rate, 0.7) : 0.25 * pow(rate, 0.63);
   }
   vec3 precipitationHaze(vec3 hazeRgb, float dz) { return hazeRgb * (1.0 - 0.4 * max(-dz, 0.0)); }`;
-
-// The phase correction of the scattering octaves (Lighting::phase_correction,
-// Octaves::sun_sum − Octaves::isotropic_sum): what a view direction `d` adds to a
-// billboard's pre-shaded (isotropic) colour, for sun optical depth `tauSun`.
-const OCTAVES = `
-  float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
-  vec3 phaseCorrection(float tauSun, vec3 d) {
-    float cosTheta = dot(d, sunDir);
-    float w = 1.0, att = 1.0, ecc = 1.0, corr = 0.0;
-    for (int i = 0; i < 8; i++) {
-      if (float(i) >= octaves.x) break;
-      float g1 = clamp(phase.x * ecc, -0.99, 0.99), g2 = clamp(phase.y * ecc, -0.99, 0.99);
-      float ph = mix(hg(g2, cosTheta), hg(g1, cosTheta), phase.z);
-      corr += w * (ph - 1.0) * exp(-att * max(tauSun, 0.0));
-      w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
-    }
-    return albedo * sunRgb * corr;
-  }`;
 
 /** The rain law of PRECIPITATION on the CPU: extinction per metre at `rate` mm/h. */
 function precipitationPerMetre(rate, snow) {
@@ -676,23 +530,7 @@ const billboardProgram = compile(
   ${TONE}
   ${DETAIL_NOISE}
   ${OCTAVES}
-  // render::splats::line_integral_beyond: the field's integral along a line at impact
-  // parameter sqrt(q) (radii) over v >= v0, v the signed distance from the closest
-  // approach; v0 <= -sqrt(1 - q) gives the whole chord, S.
-  float chord(float q, float v0) {
-    if (!(q < 1.0)) return 0.0;
-    float l = sqrt(1.0 - q);
-    float c0 = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q;
-    float c2 = -22.0 / 9.0 + 34.0 / 9.0 * q - 4.0 / 3.0 * q * q;
-    float c4 = 17.0 / 9.0 - 4.0 / 3.0 * q;
-    float c6 = -4.0 / 9.0;
-    vec2 v = vec2(l, clamp(v0, -l, l));
-    vec2 v2 = v * v;
-    vec2 a = v * (c0 + v2 * (c2 / 3.0 + v2 * (c4 / 5.0 + v2 * c6 / 7.0)));
-    return max(a.x - a.y, 0.0);
-  }
-  // S(0) = 2 (1 − 22/27 + 17/45 − 4/63).
-  const float S0 = 2.0 * (1.0 - 22.0 / 27.0 + 17.0 / 45.0 - 4.0 / 63.0);
+  ${SPLAT}
   void main() {
     if (aroundEye.w > 0.0) {
       vec2 ndc = gl_FragCoord.xy / viewport * 2.0 - 1.0;
@@ -1641,23 +1479,22 @@ function hazeRgb(light) {
 /** Sets the ATMOSPHERE and GROUND uniforms of `prog` from skyInfo (sky table on texture unit 1). */
 function setAtmosphere(prog) {
   const u = prog.u;
-  const s = skyInfo;
-  const a = s.aerial;
+  const v = skyValues;
   gl.activeTexture(gl.TEXTURE1);
   gl.bindTexture(gl.TEXTURE_2D, skyTexture);
   gl.uniform1i(u.skyTable, 1);
-  gl.uniform2f(u.skySize, s.sky.columns, s.sky.rows);
-  gl.uniform3fv(u.sunDir, s.sun.direction);
-  gl.uniform3fv(u.night, s.night_rgb);
-  gl.uniform3fv(u.betaR, a.rayleigh_scattering);
-  gl.uniform4f(u.mie, a.mie_scattering, a.mie_extinction, a.mie_scale_height, a.mie_g);
-  gl.uniform4f(u.air, a.rayleigh_scale_height, a.scatter_irradiance, a.top_altitude, a.sun_step_m);
-  gl.uniform3fv(u['sunT[0]'], a.sun_transmittance);
-  gl.uniform3fv(u['multi[0]'], a.multiple);
+  gl.uniform2fv(u.skySize, v.skySize);
+  gl.uniform3fv(u.sunDir, v.sunDir);
+  gl.uniform3fv(u.night, v.night);
+  gl.uniform3fv(u.betaR, v.betaR);
+  gl.uniform4fv(u.mie, v.mie);
+  gl.uniform4fv(u.air, v.air);
+  gl.uniform3fv(u['sunT[0]'], v.sunT);
+  gl.uniform3fv(u['multi[0]'], v.multi);
   if (u.sunGround) {
-    gl.uniform3fv(u.sunGround, s.sun_rgb_ground);
-    gl.uniform3fv(u.above, s.sky_ambient_above);
-    gl.uniform3fv(u.groundAlbedo, s.ground_albedo);
+    gl.uniform3fv(u.sunGround, v.sunGround);
+    gl.uniform3fv(u.above, v.above);
+    gl.uniform3fv(u.groundAlbedo, v.groundAlbedo);
   }
   gl.activeTexture(gl.TEXTURE0);
 }
@@ -1704,12 +1541,8 @@ async function loadSky() {
   } finally {
     skyUrlLoading = '';
   }
-  const { rows, columns, rgb } = info.sky;
-  const data = new Float32Array(rows * columns * 4);
-  for (let i = 0; i < rows * columns; i++) {
-    data.set(rgb.slice(i * 3, i * 3 + 3), i * 4);
-    data[i * 4 + 3] = 1;
-  }
+  const { table, values } = skyUniforms(info);
+  const { data, columns, rows } = table;
   if (skyTexture) gl.deleteTexture(skyTexture);
   skyTexture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_2D, skyTexture);
@@ -1719,6 +1552,7 @@ async function loadSky() {
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
   skyInfo = info;
+  skyValues = values;
   skyLoaded = { url: w.url, t: w.t };
   // The wanted sky may have moved on while this one loaded; else the plan follows its
   // sun (the tiles whose shadows it throws into view).
@@ -1726,15 +1560,9 @@ async function loadSky() {
   else if (worldInfo) updateTiles();
 }
 
-/** The display mapping's exposure: sky.json's `exposure`, 1 when it names none. */
-function exposure() {
-  const e = skyInfo && skyInfo.exposure;
-  return Number.isFinite(e) && e > 0 ? e : 1;
-}
-
-/** Sets TONE's uniforms of `prog`: the exposure, and whether the pass maps its own output. */
+/** Sets TONE's uniforms of `prog`: sky.json's exposure, and whether the pass maps its own output. */
 function setDisplay(prog, toneOut) {
-  gl.uniform1f(prog.u.exposure ?? null, exposure());
+  gl.uniform1f(prog.u.exposure ?? null, skyValues.exposure);
   gl.uniform1i(prog.u.toneOut ?? null, toneOut ? 1 : 0);
 }
 

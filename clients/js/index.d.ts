@@ -391,6 +391,46 @@ export function planTiles(
   },
 ): PlannedTile[] | null;
 
+/** Lengths of the sky.json tables. */
+export const SUN_TABLE_LEN: 41;
+export const MULTIPLE_SCATTERING_LEN: 12;
+/** The detail noise's most octaves, and the footprint (pixels) an octave must span. */
+export const MAX_DETAIL_OCTAVES: 4;
+export const MIN_WAVELENGTH_PIXELS: 2;
+/** The server's light as GLSL ES 3.00 chunks (each declares the uniforms it reads). */
+export const GLSL: {
+  /** tone(x), display(x); uniforms exposure, toneOut. */
+  tone: string;
+  /** skyRadiance(d), aerial(v, z0, z1, vis, out T, out L); uniforms of skyUniforms. */
+  atmosphere: string;
+  /** ground(v, eyeZ, t); uniforms sunGround, above, groundAlbedo; needs atmosphere. */
+  ground: string;
+  /** phaseCorrection(tauSun, d); reads albedo, phase, octaves, sunRgb, sunDir. */
+  octaves: string;
+  /** chord(q, v0) and S0: the splat profile. */
+  splat: string;
+  /** detailNoise(p, octaves). */
+  detailNoise: string;
+};
+/** The uniform values of GLSL.atmosphere, GLSL.ground and GLSL.tone for a parsed /v1/sky.json. */
+export function skyUniforms(sky: object): {
+  table: { data: Float32Array; columns: number; rows: number };
+  values: {
+    skySize: [number, number];
+    sunDir: [number, number, number];
+    night: [number, number, number];
+    betaR: [number, number, number];
+    mie: [number, number, number, number];
+    air: [number, number, number, number];
+    sunT: number[];
+    multi: number[];
+    sunGround: [number, number, number];
+    above: [number, number, number];
+    groundAlbedo: [number, number, number];
+    exposure: number;
+  };
+};
+
 export function zUpToYUp(p: ArrayLike<number>): [number, number, number];
 
 /** Typed arrays for a three.js InstancedMesh (y up). */

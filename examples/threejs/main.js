@@ -1,10 +1,12 @@
 // cloudscape clouds in three.js, two ways:
 //
-// - mode=billboards (default): the tile's shaded metaballs as one InstancedMesh of
-//   camera-facing quads, sorted back to front, each textured with the splat of the
-//   server's sheet (/v1/splats.png) nearest its optical depth, animated between
-//   keyframes by the documented rule (clients/js billboardsAt). The JS client fetches
-//   a tile's first keyframe as billboards.bin and, animating, every later one as
+// - mode=billboards (default): what `cloudscape render` draws, in three.js. The tiles
+//   the server's renderer plans for the camera (the JS client's planTiles), their
+//   shaded metaballs as one InstancedMesh of camera-facing quads sorted back to front,
+//   animated between keyframes by the documented rule (clients/js billboardsAt), over
+//   the server's sky and the ground shadowed by maps derived from the billboards; the
+//   shading is the client's GLSL of the server's light. The JS client fetches a tile's
+//   first keyframe as billboards.bin and, animating, every later one as
 //   billboards.delta.bin decoded on the keyframe it holds (CloudscapeClient.keyframe);
 // - mode=volume: the density tile (density.u8) of the keyframes on either side of t as
 //   two Data3DTextures, blended by the rule (render::keyframe::blend_density_at) and
@@ -13,10 +15,11 @@
 // - mode=ktx2: the same volume from density.ktx2 through three.js's KTX2Loader (one
 //   keyframe).
 //
-// URL parameters: server (tile server origin; default this page's), world, layer, t,
-// camera=X,Y,Z,YAW,PITCH,FOV (metres, z up; yaw clockwise from north, pitch above the
-// horizon, horizontal FOV), sun=AZ,EL, quality, level, radius (metres of tiles around
-// the camera), animate=1 (the clock runs at `rate` world seconds a second).
+// URL parameters: server (tile server origin; default this page's), world, layer (the
+// one layer drawn; billboards: default all), t, camera=X,Y,Z,YAW,PITCH,FOV (metres, z
+// up; yaw clockwise from north, pitch above the horizon, horizontal FOV), sun=AZ,EL,
+// quality, animate=1 (the clock runs at `rate` world seconds a second); the volume
+// modes: level and radius (metres of tiles around the camera).
 //
 // World axes are z up (x east, y north); three.js is y up: (x, y, z) → (x, z, −y)
 // relative to an origin under the camera (clients/js threeArrays, zUpToYUp).
@@ -72,7 +75,7 @@ renderer.setPixelRatio(1);
 renderer.setSize(innerWidth, innerHeight);
 document.body.append(renderer.domElement);
 const scene = new THREE.Scene();
-/** The ground seen past the clouds: a dark slate, so clouds stand out. */
+/** Behind the ray-marched volume: a dark slate, so clouds stand out. */
 scene.background = new THREE.Color(0.06, 0.08, 0.11);
 
 // --- Camera: the cloudscape convention in three.js's frame. ----------------------

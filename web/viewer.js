@@ -267,10 +267,17 @@ function compile(vs, fs) {
   return { program: p, u: uniforms };
 }
 
-// Display mapping of src/render/light.rs `tone_map`: 1 − exp(−x), then gamma 1/2.2.
+// Display mapping of src/render/light.rs `tone_map`: the exposure (sky.json's
+// `exposure`, set by setExposure), 1 − exp(−exposure · x), then gamma 1/2.2.
 const TONE = `
-vec3 tone(vec3 x) { return pow(1.0 - exp(-max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
+uniform float exposure;
+vec3 tone(vec3 x) { return pow(1.0 - exp(-exposure * max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
 `;
+
+/** Sets the TONE uniform of `prog` from skyInfo (1 before a server that serves none). */
+function setExposure(prog) {
+  gl.uniform1f(prog.u.exposure, (skyInfo && skyInfo.exposure) || 1);
+}
 
 /** Lengths of the sky.json tables (src/render/sky.rs SUN_TABLE_LEN, MS_ALTITUDES). */
 const SUN_TABLE_LEN = 41;
@@ -603,7 +610,8 @@ const billboardProgram = compile(
       corr += w * (ph - 1.0) * exp(-att * tauSun);
       w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
     }
-    radiance = max(rgb + albedo * sunRgb * corr, vec3(0.0));
+    // The sun's share of the scattered light: sun_rgb / 4 (render::light::SUN_SCATTER).
+    radiance = max(rgb + albedo * 0.25 * sunRgb * corr, vec3(0.0));
     radiance += flashAt.w * vec3(1.4, 1.5, 1.8) * exp(-length(c - flashAt.xyz) / 2500.0);
     // Aerial perspective by the billboard's distance (composite.rs: c · T + L_in).
     vec3 T, L;
@@ -1643,6 +1651,7 @@ function setAtmosphere(prog) {
   gl.uniform4f(u.air, a.rayleigh_scale_height, a.scatter_irradiance, a.top_altitude, a.sun_step_m);
   gl.uniform3fv(u['sunT[0]'], a.sun_transmittance);
   gl.uniform3fv(u['multi[0]'], a.multiple);
+  setExposure(prog);
   if (u.sunGround) {
     gl.uniform3fv(u.sunGround, s.sun_rgb_ground);
     gl.uniform3fv(u.above, s.sky_ambient_above);
@@ -1807,6 +1816,7 @@ function draw() {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(rainProgram.program);
+    setExposure(rainProgram);
     const ru = rainProgram.u;
     gl.uniformMatrix4fv(ru.viewProj, false, vp);
     gl.uniform1f(ru.eyeZ, cam.z);
@@ -1940,6 +1950,7 @@ function draw() {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(streakProgram.program);
+    setExposure(streakProgram);
     const zu = streakProgram.u;
     gl.uniform2f(zu.viewport, canvas.width, canvas.height);
     gl.uniform1f(zu.time, (now / 1000) % 1000);

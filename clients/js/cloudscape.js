@@ -658,13 +658,25 @@ function med(a, b, c) {
   return a2 + b2 - c2;
 }
 
+/**
+ * The linear colour of colour code value q in [0, 1] for a header's ALGORITHM_VERSION
+ * (products::keyframe_bin::ColourCurve): since version 13 steps of the displayed value
+ * at exposure 3, (1 − e^(−3c))^(1/2.2), the top code standing for 2; before, steps of
+ * (c / 2)^(1/2.2).
+ */
+export function colourOfCode(q, algorithmVersion) {
+  if (!(algorithmVersion >= 13)) return 2 * q ** 2.2;
+  if (q >= 1) return 2;
+  return Math.min(-Math.log(1 - q ** 2.2) / 3, 2);
+}
+
 /** Dequantised colour channel and τ_sun of each code (256 codes; values are one byte). */
-function codeTables(colourBits, tauSunSteps, tauFloor) {
+function codeTables(colourBits, tauSunSteps, tauFloor, algorithmVersion) {
   const levels = 2 ** colourBits - 1;
   const colour = new Float32Array(256);
   const tauSun = new Float32Array(256);
   for (let c = 0; c < 256; c++) {
-    colour[c] = 2 * (Math.min(c, levels) / levels) ** 2.2;
+    colour[c] = colourOfCode(Math.min(c, levels) / levels, algorithmVersion);
     tauSun[c] = tauFloor * Math.exp((Math.min(Math.max(c, 1), 255) - 1) / tauSunSteps);
   }
   return { colour, tauSun };
@@ -882,7 +894,7 @@ function decodeKeyframe(bytes, v, previous) {
   for (let s = 0; s < sites; s++) if (start[STATE * s] !== 0 || end[STATE * s] !== 0) count++;
   if (count !== header.count) throw new Error(`billboards.bin: ${count} billboards decoded, the header says ${header.count}`);
   const rec = recordColumns(count);
-  const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor);
+  const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor, header.algorithmVersion);
   const origin = header.origin;
   const splatCount = header.splatCount;
   let n = 0;

@@ -67,6 +67,8 @@ export interface Keyframe {
   f: number;
 }
 
+/** The linear colour of billboards.bin colour code value q in [0, 1] for a header's ALGORITHM_VERSION (display steps at exposure 3 since 13, (c / 2)^(1/2.2) before). */
+export function colourOfCode(q: number, algorithmVersion: number): number;
 export function keyframeSpan(layer: Pick<Layer, 'dt' | 'keyframe_spans'>, z: number): number;
 /** The fraction of its span (in [0.5, 0.8)) past which tile (z, x, y)'s next keyframe is fetched. */
 export function prefetchAt(z: number, x: number, y: number): number;

@@ -183,6 +183,7 @@ fn tagged_json_response(
         .unwrap_or_else(|| repr.ok_small("application/json", body.into())))
 }
 
+/// The configured worlds.
 #[utoipa::path(
     get,
     path = "/v1/worlds",
@@ -212,6 +213,7 @@ pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<
     )
 }
 
+/// One world's discovery document.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}",

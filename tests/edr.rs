@@ -690,7 +690,7 @@ async fn bad_edr_requests_get_clear_errors_before_any_work() {
     let (_, body) = s.status_json(&format!("{base}/area?{square}&datetime=0&z=1100")).await;
     let message = body["message"].as_str().unwrap();
     assert!(
-        message.contains("`z`") && message.contains("coords, datetime"),
+        message.contains("`z`") && message.contains("reads coords, level, datetime"),
         "the refusal names the parameter and what the route reads: {body}"
     );
     assert_eq!(computations().await, before, "a refused request computed something");

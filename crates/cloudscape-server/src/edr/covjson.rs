@@ -128,24 +128,21 @@ pub fn text(q: Quantity) -> QuantityText {
 
 /// The CoverageJSON parameter object of a quantity.
 pub fn parameter(q: Quantity) -> Parameter {
-    let QuantityText {
-        label,
-        description,
-        unit,
-        symbol,
-        id,
-    } = text(q);
+    let t = text(q);
     Parameter {
         kind: "Parameter",
-        description: en(description),
+        description: en(t.description),
         unit: Unit {
-            label: en(unit),
+            label: en(t.unit),
             symbol: Symbol {
-                value: symbol,
+                value: t.symbol,
                 scheme: UCUM,
             },
         },
-        observed_property: ObservedProperty { id, label: en(label) },
+        observed_property: ObservedProperty {
+            id: t.id,
+            label: en(t.label),
+        },
     }
 }
 

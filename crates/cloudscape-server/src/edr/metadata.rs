@@ -11,7 +11,7 @@ use serde_json::{Value, json};
 use cloudscape_core::density::MAX_CELL_INDEX;
 use cloudscape_core::world::World;
 
-use super::covjson::{self, QuantityText, UCUM};
+use super::covjson::{self, UCUM};
 use super::query::{CRS_NAME, MAX_EDR_TIME, Quantity, distance_units, format_instant};
 use crate::public_url::encode_segment;
 
@@ -111,24 +111,18 @@ fn time_steps(world: &World) -> Vec<String> {
 /// A quantity's entry in `parameter_names`: EDR's parameter object, whose label and
 /// description are strings.
 fn parameter_name(q: Quantity) -> Value {
-    let QuantityText {
-        label,
-        description,
-        unit,
-        symbol,
-        id,
-    } = covjson::text(q);
-    let mut observed = json!({ "label": label });
-    if let Some(id) = id {
+    let t = covjson::text(q);
+    let mut observed = json!({ "label": t.label });
+    if let Some(id) = t.id {
         observed["id"] = json!(id);
     }
     json!({
         "type": "Parameter",
         "id": q.name(),
-        "label": label,
-        "description": description,
+        "label": t.label,
+        "description": t.description,
         "data-type": "float",
-        "unit": { "label": unit, "symbol": { "value": symbol, "type": UCUM } },
+        "unit": { "label": t.unit, "symbol": { "value": t.symbol, "type": UCUM } },
         "observedProperty": observed,
     })
 }

@@ -54,7 +54,7 @@ use crate::state::AppState;
 use self::covjson::{Axes, Axis, Coverage, MEDIA_TYPE, Values};
 use self::items::Page;
 use self::query::{
-    Datetime, Footprint, Quantity, check_crs, check_format, known, parse_datetime, parse_disc, parse_levels,
+    Datetime, Footprint, Quantity, check_format, check_query, known, parse_datetime, parse_disc, parse_levels,
     parse_point, parse_polygon, parse_quantities,
 };
 
@@ -306,9 +306,7 @@ pub async fn position(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    params.check_known(known::POSITION)?;
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::POSITION, known::COVERAGE], COVERAGE)?;
     let [x, y] = parse_point(params.required("coords")?)?;
     let z = params.f64("z")?.unwrap_or(0.0);
     let datetime = parse_datetime(&params)?;
@@ -527,9 +525,7 @@ pub async fn area(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    params.check_known(known::AREA)?;
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::AREA, known::COVERAGE], COVERAGE)?;
     let polygon = Footprint::Polygon(parse_polygon(params.required("coords")?)?);
     footprint_coverage(&s, &headers, &params, "edr-area", polygon, resolved).await
 }
@@ -567,9 +563,7 @@ pub async fn radius(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    params.check_known(known::RADIUS)?;
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::RADIUS, known::COVERAGE], COVERAGE)?;
     let disc = Footprint::Disc(parse_disc(&params)?);
     footprint_coverage(&s, &headers, &params, "edr-radius", disc, resolved).await
 }
@@ -632,9 +626,7 @@ pub async fn cube(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    params.check_known(known::CUBE)?;
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::CUBE, known::COVERAGE], COVERAGE)?;
     let bbox = params.bbox()?;
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let levels = parse_levels(&params, layer)?;
@@ -700,9 +692,7 @@ pub async fn items(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    params.check_known(known::ITEMS)?;
-    check_format(&params, GEOJSON)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::ITEMS], GEOJSON)?;
     let bbox = params.bbox()?;
     let datetime = parse_datetime(&params)?;
     if !(datetime.interval && datetime.t1 > datetime.t0) {

@@ -32,53 +32,18 @@ pub const CRS_NAME: &str = "cloudscape-local-metres";
 /// (`parameter_names`, the name of its Python argument): both are read.
 pub const PARAMETER_NAME: [&str; 2] = ["parameter-name", "parameter_names"];
 
-/// The parameters each EDR route reads (the cloudscape extras are `layer` and `level`).
+/// The parameters each EDR route reads, in groups (the cloudscape extras are `layer`
+/// and `level`): every query reads [`known::ANY`], every coverage query
+/// [`known::COVERAGE`] too, and each its own.
 pub mod known {
     pub const METADATA: &[&str] = &["f"];
-    pub const POSITION: &[&str] = &[
-        "coords",
-        "z",
-        "datetime",
-        "parameter-name",
-        "parameter_names",
-        "f",
-        "crs",
-        "layer",
-    ];
-    pub const AREA: &[&str] = &[
-        "coords",
-        "datetime",
-        "parameter-name",
-        "parameter_names",
-        "f",
-        "crs",
-        "layer",
-        "level",
-    ];
-    pub const RADIUS: &[&str] = &[
-        "coords",
-        "within",
-        "within-units",
-        "datetime",
-        "parameter-name",
-        "parameter_names",
-        "f",
-        "crs",
-        "layer",
-        "level",
-    ];
-    pub const CUBE: &[&str] = &[
-        "bbox",
-        "z",
-        "datetime",
-        "parameter-name",
-        "parameter_names",
-        "f",
-        "crs",
-        "layer",
-        "level",
-    ];
-    pub const ITEMS: &[&str] = &["bbox", "datetime", "limit", "offset", "f", "crs", "layer"];
+    pub const ANY: &[&str] = &["f", "crs"];
+    pub const COVERAGE: &[&str] = &["datetime", "parameter-name", "parameter_names", "layer"];
+    pub const POSITION: &[&str] = &["coords", "z"];
+    pub const AREA: &[&str] = &["coords", "level"];
+    pub const RADIUS: &[&str] = &["coords", "within", "within-units", "level"];
+    pub const CUBE: &[&str] = &["bbox", "z", "level"];
+    pub const ITEMS: &[&str] = &["bbox", "datetime", "limit", "offset", "layer"];
 }
 
 fn invalid(name: &str, message: impl Into<String>) -> ApiError {
@@ -572,6 +537,20 @@ pub fn parse_levels(params: &Params, layer: &Layer) -> Result<Option<Vec<usize>>
         ));
     }
     Ok(Some(levels))
+}
+
+/// The checks every query makes before it reads anything: the parameters it reads
+/// (the `known` groups and [`known::ANY`]; any other is refused by name), `f` among
+/// `formats`, and `crs`.
+pub fn check_query(params: &Params, known: &[&[&str]], formats: &[&str]) -> Result<(), ApiError> {
+    let read: Vec<&str> = known
+        .iter()
+        .chain([&known::ANY])
+        .flat_map(|g| g.iter().copied())
+        .collect();
+    params.check_known(&read)?;
+    check_format(params, formats)?;
+    check_crs(params)
 }
 
 /// `f=`: the routes answer one format each; `f` may name it (case-insensitive).

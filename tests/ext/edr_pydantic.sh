@@ -3,8 +3,9 @@
 # (versions pinned in scripts/test, named in README): edr-pydantic on the landing page
 # (with and without the trailing slash), the conformance declaration, the collection
 # list and every collection (configured worlds and a seed; the server has no
-# instances: a world is one deterministic run); covjson-pydantic on every CoverageJSON answer of
-# tests/ext/lib/edr_queries.py (position, area, radius, cube). Each model is first
+# instances: a world is one deterministic run); covjson-pydantic on every
+# CoverageJSON answer of tests/ext/lib/edr_queries.py (position, area, radius,
+# cube). Each model is first
 # shown to refuse a document it must refuse, so a pass is not vacuous. Runs against
 # `cloudscape serve` on the tests' small world. Installs nothing: fails with a message
 # when a package is missing (./scripts/test puts them in target/test-venv).

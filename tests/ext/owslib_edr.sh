@@ -62,7 +62,6 @@ def coverage(query_type, names, **kwargs):
                          f"asked {names}, answered {sorted(c.get('ranges', {}))}")
         return errors
     case(f"query_data {query_type} {kwargs}", check)
-    return
 
 coverage("position", ["density", "cloud_cover"], coords="POINT(150 250)", z=1050,
          datetime_="1970-01-01T00:00:20Z")

@@ -14,8 +14,13 @@ use reqwest::blocking::Response;
 
 /// A server on the test world with `env` set; the config file lives as long as it.
 fn serve(env: &[(&str, &str)]) -> (tempfile::NamedTempFile, ServeProcess) {
+    serve_config(&[], env)
+}
+
+/// A server on the test world with config `overrides` ([`test_config`]) and `env` set.
+fn serve_config(overrides: &[(&str, &str)], env: &[(&str, &str)]) -> (tempfile::NamedTempFile, ServeProcess) {
     let mut file = tempfile::NamedTempFile::new().unwrap();
-    file.write_all(test_config(&[]).as_bytes()).unwrap();
+    file.write_all(test_config(overrides).as_bytes()).unwrap();
     let mut all = vec![("RUST_LOG", "warn")];
     all.extend_from_slice(env);
     let server = ServeProcess::start(&["--config", file.path().to_str().unwrap()], &all);
@@ -217,14 +222,14 @@ fn tilejson_names_absolute_zoom_urls_that_serve_the_level_tiles() {
     assert_eq!(doc["bounds"].as_array().unwrap().len(), 4);
     assert_eq!(doc["vector_layers"], serde_json::json!([]));
     assert_eq!(doc["cloudscape"]["level_of_zoom"], "level = 20 - zoom");
+    // Asked without t, the template names no time (the world clock's keyframe, below);
+    // the keyframe-addressed one has a {t}.
     let template = doc["tiles"][0].as_str().unwrap();
-    assert_eq!(
-        template,
-        format!(
-            "{}/v1/worlds/default/zoom/{{z}}/{{x}}/{{y}}/coverage.png?t={{t}}&layer=low",
-            s.base
-        )
-    );
+    let zoom_route = format!("{}/v1/worlds/default/zoom/{{z}}/{{x}}/{{y}}/coverage.png", s.base);
+    assert_eq!(template, format!("{zoom_route}?layer=low"));
+    assert_eq!(doc["cloudscape"]["t"], serde_json::Value::Null);
+    let template = doc["cloudscape"]["keyframe_tiles"].as_str().unwrap();
+    assert_eq!(template, format!("{zoom_route}?t={{t}}&layer=low"));
     // maxzoom is our finest level 0, one zoom out is level 1: same bytes and ETag.
     for (zoom, level) in [(max, 0), (max - 1, 1)] {
         let url = template
@@ -290,8 +295,7 @@ fn tilejson_urls_come_from_the_public_url_or_the_host() {
     let doc = tilejson(&s, "layer=high", &[("host", "ignored.example")]);
     let template = doc["tiles"][0].as_str().unwrap();
     assert!(
-        template
-            .starts_with("https://cdn.example/clouds/v1/worlds/default/zoom/{z}/{x}/{y}/coverage.png?t={t}&layer=high"),
+        template.starts_with("https://cdn.example/clouds/v1/worlds/default/zoom/{z}/{x}/{y}/coverage.png?layer=high"),
         "{template}"
     );
 }
@@ -325,7 +329,7 @@ fn bad_tilejson_and_zoom_requests_are_clear_4xx() {
         (format!("{base}/zoom/-1/0/0/coverage.png?t=0"), 422, ""),
         (format!("{base}/zoom/x/0/0/coverage.png?t=0"), 400, ""),
         (format!("{base}/zoom/20/0/0/nope.png?t=0"), 404, "unknown_product"),
-        (format!("{base}/zoom/20/0/0/coverage.png"), 400, ""),
+        (format!("{base}/zoom/20/0/0/coverage.png?t="), 400, "invalid_number"),
     ] {
         let r = get(&url, &[]);
         assert_eq!(r.status().as_u16(), status, "{url}");
@@ -337,4 +341,75 @@ fn bad_tilejson_and_zoom_requests_are_clear_4xx() {
     }
     let bad_host = "GET /v1/worlds/default/tilejson.json HTTP/1.1\r\nhost: a/b@c\r\nconnection: close\r\n\r\n";
     assert_eq!(raw_status(s.port, bad_host), 400);
+}
+
+/// The world clock's time now on a clock of `rate` world seconds per real second.
+fn world_now(rate: f64) -> f64 {
+    let unix = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .as_secs_f64();
+    rate * unix
+}
+
+#[test]
+fn a_template_filled_with_only_zxy_serves_the_world_clocks_keyframe() {
+    // A slow clock (a world second is 100 real seconds): max-age counts real seconds.
+    let rate = 0.01;
+    let (_config, s) = serve_config(&[("worlds.default.clock", "{ offset = 0.0, rate = 0.01 }")], &[]);
+    let doc = tilejson(&s, "layer=low&product=density.u8", &[]);
+    // zoom 20 - 4 is level 4: keyframes every 10 s * 2^4.
+    let span = 160.0;
+    let url = doc["tiles"][0]
+        .as_str()
+        .unwrap()
+        .replace("{z}", "16")
+        .replace("{x}", "0")
+        .replace("{y}", "-1");
+    let before = world_now(rate);
+    let r = get(&url, &[]);
+    let after = world_now(rate);
+    assert_eq!(r.status(), StatusCode::OK, "{url}");
+    let t0: f64 = header(&r, "x-cloudscape-t").unwrap().parse().unwrap();
+    let t1: f64 = header(&r, "x-cloudscape-t1").unwrap().parse().unwrap();
+    assert!(
+        [before, after].iter().any(|now| (now / span).floor() * span == t0),
+        "keyframe {t0} for a clock between {before} and {after}"
+    );
+    assert_eq!(t1, t0 + span);
+    // Kept until the clock reaches the next keyframe, in real seconds; never immutable.
+    let cache_control = header(&r, "cache-control").unwrap();
+    let max_age: f64 = cache_control
+        .strip_prefix("public, max-age=")
+        .unwrap_or_else(|| panic!("{cache_control}"))
+        .parse()
+        .unwrap();
+    let (least, most) = (((t1 - after) / rate).ceil(), ((t1 - before) / rate).ceil());
+    assert!(
+        (least.max(1.0)..=most).contains(&max_age),
+        "max-age {max_age} is not the {least}..{most} real seconds to the next keyframe"
+    );
+    // The same bytes as the keyframe asked by its time, which Content-Location names.
+    let location = header(&r, "content-location").unwrap();
+    assert_eq!(
+        location,
+        format!("/v1/worlds/default/zoom/16/0/-1/density.u8?layer=low&t={t0}")
+    );
+    let etag = header(&r, "etag");
+    let body = r.bytes().unwrap();
+    let keyframe = get(&format!("{}{location}", s.base), &[]);
+    assert_eq!(header(&keyframe, "etag"), etag);
+    assert!(header(&keyframe, "cache-control").unwrap().contains("immutable"));
+    assert_eq!(keyframe.bytes().unwrap(), body);
+    // An animating client names each keyframe through the {t} template.
+    let next = doc["cloudscape"]["keyframe_tiles"]
+        .as_str()
+        .unwrap()
+        .replace("{z}", "16")
+        .replace("{x}", "0")
+        .replace("{y}", "-1")
+        .replace("{t}", &t1.to_string());
+    let next = get(&next, &[]);
+    assert_eq!(header(&next, "x-cloudscape-t"), Some(t1.to_string()));
+    assert_ne!(header(&next, "etag"), etag);
 }

@@ -45,7 +45,8 @@ const MAX_RSS_KB: u64 = 768 * 1024;
 /// The status PRODUCT.md gives each kind of error (the codes are ApiError's).
 fn expected_status(code: &str) -> Option<&'static [u16]> {
     Some(match code {
-        "invalid_number" | "not_finite" | "missing_parameter" | "invalid_parameter" | "invalid_bbox" => &[400],
+        "invalid_number" | "not_finite" | "missing_parameter" | "invalid_parameter" | "unknown_parameter"
+        | "invalid_bbox" => &[400],
         "unknown_world" | "unknown_layer" | "unknown_product" | "not_found" => &[404],
         "time_out_of_range" | "level_out_of_range" | "coordinates_out_of_range" | "empty_region" => &[422],
         "region_too_large" | "series_too_long" | "too_much_work" | "response_too_large" => &[413],
@@ -459,13 +460,19 @@ fn example(route: &str, name: &str) -> Option<&'static str> {
         ("size", _) => "16x9",
         // Above every layer, looking up: a valid view that costs little.
         ("camera", _) => "0,-2000,9000,0,80,60",
-        ("coords", "position") => "POINT(500.5 -250)",
+        ("coords", "position" | "radius") => "POINT(500.5 -250)",
         ("coords", "area") => "POLYGON((0 0, 2000 0, 1000 2000, 0 0))",
+        ("within", _) => "750.5",
+        ("within-units", _) => "m",
         // A long fraction: a parser that cuts it by byte counts meets the multibyte
         // characters inserted below at every place.
+        ("datetime", "items") => "1970-01-01T00:01:00.12345678Z/1970-01-01T00:02:00Z",
         ("datetime", _) => "1970-01-01T00:01:00.12345678Z",
-        ("parameter-name", _) => "cloud_cover,density",
-        ("f", "position" | "area" | "cube") => "CoverageJSON",
+        ("parameter-name" | "parameter_names", _) => "cloud_cover,density",
+        ("limit", _) => "10",
+        ("offset", _) => "5",
+        ("f", "position" | "area" | "cube" | "radius") => "CoverageJSON",
+        ("f", "items") => "GeoJSON",
         ("f", _) => "json",
         ("crs", _) => "cloudscape-local-metres",
         _ => return None,

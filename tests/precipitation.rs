@@ -224,7 +224,6 @@ async fn bad_precipitation_requests_get_clear_errors() {
     let cases = [
         ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=-1", 422, "time_out_of_range"),
         ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=nan", 400, "not_finite"),
-        ("/v1/worlds/default/tiles/0/0/0/precipitation.png", 400, "missing_parameter"),
         ("/v1/worlds/default/tiles/0/0/0/precipitation.png?t=0&layer=nope", 404, "unknown_layer"),
         ("/v1/worlds/default/tiles/99/0/0/precipitation.png?t=0", 422, "level_out_of_range"),
         ("/v1/worlds/nope/tiles/0/0/0/precipitation.png?t=0", 404, "unknown_world"),

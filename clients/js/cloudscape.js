@@ -658,13 +658,25 @@ function med(a, b, c) {
   return a2 + b2 - c2;
 }
 
+/**
+ * The linear colour of colour code value q in [0, 1] for a header's ALGORITHM_VERSION
+ * (products::keyframe_bin::ColourCurve): since version 13 steps of the displayed value
+ * at exposure 3, (1 − e^(−3c))^(1/2.2), the top code standing for 2; before, steps of
+ * (c / 2)^(1/2.2).
+ */
+export function colourOfCode(q, algorithmVersion) {
+  if (!(algorithmVersion >= 13)) return 2 * q ** 2.2;
+  if (q >= 1) return 2;
+  return Math.min(-Math.log(1 - q ** 2.2) / 3, 2);
+}
+
 /** Dequantised colour channel and τ_sun of each code (256 codes; values are one byte). */
-function codeTables(colourBits, tauSunSteps, tauFloor) {
+function codeTables(colourBits, tauSunSteps, tauFloor, algorithmVersion) {
   const levels = 2 ** colourBits - 1;
   const colour = new Float32Array(256);
   const tauSun = new Float32Array(256);
   for (let c = 0; c < 256; c++) {
-    colour[c] = 2 * (Math.min(c, levels) / levels) ** 2.2;
+    colour[c] = colourOfCode(Math.min(c, levels) / levels, algorithmVersion);
     tauSun[c] = tauFloor * Math.exp((Math.min(Math.max(c, 1), 255) - 1) / tauSunSteps);
   }
   return { colour, tauSun };
@@ -882,7 +894,7 @@ function decodeKeyframe(bytes, v, previous) {
   for (let s = 0; s < sites; s++) if (start[STATE * s] !== 0 || end[STATE * s] !== 0) count++;
   if (count !== header.count) throw new Error(`billboards.bin: ${count} billboards decoded, the header says ${header.count}`);
   const rec = recordColumns(count);
-  const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor);
+  const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor, header.algorithmVersion);
   const origin = header.origin;
   const splatCount = header.splatCount;
   let n = 0;
@@ -1356,6 +1368,8 @@ export const MULTIPLE_SCATTERING_LEN = 12;
 /** src/render/detail.rs: most detail octaves, and the footprint (pixels) an octave must span. */
 export const MAX_DETAIL_OCTAVES = 4;
 export const MIN_WAVELENGTH_PIXELS = 2;
+/** The share of the sun's radiance (header lighting `sunRgb`) that cloud scatters (render::light::SUN_SCATTER). */
+export const SUN_SCATTER = 0.25;
 const MS_LEN = MULTIPLE_SCATTERING_LEN;
 
 export const GLSL = {
@@ -1458,8 +1472,9 @@ vec3 ground(vec3 v, float eyeZ, float t) {
 `,
   /**
    * The phase correction of the scattering octaves (Lighting::phase_correction,
-   * Octaves::sun_sum − Octaves::isotropic_sum): what view direction d adds to a
-   * billboard's pre-shaded (isotropic) colour for sun optical depth tauSun. Reads the
+   * Octaves::sun_sum − Octaves::isotropic_sum, of the sun's SUN_SCATTER share): what
+   * view direction d adds to a billboard's pre-shaded (isotropic) colour for sun
+   * optical depth tauSun. Reads the
    * uniforms albedo, phase (g1, g2, mix), octaves (N, a, b, c) and sunRgb of the
    * keyframe's header lighting, and sunDir; declare them before it.
    */
@@ -1475,7 +1490,7 @@ vec3 ground(vec3 v, float eyeZ, float t) {
       corr += w * (ph - 1.0) * exp(-att * max(tauSun, 0.0));
       w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
     }
-    return albedo * sunRgb * corr;
+    return albedo * ${SUN_SCATTER.toFixed(2)} * sunRgb * corr;
   }`,
   /**
    * The splat profile (splats.rs): `chord(q, v0)`, the integral of Wyvill's field

@@ -67,6 +67,8 @@ export interface Keyframe {
   f: number;
 }
 
+/** The linear colour of billboards.bin colour code value q in [0, 1] for a header's ALGORITHM_VERSION (display steps at exposure 3 since 13, (c / 2)^(1/2.2) before). */
+export function colourOfCode(q: number, algorithmVersion: number): number;
 export function keyframeSpan(layer: Pick<Layer, 'dt' | 'keyframe_spans'>, z: number): number;
 /** The fraction of its span (in [0.5, 0.8)) past which tile (z, x, y)'s next keyframe is fetched. */
 export function prefetchAt(z: number, x: number, y: number): number;
@@ -397,6 +399,8 @@ export const MULTIPLE_SCATTERING_LEN: 12;
 /** The detail noise's most octaves, and the footprint (pixels) an octave must span. */
 export const MAX_DETAIL_OCTAVES: 4;
 export const MIN_WAVELENGTH_PIXELS: 2;
+/** The share of the sun's radiance that cloud scatters (render::light::SUN_SCATTER). */
+export const SUN_SCATTER: 0.25;
 /** The server's light as GLSL ES 3.00 chunks (each declares the uniforms it reads). */
 export const GLSL: {
   /** tone(x), display(x); uniforms exposure, toneOut. */

@@ -70,6 +70,8 @@ const info = document.getElementById('info');
 const status = { ready: false, error: null, mode: params.mode, instances: 0, tiles: 0, keyframes: [], forms: [], requests: 0 };
 
 const client = new CloudscapeClient(params.server, { quality: params.quality });
+// The server's tone-map exposure (render::light::EXPOSURE, served in /v1/sky.json).
+const exposure = (await (await fetch(client.url(`/v1/sky.json?t=${params.t}`))).json()).exposure ?? 1;
 const renderer = new THREE.WebGLRenderer({ antialias: false, preserveDrawingBuffer: true });
 renderer.setPixelRatio(1);
 renderer.setSize(innerWidth, innerHeight);
@@ -592,7 +594,7 @@ const volumeMaterial = (uniforms) =>
       uniform float layerBase;       // altitude of the layer's base (the wind's reference)
       uniform float since, until;    // t − t0 and t1 − t, seconds
       uniform vec3 sunDir, sunRgb, ambient;
-      uniform float extinction, albedo;
+      uniform float extinction, albedo, exposure;
       const int STEPS = 128;
       const int SHADOW_STEPS = 6;
       // The wind at a height, in three.js's frame (x east, z south).
@@ -638,13 +640,14 @@ const volumeMaterial = (uniforms) =>
           for (int j = 0; j < SHADOW_STEPS; j++) tauSun += extinction * densityAt(p + sunDir * (float(j) + 0.5) * ls) * ls;
           float sigma = extinction * rho;
           float a = 1.0 - exp(-sigma * ds);
-          c += T * a * albedo * (sunRgb * exp(-tauSun) + ambient);
+          // The sun's share of the scattered light is sun_rgb / 4 (render::light::SUN_SCATTER).
+          c += T * a * albedo * (0.25 * sunRgb * exp(-tauSun) + ambient);
           T *= 1.0 - a;
           if (T < 0.01) break;
         }
         float alpha = 1.0 - T;
         if (alpha <= 0.0) discard;
-        vec3 rgb = pow(1.0 - exp(-c / alpha), vec3(1.0 / 2.2));
+        vec3 rgb = pow(1.0 - exp(-exposure * c / alpha), vec3(1.0 / 2.2));
         colour = vec4(rgb * alpha, alpha);
       }`,
     side: THREE.BackSide,
@@ -713,6 +716,7 @@ async function volumes(world, tiles) {
       ambient: { value: new THREE.Vector3(...lit.ambientRgb) },
       extinction: { value: lit.extinctionPerM },
       albedo: { value: lit.albedo },
+      exposure: { value: exposure },
     });
     const size = new THREE.Vector3().subVectors(boxMax, boxMin);
     const box = new THREE.Mesh(new THREE.BoxGeometry(size.x, size.y, size.z), material);

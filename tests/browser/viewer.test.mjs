@@ -151,6 +151,16 @@ const std = (a) => {
   return Math.sqrt(mean(a.map((v) => (v - m) ** 2)));
 };
 
+/**
+ * Whether the samples `hi` are brighter than `lo` beyond doubt: by at least 0.02 (five
+ * display steps) and by more than four standard errors of the difference of the means.
+ */
+const separated = (hi, lo) => {
+  const d = mean(hi) - mean(lo);
+  const se = Math.sqrt(std(hi) ** 2 / hi.length + std(lo) ** 2 / lo.length);
+  return d > Math.max(0.02, 4 * se);
+};
+
 try {
   const context = await browser.newContext({ viewport: VIEWPORT });
 
@@ -222,14 +232,17 @@ try {
     }
     return { status: res.status, samples };
   }, t0);
-  // Cloudiness of a pixel: how far the clouds moved it from the ground-only picture.
-  const at = (s) => Math.abs(a.lum[s.py * a.width + s.px] - ground.lum[s.py * a.width + s.px]);
-  const cloudy = coverage.samples.filter((s) => s.coverage >= 0.5).map(at);
-  const clear = coverage.samples.filter((s) => s.coverage === 0).map(at);
+  // Under a zenith sun the deck is brighter than the gaps between its clouds, whose
+  // ground lies in the clouds' shadow and half-shadow. (Not "differs more from the bare
+  // ground": since ALGORITHM_VERSION 13 cloud and ground see one sun, and a thin deck
+  // from above reads about what the sunlit bare ground does, in the path tracer too.)
+  // A viewer that drew no cloud, or drew it elsewhere, shows no such difference.
+  const cloudy = coverage.samples.filter((s) => s.coverage >= 0.5).map((s) => a.lum[s.py * a.width + s.px]);
+  const clear = coverage.samples.filter((s) => s.coverage === 0).map((s) => a.lum[s.py * a.width + s.px]);
   check(
-    'the picture is cloudier where the coverage map says cloud',
-    coverage.status === 200 && cloudy.length >= 50 && clear.length >= 50 && mean(cloudy) > mean(clear) + 0.05,
-    `${cloudy.length} cloudy columns differ from the bare ground by ${mean(cloudy).toFixed(3)} on average, ${clear.length} clear columns by ${mean(clear).toFixed(3)}`,
+    'the picture is brighter where the coverage map says cloud than where it says clear',
+    coverage.status === 200 && cloudy.length >= 50 && clear.length >= 50 && separated(cloudy, clear),
+    `${cloudy.length} cloudy columns at luminance ${mean(cloudy).toFixed(3)}, ${clear.length} clear columns at ${mean(clear).toFixed(3)} (bare ground ${mean(ground.lum).toFixed(3)})`,
   );
 
   // --- The time slider. -------------------------------------------------------------
@@ -299,11 +312,11 @@ try {
     check('the keyframe answers are 200s', responses.length === 2 * products.length && responses.every((r) => r.status === 200), JSON.stringify(responses));
     const m = await canvasLuminance(kf.page);
     await kf.page.screenshot({ path: join(outDir, 'between-keyframes.png'), timeout: SCREENSHOT_TIMEOUT_MS });
-    const cloudyMid = coverage.samples.filter((s) => s.coverage >= 0.5).map((s) => Math.abs(m.lum[s.py * m.width + s.px] - ground.lum[s.py * m.width + s.px]));
-    const clearMid = coverage.samples.filter((s) => s.coverage === 0).map((s) => Math.abs(m.lum[s.py * m.width + s.px] - ground.lum[s.py * m.width + s.px]));
+    const cloudyMid = coverage.samples.filter((s) => s.coverage >= 0.5).map((s) => m.lum[s.py * m.width + s.px]);
+    const clearMid = coverage.samples.filter((s) => s.coverage === 0).map((s) => m.lum[s.py * m.width + s.px]);
     check(
-      'between keyframes the viewer draws the clouds (cloudier where the keyframe coverage says cloud)',
-      std(m.lum) > 0.03 && mean(cloudyMid) > mean(clearMid) + 0.05,
+      'between keyframes the viewer draws the clouds (brighter where the keyframe coverage says cloud)',
+      std(m.lum) > 0.03 && separated(cloudyMid, clearMid),
       `cloudy ${mean(cloudyMid).toFixed(3)}, clear ${mean(clearMid).toFixed(3)}`,
     );
     const dMid = mean(a.lum.map((v, i) => Math.abs(v - m.lum[i])));

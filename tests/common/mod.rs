@@ -321,7 +321,10 @@ pub async fn start_in_process(text: &str) -> (String, reqwest::Client) {
     let base = format!("http://{}", server.local_addr().unwrap());
     tokio::spawn(server.run());
     let client = reqwest::Client::builder().no_proxy().build().unwrap();
-    for _ in 0..1200 {
+    // Readiness waits for the config's warm keyframes: seconds on an idle machine, more
+    // than a minute on one shared with other builds (the tests that use this are not
+    // about how soon it is ready).
+    for _ in 0..3600 {
         if let Ok(r) = client.get(format!("{base}/readyz")).send().await
             && r.status() == reqwest::StatusCode::OK
         {
@@ -329,7 +332,7 @@ pub async fn start_in_process(text: &str) -> (String, reqwest::Client) {
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    panic!("server never became ready");
+    panic!("server never became ready in 180 s");
 }
 
 /// An in-process server ([`start_in_process`]) and its client, asked by path.

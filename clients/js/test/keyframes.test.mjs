@@ -55,7 +55,11 @@ test('billboards.bin version 3 decodes to what billboards.json says, within the 
   const q = bin.lattice.quantisation;
   // Colour: steps of (c / 2)^(1/2.2) of 1 / (2^bits − 1); τ_sun: steps of 1/m e-folds.
   const levels = 2 ** q.colourBits - 1;
-  const gamma = (c) => (Math.min(Math.max(c, 0), 2) / 2) ** (1 / 2.2);
+  // Since ALGORITHM_VERSION 13 the codes are even steps of the displayed value at the
+  // tone map's exposure 3 (docs/formats.md "Codes"), so the decoded colour is within
+  // half a step of the shaded one on that scale.
+  assert.ok(h.algorithmVersion >= 13, `algorithm version ${h.algorithmVersion}`);
+  const gamma = (c) => (1 - Math.exp(-3 * Math.min(Math.max(c, 0), 2))) ** (1 / 2.2);
   const r = bin.records;
   let worstColour = 0;
   let worstTau = 0;

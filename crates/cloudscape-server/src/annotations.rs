@@ -22,7 +22,7 @@ pub enum ComputedResponses {
     NotModified,
     #[response(
         status = 400,
-        description = "Malformed request (invalid_number, not_finite, missing_parameter, invalid_parameter, invalid_bbox); the message names the parameter"
+        description = "Malformed request (invalid_number, not_finite, missing_parameter, invalid_parameter, invalid_bbox; on the EDR routes also unknown_parameter, a parameter the route does not read); the message names the parameter"
     )]
     Malformed(error::ErrorBody),
     #[response(

@@ -183,6 +183,7 @@ fn tagged_json_response(
         .unwrap_or_else(|| repr.ok_small("application/json", body.into())))
 }
 
+/// The configured worlds.
 #[utoipa::path(
     get,
     path = "/v1/worlds",
@@ -212,6 +213,7 @@ pub async fn list(State(s): State<Arc<AppState>>, headers: HeaderMap) -> Result<
     )
 }
 
+/// One world's discovery document.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}",
@@ -269,7 +271,7 @@ pub async fn world(
         keyframes: "A tile of level z is computed at keyframes t0 = k * span(z), span(z) = dt * 2^min(z, 4) \
                     (keyframe_spans). Ask the keyframe's own t for an immutable answer; any t inside the span \
                     answers with the same bytes, max-age until the next keyframe and Content-Location naming \
-                    the keyframe's URL. billboards hold each billboard at t0 and t1 = t0 + span with its wind \
+                    the keyframe's URL; no t, the world clock's current keyframe in the same way. billboards hold each billboard at t0 and t1 = t0 + span with its wind \
                     velocity: at t, f = (t - t0) / span, draw it at position + velocity * (t - t0) with \
                     splat_tau, colour, tau_sun and opacity linear in f. shadow.png holds t0 (R) and t1 (G), \
                     blended linearly. Density grids, coverage.png and atlases hold t0: blend keyframes k and \

@@ -30,6 +30,10 @@ pub enum ApiError {
     /// A parameter with a value outside its vocabulary (`quality=ultra`, `sun=1`).
     #[error("parameter `{name}`: {message}")]
     InvalidParameter { name: String, message: String },
+    /// A query parameter the route does not read (the routes that refuse them: EDR),
+    /// with the ones it reads.
+    #[error("unknown parameter `{name}`: this route reads {known}")]
+    UnknownParameter { name: String, known: String },
     #[error("t must be within [0, 1e12] seconds, got {0}")]
     TimeOutOfRange(f64),
     /// An EDR `datetime` instant before the world clock's start or after the last
@@ -132,6 +136,7 @@ impl ApiError {
             NotFinite { .. } => (StatusCode::BAD_REQUEST, "not_finite"),
             MissingParameter(_) => (StatusCode::BAD_REQUEST, "missing_parameter"),
             InvalidParameter { .. } => (StatusCode::BAD_REQUEST, "invalid_parameter"),
+            UnknownParameter { .. } => (StatusCode::BAD_REQUEST, "unknown_parameter"),
             InvalidBbox => (StatusCode::BAD_REQUEST, "invalid_bbox"),
             TimeOutOfRange(_) | DatetimeOutOfRange(_) => (StatusCode::UNPROCESSABLE_ENTITY, "time_out_of_range"),
             EmptyRegion => (StatusCode::UNPROCESSABLE_ENTITY, "empty_region"),

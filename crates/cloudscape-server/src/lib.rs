@@ -10,8 +10,9 @@
 //! `/v1/worlds/{world}/tilejson.json`), tiles under
 //! `/v1/worlds/{world}/tiles/{z}/{x}/{y}/{product}` (and by TileJSON zoom under
 //! `/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}`), region queries (`/sample`,
-//! `/region`, `/series`), OGC API – EDR under `/v1/edr` (position, area and cube
-//! queries answered as CoverageJSON), `/v1/worlds/{world}/render.png`, the splat sheets
+//! `/region`, `/series`), OGC API – EDR under `/v1/edr` (position, radius, area and
+//! cube queries answered as CoverageJSON, lightning strikes by the items query as
+//! GeoJSON), `/v1/worlds/{world}/render.png`, the splat sheets
 //! `/v1/splats.{png,json}`, `/v1/sky.json`, and the operator routes `/healthz`, `/readyz`,
 //! `/metrics`, `/openapi.json`.
 //!
@@ -47,6 +48,7 @@ mod openapi;
 mod ops;
 mod panics;
 pub mod params;
+mod public_url;
 mod queries;
 mod recipe;
 mod render;
@@ -284,12 +286,16 @@ fn router(state: Arc<AppState>) -> Router {
         .route("/v1/worlds/{world}/lightning", get(lightning::lightning))
         .route("/v1/worlds/{world}/render.png", get(render::render_png))
         .route("/v1/edr", get(edr::landing))
+        .route("/v1/edr/", get(edr::landing_slash))
+        .route("/v1/edr/api", get(openapi::openapi_3_0))
         .route("/v1/edr/conformance", get(edr::conformance))
         .route("/v1/edr/collections", get(edr::collections))
         .route("/v1/edr/collections/{world}", get(edr::collection))
         .route("/v1/edr/collections/{world}/position", get(edr::position))
+        .route("/v1/edr/collections/{world}/radius", get(edr::radius))
         .route("/v1/edr/collections/{world}/area", get(edr::area))
         .route("/v1/edr/collections/{world}/cube", get(edr::cube))
+        .route("/v1/edr/collections/{world}/items", get(edr::items))
         .route("/v1/splats.png", get(render::splats_png))
         .route("/v1/splats.json", get(render::splats_json))
         .route("/v1/sky.json", get(render::sky_json))

@@ -1,5 +1,6 @@
 //! `GET /v1/worlds/{world}/lightning?bbox=&t0=&t1=`: the strikes of
-//! `cloudscape_core::weather::lightning` in a box and span.
+//! `cloudscape_core::weather::lightning` in a box and span ([`StrikeQuery`], which the
+//! EDR items query answers too).
 
 use axum::response::Response;
 use serde::Serialize;
@@ -7,13 +8,95 @@ use serde::Serialize;
 use cloudscape_core::cancel::Cancel;
 use cloudscape_core::cost::{self, Work};
 use cloudscape_core::weather::lightning::{self, LightningLimits, LightningPlan, Strike};
+use cloudscape_core::world::World;
 
 use crate::annotations::ComputedResponses;
 use crate::error::ApiError;
 use crate::extract::{WorldQuery, layer};
-use crate::key::CacheKey;
+use crate::key::{CacheKey, ResolvedWorld};
 use crate::queries::json_bytes;
 use crate::respond::Cached;
+
+/// The strikes of some layers of a world in a box and span, checked and laid out
+/// before any work.
+pub struct StrikeQuery {
+    /// The layers and their flash cells.
+    plans: Vec<(usize, LightningPlan)>,
+    /// Metres, half-open: x0 <= x < x1, y0 <= y < y1.
+    pub bbox: [f64; 4],
+    /// Seconds, half-open: t0 <= t < t1.
+    pub t0: f64,
+    pub t1: f64,
+}
+
+impl StrikeQuery {
+    /// The strikes of the layer named, else of every layer whose preset has lightning.
+    /// Every check (span, box, coordinates) before any work; a world without lightning
+    /// still has its query checked.
+    pub fn new(world: &World, name: Option<&str>, bbox: [f64; 4], t0: f64, t1: f64) -> Result<Self, ApiError> {
+        let layers: Vec<usize> = match name {
+            Some(name) => vec![layer(world, Some(name))?.0],
+            None => (0..world.layers.len())
+                .filter(|&i| world.layers[i].preset.makes_lightning())
+                .collect(),
+        };
+        let limits = LightningLimits::default();
+        let plans = layers
+            .iter()
+            .map(|&i| LightningPlan::new(world, i, bbox, t0, t1, &limits).map(|p| (i, p)))
+            .collect::<Result<Vec<_>, _>>()?;
+        if plans.is_empty() {
+            LightningPlan::new(world, 0, bbox, t0, t1, &limits)?;
+        }
+        Ok(StrikeQuery { plans, bbox, t0, t1 })
+    }
+
+    /// The cache key of an answer of `kind` listing these strikes.
+    pub fn key(&self, kind: &str, resolved: &ResolvedWorld) -> CacheKey {
+        let b = self.bbox;
+        CacheKey::naming(kind, resolved, 0)
+            .with("b", format!("{},{},{},{}", b[0], b[1], b[2], b[3]))
+            .with("t", format!("{},{}", self.t0, self.t1))
+            .with(
+                "l",
+                self.plans
+                    .iter()
+                    .map(|(i, _)| i.to_string())
+                    .collect::<Vec<_>>()
+                    .join(","),
+            )
+    }
+
+    /// The layers whose strikes are listed, by name.
+    pub fn layer_names(&self, world: &World) -> Vec<String> {
+        self.plans.iter().map(|(i, _)| world.layers[*i].name.clone()).collect()
+    }
+
+    /// The estimated work: the flash-cell density of every bucket.
+    pub fn work(&self, world: &World) -> Result<Work, ApiError> {
+        let mut work = Work::default();
+        for (i, p) in &self.plans {
+            for b in 0..p.buckets {
+                let w = cost::density(world, *i, lightning::FLASH_LEVEL, p.region, p.bucket_time(b))?;
+                work.cpu_s += w.cpu_s;
+                work.bytes = work.bytes.max(w.bytes);
+            }
+        }
+        Ok(work)
+    }
+
+    /// The strikes with their layer's index, by time (then x, then y).
+    pub fn strikes(&self, world: &World, cancel: &Cancel) -> Result<Vec<(usize, Strike)>, ApiError> {
+        let mut strikes = Vec::new();
+        for (i, p) in &self.plans {
+            cancel.check().map_err(|_| ApiError::Cancelled)?;
+            let found = lightning::strikes(world, *i, self.bbox, self.t0, self.t1, p)?;
+            strikes.extend(found.into_iter().map(|s| (*i, s)));
+        }
+        strikes.sort_by(|(_, a), (_, b)| a.t.total_cmp(&b.t).then(a.x.total_cmp(&b.x)).then(a.y.total_cmp(&b.y)));
+        Ok(strikes)
+    }
+}
 
 /// `/lightning`: the strikes in a box and span.
 #[derive(Clone, Debug, Serialize, utoipa::ToSchema)]
@@ -59,55 +142,21 @@ pub async fn lightning(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    let world = &resolved.world;
     let bbox = params.bbox()?;
     let (t0, t1) = (params.time("t0")?, params.time("t1")?);
-    let layers: Vec<usize> = match params.get("layer") {
-        Some(name) => vec![layer(world, Some(name))?.0],
-        None => (0..world.layers.len())
-            .filter(|&i| world.layers[i].preset.makes_lightning())
-            .collect(),
-    };
-    let limits = LightningLimits::default();
-    // Every check (span, box, coordinates) before any work; a world without
-    // lightning still has its query checked.
-    let plans = layers
-        .iter()
-        .map(|&i| LightningPlan::new(world, i, bbox, t0, t1, &limits).map(|p| (i, p)))
-        .collect::<Result<Vec<_>, _>>()?;
-    if plans.is_empty() {
-        LightningPlan::new(world, 0, bbox, t0, t1, &limits)?;
-    }
-    let key = CacheKey::naming("lightning", &resolved, 0)
-        .with("b", format!("{},{},{},{}", bbox[0], bbox[1], bbox[2], bbox[3]))
-        .with("t", format!("{t0},{t1}"))
-        .with("l", layers.iter().map(usize::to_string).collect::<Vec<_>>().join(","));
-    let cached = Cached::timeless("lightning", key, "application/json");
+    let query = StrikeQuery::new(&resolved.world, params.get("layer"), bbox, t0, t1)?;
+    let cached = Cached::timeless("lightning", query.key("lightning", &resolved), "application/json");
     let world = resolved.world;
     cached
         .respond(&s, &headers, move || {
-            let mut work = Work::default();
-            for (i, p) in &plans {
-                for b in 0..p.buckets {
-                    let w = cost::density(&world, *i, lightning::FLASH_LEVEL, p.region, p.bucket_time(b))?;
-                    work.cpu_s += w.cpu_s;
-                    work.bytes = work.bytes.max(w.bytes);
-                }
-            }
-            Ok((work, move |cancel: &Cancel| {
-                let mut strikes = Vec::new();
-                for (i, p) in &plans {
-                    cancel.check().map_err(|_| ApiError::Cancelled)?;
-                    strikes.extend(lightning::strikes(&world, *i, bbox, t0, t1, p)?);
-                }
-                strikes.sort_by(|a, b| a.t.total_cmp(&b.t).then(a.x.total_cmp(&b.x)).then(a.y.total_cmp(&b.y)));
+            Ok((query.work(&world)?, move |cancel: &Cancel| {
                 let answer = LightningAnswer {
                     world: world.name.clone(),
                     bbox,
                     t0,
                     t1,
-                    layers: plans.iter().map(|(i, _)| world.layers[*i].name.clone()).collect(),
-                    strikes,
+                    layers: query.layer_names(&world),
+                    strikes: query.strikes(&world, cancel)?.into_iter().map(|(_, s)| s).collect(),
                 };
                 json_bytes(&answer)
             }))

@@ -38,12 +38,14 @@ fn no_store(status: StatusCode, body: Status) -> Response {
     r
 }
 
+/// Liveness: the process answers.
 #[utoipa::path(get, path = "/healthz", tag = "operations",
     responses((status = 200, body = Status, description = "The process is alive")))]
 pub async fn healthz() -> Response {
     no_store(StatusCode::OK, Status::of("ok"))
 }
 
+/// Readiness: whether this replica takes its share of the load.
 #[utoipa::path(get, path = "/readyz", tag = "operations",
     responses(
         (status = 200, body = Status, description = "Ready to serve"),
@@ -62,6 +64,7 @@ pub async fn readyz(State(s): State<Arc<AppState>>) -> Response {
     }
 }
 
+/// Prometheus metrics.
 #[utoipa::path(get, path = "/metrics", tag = "operations",
     responses((status = 200, content_type = "text/plain", body = String, description = "Prometheus text exposition")))]
 pub async fn metrics(State(s): State<Arc<AppState>>) -> Response {

@@ -6,10 +6,26 @@ use cloudscape_core::render::{Quality, Sun};
 use crate::error::ApiError;
 
 /// The query string of one request as `(name, value)` pairs; the last of repeated
-/// names wins, unknown names are ignored (cache busters, tracking).
+/// names wins. Unknown names are ignored (cache busters, tracking) unless the route
+/// checks them ([`Params::check_known`]).
 pub struct Params(pub Vec<(String, String)>);
 
 impl Params {
+    /// 400 naming the first parameter that is not in `known`.
+    pub fn check_known(&self, known: &[&str]) -> Result<(), ApiError> {
+        match self.0.iter().find(|(k, _)| !known.contains(&k.as_str())) {
+            None => Ok(()),
+            Some((name, _)) => Err(ApiError::UnknownParameter {
+                name: name.chars().take(64).collect(),
+                known: if known.is_empty() {
+                    "no parameter".to_string()
+                } else {
+                    known.join(", ")
+                },
+            }),
+        }
+    }
+
     pub fn get(&self, name: &str) -> Option<&str> {
         self.0.iter().rev().find(|(k, _)| k == name).map(|(_, v)| v.as_str())
     }
@@ -269,6 +285,20 @@ mod tests {
             (back.get("layer"), back.get("t"), back.get("sun")),
             (Some("a b&c"), Some("1220"), Some("10,20"))
         );
+    }
+
+    #[test]
+    fn unknown_parameters_are_named() {
+        let p = Params(vec![("f".into(), "json".into()), ("colour".into(), "blue".into())]);
+        assert_eq!(
+            p.check_known(&["f", "bbox"]),
+            Err(ApiError::UnknownParameter {
+                name: "colour".into(),
+                known: "f, bbox".into()
+            })
+        );
+        assert!(p.check_known(&["colour", "f"]).is_ok());
+        assert!(Params(vec![]).check_known(&[]).is_ok());
     }
 
     #[test]

@@ -224,6 +224,7 @@ async fn serve_global(
         .await
 }
 
+/// The splat sprite sheet of a quality preset.
 #[utoipa::path(
     get,
     path = "/v1/splats.png",
@@ -242,6 +243,7 @@ pub async fn splats_png(
     splats(s, params, headers, false).await
 }
 
+/// The layout of the splat sprite sheet.
 #[utoipa::path(
     get,
     path = "/v1/splats.json",
@@ -260,6 +262,7 @@ pub async fn splats_json(
     splats(s, params, headers, true).await
 }
 
+/// The clear sky of a sun.
 #[utoipa::path(
     get,
     path = "/v1/sky.json",

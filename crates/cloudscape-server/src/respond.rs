@@ -68,6 +68,25 @@ impl From<Keyframe> for TimeHeaders {
     }
 }
 
+/// The time a keyframe product was asked for.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum AskedTime {
+    /// `t=` of the request, world seconds.
+    Given(f64),
+    /// No `t`: the world clock's time `t` now, which runs at `rate` world seconds per
+    /// real second (the answer changes at the next keyframe, never final).
+    Clock { t: f64, rate: f64 },
+}
+
+impl AskedTime {
+    /// World seconds.
+    pub fn t(self) -> f64 {
+        match self {
+            AskedTime::Given(t) | AskedTime::Clock { t, .. } => t,
+        }
+    }
+}
+
 /// How long an answer may be kept.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Freshness {
@@ -76,8 +95,8 @@ pub enum Freshness {
     Final,
     /// Bytes for a time snapped to the frame grid (`server.cache_control_other`).
     Snapped,
-    /// A keyframe asked by a time inside its span: `max-age` the seconds until the
-    /// next keyframe (at a world clock of one second per second).
+    /// A keyframe asked by a time inside its span, or by the world clock: `max-age`
+    /// the seconds until the next keyframe.
     UntilNextKeyframe(u64),
 }
 
@@ -120,7 +139,7 @@ impl Cached {
         }
     }
 
-    /// A keyframe product asked for `requested`: final when that is the keyframe's own
+    /// A keyframe product asked for at `asked`: final when that is the keyframe's own
     /// time, else valid until the next keyframe, with `canonical` (the URL that
     /// names the keyframe) as its `Content-Location`.
     pub fn keyframe(
@@ -128,10 +147,16 @@ impl Cached {
         key: CacheKey,
         content_type: &'static str,
         keyframe: Keyframe,
-        requested: f64,
+        asked: AskedTime,
         canonical: impl FnOnce() -> String,
     ) -> Cached {
-        let exact = keyframe.is_exact(requested);
+        let exact = matches!(asked, AskedTime::Given(t) if keyframe.is_exact(t));
+        // Real seconds until the clock reaches the next keyframe (a time given in the
+        // request is taken at one world second per second).
+        let (t, rate) = match asked {
+            AskedTime::Given(t) => (t, 1.0),
+            AskedTime::Clock { t, rate } => (t, rate),
+        };
         Cached {
             kind,
             key,
@@ -140,7 +165,7 @@ impl Cached {
             freshness: if exact {
                 Freshness::Final
             } else {
-                Freshness::UntilNextKeyframe((keyframe.t1 - requested).ceil().max(1.0) as u64)
+                Freshness::UntilNextKeyframe(((keyframe.t1 - t) / rate).ceil().max(1.0) as u64)
             },
             content_location: (!exact).then(canonical),
         }

@@ -11,20 +11,20 @@
 //! `"scheme": "tms"` (rows from the south), not `xyz`. A zoom-route tile is the very
 //! same bytes, ETag and cache entry as the level-route tile it maps to.
 //!
-//! URLs are absolute: `server.public_url` when set (the address clients use behind
-//! a proxy or CDN), else `http://` (or `https://` when a proxy says so in
-//! `X-Forwarded-Proto`) and the request's `Host`. A document built from the request's
-//! headers is that client's alone: it says `Cache-Control: private` and `Vary: Host,
-//! X-Forwarded-Proto`, so no shared cache (nginx, a CDN) keeps it under the plain URL
-//! and hands another client the templates of a `Host` an attacker chose. With
-//! `public_url` the document is the same for everyone and caches like discovery.
+//! Time: a document asked with `t` bakes that time into its templates. Without `t`
+//! its templates name no time, so a generic client that fills only `{z}`, `{x}` and
+//! `{y}` gets the world clock's current keyframe (max-age until the next); the
+//! `cloudscape.keyframe_tiles` template keeps a `{t}` for clients that animate.
+//!
+//! URLs are absolute ([`crate::public_url`]): from `server.public_url`, else from the
+//! request's `Host` (then the document is private to that client).
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use axum::extract::{FromRequestParts, State};
 use axum::http::request::Parts;
-use axum::http::{HeaderMap, HeaderValue, Uri, header};
+use axum::http::{HeaderMap, Uri};
 use axum::response::Response;
 use serde::Serialize;
 use utoipa::openapi::RefOr;
@@ -34,10 +34,10 @@ use cloudscape_core::render::tile::TILE_COLUMNS;
 use cloudscape_core::world::ALGORITHM_VERSION;
 
 use crate::annotations::{ComputedResponses, LayerName, NotModified, WorldName};
-use crate::discovery::json_response;
 use crate::error::ApiError;
 use crate::extract::{TilePath, WorldPath, layer, parse_product};
 use crate::params::{Params, parse_level, parse_quality, parse_sun};
+use crate::public_url::{PublicBase, encode_segment};
 use crate::state::AppState;
 use crate::tiles::{self, TileCell, TileQuery, product_bytes};
 
@@ -89,74 +89,33 @@ pub struct TileJsonExtra {
     pub crs: &'static str,
     /// Absolute URL template of the same tiles addressed by level (`{z}` = level).
     pub level_tiles: String,
-    /// Seconds; when the TileJSON was asked without `t`, the templates keep a `{t}`
-    /// placeholder that the client fills (a tile needs a time).
+    /// Absolute URL template of the zoom route with a `{t}` placeholder as well, for
+    /// clients that animate: each keyframe's own `t` is an immutable answer.
+    pub keyframe_tiles: String,
+    /// Seconds: the time baked into `tiles` and `level_tiles`. Absent when the
+    /// TileJSON was asked without `t`: those templates then name no time and answer
+    /// the world clock's current keyframe (max-age until the next).
     pub t: Option<f64>,
 }
 
-/// Where the absolute URLs of a document start.
-struct PublicBase {
-    /// Scheme and authority (and `public_url`'s path), no trailing slash.
-    url: String,
-    /// Taken from the request's headers (no `public_url`): the document is private.
-    from_request: bool,
+/// When the tile URLs of a document are.
+enum TileTime {
+    /// Baked in: `t=` of the request.
+    At(f64),
+    /// Not named: the tile route answers the world clock's current keyframe.
+    Clock,
+    /// A `{t}` placeholder the client fills.
+    Placeholder,
 }
 
-/// The scheme and authority clients reach this server at: `server.public_url`, else
-/// the request's `Host` (`X-Forwarded-Proto: https` makes it https).
-fn public_base(s: &AppState, uri: &Uri, headers: &HeaderMap) -> Result<PublicBase, ApiError> {
-    if !s.settings.public_url.is_empty() {
-        return Ok(PublicBase {
-            url: s.settings.public_url.trim_end_matches('/').to_string(),
-            from_request: false,
-        });
-    }
-    let host = uri
-        .authority()
-        .map(|a| a.as_str().to_string())
-        .or_else(|| headers.get("host").and_then(|h| h.to_str().ok()).map(str::to_string))
-        .ok_or_else(|| ApiError::InvalidParameter {
-            name: "host".to_string(),
-            message: "the request has no Host header and server.public_url is not set".to_string(),
-        })?;
-    let valid = !host.is_empty()
-        && host.len() <= 255
-        && host
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'-' | b':' | b'[' | b']' | b'_'));
-    if !valid {
-        return Err(ApiError::InvalidParameter {
-            name: "host".to_string(),
-            message: format!(
-                "the Host header `{}` is not a host[:port]",
-                host.chars().take(64).collect::<String>()
-            ),
-        });
-    }
-    let https = headers
-        .get("x-forwarded-proto")
-        .and_then(|v| v.to_str().ok())
-        .is_some_and(|v| v.trim().eq_ignore_ascii_case("https"));
-    Ok(PublicBase {
-        url: format!("{}://{host}", if https { "https" } else { "http" }),
-        from_request: true,
-    })
-}
-
-/// `cache_control` for one client only: its directives with `public` (and the shared
-/// caches' `s-maxage`) replaced by `private`.
-fn private(cache_control: &str) -> String {
-    let kept = cache_control.split(',').map(str::trim).filter(|d| {
-        let name = d.split('=').next().unwrap_or("").to_ascii_lowercase();
-        !d.is_empty() && !matches!(name.as_str(), "public" | "private" | "s-maxage")
-    });
-    std::iter::once("private").chain(kept).collect::<Vec<_>>().join(", ")
-}
-
-/// The query that every tile URL of the document carries: `t` (or the `{t}`
-/// placeholder), `layer`, and `quality` and `sun` when they were asked.
-fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
-    let mut parts = vec![format!("t={}", t.map_or_else(|| "{t}".to_string(), |t| t.to_string()))];
+/// The query that every tile URL of the document carries: `t` as `time` says,
+/// `layer`, and `quality` and `sun` when they were asked.
+fn tile_query(params: &Params, layer: &str, time: TileTime) -> String {
+    let mut parts = match time {
+        TileTime::At(t) => vec![format!("t={t}")],
+        TileTime::Clock => Vec::new(),
+        TileTime::Placeholder => vec!["t={t}".to_string()],
+    };
     parts.push(Params(Vec::new()).query_with("layer", layer));
     for name in ["quality", "sun"] {
         if let Some(v) = params.get(name) {
@@ -166,6 +125,7 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
     parts.join("&")
 }
 
+/// TileJSON 3.0.0 of one product of one layer.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/tilejson.json",
@@ -174,7 +134,7 @@ fn tile_query(params: &Params, layer: &str, t: Option<f64>) -> String {
         WorldName,
         LayerName,
         ("product" = Option<crate::extract::TileProduct>, Query, description = "Tile product (default coverage.png)"),
-        ("t" = Option<f64>, Query, description = "World time baked into the tile URLs; without it they keep a {t} placeholder"),
+        ("t" = Option<f64>, Query, description = "World time baked into the tile URLs; without it they name no time and answer the world clock's current keyframe (cloudscape.keyframe_tiles keeps a {t} placeholder)"),
         ("quality" = Option<crate::params::QualityName>, Query, description = "Passed on to the tile URLs"),
         ("sun" = Option<String>, Query, description = "AZ,EL, passed on to the tile URLs"),
     ),
@@ -205,10 +165,11 @@ pub async fn tilejson(
     };
     parse_quality(&params)?;
     parse_sun(&params)?;
-    let base = public_base(&s, &uri, &headers)?;
+    let base = PublicBase::of(&s, &uri, &headers)?;
     let max_level = s.worlds.config().limits.max_level;
     let world_url = format!("{}/v1/worlds/{}", base.url, encode_segment(&w.name));
-    let query = tile_query(&params, &layer.name, t);
+    let query = tile_query(&params, &layer.name, t.map_or(TileTime::Clock, TileTime::At));
+    let zoom_tiles = |query: &str| format!("{world_url}/zoom/{{z}}/{{x}}/{{y}}/{}?{query}", product.name());
     let doc = TileJson {
         tilejson: TILEJSON_VERSION,
         name: format!("cloudscape {} {} {}", w.name, layer.name, product.name()),
@@ -226,7 +187,7 @@ pub async fn tilejson(
         ),
         version: format!("{ALGORITHM_VERSION}.0.0"),
         scheme: "tms",
-        tiles: vec![format!("{world_url}/zoom/{{z}}/{{x}}/{{y}}/{}?{query}", product.name())],
+        tiles: vec![zoom_tiles(&query)],
         minzoom: 0,
         maxzoom: max_level,
         bounds: WHOLE_WORLD,
@@ -241,23 +202,11 @@ pub async fn tilejson(
             tile_metres_level0: layer.cell_size * TILE_COLUMNS as f64,
             crs: "metres on a plane: x east, y north, z up; tile (level, 0, 0) starts at the origin",
             level_tiles: format!("{world_url}/tiles/{{z}}/{{x}}/{{y}}/{}?{query}", product.name()),
+            keyframe_tiles: zoom_tiles(&tile_query(&params, &layer.name, TileTime::Placeholder)),
             t,
         },
     };
-    if !base.from_request {
-        return json_response(&headers, &s.settings.cache_control_other, &doc);
-    }
-    let mut response = json_response(&headers, &private(&s.settings.cache_control_other), &doc)?;
-    response
-        .headers_mut()
-        .append(header::VARY, HeaderValue::from_static("host, x-forwarded-proto"));
-    Ok(response)
-}
-
-/// A world name as one URL path segment.
-fn encode_segment(name: &str) -> String {
-    let q = Params(Vec::new()).query_with("n", name);
-    q.trim_start_matches("n=").to_string()
+    base.json_response(&headers, &s.settings.cache_control_other, &doc)
 }
 
 /// `/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}`: the tile at level
@@ -282,6 +231,7 @@ impl utoipa::IntoResponses for ZoomTileBytes {
     }
 }
 
+/// One product of one tile, by TileJSON zoom.
 #[utoipa::path(
     get,
     path = "/v1/worlds/{world}/zoom/{zoom}/{x}/{y}/{product}",
@@ -310,20 +260,13 @@ mod tests {
     use super::*;
 
     #[test]
-    fn tile_queries_keep_a_time_placeholder_or_the_time() {
+    fn tile_queries_name_the_time_no_time_or_a_placeholder() {
         let p = Params(vec![("quality".into(), "fast".into()), ("junk".into(), "x".into())]);
-        assert_eq!(tile_query(&p, "low cu", None), "t={t}&layer=low%20cu&quality=fast");
-        assert_eq!(tile_query(&Params(vec![]), "a", Some(120.0)), "t=120&layer=a");
-        assert_eq!(encode_segment("my world"), "my%20world");
-    }
-
-    #[test]
-    fn a_document_of_the_request_host_is_private() {
-        assert_eq!(private("public, max-age=60"), "private, max-age=60");
         assert_eq!(
-            private("max-age=60, s-maxage=600, PUBLIC, stale-while-revalidate=30"),
-            "private, max-age=60, stale-while-revalidate=30"
+            tile_query(&p, "low cu", TileTime::Placeholder),
+            "t={t}&layer=low%20cu&quality=fast"
         );
-        assert_eq!(private(""), "private");
+        assert_eq!(tile_query(&p, "low cu", TileTime::Clock), "layer=low%20cu&quality=fast");
+        assert_eq!(tile_query(&Params(vec![]), "a", TileTime::At(120.0)), "t=120&layer=a");
     }
 }

@@ -26,8 +26,9 @@ use crate::error::ApiError;
 use crate::extract::{TilePath, TileProduct, layer};
 use crate::params::{Params, QualityName, parse_quality, parse_sun};
 use crate::recipe::TileRecipe;
-use crate::respond::Cached;
+use crate::respond::{AskedTime, Cached};
 use crate::state::AppState;
+use crate::warm::{unix_now, world_now};
 
 /// The column, row and product of a tile's path, after its level (`/tiles`) or zoom
 /// (`/zoom`).
@@ -57,9 +58,9 @@ pub struct TileCell {
     reason = "documentation: utoipa reads the fields, the handlers read `Params`"
 )]
 pub struct TileQuery {
-    /// World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL
+    /// World time, seconds, 0 <= t <= 1e12. Answered with the keyframe whose span holds t (t0 = floor(t / span) * span, span = dt * 2^min(z, 4)): immutable when t is t0, else max-age until the next keyframe and Content-Location naming the keyframe's URL. Absent: the world clock's time now (the current keyframe, max-age until the next; what a TileJSON template filled with only {z}/{x}/{y} names)
     #[param(example = 0)]
-    t: f64,
+    t: Option<f64>,
     /// fast | balanced (default) | accurate | reference | reference-single (the last two as accurate): metaball spacing, splat resolution, atlas texel (billboards, atlas, shadow only)
     quality: Option<QualityName>,
     /// AZ,EL in degrees; default: the world clock's sun at t. Bucketed to ~8 degrees: suns in one bucket give the same bytes (billboards, atlas, shadow only)
@@ -118,7 +119,19 @@ pub async fn tile(
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
     let (layer_index, layer) = layer(&world.world, params.get("layer"))?;
-    let t = params.time("t")?;
+    // Without `t`, the world clock's time now: a URL with only {z}/{x}/{y} filled (a
+    // generic TileJSON client's) is the current keyframe.
+    let asked = match params.get("t") {
+        Some(_) => AskedTime::Given(params.time("t")?),
+        None => {
+            let clock = &world.world.clock;
+            AskedTime::Clock {
+                t: world_now(clock, unix_now()),
+                rate: clock.rate,
+            }
+        }
+    };
+    let t = asked.t();
     let quality = parse_quality(&params)?;
     let sun = parse_sun(&params)?;
     let config = s.worlds.config();
@@ -143,7 +156,7 @@ pub async fn tile(
         recipe.key(keyframe),
         product.content_type(),
         keyframe,
-        t,
+        asked,
         canonical,
     );
     let max_response_bytes = config.limits.max_response_bytes;

@@ -8,11 +8,12 @@
 #   echo "$base"                       # http://127.0.0.1:PORT
 #   check_server                       # fails if the server died or panicked
 #
-# Needs the release binary (cargo build --release --bins) and python3 (for a free port
-# and the readiness check, without curl). The caller's CLOUDSCAPE_* variables reach
-# the server (a request timeout of its own replaces the default below).
+# Needs the release binary (cargo build --release --bins; CLOUDSCAPE_BIN names another
+# one, for example a build of an older commit to see a check fail there) and python3
+# (for a free port and the readiness check, without curl). The caller's CLOUDSCAPE_*
+# variables reach the server (a request timeout of its own replaces the default below).
 
-bin=target/release/cloudscape
+bin=${CLOUDSCAPE_BIN:-target/release/cloudscape}
 server_pid=""
 server_log=""
 PY=python3

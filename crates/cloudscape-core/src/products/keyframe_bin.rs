@@ -158,7 +158,7 @@ impl Form {
 /// How finely the states are quantised.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Quantisation {
-    /// Bits per colour channel (steps of `(c / 2)^(1/2.2)`), 1 to 8.
+    /// Bits per colour channel (steps of [`ColourCurve`]), 1 to 8.
     pub colour_bits: u8,
     /// Steps of `τ_sun` per e-fold, at least 1.
     pub tau_sun_steps: u8,
@@ -390,28 +390,77 @@ pub struct LatticeKeyframe {
     pub shadow_widening: f32,
 }
 
+/// How colour codes map to linear colour, by the ALGORITHM_VERSION in the header
+/// (offset 152).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ColourCurve {
+    /// Before version 13: steps of `(c / 2)^(1/2.2)`.
+    Gamma,
+    /// Since version 13: steps of the displayed value at the tone map's exposure E = 3,
+    /// `(1 − e^{−E c})^(1/2.2)` ([`crate::render::light::tone_map`]), so every step is
+    /// the same on the display (half a step is the largest display error) and no
+    /// colour is clipped; the top code stands for `c = 2`. At version 13 cloud's sun
+    /// became a quarter of what it was and the tone map gained its exposure: `c / 2`
+    /// would have spent half of the codes on colours no cloud has.
+    Display,
+}
+
+/// The exposure of [`ColourCurve::Display`]: [`crate::render::light::EXPOSURE`] at
+/// version 13, fixed here because it is part of the format.
+const CODE_EXPOSURE: f64 = 3.0;
+
+impl ColourCurve {
+    /// The curve of a header's ALGORITHM_VERSION.
+    pub fn of(algorithm_version: u32) -> ColourCurve {
+        if algorithm_version >= 13 {
+            ColourCurve::Display
+        } else {
+            ColourCurve::Gamma
+        }
+    }
+
+    /// The code value in [0, 1] of linear colour `c`.
+    fn encode(self, c: f64) -> f64 {
+        let c = if c.is_nan() { 0.0 } else { c.max(0.0) };
+        match self {
+            ColourCurve::Gamma => (c / 2.0).min(1.0).powf(1.0 / 2.2),
+            ColourCurve::Display => (1.0 - (-CODE_EXPOSURE * c).exp()).powf(1.0 / 2.2),
+        }
+    }
+
+    /// The linear colour of code value `q` in [0, 1].
+    fn decode(self, q: f64) -> f64 {
+        match self {
+            ColourCurve::Gamma => 2.0 * q.powf(2.2),
+            ColourCurve::Display if q >= 1.0 => 2.0,
+            ColourCurve::Display => (-(1.0 - q.powf(2.2)).ln() / CODE_EXPOSURE).min(2.0),
+        }
+    }
+}
+
 /// The quantiser and dequantiser of the states.
 #[derive(Clone, Copy)]
 struct Codes {
     levels: f64,
     steps: f64,
+    curve: ColourCurve,
 }
 
 impl Codes {
-    fn new(q: Quantisation) -> Codes {
+    fn new(q: Quantisation, curve: ColourCurve) -> Codes {
         Codes {
             levels: ((1u32 << q.colour_bits.clamp(1, 8)) - 1) as f64,
             steps: q.tau_sun_steps.max(1) as f64,
+            curve,
         }
     }
 
     fn colour(&self, c: f32) -> u16 {
-        let g = (c as f64 / 2.0).clamp(0.0, 1.0).powf(1.0 / 2.2);
-        (g * self.levels).round() as u16
+        (self.curve.encode(c as f64) * self.levels).round() as u16
     }
 
     fn colour_value(&self, v: u16) -> f32 {
-        (2.0 * (v.min(self.levels as u16) as f64 / self.levels).powf(2.2)) as f32
+        self.curve.decode(v.min(self.levels as u16) as f64 / self.levels) as f32
     }
 
     fn tau_sun(&self, t: f32) -> u16 {
@@ -660,7 +709,7 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
         form
     };
     let geometry = SiteGeometry::of(tile);
-    let codes = Codes::new(q);
+    let codes = Codes::new(q, ColourCurve::of(ALGORITHM_VERSION));
     let (mut start, mut end) = states_of(tile, &geometry, codes);
     let s = tile.quality.settings();
     let wide = s.splat_count > 255;
@@ -941,7 +990,8 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
         end,
         shadow_widening: h.u16(198)? as f32 / 1000.0,
     };
-    let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count);
+    let curve = ColourCurve::of(h.u32(152)?);
+    let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count, curve);
     if records.len() != h.u32(156)? as usize {
         return Err(format!(
             "billboards.bin: {} billboards decoded, the header says {}",
@@ -980,8 +1030,8 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
 /// The billboards of a decoded lattice: every site with a ball at either end, in site
 /// order, as version-2 records (an end without a ball draws nothing and keeps the
 /// other end's light, as `render::tile` pairs them).
-fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16) -> Vec<BinRecord> {
-    let codes = Codes::new(lattice.quantisation);
+fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, curve: ColourCurve) -> Vec<BinRecord> {
+    let codes = Codes::new(lattice.quantisation, curve);
     let g = &lattice.geometry;
     let mut out = Vec::new();
     let mut at = 0usize;

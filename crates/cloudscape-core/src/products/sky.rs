@@ -4,7 +4,10 @@
 //!
 //! Fields: `"sun"` (bucket id, azimuth, elevation, direction: the bucket's centre,
 //! as every pre-shaded product), `"sun_rgb"` (at the clouds,
-//! [`crate::render::sky::SUN_REFERENCE_ALTITUDE`]), `"sun_rgb_ground"`,
+//! [`crate::render::sky::SUN_REFERENCE_ALTITUDE`]: what a white surface facing the
+//! sun reads), `"sun_scatter"` (what cloud scatters of it per unit 4π-normalised
+//! phase, `sun_rgb / 4`), `"exposure"` (the tone map's, multiplied into linear
+//! radiance before `1 − exp(−x)` and gamma 1/2.2), `"sun_rgb_ground"`,
 //! `"sky_ambient_above"`, `"sky_ambient_below"`, `"ambient_rgb"`, `"night_rgb"`,
 //! `"ground_albedo"`, `"sun_disc"` (angular radius, gain over `sun_rgb`), `"sky"`
 //! (the radiance table: `rows` over view elevation `e = 90° (i / (rows − 1))²`,
@@ -18,7 +21,7 @@ use serde_json::json;
 
 use super::json_f32 as f;
 use crate::render::SunBucket;
-use crate::render::light::{Lighting, SUN_DISC_GAIN};
+use crate::render::light::{EXPOSURE, Lighting, SUN_DISC_GAIN};
 use crate::render::sky::{self, GROUND_RADIUS, SKY_COLUMNS, SKY_ROWS, SUN_TABLE_STEP, TOP_RADIUS};
 use crate::world::ALGORITHM_VERSION;
 
@@ -41,6 +44,8 @@ pub fn encode_json(bucket: SunBucket, lighting: &Lighting) -> Vec<u8> {
             "direction": lighting.sun_dir.map(f),
         },
         "sun_rgb": rgb(lighting.sun_rgb),
+        "sun_scatter": rgb(lighting.sun_scatter()),
+        "exposure": EXPOSURE,
         "sun_rgb_ground": rgb(s.sun_rgb_at(0.0)),
         "sky_ambient_above": rgb(lighting.sky_ambient_above),
         "sky_ambient_below": rgb(lighting.sky_ambient_below),

@@ -293,9 +293,11 @@ impl ShadingParams {
 pub struct Lighting {
     /// Unit vector toward the sun.
     pub sun_dir: [f64; 3],
-    /// Direct sun radiance reaching the clouds (linear RGB, ≥ 0): the atmosphere's
+    /// The direct sun reaching the clouds (linear RGB, ≥ 0) as the radiance a white
+    /// Lambertian surface facing it reads (its irradiance over π): the atmosphere's
     /// transmittance toward the sun at [`SUN_REFERENCE_ALTITUDE`], so a low sun is
-    /// red and a sun whose disc is below the horizon there (about −1.7°) is 0.
+    /// red and a sun whose disc is below the horizon there (about −1.7°) is 0. Cloud
+    /// scatters [`Lighting::sun_scatter`] of it.
     pub sun_rgb: [f64; 3],
     /// Uniform-equivalent radiance of the sky's upper hemisphere, `E_sky↓ / π`
     /// (E_sky↓ the clear sky's irradiance on an upward-facing surface): what lights
@@ -357,9 +359,21 @@ impl Lighting {
         }
     }
 
+    /// What the sun adds to the radiance a unit of cloud scattering coefficient
+    /// scatters, per unit of the 4π-normalised phase [`Phase::eval`]:
+    /// `E_sun · p / (σ_s)` with the sun's irradiance `E_sun = π · sun_rgb` (the
+    /// irradiance under which a white Lambertian surface facing the sun reads
+    /// `sun_rgb`, as the ground does) and `p = eval / 4π`, so `sun_rgb / 4`
+    /// ([`SUN_SCATTER`]). The cloud, the ground and the air see one sun in one unit:
+    /// a conservative cloud deck returns what a white ground returns
+    /// (`pathtrace::tests::one_sun_a_conservative_deck_reflects_what_a_white_ground_does`).
+    pub fn sun_scatter(&self) -> [f64; 3] {
+        self.sun_rgb.map(|c| c * SUN_SCATTER)
+    }
+
     /// Source radiance of cloud at a point that receives sunlight transmittance
     /// `sun_transmittance`, for the phase value `phase` (single scattering, unoccluded
-    /// ambient; the reference marcher's): `albedo · (sun · T · p + ambient)`.
+    /// ambient; the reference marcher's): `albedo · (sun_scatter · T · p + ambient)`.
     pub fn source_with_phase(&self, sun_transmittance: f64, phase: f64) -> [f64; 3] {
         let t = if sun_transmittance.is_finite() {
             sun_transmittance.clamp(0.0, 1.0)
@@ -367,7 +381,8 @@ impl Lighting {
             0.0
         };
         let a = self.params.albedo.clamp(0.0, 1.0);
-        [0, 1, 2].map(|i| a * (self.sun_rgb[i] * t * phase + self.ambient_rgb[i]))
+        let sun = self.sun_scatter();
+        [0, 1, 2].map(|i| a * (sun[i] * t * phase + self.ambient_rgb[i]))
     }
 
     /// The scattered sunlight of the billboard paths for a point whose sun ray has
@@ -378,7 +393,7 @@ impl Lighting {
     pub fn sun_octaves(&self, tau_sun: f64, view_dir: [f64; 3]) -> [f64; 3] {
         let cos = dot(view_dir, self.sun_dir);
         let s = self.params.octaves.sun_sum(&self.params.phase, cos, tau_sun);
-        self.sun_rgb.map(|c| c * s)
+        self.sun_scatter().map(|c| c * s)
     }
 
     /// What a client adds to a billboard's pre-shaded (isotropic) colour to apply the
@@ -388,7 +403,7 @@ impl Lighting {
         let o = &self.params.octaves;
         let d = o.sun_sum(&self.params.phase, cos, tau_sun) - o.isotropic_sum(tau_sun);
         let a = self.params.albedo.clamp(0.0, 1.0);
-        self.sun_rgb.map(|c| a * c * d)
+        self.sun_scatter().map(|c| a * c * d)
     }
 
     /// The radiance of the ground seen from below a cloud: the ground of
@@ -483,6 +498,20 @@ impl Lighting {
     }
 }
 
+/// The sun's share of the in-scattered radiance per unit `sun_rgb` and unit
+/// 4π-normalised phase value: the irradiance `π · sun_rgb` times the phase function's
+/// normalisation `1 / 4π` (see [`Lighting::sun_scatter`]).
+pub const SUN_SCATTER: f64 = 0.25;
+
+/// The tone map's exposure: the factor linear radiance is multiplied by before
+/// [`tone_map`]'s curve, a camera setting and not part of the light. A fixed
+/// photographic exposure (as a game camera's manual mode), chosen so that the clear
+/// noon sky reads the medium blue of a photograph exposed for sunlit cloud: at 3 the
+/// noon zenith (about 1/20 of a white surface facing the sun) maps to about 0.4 and a
+/// sunlit cloud top to 0.95. Every renderer, the viewer and the three.js example apply
+/// the same exposure (served as `exposure` in `/v1/sky.json`).
+pub const EXPOSURE: f64 = 3.0;
+
 /// Radiance of the sun's disc drawn in the background, as a multiple of `sun_rgb`.
 pub const SUN_DISC_GAIN: f64 = 40.0;
 
@@ -491,13 +520,13 @@ fn smoothstep(e0: f64, e1: f64, x: f64) -> f64 {
     t * t * (3.0 - 2.0 * t)
 }
 
-/// Display mapping from linear radiance to [0, 1): `1 − exp(−x)` then gamma 1/2.2.
-/// NaN or negative input maps to 0, +∞ to 1.
+/// Display mapping from linear radiance to [0, 1): the [`EXPOSURE`], then
+/// `1 − exp(−x)`, then gamma 1/2.2. NaN or negative input maps to 0, +∞ to 1.
 pub fn tone_map(x: f64) -> f64 {
     if x.is_nan() || x <= 0.0 {
         return 0.0;
     }
-    (1.0 - (-x).exp()).powf(1.0 / 2.2)
+    (1.0 - (-EXPOSURE * x).exp()).powf(1.0 / 2.2)
 }
 
 #[inline]

@@ -29,9 +29,11 @@
 //!   sky's radiance;
 //! - the **sun** term as Σ over tentative collisions of T̂ · (σ/σ̄) · T̂_sun — unbiased
 //!   by Mecke's formula for Poisson processes, E Σ g(tᵢ) = ∫ σ̄ E g(t) dt — times
-//!   `albedo · sun_rgb · phase.eval(cos θ)` with cos θ = (path direction) · (sun
+//!   `albedo · sun_scatter · phase.eval(cos θ)` with cos θ = (path direction) · (sun
 //!   direction): the marcher's single-scattering source term in the same units
-//!   (`phase.eval` is 4π·p, so an isotropic medium gives 1). T̂ is the running
+//!   (`phase.eval` is 4π·p, so an isotropic medium gives 1, and
+//!   [`Lighting::sun_scatter`] is `E_sun / 4π` for the sun's irradiance `π · sun_rgb`,
+//!   the irradiance the ground sees). T̂ is the running
 //!   ratio-tracking transmittance (Novák, Selle & Jarosz 2014, "Residual ratio tracking
 //!   for estimating attenuation in participating media", §3: the product of (1 − σ/σ̄)
 //!   over the tentative collisions so far, with Russian roulette below 0.1), and T̂_sun
@@ -52,8 +54,11 @@
 //! [`MAX_SCATTERINGS`] scatterings (the last segment then sees what lies behind through
 //! a ratio-tracking transmittance and gathers no more light). The cap's bias is at most
 //! the light of paths longer than that: ≤ albedo^N of the radiance (10⁻⁴⁶ at albedo
-//! 0.9), and for albedo 1 the chance that a walk lasts N steps, which in a white
-//! furnace of optical radius 10 is below 10⁻⁵ (the furnace test sees none of it).
+//! 0.9), and for albedo 1 the chance that a walk lasts N steps: below 10⁻⁵ in a white
+//! furnace of optical radius 10 (the furnace test sees none of it), and in a
+//! conservative deck of optical thickness 150 about the chance that a random walk
+//! returns after N steps, ~1/√(πN): 0.4 % at N = 16 384 (at 1024 it took 5 % of the
+//! deck's reflection; `one_sun_a_conservative_deck_reflects_what_a_white_ground_does`).
 //! [`PathParams::single_scattering`] allows one scattering: the sun term of the first
 //! segment and the sky or ground seen after one scattering, nothing more.
 //!
@@ -82,7 +87,7 @@ pub const DEFAULT_SAMPLES: u32 = 32;
 /// `[limits] max_path_samples` applies as well).
 pub const MAX_SAMPLES: u32 = 65_536;
 /// Most scatterings along one path (see the module comment for its bias).
-pub const MAX_SCATTERINGS: u32 = 1024;
+pub const MAX_SCATTERINGS: u32 = 16_384;
 /// Russian roulette on the throughput starts at this scattering.
 pub const ROULETTE_AFTER: u32 = 4;
 /// Largest extinction used, per metre: a mean free path of 10 cm at density 1, opaque
@@ -494,7 +499,7 @@ impl<'a> Tracer<'a> {
     /// needs none.
     fn path(&self, mut o: [f64; 3], mut d: [f64; 3], aerial: bool, rng: &mut Stream) -> [f64; 3] {
         let lighting = self.env.lighting;
-        let (sun, sun_rgb) = (lighting.sun_dir, lighting.sun_rgb);
+        let (sun, sun_rgb) = (lighting.sun_dir, lighting.sun_scatter());
         let phase = lighting.params.phase;
         let eye = o;
         let mut radiance = [0.0; 3];
@@ -757,9 +762,11 @@ mod tests {
     /// thickness τ seen from above (Chandrasekhar 1960, *Radiative Transfer*, §1.5, the
     /// first-order term; e.g. Liou, *An Introduction to Atmospheric Radiation*, 2nd ed.,
     /// eq. 6.2.5): `L = ω · F · p · μs / (μs + μv) · (1 − exp(−τ (1/μs + 1/μv)))`, with F
-    /// the sun radiance in our units (`sun_rgb`) and p = `phase.eval(cos Θ)`.
+    /// the sun radiance in our units (`sun_rgb`, so the sun's irradiance is `π F`) and
+    /// p = `phase.eval(cos Θ) / 4π` times π: the formula's `F p` with `F` the irradiance
+    /// and `p` normalised over the sphere, which is `sun_rgb · phase.eval / 4`.
     fn slab_single_scattering(omega: f64, f: f64, p: f64, tau: f64, mu_s: f64, mu_v: f64) -> f64 {
-        omega * f * p * mu_s / (mu_s + mu_v) * (1.0 - (-tau * (1.0 / mu_s + 1.0 / mu_v)).exp())
+        omega * f * p / 4.0 * mu_s / (mu_s + mu_v) * (1.0 - (-tau * (1.0 / mu_s + 1.0 / mu_v)).exp())
     }
 
     /// The test slab: 500 m thick (cell centres 50 m … 550 m above 1000 m), 39 km wide,
@@ -867,9 +874,10 @@ mod tests {
                 }
                 mu = 2.0 * uniform() - 1.0;
             }
-            // Photons per unit horizontal area: F₀ μs with F₀ = 4π F, and 1/4π of the
-            // isotropic phase function: μs per unit F.
-            let v = score * mu_s;
+            // Photons per unit horizontal area: F₀ μs with F₀ = π F (the irradiance
+            // under which a white surface reads F), and 1/4π of the isotropic phase
+            // function: μs / 4 per unit F.
+            let v = score * mu_s / 4.0;
             sum += v;
             sum2 += v * v;
         }
@@ -912,6 +920,59 @@ mod tests {
         assert!((got_single - ss).abs() <= 3.0 * single.noise.std_error / 6.0 / f + 0.005 * ss);
     }
 
+    /// One sun for cloud and ground (issue 40): a conservative (albedo 1) deck thick
+    /// enough to transmit under 2 % returns what it receives, so its cosine-weighted
+    /// mean reflected radiance (its exitance over π) is that of a white Lambertian
+    /// ground under the same sun, `sun_rgb · μs` (by the definition of `sun_rgb`: what
+    /// a white surface facing the sun reads), less what the deck transmits. Energy
+    /// conservation, whatever the code does: a cloud lit by four times the ground's
+    /// sun (as before ALGORITHM_VERSION 13) returns four times what it receives.
+    /// The hemisphere is integrated by 4-point Gauss–Legendre in μ = cos θv on [0, 1]
+    /// (weights of ∫ L μ dμ) and 6 azimuths, each an orthographic view looking down.
+    #[test]
+    fn one_sun_a_conservative_deck_reflects_what_a_white_ground_does() {
+        let theta_s: f64 = 30.0;
+        let mu_s = theta_s.to_radians().cos();
+        let isotropic = Phase {
+            g1: 0.0,
+            g2: 0.0,
+            mix: 0.5,
+        };
+        // τ = 150: diffuse transmission ≈ (4/3)(μs + 0.71) / (τ + 1.42) ≈ 1.4 %
+        // (the two-stream asymptote for a conservative isotropic slab).
+        let rho = 30.0f32;
+        let l = slab_lighting(theta_s, 1.0, isotropic);
+        let env = sun_only(&l);
+        // Gauss–Legendre nodes and weights on [0, 1].
+        let nodes: [f64; 4] = [0.069_431_844_2, 0.330_009_478_2, 0.669_990_521_8, 0.930_568_155_8];
+        let weights = [0.173_927_422_6, 0.326_072_577_4, 0.326_072_577_4, 0.173_927_422_6];
+        let azimuths = 6;
+        // Above the deck's top (1550 m), so no tilted ray starts inside it.
+        let centre = [20_000.0, 20_000.0, 1700.0];
+        let (mut sum, mut var) = (0.0, 0.0);
+        for (&mu, w) in nodes.iter().zip(weights) {
+            let theta_v = mu.acos().to_degrees();
+            for a in 0..azimuths {
+                let view = looking_down(centre, theta_v, 360.0 * a as f64 / azimuths as f64, 2);
+                let traced = render(&[slab(rho)], env, &PathParams::new(512), &view);
+                // ∫ L μ dμ dφ / π, with ∫ dφ taken as the mean over azimuths × 2π.
+                let k = w * mu * 2.0 / azimuths as f64;
+                sum += k * mean_luminance(&traced.image);
+                var += (k * traced.noise.std_error / 2.0).powi(2);
+            }
+        }
+        let ground = luminance(l.sun_rgb) * mu_s;
+        let se = var.sqrt();
+        assert!(se < 0.01 * ground, "noise {se} against {ground}");
+        let ratio = sum / ground;
+        // Returned: 1 − transmitted (≤ 2 %), within 5 % as the issue asks; a deck lit
+        // by four times the ground's sun would read about 4.
+        assert!(
+            (0.95..=1.0 + 3.0 * se / ground).contains(&ratio),
+            "deck {sum} (se {se}) against a white ground {ground}: ratio {ratio}"
+        );
+    }
+
     /// A lumpy cloud: 24 × 24 × 10 cells of 50 m, density up to 1 in a ball, uneven.
     fn lumpy() -> Volume {
         volume([24, 24, 10], 50.0, 50.0, 1000.0, |c, r, k| {
@@ -947,7 +1008,7 @@ mod tests {
         let (a, b) = (mean_luminance(&traced.image), mean_luminance(&marched));
         let n = traced.image.rgb.len() as f64;
         let se = traced.noise.std_error / n.sqrt();
-        assert!(b > 0.02, "the cloud is lit: {b}");
+        assert!(b > 0.005, "the cloud is lit: {b}");
         assert!(
             (a - b).abs() <= 3.0 * se + 0.01 * b,
             "path tracer {a} (se {se}) vs marcher {b}"

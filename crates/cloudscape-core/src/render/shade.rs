@@ -282,7 +282,7 @@ pub fn shade(
 /// Two sweeps of the light-buffer machinery: one toward the sun gives each ball's
 /// `τ_sun = τ_front + κ τ_self`; one toward the zenith gives the optical depth of the
 /// balls above (`τ_up`) and, from the column total, of those below (`τ_down`), each
-/// plus `κ τ_self`. The colour is `albedo · (sun · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
+/// plus `κ τ_self`. The colour is `albedo · (sun_scatter · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
 /// with the octaves of [`crate::render::light::Octaves`] and the ambient of
 /// [`Lighting::ambient_source`]: the sky (`ambient_rgb`) through `τ_up`, and the
 /// ground under the ball (lit through the sun buffer's total depth) through `τ_down`.
@@ -307,6 +307,7 @@ pub fn shade_where(
     let sun_up = lighting.sun_dir[2] > 0.0;
     let albedo = lighting.params.albedo.clamp(0.0, 1.0);
     let octaves = lighting.params.octaves;
+    let sun = lighting.sun_scatter();
     let out = balls
         .iter()
         .enumerate()
@@ -330,7 +331,7 @@ pub fn shade_where(
             let iso = octaves.isotropic_sum(tau_sun);
             let k = sheet.index_for_tau(tau);
             let colour =
-                [0, 1, 2].map(|ch| (albedo * (lighting.sun_rgb[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
+                [0, 1, 2].map(|ch| (albedo * (sun[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
             Billboard {
                 index: b.index,
                 centre: c,

@@ -27,8 +27,10 @@
 //!
 //! Units: radiance in the renderer's units (a white Lambertian surface facing a
 //! clear sun reads about 1): the sun's irradiance at the top of the atmosphere is
-//! `π · sun_intensity`, so a white surface under it reads `sun_intensity`. The light
-//! the air scatters is scaled by [`SKY_SCALE`] (a display calibration, see there).
+//! `π · sun_intensity`, so a white surface under it reads `sun_intensity`. The air is
+//! lit by that same irradiance (there is no display calibration inside the physics:
+//! how bright a picture is comes from the tone map's exposure,
+//! [`crate::render::light::EXPOSURE`]).
 //!
 //! Why not a crate: the one Rust sky crate found (`hw-skymodel`, Hosek–Wilkie 2012)
 //! is f32 by design, has no sun radiance or transmittance and no model below the
@@ -71,13 +73,6 @@ pub const GROUND_ALBEDO: [f64; 3] = [0.26, 0.25, 0.21];
 pub const NIGHT_RADIANCE: [f64; 3] = [0.0015, 0.0022, 0.0045];
 /// Angular radius of the sun's disc, radians (0.2666°).
 pub const SUN_ANGULAR_RADIUS: f64 = 0.004_653;
-/// Scale of the light the air scatters (sky, its multiple scattering, aerial
-/// in-scatter) relative to the direct sun: a display calibration, not physics.
-/// At the physical ratio the noon zenith is about 1/20 of a white surface facing the
-/// sun, which [`crate::render::light::tone_map`] (no exposure control) shows navy;
-/// ×3 gives the medium blue of a photograph exposed for sunlit cloud. Extinction is
-/// not scaled, so the sun's colour and the haze's opacity stay physical.
-pub const SKY_SCALE: f64 = 3.0;
 /// Altitude at which [`Sky::sun_rgb_at`] is usually is taken: the middle of typical cloud layers.
 pub const SUN_REFERENCE_ALTITUDE: f64 = 2_000.0;
 
@@ -288,8 +283,6 @@ pub struct Sky {
     /// Sun irradiance at the top of the atmosphere, in units where a white surface
     /// facing it reads `sun_intensity` (that is `π · sun_intensity` W-like units).
     irradiance: f64,
-    /// `irradiance · SKY_SCALE`: what the air's scattering is lit by.
-    scatter_irradiance: f64,
     transmittance: &'static TransmittanceTable,
     /// Ψ_ms (Hillaire 2020 eq. 10) per altitude of [`ms_altitude`], for this sun.
     multiple: Vec<[f64; 3]>,
@@ -345,7 +338,6 @@ impl Sky {
         let mut sky = Sky {
             sun_dir,
             irradiance: PI * intensity,
-            scatter_irradiance: PI * intensity * SKY_SCALE,
             transmittance: TransmittanceTable::shared(),
             multiple: Vec::new(),
             table: Vec::new(),
@@ -426,7 +418,7 @@ impl Sky {
                     let half = (-m.extinction[c] * dt * 0.5).exp();
                     let tm = trans[c] * half;
                     let sigma_s = m.rayleigh[c] + m.mie;
-                    lum[c] += tm * sigma_s * iso * self.scatter_irradiance * ts[c] * dt;
+                    lum[c] += tm * sigma_s * iso * self.irradiance * ts[c] * dt;
                     f[c] += tm * sigma_s * dt;
                     trans[c] = tm * half;
                 }
@@ -437,7 +429,7 @@ impl Sky {
                 let mu_s = (p[0] * s[0] + p[1] * s[1] + p[2] * s[2]) / r;
                 let ts = self.sun_transmittance(r, mu_s);
                 for c in 0..3 {
-                    lum[c] += trans[c] * self.scatter_irradiance * ts[c] * mu_s.max(0.0) * GROUND_ALBEDO[c] / PI;
+                    lum[c] += trans[c] * self.irradiance * ts[c] * mu_s.max(0.0) * GROUND_ALBEDO[c] / PI;
                 }
             }
             for c in 0..3 {
@@ -473,7 +465,7 @@ impl Sky {
             for c in 0..3 {
                 let half = (-m.extinction[c] * dt * 0.5).exp();
                 let tm = trans[c] * half;
-                let single = (m.rayleigh[c] * pr + m.mie * pm) * self.scatter_irradiance * ts[c];
+                let single = (m.rayleigh[c] * pr + m.mie * pm) * self.irradiance * ts[c];
                 let multi = (m.rayleigh[c] + m.mie) * ms[c];
                 lum[c] += tm * (single + multi) * dt;
                 trans[c] = tm * half;
@@ -573,10 +565,10 @@ impl Sky {
         [0, 1, 2].map(|c| self.sun_table[i][c] * (1.0 - f) + self.sun_table[i + 1][c] * f)
     }
 
-    /// The light the air scatters is lit by this irradiance (`π · sun_intensity ·
-    /// SKY_SCALE`).
+    /// The irradiance the air's scattering is lit by: the sun's, `π · sun_intensity`,
+    /// the same the ground and the clouds see.
     pub fn scatter_irradiance(&self) -> f64 {
-        self.scatter_irradiance
+        self.irradiance
     }
 
     /// Aerial perspective between an eye and a point (world metres, z = altitude):
@@ -635,7 +627,7 @@ impl Sky {
             let sm = MIE_SCATTERING * m_m;
             let ext = sr + MIE_EXTINCTION * m_m;
             let t = (-ext * d).exp();
-            let source = (sr * pr + sm * pm) * self.scatter_irradiance * ts[c] * vis + (sr + sm) * ms[c];
+            let source = (sr * pr + sm * pm) * self.irradiance * ts[c] * vis + (sr + sm) * ms[c];
             trans[c] = t;
             inscatter[c] = if ext > 0.0 { source / ext * (1.0 - t) } else { 0.0 };
         }

@@ -52,7 +52,11 @@ use serde::Deserialize;
 /// 12: `billboards.bin` is version 3 (lattice sites, quantised, coded in planes; a
 ///    self-contained and a delta form, `products::keyframe_bin`); version 2 is
 ///    `billboards.v2.bin`.
-pub const ALGORITHM_VERSION: u32 = 12;
+/// 13: one sun: cloud scatters the irradiance the ground sees (`sun_rgb / 4` per unit
+///    4π-normalised phase, [`crate::render::light::SUN_SCATTER`]), the air is lit by
+///    it without a display factor, and the tone map carries the exposure
+///    ([`crate::render::light::EXPOSURE`]).
+pub const ALGORITHM_VERSION: u32 = 13;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

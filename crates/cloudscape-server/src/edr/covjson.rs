@@ -12,7 +12,7 @@ use super::query::{Quantity, format_instant};
 pub const MEDIA_TYPE: &str = "application/prs.coverage+json";
 
 /// UCUM, the unit symbol scheme of every parameter.
-const UCUM: &str = "http://www.opengis.net/def/uom/UCUM/";
+pub const UCUM: &str = "http://www.opengis.net/def/uom/UCUM/";
 
 /// An internationalised string; ours are English.
 #[derive(Clone, Debug, Serialize)]
@@ -56,8 +56,22 @@ pub struct Parameter {
     pub observed_property: ObservedProperty,
 }
 
+/// What a quantity is, in words: the texts of its CoverageJSON parameter here and of
+/// its EDR `parameter_names` entry ([`super::metadata`]), which writes them as plain
+/// strings where CoverageJSON has internationalised objects.
+pub struct QuantityText {
+    pub label: &'static str,
+    pub description: &'static str,
+    /// The unit's name.
+    pub unit: &'static str,
+    /// The unit's UCUM symbol.
+    pub symbol: &'static str,
+    /// The observed property's vocabulary entry, where one means the same thing.
+    pub id: Option<&'static str>,
+}
+
 /// What each quantity means, in the words of `region_stats` and `weather`.
-pub fn parameter(q: Quantity) -> Parameter {
+pub fn text(q: Quantity) -> QuantityText {
     let (label, description, unit, symbol, id) = match q {
         Quantity::CloudCover => (
             "Cloud cover",
@@ -103,17 +117,32 @@ pub fn parameter(q: Quantity) -> Parameter {
             Some("http://vocab.nerc.ac.uk/standard_name/lwe_precipitation_rate/"),
         ),
     };
+    QuantityText {
+        label,
+        description,
+        unit,
+        symbol,
+        id,
+    }
+}
+
+/// The CoverageJSON parameter object of a quantity.
+pub fn parameter(q: Quantity) -> Parameter {
+    let t = text(q);
     Parameter {
         kind: "Parameter",
-        description: en(description),
+        description: en(t.description),
         unit: Unit {
-            label: en(unit),
+            label: en(t.unit),
             symbol: Symbol {
-                value: symbol,
+                value: t.symbol,
                 scheme: UCUM,
             },
         },
-        observed_property: ObservedProperty { id, label: en(label) },
+        observed_property: ObservedProperty {
+            id: t.id,
+            label: en(t.label),
+        },
     }
 }
 
@@ -170,20 +199,26 @@ pub struct Referencing {
     pub system: System,
 }
 
-/// The reference systems of our axes: x, y in the world's plane (a local engineering
-/// CRS: CoverageJSON's GeographicCRS and ProjectedCRS are tied to the Earth, which a
-/// game world is not, so the type is ISO 19111's EngineeringCRS, a custom type the
-/// CoverageJSON extension rules allow), z altitude above sea level when there is a z
-/// axis, t the Gregorian calendar (world time t = the Unix epoch + t seconds).
+/// The reference systems of our axes: x, y in the world's plane, z altitude above sea
+/// level when there is a z axis, t the Gregorian calendar (world time t = the Unix
+/// epoch + t seconds).
+///
+/// The plane is, in ISO 19111's terms, an engineering CRS (not tied to the Earth; the
+/// collections give its WKT 2 `ENGCRS`). CoverageJSON 1.0 defines the types
+/// GeographicCRS, ProjectedCRS, VerticalCRS, TemporalRS and IdentifierRS; its schema
+/// admits other types, but validators (covjson-pydantic) refuse them. So the type is
+/// `ProjectedCRS`, CoverageJSON's type for planar easting/northing in metres, which
+/// both accept, with no `id` (no EPSG code names a game world) and a description that
+/// says what the plane is.
 pub fn referencing(with_z: bool) -> Vec<Referencing> {
     let mut r = vec![Referencing {
         coordinates: vec!["x", "y"],
         system: System {
-            kind: "EngineeringCRS",
+            kind: "ProjectedCRS",
             calendar: None,
             description: Some(en(
-                "The game world's plane: a local engineering CRS in metres, x east, y north, origin at the \
-                 corner of tile (z, 0, 0); not georeferenced.",
+                "The game world's plane, not georeferenced: a local engineering CRS (WKT 2 ENGCRS in the \
+                 collection's extent) in metres, x east, y north, origin at the corner of tile (z, 0, 0).",
             )),
         },
     }];

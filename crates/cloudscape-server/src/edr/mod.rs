@@ -1,21 +1,29 @@
 //! OGC API – Environmental Data Retrieval (EDR) over the same density as `/sample`,
-//! `/region` and `/series`: a landing page, the conformance declaration, one
-//! collection per world (configured worlds are listed; any decimal u64 seed also
-//! names one), and the `position`, `area` and `cube` queries answered as CoverageJSON.
+//! `/region` and `/series`: a landing page (at `/v1/edr` and `/v1/edr/`, the URL
+//! OWSLib forms), the conformance declaration, one collection per world (configured
+//! worlds are listed; any decimal u64 seed also names one), the `position`, `radius`,
+//! `area` and `cube` queries answered as CoverageJSON, and the `items` query, the
+//! lightning strikes as GeoJSON ([`items`]).
 //!
-//! Implemented: those three query types with `coords` (WKT POINT / POLYGON), `bbox`,
-//! `z`, `datetime` (ISO 8601 instants and closed intervals; world time t = 0 is
-//! 1970-01-01T00:00:00Z), `parameter-name`, `f`, `crs` (the one local CRS), and the
-//! cloudscape extras `layer` and `level`. Not implemented: radius, trajectory,
-//! corridor, items, locations, instances, other output formats.
+//! Implemented: those query types with `coords` (WKT POINT / POLYGON), `within` and
+//! `within-units`, `bbox`, `z`, `datetime` (ISO 8601 instants and closed intervals;
+//! world time t = 0 is 1970-01-01T00:00:00Z), `parameter-name` (or OWSLib's
+//! `parameter_names`), `limit` and `offset` (items), `f`, `crs` (the one local CRS),
+//! and the cloudscape extras `layer` and `level`; any other parameter is a 400 that
+//! names it. Not implemented: trajectory, corridor, locations, instances (a world is
+//! one deterministic run), `items/{id}`, other output formats.
 //!
 //! The values are those of the other queries, by construction: a position's density
-//! and precipitation rate are `/sample`'s, an area's or cube's per-column values
-//! aggregate to `/region`'s statistics (`cloudscape_core::density::column_stats`).
+//! and precipitation rate are `/sample`'s, an area's, radius' or cube's per-column
+//! values aggregate to `/region`'s statistics (`cloudscape_core::density::column_stats`),
+//! the items are `/lightning`'s strikes.
 
 mod covjson;
+mod items;
 mod metadata;
 mod query;
+
+pub use metadata::OPENAPI_3_0;
 
 use std::sync::Arc;
 
@@ -33,24 +41,27 @@ use cloudscape_core::weather::column_rate;
 use cloudscape_core::world::{Layer, SnappedTime};
 
 use crate::annotations::{ColumnLevel, ColumnsBbox, ComputedResponses, LayerName, NotModified, WorldName};
-use crate::discovery::json_response;
 use crate::error::ApiError;
-use crate::extract::{PointLayers, WorldQuery, layer};
-use crate::key::{CacheKey, ResolvedWorld, stable_hash_hex};
+use crate::extract::{PointLayers, WorldPath, WorldQuery, layer};
+use crate::key::{CacheKey, ResolvedWorld};
+use crate::lightning::StrikeQuery;
 use crate::params::Params;
+use crate::public_url::PublicBase;
 use crate::queries::json_bytes;
 use crate::respond::{Cached, Freshness};
 use crate::state::AppState;
 
 use self::covjson::{Axes, Axis, Coverage, MEDIA_TYPE, Values};
+use self::items::Page;
 use self::query::{
-    Datetime, Polygon, Quantity, check_crs, check_format, parse_datetime, parse_levels, parse_point, parse_polygon,
-    parse_quantities,
+    Datetime, Footprint, Quantity, check_format, check_query, known, parse_datetime, parse_disc, parse_levels,
+    parse_point, parse_polygon, parse_quantities,
 };
 
 /// `f=` values of the metadata routes and of the queries.
 const JSON: &[&str] = &["json"];
 const COVERAGE: &[&str] = &["CoverageJSON", "covjson", "json"];
+const GEOJSON: &[&str] = &["GeoJSON", "json"];
 
 /// Bytes a value takes in a CoverageJSON answer, on average (for the size check
 /// before any work; the exact size is checked again when the bytes exist).
@@ -70,7 +81,10 @@ struct JsonFormat {
 
 /// 400 of the metadata routes.
 #[derive(utoipa::IntoResponses)]
-#[response(status = 400, description = "f other than json")]
+#[response(
+    status = 400,
+    description = "f other than json (invalid_parameter), a parameter other than f (unknown_parameter), a malformed query string or Host"
+)]
 #[allow(
     dead_code,
     reason = "documentation: utoipa reads the body's type, no handler builds it"
@@ -92,17 +106,22 @@ struct CoverageQuery {
     /// Comma list of cloud_cover, density, cloud_base, cloud_top, precipitation_rate (default all)
     #[param(rename = "parameter-name", example = "cloud_cover,density")]
     parameter_name: Option<String>,
+    /// The same as parameter-name, in OWSLib's spelling (its query_data sends parameter_names); give one of the two
+    #[param(example = "cloud_cover,density")]
+    parameter_names: Option<String>,
     /// CoverageJSON (default) or json
     f: Option<String>,
     /// cloudscape-local-metres (the only CRS)
     crs: Option<String>,
 }
 
-/// A request to a landing, conformance or collections route: its query parsed and
-/// its `f` checked (json only), in that order.
+/// A request to a metadata route (landing page, conformance, collections): its query
+/// parsed, its parameters checked (`f` only, json only), and the absolute URL its
+/// links start with.
 pub struct MetadataRequest {
     s: Arc<AppState>,
     headers: HeaderMap,
+    base: PublicBase,
 }
 
 impl FromRequestParts<Arc<AppState>> for MetadataRequest {
@@ -110,36 +129,61 @@ impl FromRequestParts<Arc<AppState>> for MetadataRequest {
 
     async fn from_request_parts(parts: &mut Parts, s: &Arc<AppState>) -> Result<Self, ApiError> {
         let params = Params::from_request_parts(parts, s).await?;
+        params.check_known(known::METADATA)?;
         check_format(&params, JSON)?;
         Ok(MetadataRequest {
             s: Arc::clone(s),
             headers: parts.headers.clone(),
+            base: PublicBase::of(s, &parts.uri, &parts.headers)?,
         })
     }
 }
 
 impl MetadataRequest {
-    /// The metadata document, cached as `server.cache_control_other` says.
+    /// The metadata document, cached as `server.cache_control_other` says (private
+    /// when its links name the request's Host).
     fn answer(&self, document: &serde_json::Value) -> Result<Response, ApiError> {
-        json_response(&self.headers, &self.s.settings.cache_control_other, document)
+        self.base
+            .json_response(&self.headers, &self.s.settings.cache_control_other, document)
     }
 }
 
+/// The EDR landing page.
 #[utoipa::path(
     get,
     path = "/v1/edr",
     tag = "edr",
     params(JsonFormat),
     responses(
-        (status = 200, content_type = "application/json", body = Object, description = "The EDR landing page: title and links to the conformance declaration and the collections"),
+        (status = 200, content_type = "application/json", body = Object, description = "The EDR landing page: title and absolute links to itself, the conformance declaration, the collections and the OpenAPI document (service-desc: /v1/edr/api as OpenAPI 3.0, /openapi.json as OpenAPI 3.1); from server.public_url, else from the request's Host (then Cache-Control: private)"),
         NotJson,
         NotModified,
     )
 )]
 pub async fn landing(request: MetadataRequest) -> Result<Response, ApiError> {
-    request.answer(&metadata::landing())
+    request.answer(&metadata::landing(&request.base.url))
 }
 
+/// The EDR landing page, at the URL OWSLib forms.
+///
+/// OWSLib's clients add a slash to the URL they are given and ask for it.
+#[utoipa::path(
+    get,
+    path = "/v1/edr/",
+    tag = "edr",
+    operation_id = "landing_slash",
+    params(JsonFormat),
+    responses(
+        (status = 200, content_type = "application/json", body = Object, description = "The same document as /v1/edr"),
+        NotJson,
+        NotModified,
+    )
+)]
+pub async fn landing_slash(request: MetadataRequest) -> Result<Response, ApiError> {
+    landing(request).await
+}
+
+/// The EDR conformance declaration.
 #[utoipa::path(
     get,
     path = "/v1/edr/conformance",
@@ -155,6 +199,7 @@ pub async fn conformance(request: MetadataRequest) -> Result<Response, ApiError>
     request.answer(&metadata::conformance())
 }
 
+/// The EDR collections: one per configured world.
 #[utoipa::path(
     get,
     path = "/v1/edr/collections",
@@ -167,40 +212,35 @@ pub async fn conformance(request: MetadataRequest) -> Result<Response, ApiError>
     )
 )]
 pub async fn collections(request: MetadataRequest) -> Result<Response, ApiError> {
+    let base = &request.base.url;
     let worlds = request.s.worlds.config().worlds.values();
-    let collections: Vec<_> = worlds.map(metadata::collection).collect();
+    let collections: Vec<_> = worlds.map(|w| metadata::collection(w, base)).collect();
     request.answer(&json!({
-        "links": [{ "href": "/v1/edr/collections", "rel": "self", "type": "application/json", "title": "The collections" }],
+        "links": [{
+            "href": format!("{base}/v1/edr/collections"),
+            "rel": "self",
+            "type": "application/json",
+            "title": "The collections",
+        }],
         "collections": collections,
     }))
 }
 
+/// One world's EDR collection.
 #[utoipa::path(
     get,
     path = "/v1/edr/collections/{world}",
     tag = "edr",
     params(WorldName, JsonFormat),
     responses(
-        (status = 200, content_type = "application/json", body = Object, description = "The world's collection: extent (spatial in world metres, temporal from 1970-01-01T00:00:00Z = world time 0, vertical = the layer bands), data_queries (position, area, cube), parameter_names, crs, output_formats"),
-        (status = 400, body = crate::error::ErrorBody, description = "Malformed path or f other than json"),
+        (status = 200, content_type = "application/json", body = Object, description = "The world's collection: extent (spatial in world metres, temporal from 1970-01-01T00:00:00Z = world time 0 with its steps as repeating intervals, vertical = the layer bands and level centres, as strings), a data link and a data_queries entry per query (position, radius, area, cube, items), parameter_names (EDR parameter objects, plain-string labels), crs, output_formats, distanceunits; absolute links as the landing page's"),
+        (status = 400, body = crate::error::ErrorBody, description = "Malformed path, query or Host, f other than json (invalid_parameter) or a parameter other than f (unknown_parameter)"),
         (status = 404, body = crate::error::ErrorBody, description = "Unknown world"),
         NotModified,
     )
 )]
-pub async fn collection(
-    WorldQuery {
-        s,
-        params,
-        resolved,
-        headers,
-    }: WorldQuery,
-) -> Result<Response, ApiError> {
-    check_format(&params, JSON)?;
-    json_response(
-        &headers,
-        &s.settings.cache_control_other,
-        &metadata::collection(&resolved.world),
-    )
+pub async fn collection(request: MetadataRequest, WorldPath(resolved): WorldPath) -> Result<Response, ApiError> {
+    request.answer(&metadata::collection(&resolved.world, &request.base.url))
 }
 
 /// A CoverageJSON answer over the frames of its time axis: with the time headers of
@@ -238,7 +278,8 @@ fn check_answer_size(s: &AppState, values: u64) -> Result<(), ApiError> {
 
 /// EDR position query: the values at a point.
 ///
-/// 400: Malformed coords, datetime (or an open interval), parameter-name, f or crs. 413:
+/// 400: Malformed coords, datetime (or an open interval), parameter-name, f or crs; a
+/// parameter the query does not read (unknown_parameter). 413:
 /// More time steps than server.max_series, or over the work limits. 422: datetime or
 /// coordinates out of range.
 #[utoipa::path(
@@ -265,8 +306,7 @@ pub async fn position(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::POSITION, known::COVERAGE], COVERAGE)?;
     let [x, y] = parse_point(params.required("coords")?)?;
     let z = params.f64("z")?.unwrap_or(0.0);
     let datetime = parse_datetime(&params)?;
@@ -439,8 +479,9 @@ struct GridQuery {
     layer: usize,
     level: u32,
     region: Region,
-    /// The area's polygon: columns whose centres lie outside it are null.
-    polygon: Option<Polygon>,
+    /// The area's polygon or the radius' disc: columns whose centres lie outside it
+    /// are null.
+    footprint: Option<Footprint>,
     /// The cube's vertical levels: values per cell of these levels.
     levels: Option<Vec<usize>>,
     quantities: Vec<Quantity>,
@@ -457,8 +498,8 @@ fn grid_times(s: &AppState, params: &Params, layer: &Layer) -> Result<(Datetime,
 
 /// EDR area query: the columns inside a polygon.
 ///
-/// 400: Malformed coords (WKT), datetime (or an open interval), parameter-name, f or crs.
-/// 413: Polygon, time steps or answer over the limits. 422: datetime, level or
+/// 400: Malformed coords (WKT), datetime (or an open interval), parameter-name, f or crs;
+/// a parameter the query does not read (unknown_parameter). 413: Polygon, time steps or answer over the limits. 422: datetime, level or
 /// coordinates out of range; no column centre inside.
 #[utoipa::path(
     get,
@@ -484,31 +525,81 @@ pub async fn area(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
-    let polygon = parse_polygon(params.required("coords")?)?;
+    check_query(&params, &[known::AREA, known::COVERAGE], COVERAGE)?;
+    let polygon = Footprint::Polygon(parse_polygon(params.required("coords")?)?);
+    footprint_coverage(&s, &headers, &params, "edr-area", polygon, resolved).await
+}
+
+/// EDR radius query: the columns within a distance of a point.
+///
+/// 400: Malformed coords (WKT POINT), within, within-units, datetime (or an open
+/// interval), parameter-name, f or crs; a parameter the query does not read
+/// (unknown_parameter). 413: The disc's bbox, time steps or answer over the limits.
+/// 422: datetime, level or coordinates out of range; no column centre in the disc's
+/// bbox.
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}/radius",
+    tag = "edr",
+    params(
+        WorldName,
+        ("coords" = String, Query, description = "WKT POINT(x y) in world metres, the disc's centre", example = "POINT(1500 1500)"),
+        ("within" = f64, Query, description = "The disc's radius in within-units, over 0 and at most 1e7 m; the columns whose centres lie within it (its bbox is limit-checked like /region's)", example = 800),
+        ("within-units" = Option<String>, Query, description = "m (default: OWSLib sends none) or km", example = "m"),
+        LayerName,
+        ColumnLevel,
+        CoverageQuery,
+    ),
+    responses(
+        (status = 200, content_type = "application/prs.coverage+json", body = Object, description = "A CoverageJSON Coverage, domainType Grid over t, y, x (the column centres of the disc's bbox); values per column as the area query's, null outside the disc"),
+        ComputedResponses,
+    )
+)]
+pub async fn radius(
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
+) -> Result<Response, ApiError> {
+    check_query(&params, &[known::RADIUS, known::COVERAGE], COVERAGE)?;
+    let disc = Footprint::Disc(parse_disc(&params)?);
+    footprint_coverage(&s, &headers, &params, "edr-radius", disc, resolved).await
+}
+
+/// An area or radius query: the columns of one layer whose centres lie inside
+/// `footprint`, over the times asked.
+async fn footprint_coverage(
+    s: &Arc<AppState>,
+    headers: &HeaderMap,
+    params: &Params,
+    kind: &'static str,
+    footprint: Footprint,
+    resolved: ResolvedWorld,
+) -> Result<Response, ApiError> {
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
-    let quantities = parse_quantities(&params, &Quantity::ALL)?;
-    let (_, times, level) = grid_times(&s, &params, layer)?;
-    let region = Region::from_bbox(layer, level, polygon.bbox(), &s.worlds.config().limits)?;
+    let quantities = parse_quantities(params, &Quantity::ALL)?;
+    let (_, times, level) = grid_times(s, params, layer)?;
+    let region = Region::from_bbox(layer, level, footprint.bbox(), &s.worlds.config().limits)?;
     let query = GridQuery {
-        kind: "edr-area",
+        kind,
         layer: layer_index,
         level,
         region,
-        polygon: Some(polygon),
+        footprint: Some(footprint),
         levels: None,
         quantities,
         times,
         resolved,
     };
-    grid_coverage(&s, &headers, query).await
+    grid_coverage(s, headers, query).await
 }
 
 /// EDR cube query: the columns, or the cells of some levels, inside a bbox.
 ///
 /// 400: Malformed or inverted bbox, z, datetime (or an open interval), parameter-name, f
-/// or crs. 413: bbox, time steps or answer over the limits. 422: datetime, level or
+/// or crs; a parameter the query does not read (unknown_parameter). 413: bbox, time steps or answer over the limits. 422: datetime, level or
 /// coordinates out of range; empty region.
 #[utoipa::path(
     get,
@@ -535,8 +626,7 @@ pub async fn cube(
         headers,
     }: WorldQuery,
 ) -> Result<Response, ApiError> {
-    check_format(&params, COVERAGE)?;
-    check_crs(&params)?;
+    check_query(&params, &[known::CUBE, known::COVERAGE], COVERAGE)?;
     let bbox = params.bbox()?;
     let (layer_index, layer) = layer(&resolved.world, params.get("layer"))?;
     let levels = parse_levels(&params, layer)?;
@@ -560,13 +650,74 @@ pub async fn cube(
         layer: layer_index,
         level,
         region,
-        polygon: None,
+        footprint: None,
         levels,
         quantities,
         times,
         resolved,
     };
     grid_coverage(&s, &headers, query).await
+}
+
+/// EDR items query: the lightning strikes in a box and span, as GeoJSON.
+///
+/// 400: Malformed or inverted bbox, datetime (or not an interval with its end after its
+/// start), limit, offset, f or crs; a parameter the query does not read
+/// (unknown_parameter). 413: Span over 3600 s or bbox side over 50 km (checked before
+/// any work). 422: datetime or coordinates out of range.
+#[utoipa::path(
+    get,
+    path = "/v1/edr/collections/{world}/items",
+    tag = "edr",
+    params(
+        WorldName,
+        ("bbox" = String, Query, description = "X0,Y0,X1,Y1 in metres, X0 < X1, Y0 < Y1, each side at most 50 km; strikes with x0 <= x < x1, y0 <= y < y1", example = "-10000,20000,10000,40000"),
+        ("datetime" = String, Query, description = "An interval a/b (ISO 8601 instants or world seconds), b after a and at most 3600 s later; strikes with a <= t < b", example = "1970-01-01T00:00:00Z/1970-01-01T00:10:00Z"),
+        ("limit" = Option<u32>, Query, description = "Features on the page, 1 to 10000 (default 10000)", minimum = 1, maximum = 10000),
+        ("offset" = Option<u64>, Query, description = "Strikes skipped before the page (default 0)"),
+        ("layer" = Option<String>, Query, description = "Layer name (default: every layer whose preset has lightning)"),
+        ("f" = Option<String>, Query, description = "GeoJSON (default) or json"),
+        ("crs" = Option<String>, Query, description = "cloudscape-local-metres (the only CRS)"),
+    ),
+    responses(
+        (status = 200, content_type = "application/geo+json", body = Object, description = "A GeoJSON FeatureCollection of Point features [x, y, z] in world metres (not WGS 84), by time, properties datetime, t (seconds), kind (cg | ic) and layer: /lightning's strikes; numberMatched, numberReturned and a next link (relative) when a page follows"),
+        ComputedResponses,
+    )
+)]
+pub async fn items(
+    WorldQuery {
+        s,
+        params,
+        resolved,
+        headers,
+    }: WorldQuery,
+) -> Result<Response, ApiError> {
+    check_query(&params, &[known::ITEMS], GEOJSON)?;
+    let bbox = params.bbox()?;
+    let datetime = parse_datetime(&params)?;
+    if !(datetime.interval && datetime.t1 > datetime.t0) {
+        return Err(ApiError::InvalidParameter {
+            name: "datetime".into(),
+            message: "the items query lists the strikes of an interval start/end, its end after its start".into(),
+        });
+    }
+    let page = Page::parse(&params)?;
+    let query = StrikeQuery::new(&resolved.world, params.get("layer"), bbox, datetime.t0, datetime.t1)?;
+    let key = query
+        .key("edr-items", &resolved)
+        .with("page", format!("{},{}", page.limit, page.offset));
+    let cached = Cached::timeless("edr", key, items::MEDIA_TYPE);
+    let world = resolved.world;
+    cached
+        .respond(&s, &headers, move || {
+            Ok((query.work(&world)?, move |cancel: &Cancel| {
+                let strikes = query.strikes(&world, cancel)?;
+                items::feature_collection(&world, &strikes, page, |offset| {
+                    format!("items?{}", params.query_with("offset", &offset.to_string()))
+                })
+            }))
+        })
+        .await
 }
 
 /// Answers a grid query through the cache: one density grid per frame.
@@ -585,8 +736,9 @@ async fn grid_coverage(s: &Arc<AppState>, headers: &HeaderMap, q: GridQuery) -> 
         .with_region(q.level, r)
         .with("q", join(q.quantities.iter().map(|q| q.name())))
         .with("t", join(&q.times));
-    if let Some(p) = &q.polygon {
-        key = key.with("poly", stable_hash_hex(format!("{:?}", p.rings).as_bytes()));
+    if let Some(f) = &q.footprint {
+        let (name, value) = f.key();
+        key = key.with(name, value);
     }
     if let Some(levels) = &q.levels {
         key = key.with("k", join(levels));
@@ -607,8 +759,8 @@ async fn grid_coverage(s: &Arc<AppState>, headers: &HeaderMap, q: GridQuery) -> 
                 .bytes
                 .saturating_mul(frames.len().min(rayon::current_num_threads().max(1)) as u64)
                 .saturating_add(values.saturating_mul(16));
-            if let Some(p) = &q.polygon {
-                work.cpu_s += (r.cols * r.rows * p.vertices()) as f64 * 2e-9;
+            if let Some(f) = &q.footprint {
+                work.cpu_s += (r.cols * r.rows) as f64 * f.cost_per_column();
             }
             Ok((work, move |cancel: &Cancel| grid_answer(&q, &frames, cancel)))
         })
@@ -621,7 +773,7 @@ fn grid_answer(q: &GridQuery, frames: &[SnappedTime], cancel: &Cancel) -> Result
     let layer = &world.layers[q.layer];
     let r = q.region;
     let w = layer.cell_size * (q.level as f64).exp2();
-    let inside: Option<Vec<bool>> = q.polygon.as_ref().map(|p| {
+    let inside: Option<Vec<bool>> = q.footprint.as_ref().map(|p| {
         (0..r.rows)
             .flat_map(|row| (0..r.cols).map(move |col| (row, col)))
             .map(|(row, col)| {
@@ -671,7 +823,7 @@ fn grid_answer(q: &GridQuery, frames: &[SnappedTime], cancel: &Cancel) -> Result
 }
 
 /// One quantity of one frame, row-major over (levels,) rows, columns; `None`
-/// outside the polygon.
+/// outside the footprint.
 fn frame_values(
     grid: &Grid<f32>,
     layer: &Layer,

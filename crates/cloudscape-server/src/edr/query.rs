@@ -1,7 +1,10 @@
 //! The query parameters of the EDR routes, parsed by hand like [`crate::params`] so
-//! that every bad input gets its own error: WKT `coords` (`POINT`, `POLYGON`),
-//! ISO 8601 `datetime` instants and closed intervals, `parameter-name`, the cube's
-//! `z` levels, `f` and `crs`.
+//! that every bad input gets its own error: WKT `coords` (`POINT`, `POLYGON`), the
+//! radius' `within` and `within-units`, ISO 8601 `datetime` instants and closed
+//! intervals, `parameter-name` (or OWSLib's `parameter_names`), the cube's `z`
+//! levels, `f` and `crs`. A parameter a route does not read is refused by name
+//! ([`Params::check_known`] with the route's list below): an EDR client that sends
+//! one expects it to act.
 //!
 //! Time: world time t seconds is the instant 1970-01-01T00:00:00Z + t (world time 0
 //! is the Unix epoch, no leap seconds), so the instants run from the epoch to
@@ -11,6 +14,7 @@ use cloudscape_core::civil::{civil_from_days, days_from_civil, month_days};
 use cloudscape_core::world::Layer;
 
 use crate::error::ApiError;
+use crate::key::stable_hash_hex;
 use crate::params::{Params, check_time, parse_f64};
 
 /// Largest number of vertices of an `area` polygon (all rings): the column mask costs
@@ -23,6 +27,24 @@ pub const MAX_EDR_TIME: f64 = 253_402_300_799.0;
 /// The one CRS of the EDR routes: world metres, x east, y north (see
 /// [`super::metadata::CRS_WKT`]). `crs=` may name it and nothing else.
 pub const CRS_NAME: &str = "cloudscape-local-metres";
+
+/// `parameter-name` as EDR spells it and as OWSLib 0.35's `query_data` sends it
+/// (`parameter_names`, the name of its Python argument): both are read.
+pub const PARAMETER_NAME: [&str; 2] = ["parameter-name", "parameter_names"];
+
+/// The parameters each EDR route reads, in groups (the cloudscape extras are `layer`
+/// and `level`): every query reads [`known::ANY`], every coverage query
+/// [`known::COVERAGE`] too, and each its own.
+pub mod known {
+    pub const METADATA: &[&str] = &["f"];
+    pub const ANY: &[&str] = &["f", "crs"];
+    pub const COVERAGE: &[&str] = &["datetime", "parameter-name", "parameter_names", "layer"];
+    pub const POSITION: &[&str] = &["coords", "z"];
+    pub const AREA: &[&str] = &["coords", "level"];
+    pub const RADIUS: &[&str] = &["coords", "within", "within-units", "level"];
+    pub const CUBE: &[&str] = &["bbox", "z", "level"];
+    pub const ITEMS: &[&str] = &["bbox", "datetime", "limit", "offset", "layer"];
+}
 
 fn invalid(name: &str, message: impl Into<String>) -> ApiError {
     ApiError::InvalidParameter {
@@ -150,6 +172,88 @@ pub fn parse_polygon(value: &str) -> Result<Polygon, ApiError> {
         return Err(invalid("coords", "the polygon has no area"));
     }
     Ok(polygon)
+}
+
+/// A disc in world metres: the `radius` query's `coords` point and `within` distance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Disc {
+    pub x: f64,
+    pub y: f64,
+    pub r: f64,
+}
+
+/// The units `within-units` may name, and metres in one of each.
+const DISTANCE_UNITS: [(&str, f64); 2] = [("m", 1.0), ("km", 1000.0)];
+
+/// The largest `within` radius, metres: 1e7 m, further than any region the limits admit.
+const MAX_RADIUS: f64 = 1e7;
+
+/// The `radius` query's disc: `coords=POINT(x y)`, `within=` a distance > 0 in
+/// `within-units` (`m` or `km`; metres when absent, as OWSLib 0.35 sends none).
+pub fn parse_disc(params: &Params) -> Result<Disc, ApiError> {
+    let [x, y] = parse_point(params.required("coords")?)?;
+    let within = parse_f64("within", params.required("within")?)?;
+    let unit = params.get("within-units").unwrap_or("m");
+    let metres = DISTANCE_UNITS
+        .iter()
+        .find(|(name, _)| name.eq_ignore_ascii_case(unit.trim()))
+        .map(|(_, m)| *m)
+        .ok_or_else(|| invalid("within-units", format!("must be m or km, got `{}`", truncated(unit))))?;
+    let r = within * metres;
+    if !(r > 0.0 && r <= MAX_RADIUS) {
+        return Err(invalid(
+            "within",
+            format!("the radius must be over 0 and at most {MAX_RADIUS:e} m, got {r} m"),
+        ));
+    }
+    Ok(Disc { x, y, r })
+}
+
+/// The units of `within-units`, for the collection's radius query.
+pub fn distance_units() -> Vec<&'static str> {
+    DISTANCE_UNITS.iter().map(|(name, _)| *name).collect()
+}
+
+/// The shape an `area` or `radius` query answers: the columns of its bounding box
+/// whose centres lie inside; the others are null.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Footprint {
+    Polygon(Polygon),
+    Disc(Disc),
+}
+
+impl Footprint {
+    /// `[x0, y0, x1, y1]`, limit-checked as a region before any work.
+    pub fn bbox(&self) -> [f64; 4] {
+        match self {
+            Footprint::Polygon(p) => p.bbox(),
+            Footprint::Disc(d) => [d.x - d.r, d.y - d.r, d.x + d.r, d.y + d.r],
+        }
+    }
+
+    /// Whether (x, y) lies inside (a disc's edge is inside).
+    pub fn contains(&self, x: f64, y: f64) -> bool {
+        match self {
+            Footprint::Polygon(p) => p.contains(x, y),
+            Footprint::Disc(d) => (x - d.x).powi(2) + (y - d.y).powi(2) <= d.r * d.r,
+        }
+    }
+
+    /// The CPU seconds of testing one column.
+    pub fn cost_per_column(&self) -> f64 {
+        match self {
+            Footprint::Polygon(p) => p.vertices() as f64 * 2e-9,
+            Footprint::Disc(_) => 2e-9,
+        }
+    }
+
+    /// The shape in a cache key: `(name, value)`.
+    pub fn key(&self) -> (&'static str, String) {
+        match self {
+            Footprint::Polygon(p) => ("poly", stable_hash_hex(format!("{:?}", p.rings).as_bytes())),
+            Footprint::Disc(d) => ("disc", format!("{},{},{}", d.x, d.y, d.r)),
+        }
+    }
 }
 
 /// The times of a `datetime`: an instant (`t1 == t0`, `interval` false) or a
@@ -347,17 +451,29 @@ impl Quantity {
     }
 }
 
-/// `parameter-name=a,b`: the quantities asked, in [`Quantity::ALL`]'s order (so that
-/// the same set gives the same bytes), or `default` when absent.
+/// `parameter-name=a,b` (or `parameter_names=a,b`, not both): the quantities asked,
+/// in [`Quantity::ALL`]'s order (so that the same set gives the same bytes), or
+/// `default` when absent.
 pub fn parse_quantities(params: &Params, default: &[Quantity]) -> Result<Vec<Quantity>, ApiError> {
-    let Some(value) = params.get("parameter-name") else {
-        return Ok(default.to_vec());
+    let given: Vec<(&str, &str)> = PARAMETER_NAME
+        .iter()
+        .filter_map(|&name| params.get(name).map(|v| (name, v)))
+        .collect();
+    let (spelling, value) = match given[..] {
+        [] => return Ok(default.to_vec()),
+        [one] => one,
+        _ => {
+            return Err(invalid(
+                "parameter-name",
+                "give parameter-name or parameter_names (OWSLib's spelling), not both",
+            ));
+        }
     };
     let mut asked = Vec::new();
     for name in value.split(',').map(str::trim) {
         let q = Quantity::ALL.into_iter().find(|q| q.name() == name).ok_or_else(|| {
             invalid(
-                "parameter-name",
+                spelling,
                 format!(
                     "unknown parameter `{}`; the parameters are {}",
                     truncated(name),
@@ -421,6 +537,20 @@ pub fn parse_levels(params: &Params, layer: &Layer) -> Result<Option<Vec<usize>>
         ));
     }
     Ok(Some(levels))
+}
+
+/// The checks every query makes before it reads anything: the parameters it reads
+/// (the `known` groups and [`known::ANY`]; any other is refused by name), `f` among
+/// `formats`, and `crs`.
+pub fn check_query(params: &Params, known: &[&[&str]], formats: &[&str]) -> Result<(), ApiError> {
+    let read: Vec<&str> = known
+        .iter()
+        .chain([&known::ANY])
+        .flat_map(|g| g.iter().copied())
+        .collect();
+    params.check_known(&read)?;
+    check_format(params, formats)?;
+    check_crs(params)
 }
 
 /// `f=`: the routes answer one format each; `f` may name it (case-insensitive).
@@ -558,10 +688,68 @@ mod tests {
     }
 
     #[test]
+    fn a_radius_is_a_disc_in_metres() {
+        let d = parse_disc(&params(&[
+            ("coords", "POINT(100 200)"),
+            ("within", "2"),
+            ("within-units", "km"),
+        ]))
+        .unwrap();
+        assert_eq!(
+            d,
+            Disc {
+                x: 100.0,
+                y: 200.0,
+                r: 2000.0
+            }
+        );
+        let d = parse_disc(&params(&[("coords", "POINT(0 0)"), ("within", "50")])).unwrap();
+        assert_eq!(d.r, 50.0);
+        let f = Footprint::Disc(d);
+        assert_eq!(f.bbox(), [-50.0, -50.0, 50.0, 50.0]);
+        assert!(f.contains(30.0, 40.0) && !f.contains(30.0, 40.1));
+        for (within, unit) in [("0", "m"), ("-1", "m"), ("1e8", "m"), ("1", "mi"), ("1", "")] {
+            assert!(
+                matches!(
+                    parse_disc(&params(&[
+                        ("coords", "POINT(0 0)"),
+                        ("within", within),
+                        ("within-units", unit)
+                    ])),
+                    Err(ApiError::InvalidParameter { .. })
+                ),
+                "{within} {unit}"
+            );
+        }
+        assert!(matches!(
+            parse_disc(&params(&[("coords", "POINT(0 0)"), ("within", "nan")])),
+            Err(ApiError::NotFinite { .. })
+        ));
+        assert!(matches!(
+            parse_disc(&params(&[("coords", "POINT(0 0)")])),
+            Err(ApiError::MissingParameter(_))
+        ));
+    }
+
+    #[test]
     fn parameter_names_are_canonical() {
         let q = parse_quantities(&params(&[("parameter-name", "density,cloud_cover,density")]), &[]).unwrap();
         assert_eq!(q, vec![Quantity::CloudCover, Quantity::Density]);
         assert!(parse_quantities(&params(&[("parameter-name", "temperature")]), &[]).is_err());
+        // OWSLib's spelling is read the same, and an unknown name is refused in it.
+        let q = parse_quantities(&params(&[("parameter_names", "cloud_top,density")]), &[]).unwrap();
+        assert_eq!(q, vec![Quantity::Density, Quantity::CloudTop]);
+        assert!(matches!(
+            parse_quantities(&params(&[("parameter_names", "rain")]), &[]),
+            Err(ApiError::InvalidParameter { name, .. }) if name == "parameter_names"
+        ));
+        assert!(
+            parse_quantities(
+                &params(&[("parameter-name", "density"), ("parameter_names", "density")]),
+                &[]
+            )
+            .is_err()
+        );
         assert_eq!(
             parse_quantities(&params(&[]), &Quantity::ALL).unwrap(),
             Quantity::ALL.to_vec()

@@ -78,6 +78,14 @@ pub struct Comparison {
     pub radiance_ratio: [Option<f64>; 4],
     /// High-frequency energy of the display luma, preset over reference.
     pub sharpness: f64,
+    /// The colour of thick cloud (view rays with τ > 2): linear B/G and R/G of the
+    /// mean radiance of those pixels, preset's and reference's (`None` without any).
+    pub thick_colour: Option<([f64; 2], [f64; 2])>,
+}
+
+/// Linear B/G and R/G of the summed radiance `sum`.
+fn colour_ratios(sum: [f64; 3]) -> [f64; 2] {
+    [sum[2] / sum[1], sum[0] / sum[1]]
 }
 
 fn luminance(c: [f32; 3]) -> f64 {
@@ -193,11 +201,18 @@ pub fn split_reference(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> S
 pub fn compare(preset: &Image, reference: &Image, tau: &[f64], width: usize, height: usize) -> Comparison {
     let (d, r) = (preset.display(), reference.display());
     let mut sums = [(0.0f64, 0.0f64, 0usize); 4];
+    let (mut thick_p, mut thick_r) = ([0.0f64; 3], [0.0f64; 3]);
     for (i, &t) in tau.iter().enumerate() {
         let b = tau_bin(t);
         sums[b].0 += luminance(preset.rgb[i]);
         sums[b].1 += luminance(reference.rgb[i]);
         sums[b].2 += 1;
+        if t > 2.0 {
+            for c in 0..3 {
+                thick_p[c] += preset.rgb[i][c] as f64;
+                thick_r[c] += reference.rgb[i][c] as f64;
+            }
+        }
     }
     let hf_ref = high_frequency_energy(&r, width, height);
     Comparison {
@@ -209,6 +224,7 @@ pub fn compare(preset: &Image, reference: &Image, tau: &[f64], width: usize, hei
         } else {
             0.0
         },
+        thick_colour: (thick_p[1] > 0.0 && thick_r[1] > 0.0).then(|| (colour_ratios(thick_p), colour_ratios(thick_r))),
     }
 }
 
@@ -410,9 +426,11 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
          depth τ (targets 0.85–1.15), and the sharpness ratio (high-frequency energy of display luma, the mean \
          square of its Laplacian, preset / reference, on {k}×{k}-pixel blocks; the reference's without its noise, \
          from two independent halves of its samples, and \"– (noise)\" where that is within three standard errors \
-         of 0). The reference row's SSIM is its noise ceiling: one half against the other.\n\n\
-         | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM | {} | {} | {} | {} | sharpness |\n\
-         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+         of 0). The reference row's SSIM is its noise ceiling: one half against the other. Colour of thick \
+         cloud (view rays with τ > 2): linear B/G and R/G of its mean radiance, preset (reference) (target: B/G \
+         within 3 % of the reference's).\n\n\
+         | scene | preset | tiles | billboards | density | billboards | draw | total | speed-up | RMSE | SSIM | {} | {} | {} | {} | sharpness | B/G | R/G |\n\
+         |---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         TAU_BIN_LABELS[0],
         TAU_BIN_LABELS[1],
         TAU_BIN_LABELS[2],
@@ -448,8 +466,14 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
                 .map(|r| r.map_or("–".into(), |v| format!("{v:.2}")))
                 .collect();
             let n: usize = m.tiles.iter().map(|t| t.billboards.len()).sum();
+            let (bg, rg) = c.thick_colour.map_or(("–".into(), "–".into()), |(p, r)| {
+                (
+                    format!("{:.3} ({:.3})", p[0], r[0]),
+                    format!("{:.3} ({:.3})", p[1], r[1]),
+                )
+            });
             md += &format!(
-                "| {} | {} | {} | {n} | {} | {e:.4} | {ss:.3} | {} | {} |\n",
+                "| {} | {} | {} | {n} | {} | {e:.4} | {ss:.3} | {} | {} | {bg} | {rg} |\n",
                 s.name,
                 q.as_str(),
                 m.tiles.len(),
@@ -464,7 +488,7 @@ pub fn speed_accuracy(effort: Effort, out: &mut BenchRun) -> Result<(), String> 
             points.push((q, m.times.after_density(q), ss));
         }
         md += &format!(
-            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | – | half vs half {ceiling:.3} | {} | 1 |\n",
+            "| {} | reference | {} | – | {:.2} s | – | {:.2} s | {:.2} s | 1× | – | half vs half {ceiling:.3} | {} | 1 | | |\n",
             s.name,
             reference.tiles.len(),
             reference.times.density_s,

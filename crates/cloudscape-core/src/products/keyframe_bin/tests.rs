@@ -34,12 +34,40 @@ fn fast(tile: TileId, t: f64) -> ShadedTile {
 
 /// The largest error of a quantised colour: half a step of `(c / 2)^(1/2.2)` on
 /// `levels` steps, taken back through the power at `c`.
+/// Half a colour step around `c`, in linear colour: since ALGORITHM_VERSION 13 the steps
+/// are even in the displayed value `(1 − e^{−3c})^(1/2.2)` (docs/formats.md "Codes"),
+/// written out here rather than taken from the code under test.
 fn colour_tolerance(c: f32, bits: u8) -> f32 {
     let levels = ((1u32 << bits) - 1) as f64;
-    let g = (c as f64 / 2.0).clamp(0.0, 1.0).powf(1.0 / 2.2);
-    let up = 2.0 * ((g + 0.5 / levels).min(1.0)).powf(2.2);
-    let down = 2.0 * ((g - 0.5 / levels).max(0.0)).powf(2.2);
-    ((up - c as f64).abs().max((c as f64 - down).abs()) * 1.0001 + 1e-6) as f32
+    let c = (c as f64).clamp(0.0, 2.0);
+    let g = (1.0 - (-3.0 * c).exp()).powf(1.0 / 2.2);
+    let linear = |q: f64| (-(1.0 - q.clamp(0.0, 1.0).powf(2.2)).ln() / 3.0).min(2.0);
+    let up = linear(g + 0.5 / levels);
+    let down = linear(g - 0.5 / levels);
+    ((up - c).abs().max((c - down).abs()) * 1.0001 + 1e-6) as f32
+}
+
+#[test]
+fn colour_codes_are_even_display_steps_at_the_served_exposure() {
+    // The format fixes its exposure; the tone map's must be the same, or the codes
+    // stop being even steps of what is displayed (change the format with it).
+    assert_eq!(CODE_EXPOSURE, crate::render::light::EXPOSURE);
+    let curve = ColourCurve::of(crate::world::ALGORITHM_VERSION);
+    assert_eq!(curve, ColourCurve::Display);
+    let codes = Codes::new(Quantisation::DEFAULT, curve);
+    let shown = |x: f32| crate::render::light::tone_map(x as f64);
+    for i in 0..=2000 {
+        let c = i as f32 / 1000.0;
+        let back = codes.colour_value(codes.colour(c));
+        // Half a step of 63 on the display, whatever the colour.
+        assert!((shown(back) - shown(c)).abs() <= 0.5 / 63.0 + 1e-6, "{c} → {back}");
+    }
+    assert_eq!(codes.colour_value(codes.colour(f32::INFINITY)), 2.0);
+    assert_eq!(codes.colour_value(codes.colour(f32::NAN)), 0.0);
+    // Files of earlier versions keep their curve.
+    let old = Codes::new(Quantisation::DEFAULT, ColourCurve::of(12));
+    assert_eq!(old.colour_value(63), 2.0);
+    assert!((old.colour_value(old.colour(0.5)) - 0.5).abs() < 0.02);
 }
 
 #[test]

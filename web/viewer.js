@@ -43,6 +43,7 @@ import {
   LOD_PIXELS,
   MAX_DETAIL_OCTAVES,
   MIN_WAVELENGTH_PIXELS,
+  SHADOW_FADE_START,
   ShadowDerivation,
   TILE_COLUMNS,
   VIEW_DISTANCE,
@@ -321,7 +322,7 @@ const skyProgram = compile(
       vec3 ray = d * (eyeZ / -d.z);
       float t = 1.0;
       if (shadows) {
-        float fade = smoothstep(0.7 * viewDistance, viewDistance, length(ray.xy));
+        float fade = smoothstep(${SHADOW_FADE_START.toFixed(2)} * viewDistance, viewDistance, length(ray.xy));
         float near = fade < 1.0 ? texelFetch(shadowTex, ivec2(gl_FragCoord.xy), 0).r : far;
         t = near + fade * (far - near);
       }

@@ -1237,6 +1237,8 @@ export function shadowAtPoint(maps, tile, base, x, y, f) {
 
 /** How far (horizontally, metres) `cloudscape render` draws clouds (render::scene::VIEW_DISTANCE). */
 export const VIEW_DISTANCE = 30000;
+/** Where the ground's cloud shadow starts to fade into the mean shadow, a fraction of the view distance (render::scene::SHADOW_FADE_START). */
+export const SHADOW_FADE_START = 0.4;
 /** A tile splits while one of its columns would span more pixels than this (QualitySettings::lod_pixels). */
 export const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
 

@@ -352,6 +352,8 @@ export function shadowAtPoint(maps: DerivedShadow, tile: BillboardTile, base: nu
 
 /** How far (horizontally, metres) `cloudscape render` draws clouds. */
 export const VIEW_DISTANCE: 30000;
+/** Where the ground's cloud shadow starts to fade into the mean shadow, a fraction of the view distance (render::scene::SHADOW_FADE_START). */
+export const SHADOW_FADE_START: 0.4;
 /** A tile splits while one of its columns would span more pixels than this, by quality. */
 export const LOD_PIXELS: { fast: 8; balanced: 4; accurate: 2 };
 /** A camera: position in metres (x east, y north, z up); yaw clockwise from north, pitch above the horizon, horizontal FOV, degrees. */

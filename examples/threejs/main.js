@@ -30,6 +30,7 @@ import {
   GLSL,
   MAX_DETAIL_OCTAVES,
   MIN_WAVELENGTH_PIXELS,
+  SHADOW_FADE_START,
   ShadowDerivation,
   TILE_COLUMNS,
   VIEW_DISTANCE,
@@ -215,7 +216,7 @@ const backgroundMaterial = (uniforms) =>
           vec3 ray = d * (eyeZ / -d.z);
           float t = 1.0;
           if (shadows) {
-            float fade = smoothstep(0.7 * viewDistance, viewDistance, length(ray.xy));
+            float fade = smoothstep(${SHADOW_FADE_START.toFixed(2)} * viewDistance, viewDistance, length(ray.xy));
             float near = 1.0;
             for (int i = 0; i < ${MAX_TILES}; i++) {
               if (i >= shadowCount) break;

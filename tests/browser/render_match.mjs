@@ -107,7 +107,8 @@ export async function readBoth(page, renderUrl) {
  * The seam figure of the module docs. `shifts` gives, by layer name, how far the
  * layer's shadow maps lie from its tiles on the ground ((s_x, s_y) · base / s_z,
  * render::tile::shadow_shift, subtracted); `near` the ground distance (m) within which
- * edges are measured (the shadow fades to the mean beyond 70 % of the view distance).
+ * edges are measured (the shadow fades to the mean from 40 % of the view distance on,
+ * SHADOW_FADE_START: half way at 70 %).
  * For each edge of a drawn tile's shadow quad on screen: the mean |Δ luma| across it
  * (one and a half pixels either side), and the mean of the same over lines parallel
  * to it at ±4, ±8 and ±12 pixels. Returns the edges, largest excess first.

@@ -530,8 +530,9 @@ try {
   // tiles): the cirrus tile south-west of the eye is out of view and its shadow lies
   // ahead. Before, the level choice left it out, and the ground it shadows was sunlit
   // up to a straight edge: the edge's luma jump stood 0.083 above the jumps beside it.
-  // Now every edge of a shadow quad within 21 km (70 % of the view distance: no fade
-  // to the mean) jumps about as much as the lines beside it (measured: 0.0025 more).
+  // Now every edge of a shadow quad within 21 km (70 % of the view distance, where the
+  // fade to the mean is half way: a seam there would still jump about 0.04) jumps about
+  // as much as the lines beside it (measured: 0.0025 more with the fade from 70 %).
   {
     const seamView = { camera: '12800,-6000,900,0,6,75', t: 61200, sun: '275,28' };
     const sp = await openPage(context);

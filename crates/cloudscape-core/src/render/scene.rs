@@ -31,6 +31,12 @@ use super::{ParseError, Quality, RenderError};
 
 /// Clouds farther than this (horizontally, metres) from the camera are not drawn.
 pub const VIEW_DISTANCE: f64 = 30_000.0;
+/// Where the ground's cloud shadow starts to fade into the tiles' mean shadow, as a
+/// fraction of [`VIEW_DISTANCE`] (see [`background`]). Seen from low altitude the
+/// ground between here and the view distance spans a few rows of pixels only; a fade
+/// over the last 30 % drew as a line across the picture at the horizon, over the last
+/// 60 % it spans about three times as many rows.
+pub const SHADOW_FADE_START: f64 = 0.4;
 /// Most tiles (over all layers) one render may compute.
 pub const MAX_RENDER_TILES: usize = 24;
 /// Largest image, pixels, for billboard presets.
@@ -473,8 +479,8 @@ pub fn draw_volumetric(
 
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
 /// point, and hazed by the air between the eye and it) behind the clouds. Beyond the
-/// tiles the shadow is unknown: over the last 30 % of [`VIEW_DISTANCE`] it turns
-/// into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
+/// tiles the shadow is unknown: from [`SHADOW_FADE_START`] of [`VIEW_DISTANCE`] on it
+/// turns into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
 /// ground has neither a hard edge nor a sunlit band.
 pub fn background(view: &View, lighting: &Lighting, far_t: f64, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
@@ -486,7 +492,7 @@ pub fn background(view: &View, lighting: &Lighting, far_t: f64, ground_t: impl F
                 let s = -o[2] / d[2];
                 let (gx, gy) = (o[0] + d[0] * s, o[1] + d[1] * s);
                 let r = ((gx - o[0]).powi(2) + (gy - o[1]).powi(2)).sqrt();
-                let fade = smoothstep(0.7 * VIEW_DISTANCE, VIEW_DISTANCE, r);
+                let fade = smoothstep(SHADOW_FADE_START * VIEW_DISTANCE, VIEW_DISTANCE, r);
                 let near = if fade < 1.0 { ground_t(gx, gy) } else { far_t };
                 near + fade * (far_t - near)
             } else {

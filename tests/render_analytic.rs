@@ -10,7 +10,7 @@ use cloudscape_core::density::metaballs::{GridPlacement, Lattice, Metaball, wyvi
 use cloudscape_core::render::camera::View;
 use cloudscape_core::render::composite::composite;
 use cloudscape_core::render::image::Image;
-use cloudscape_core::render::light::{Lighting, Octaves, ShadingParams};
+use cloudscape_core::render::light::{BillboardLight, Lighting, Octaves, ShadingParams};
 use cloudscape_core::render::march::{self, MarchParams, Volume};
 use cloudscape_core::render::shade::{SELF_SHADOW, shade};
 use cloudscape_core::render::splats::SplatSheet;
@@ -43,8 +43,11 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
     };
     let params = ShadingParams {
         extinction,
-        octaves: Octaves::SINGLE,
-        detail_erosion: 0.0,
+        light: Some(BillboardLight {
+            octaves: Octaves::SINGLE,
+            detail_erosion: 0.0,
+            ..BillboardLight::default()
+        }),
         ..ShadingParams::default()
     };
     // No sky light: the marcher adds it unoccluded, the billboards through the cloud.

@@ -234,7 +234,9 @@ fn extremes_render_finite() {
 fn balanced_thick_cloud_has_the_path_tracers_colour() {
     use cloudscape_core::render::Quality;
     use cloudscape_core::world::{Config, DEFAULT_CONFIG};
-    use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau};
+    use cloudscape_tools::bench::quality::{
+        SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau,
+    };
 
     let size = 48;
     let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).unwrap();
@@ -254,7 +256,12 @@ fn balanced_thick_cloud_has_the_path_tracers_colour() {
     let c = compare(&balanced, &reference, &tau, size, size);
     let (preset, truth) = c.thick_colour.expect("the deck is thick");
     let bg = preset[0] / truth[0];
-    assert!((bg - 1.0).abs() < 0.03, "thick cloud B/G {} against the path tracer's {}", preset[0], truth[0]);
+    assert!(
+        (bg - 1.0).abs() < 0.03,
+        "thick cloud B/G {} against the path tracer's {}",
+        preset[0],
+        truth[0]
+    );
     for (bin, ratio) in c.radiance_ratio.iter().enumerate() {
         if let Some(r) = ratio {
             assert!((0.85..=1.15).contains(r), "τ bin {bin}: {r}");

@@ -4,8 +4,8 @@
 
 use cloudscape_core::density::Grid;
 use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
-use cloudscape_core::render::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_density, tile_halo};
 use cloudscape_core::render::light::BillboardLight;
+use cloudscape_core::render::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_density, tile_halo};
 use cloudscape_core::render::{Phase, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, Layer};
 

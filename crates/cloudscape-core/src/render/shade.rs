@@ -310,7 +310,11 @@ pub fn shade_where(
     let albedo = lighting.params.albedo.clamp(0.0, 1.0);
     let octaves = lighting.billboard.octaves;
     let opacity_scale = lighting.billboard.opacity_scale;
-    let opacity_scale = if opacity_scale.is_finite() { opacity_scale.max(0.0) } else { 1.0 };
+    let opacity_scale = if opacity_scale.is_finite() {
+        opacity_scale.max(0.0)
+    } else {
+        1.0
+    };
     let sun = lighting.sun_scatter();
     let out = balls
         .iter()
@@ -330,12 +334,15 @@ pub fn shade_where(
             } else {
                 1.0
             };
-            let ambient =
-                lighting.ambient_source(lighting.sky_ambient_above, lighting.ground_below(ground_t), tau_up, tau_down);
+            let ambient = lighting.ambient_source(
+                lighting.sky_ambient_above,
+                lighting.ground_below(ground_t),
+                tau_up,
+                tau_down,
+            );
             let iso = octaves.isotropic_sum(tau_sun);
             let k = sheet.index_for_tau(opacity_scale * tau);
-            let colour =
-                [0, 1, 2].map(|ch| (albedo * (sun[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
+            let colour = [0, 1, 2].map(|ch| (albedo * (sun[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
             Billboard {
                 index: b.index,
                 centre: c,

@@ -25,8 +25,10 @@
 //!
 //!     cargo run --release --example calibrate_scattering -- SIZE SAMPLES PRESETS [KEY=V1,V2,…]…
 //!
-//! PRESETS is a comma list (`fast,balanced,accurate`); `quality` or `gallery` as a
-//! KEY=… argument's key restricts the scene set (`set=quality`, `set=gallery`). The
+//! PRESETS is a comma list (`fast,balanced,accurate`); `set=quality` or
+//! `set=gallery` restricts the scene set; `set=one-layer` draws the gallery views over
+//! the default world's cumulus layer alone ([`CUMULUS_ONLY`]), which tells what the
+//! layers above (which the billboards' light does not see) do to the figures. The
 //! other keys override `ShadingParams` for every candidate of the grid (their
 //! cartesian product): `n`, `a`, `b`, `c` (the octaves), `sky` (the sky-light
 //! attenuation scale), `erosion` (detail erosion), `opacity` (the splat opacity
@@ -46,6 +48,24 @@ use cloudscape_core::view::held_tiles;
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 use cloudscape_tools::bench::gallery::VIEWS;
 use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, scene_density, shade_grids, view_tau};
+
+/// The default world's cumulus layer alone (the same seed and layer index, so the
+/// same cumulus), for `set=one-layer`.
+const CUMULUS_ONLY: &str = r#"
+[worlds.cumulus_only]
+seed = 1
+freezing_level = 3000.0
+[[worlds.cumulus_only.layers]]
+name = "cumulus"
+preset = "cumulus"
+base = 1200.0
+cell_size = 100.0
+cell_height = 100.0
+depth = 14
+dt = 20.0
+wind = [6.0, 2.0]
+shear = [0.002, 0.0005]
+"#;
 
 /// One view the fit answers to.
 struct Scene {
@@ -295,9 +315,23 @@ fn main() -> Result<(), String> {
             .collect::<Result<Vec<_>, _>>()?;
         grid.push((k.to_string(), vs));
     }
-    let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).map_err(|e| e.to_string())?;
+    let config =
+        Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}\n{CUMULUS_ONLY}")).map_err(|e| e.to_string())?;
     let mut scenes = Vec::new();
-    if set != "gallery" {
+    if set == "one-layer" {
+        for v in &VIEWS {
+            scenes.push(Scene {
+                name: format!("{}-cumulus-only", v.name),
+                world: "cumulus_only",
+                camera: v.camera,
+                sun: v.sun,
+                t: v.t,
+                width: size,
+                height: size * 9 / 16,
+            });
+        }
+    }
+    if set == "all" || set == "quality" {
         for s in &SCENES {
             scenes.push(Scene {
                 name: s.name.replace(' ', "-").replace('°', ""),
@@ -310,7 +344,7 @@ fn main() -> Result<(), String> {
             });
         }
     }
-    if set != "quality" {
+    if set == "all" || set == "gallery" {
         for v in &VIEWS {
             scenes.push(Scene {
                 name: v.name.to_string(),

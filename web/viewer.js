@@ -66,11 +66,11 @@ import {
  * ShadingParams::default() (src/render/light.rs): what a version-1 billboards.bin (no
  * lighting in its header) is drawn with. Later versions carry albedo, phase, octaves
  * and the sun's radiance in their header; the detail erosion strength is the viewer's
- * own.
+ * own (render::Quality::light's, the same in every preset).
  */
 const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
-  octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.6,
+  octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.3,
 };
 /** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
 const MAX_TILES = 48;

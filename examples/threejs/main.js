@@ -127,8 +127,8 @@ function project(p) {
 
 /** Most tiles a view may plan (render::scene::MAX_RENDER_TILES): `cloudscape render` refuses more. */
 const MAX_TILES = 24;
-/** Detail erosion strength (ShadingParams::default().detail_erosion). */
-const DETAIL_EROSION = 0.6;
+/** Detail erosion strength (render::Quality::light, the same in every preset). */
+const DETAIL_EROSION = 0.3;
 /** A ball this many radii from the eye is fog around it, closer than half a radius along the view axis it is beside it (render::composite). */
 const AROUND_EYE_RADII = 2.0;
 const NEAR_CLIP_RADII = 0.5;

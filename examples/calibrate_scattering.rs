@@ -117,8 +117,8 @@ fn reference(scene: &Scene, world: &World, config: &Config, samples: u32) -> Res
     let img = cloudscape_core::view::draw(&tiles, &req, req.sun.ok_or("no sun")?).0;
     let tau = view_tau(&tiles, &req);
     let mut bytes = Vec::with_capacity(n * 16);
-    for i in 0..n {
-        for v in [img.rgb[i][0], img.rgb[i][1], img.rgb[i][2], tau[i] as f32] {
+    for (rgb, &t) in img.rgb.iter().zip(&tau).take(n) {
+        for v in [rgb[0], rgb[1], rgb[2], t as f32] {
             bytes.extend_from_slice(&v.to_le_bytes());
         }
     }
@@ -357,15 +357,17 @@ fn main() -> Result<(), String> {
             });
         }
     }
+    /// A preset's density grids (with their levels) and its plan.
+    type PresetDensity = (
+        Quality,
+        Vec<(cloudscape_core::density::Grid<f32>, usize)>,
+        Vec<(usize, cloudscape_core::render::TileId)>,
+    );
     struct Prepared {
         world: World,
         reference: Image,
         tau: Vec<f64>,
-        presets: Vec<(
-            Quality,
-            Vec<(cloudscape_core::density::Grid<f32>, usize)>,
-            Vec<(usize, cloudscape_core::render::TileId)>,
-        )>,
+        presets: Vec<PresetDensity>,
     }
     let mut prepared = Vec::new();
     for s in &scenes {

@@ -205,7 +205,11 @@ fn inside_a_cloud_layer_the_view_is_fog_like_the_reference() {
     // BENCHMARKS.md "Presets' light and edges" has the gallery's figures).
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("cumulus_only.toml");
-    std::fs::write(&config, format!("{}\n{CUMULUS_ONLY}", cloudscape_core::world::DEFAULT_CONFIG)).unwrap();
+    std::fs::write(
+        &config,
+        format!("{}\n{CUMULUS_ONLY}", cloudscape_core::world::DEFAULT_CONFIG),
+    )
+    .unwrap();
     let mut stats = Vec::new();
     for quality in ["balanced", "reference"] {
         let out = dir.path().join(format!("{quality}.png"));

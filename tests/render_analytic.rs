@@ -10,7 +10,7 @@ use cloudscape_core::density::metaballs::{GridPlacement, Lattice, Metaball, wyvi
 use cloudscape_core::render::camera::View;
 use cloudscape_core::render::composite::composite;
 use cloudscape_core::render::image::Image;
-use cloudscape_core::render::light::{Lighting, Octaves, ShadingParams};
+use cloudscape_core::render::light::{BillboardLight, Lighting, Octaves, ShadingParams};
 use cloudscape_core::render::march::{self, MarchParams, Volume};
 use cloudscape_core::render::shade::{SELF_SHADOW, shade};
 use cloudscape_core::render::splats::SplatSheet;
@@ -43,8 +43,11 @@ fn single_ball(extinction: f64, sun: Sun) -> Ball {
     };
     let params = ShadingParams {
         extinction,
-        octaves: Octaves::SINGLE,
-        detail_erosion: 0.0,
+        light: Some(BillboardLight {
+            octaves: Octaves::SINGLE,
+            detail_erosion: 0.0,
+            ..BillboardLight::default()
+        }),
         ..ShadingParams::default()
     };
     // No sky light: the marcher adds it unoccluded, the billboards through the cloud.
@@ -214,6 +217,54 @@ fn extremes_render_finite() {
                     .all(|v| v.is_finite() && *v >= 0.0 && *v < 10.0)
             );
             assert!(img.alpha.iter().all(|a| a.is_finite() && (0.0..=1.0).contains(a)));
+        }
+    }
+}
+
+/// The presets' light against the path tracer on a stratus deck seen from below (the
+/// first scene of `bench::quality::SCENES`, 48×48, 32 samples per pixel): `balanced`'s
+/// thick cloud (view optical depth > 2) has the path tracer's colour, linear B/G within
+/// 3 %, and its mean radiance per view-optical-depth bin is within 0.85–1.15 of it.
+/// The reference is the independent source: the path tracer is checked against
+/// closed forms and an independent plane-parallel Monte Carlo
+/// (`render::pathtrace` tests). Before the fit (the sky half of the sphere lit by
+/// the whole sphere's mean, attenuated at twice diffusion theory's rate) the deck was
+/// cream: B/G 0.92 of the reference's.
+#[test]
+fn balanced_thick_cloud_has_the_path_tracers_colour() {
+    use cloudscape_core::render::Quality;
+    use cloudscape_core::world::{Config, DEFAULT_CONFIG};
+    use cloudscape_tools::bench::quality::{
+        SCENE_WORLDS, SCENES, compare, request, scene_density, shade_grids, view_tau,
+    };
+
+    let size = 48;
+    let config = Config::parse(&format!("{DEFAULT_CONFIG}\n{SCENE_WORLDS}")).unwrap();
+    let scene = &SCENES[0];
+    let world = config.world(scene.world).unwrap();
+    let draw = |quality: Quality| {
+        let mut req = request(scene, quality, size).unwrap();
+        req.samples = 32;
+        let (_, grids, plan) = scene_density(&world, &config, &req).unwrap();
+        let tiles = shade_grids(&world, &req, &plan, grids).unwrap();
+        let image = cloudscape_core::view::draw(&tiles, &req, req.sun.unwrap()).0;
+        (image, tiles, req)
+    };
+    let (reference, tiles, req) = draw(Quality::Reference);
+    let tau = view_tau(&tiles, &req);
+    let (balanced, _, _) = draw(Quality::Balanced);
+    let c = compare(&balanced, &reference, &tau, size, size);
+    let (preset, truth) = c.thick_colour.expect("the deck is thick");
+    let bg = preset[0] / truth[0];
+    assert!(
+        (bg - 1.0).abs() < 0.03,
+        "thick cloud B/G {} against the path tracer's {}",
+        preset[0],
+        truth[0]
+    );
+    for (bin, ratio) in c.radiance_ratio.iter().enumerate() {
+        if let Some(r) = ratio {
+            assert!((0.85..=1.15).contains(r), "τ bin {bin}: {r}");
         }
     }
 }

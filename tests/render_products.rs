@@ -4,6 +4,7 @@
 
 use cloudscape_core::density::Grid;
 use cloudscape_core::products::{atlas, billboards, coverage, shadow, splats};
+use cloudscape_core::render::light::BillboardLight;
 use cloudscape_core::render::tile::{ShadedTile, TILE_COLUMNS, TileId, shade_density, tile_halo};
 use cloudscape_core::render::{Phase, Quality, ShadingParams, Sun};
 use cloudscape_core::world::{Config, Layer};
@@ -210,7 +211,10 @@ fn atlas_png_and_manifest_agree() {
     // Without detail erosion, which may eat a faint fragment whole (it is tested in
     // render::composite): every impostor then shows its billboards.
     let params = ShadingParams {
-        detail_erosion: 0.0,
+        light: Some(BillboardLight {
+            detail_erosion: 0.0,
+            ..Quality::Fast.light()
+        }),
         ..ShadingParams::default()
     };
     let t = shaded_with(Quality::Fast, Sun::new(200.0, 25.0).unwrap(), params);

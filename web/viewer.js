@@ -2,15 +2,18 @@
 // (`/client/cloudscape.js`, clients/js): one decoder, one keyframe rule, one fetch
 // policy for the viewer and for games.
 //
-// It fetches, for the tiles around the camera, the shaded metaball instances
-// (`billboards.bin`), plus the splat sprite sheet (`/v1/splats.png`) and the sky of the
-// tiles' sun (`/v1/sky.json`), and draws camera-facing billboards textured with their
-// splat, sorted back to front and blended over a sky and a shadowed ground plane. The
-// ground shadow is not fetched: each tile's maps are derived from the billboards of
-// the layer's tiles the view holds (the client's ShadowDerivation, the rule of
-// crates/cloudscape-core/src/view/held.rs), a frame's budget at a time. Level choice
-// follows the server's renderer (src/render/scene.rs `plan`): a quadtree per layer,
-// split while a column would span more than the preset's `lod_pixels`.
+// It draws what `cloudscape render` draws (crates/cloudscape-core/src/view/held.rs,
+// render::composite, render::scene::background) from the same bytes: for the tiles
+// around the camera, the shaded metaball instances (`billboards.bin`) and the sky of
+// the tiles' sun (`/v1/sky.json`). Camera-facing billboards, each with the splat
+// profile of its own optical depth evaluated per pixel, sorted back to front and
+// blended over the sky and a shadowed ground plane, in linear radiance; the picture
+// is tone-mapped once at the end (`exposure` from sky.json). The ground shadow is
+// not fetched: each tile's maps are derived from the billboards of the layer's tiles
+// the view holds (the client's ShadowDerivation, the rule of view/held.rs), a frame's
+// budget at a time. Level choice follows the server's renderer (src/render/scene.rs
+// `plan`): a quadtree per layer, split while a column would span more than the
+// preset's `lod_pixels`, out to the renderer's view distance.
 //
 // Tile products are keyframes (src/world/keyframe.rs): a tile of level z is fetched at
 // t0 = floor(t / span) · span, span the layer's `keyframe_spans[min(z, 4)]` from
@@ -36,13 +39,22 @@
 
 import {
   CloudscapeClient,
+  GLSL,
+  LOD_PIXELS,
+  MAX_DETAIL_OCTAVES,
+  MIN_WAVELENGTH_PIXELS,
+  SHADOW_FADE_START,
   ShadowDerivation,
   TILE_COLUMNS,
+  VIEW_DISTANCE,
+  cameraBasis as basis,
   fraction,
   keyframeOf,
   keyframeSun,
+  planTiles,
   prefetchAt,
   shadowShift,
+  skyUniforms,
   worldClock,
 } from '/client/cloudscape.js';
 
@@ -50,21 +62,16 @@ import {
 // Constants shared with the server (src/render/*.rs).
 // ---------------------------------------------------------------------------
 
-/** Splits a tile while one of its columns would cover more pixels than this (QualitySettings::lod_pixels). */
-const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
 /**
  * ShadingParams::default() (src/render/light.rs): what a version-1 billboards.bin (no
  * lighting in its header) is drawn with. Later versions carry albedo, phase, octaves
  * and the sun's radiance in their header; the detail erosion strength is the viewer's
- * own.
+ * own (render::Quality::light's, the same in every preset).
  */
 const SHADING = {
   albedo: 0.9, sunIntensity: 1.2, ambient: [0.30, 0.34, 0.42], g1: 0.7, g2: -0.2, mix: 0.5,
-  octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.6,
+  octaves: [3, 0.5, 0.75, 0.5], detailErosion: 0.3,
 };
-/** src/render/detail.rs: most detail octaves, and the footprint an octave must span. */
-const MAX_DETAIL_OCTAVES = 4;
-const MIN_WAVELENGTH_PIXELS = 2;
 /** Most tiles (over all layers) kept at once; past it the level choice gets coarser. */
 const MAX_TILES = 48;
 /** Requests in flight at once (the server computes tiles on a bounded queue). */
@@ -75,7 +82,7 @@ const MAX_IN_FLIGHT = 4;
  * optical depth at t0, t1; sun optical depth at t0, t1.
  */
 const INSTANCE_FLOATS = 18;
-/** Bodies kept in memory (precipitation maps, splat sheets, skies; billboards are held decoded). */
+/** Bodies kept in memory (precipitation maps, skies; billboards are held decoded). */
 const MAX_HELD = 8 * MAX_TILES;
 /** Cache Storage bucket of immutable and revalidatable responses. */
 const CACHE_NAME = 'cloudscape-v1';
@@ -104,18 +111,7 @@ const smoothstep = (e0, e1, x) => {
   const t = clamp((x - e0) / (e1 - e0), 0, 1);
   return t * t * (3 - 2 * t);
 };
-const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
 const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-
-/** Camera basis as in src/render/camera.rs: yaw clockwise from north, pitch above the horizon. */
-function basis(cam) {
-  const yaw = rad(cam.yaw);
-  const pitch = rad(cam.pitch);
-  const forward = [Math.sin(yaw) * Math.cos(pitch), Math.cos(yaw) * Math.cos(pitch), Math.sin(pitch)];
-  const right = [Math.cos(yaw), -Math.sin(yaw), 0];
-  const up = cross(right, forward);
-  return { forward, right, up };
-}
 
 /**
  * Lighting of the current sky (`GET /v1/sky.json`, src/products/sky.rs): the server's
@@ -156,7 +152,7 @@ const state = {
   sun: parseNumbers(query.get('sun'), 2),
   /** Names of the layers drawn (`layers=` alone: none), or null for all. */
   layers: query.has('layers') ? query.get('layers').split(',').filter(Boolean) : null,
-  viewDistance: Number(query.get('view')) > 0 ? Number(query.get('view')) : 20000,
+  viewDistance: Number(query.get('view')) > 0 ? Number(query.get('view')) : VIEW_DISTANCE,
   /** Rain, snow and lightning drawn (`weather=off`: clouds only, and fewer requests). */
   weather: query.get('weather') !== 'off',
   playing: false,
@@ -185,6 +181,8 @@ const viewerStats = {
   billboards: 0,
   /** Whether the detail-erosion pass ran in the last frame (needs float render targets). */
   erosion: false,
+  /** Whether the last frame was drawn in linear radiance and mapped once (needs float render targets). */
+  linear: false,
   frameMs: 0,
   /** Tile URLs requested, in order. */
   urls: [],
@@ -220,11 +218,12 @@ const stats = Object.defineProperties(viewerStats, {
 let worldInfo = null;
 /** The world time of the world's clock now (worldClock of its discovery). */
 let clockNow = null;
-let splatInfo = null;
 /** The parsed /v1/sky.json of the current sun, its URL, and its radiance table as a texture. */
 let skyInfo = null;
 let skyUrlLoading = '';
 let skyTexture = null;
+/** The uniform values of the loaded sky (the client's skyUniforms). */
+let skyValues = null;
 
 performance.setResourceTimingBufferSize?.(100000);
 new PerformanceObserver((list) => {
@@ -267,103 +266,27 @@ function compile(vs, fs) {
   return { program: p, u: uniforms };
 }
 
-// Display mapping of src/render/light.rs `tone_map`: the exposure (sky.json's
-// `exposure`, set by setExposure), 1 − exp(−exposure · x), then gamma 1/2.2.
-const TONE = `
-uniform float exposure;
-vec3 tone(vec3 x) { return pow(1.0 - exp(-exposure * max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
-`;
+// The server's light as GLSL (the client's GLSL chunks): the display mapping, the
+// atmosphere of sky.json, the ground, the octaves' phase correction, the splat
+// profile and the detail noise. The scene is drawn in linear radiance into a float
+// target and mapped once at the end (toneProgram), so blending happens in radiance as
+// in the server's compositor; without float targets each pass maps its own output
+// (`display`), which blends in display values instead.
+const { tone: TONE, atmosphere: ATMOSPHERE, ground: GROUND, octaves: OCTAVES, splat: SPLAT, detailNoise: DETAIL_NOISE } = GLSL;
 
-/** Sets the TONE uniform of `prog` from skyInfo (1 before a server that serves none). */
-function setExposure(prog) {
-  gl.uniform1f(prog.u.exposure, (skyInfo && skyInfo.exposure) || 1);
-}
+/** A vertex shader drawing one triangle over the whole screen (3 vertices, no buffers). */
+const FULL_SCREEN = `#version 300 es
+  void main() {
+    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
+    gl_Position = vec4(p, 0.0, 1.0);
+  }`;
 
-/** Lengths of the sky.json tables (src/render/sky.rs SUN_TABLE_LEN, MS_ALTITUDES). */
-const SUN_TABLE_LEN = 41;
-const MS_LEN = 12;
-
-// The atmosphere of src/render/sky.rs as GLSL: the sky table lookup (Sky::radiance)
-// and aerial perspective (Sky::aerial_lit, Hoffman & Preetham 2002 with the server's
-// coefficients and tables). Uniforms come from /v1/sky.json.
-const ATMOSPHERE = `
-const float PI = 3.14159265358979;
-uniform sampler2D skyTable;
-uniform vec2 skySize;          // columns, rows
-uniform vec3 sunDir, night;
-uniform vec3 betaR;            // Rayleigh scattering per metre
-uniform vec4 mie;              // scattering, extinction, scale height, g
-uniform vec4 air;              // Rayleigh scale height, scatter irradiance, top altitude, sun table step
-uniform vec3 sunT[${SUN_TABLE_LEN}];
-uniform vec3 multi[${MS_LEN}];
-vec3 skyRadiance(vec3 d) {
-  float e = asin(clamp(d.z, 0.0, 1.0));
-  float hd = length(d.xy);
-  float hs = length(sunDir.xy);
-  float phi = 0.0;
-  if (hd > 1e-6 && hs > 1e-6) phi = acos(clamp(dot(d.xy, sunDir.xy) / (hd * hs), -1.0, 1.0));
-  else if (hd > 1e-6) phi = acos(clamp(d.y / hd, -1.0, 1.0));
-  vec2 uv = vec2(phi / PI, sqrt(e / (0.5 * PI)));
-  vec2 tc = (uv * (skySize - 1.0) + 0.5) / skySize;
-  return texture(skyTable, tc).rgb + night;
-}
-float phaseR(float mu) { return 3.0 / (16.0 * PI) * (1.0 + mu * mu); }
-float phaseM(float mu, float g) {
-  float g2 = g * g;
-  float d = max(1.0 + g2 - 2.0 * g * mu, 1e-12);
-  return 3.0 / (8.0 * PI) * (1.0 - g2) * (1.0 + mu * mu) / ((2.0 + g2) * d * sqrt(d));
-}
-float meanDensity(float z0, float z1, float h) {
-  float dz = z1 - z0;
-  if (abs(dz) < 1e-3 * h) return exp(-0.5 * (z0 + z1) / h);
-  return h * (exp(-z0 / h) - exp(-z1 / h)) / dz;
-}
-vec3 sunAt(float h) {
-  float x = clamp(h / air.w, 0.0, float(${SUN_TABLE_LEN} - 1));
-  int i = min(int(x), ${SUN_TABLE_LEN} - 2);
-  return mix(sunT[i], sunT[i + 1], x - float(i));
-}
-vec3 multiAt(float h) {
-  float x = sqrt(clamp(h / air.z, 0.0, 1.0)) * float(${MS_LEN} - 1);
-  int i = min(int(x), ${MS_LEN} - 2);
-  return mix(multi[i], multi[i + 1], x - float(i));
-}
-// The air between the eye (altitude z0) and a point at offset v (altitude z1):
-// transmittance T and in-scattered light L; the sun's share scaled by vis.
-void aerial(vec3 v, float z0, float z1, float vis, out vec3 T, out vec3 L) {
-  float d = length(v);
-  if (!(d > 0.0)) { T = vec3(1.0); L = vec3(0.0); return; }
-  z0 = clamp(z0, 0.0, air.z);
-  z1 = clamp(z1, 0.0, air.z);
-  float mR = meanDensity(z0, z1, air.x);
-  float mM = meanDensity(z0, z1, mie.z);
-  float mu = dot(v / d, sunDir);
-  float h = 0.5 * (z0 + z1);
-  vec3 sr = betaR * mR;
-  float sm = mie.x * mM;
-  vec3 ext = sr + mie.y * mM;
-  T = exp(-ext * d);
-  vec3 src = (sr * phaseR(mu) + sm * phaseM(mu, mie.w)) * air.y * sunAt(h) * vis + (sr + sm) * multiAt(h);
-  L = src / ext * (1.0 - T);
-}
-`;
-
-// The ground (Lighting::ground_radiance): albedo · (sun · t · cos + sky light, turning
-// grey as the shadow deepens), seen through the air (its sunlit in-scatter shadowed too).
-const GROUND = `
-uniform vec3 sunGround, above, groundAlbedo;
-vec3 ground(vec3 v, float eyeZ, float t) {
-  float grey = dot(above, vec3(0.2126, 0.7152, 0.0722));
-  vec3 sky = t * above + (1.0 - t) * vec3(grey);
-  vec3 g = groundAlbedo * (sunGround * t * max(sunDir.z, 0.0) + sky);
-  vec3 T, L;
-  aerial(v, eyeZ, 0.0, t, T, L);
-  return g * T + L;
-}
-`;
-
-// Sky (with the sun's disc) and unshadowed ground, per pixel from the view ray
-// (Lighting::background).
+// Sky (with the sun's disc) and ground, per pixel from the view ray
+// (scene::background, Lighting::background). The ground's sun transmittance is the
+// product of the tiles' shadows at the ground point (`shadowTex`, shadowProgram; 1
+// where no tile's shadow falls) turned into `far`, the mean shadow of the tiles drawn,
+// over the last 30 % of the view distance, beyond which the clouds are unknown; so
+// the far ground has neither a hard edge nor a sunlit band.
 const skyProgram = compile(
   `#version 300 es
   out vec2 ndc;
@@ -380,6 +303,9 @@ const skyProgram = compile(
   uniform vec3 sunRgb;
   uniform vec2 disc; // angular radius, gain
   uniform float eyeZ;
+  uniform sampler2D shadowTex; // the product of the tiles' shadows at each pixel's ground point (R)
+  uniform bool shadows;        // the eye above the ground and the sun above the horizon
+  uniform float far, viewDistance;
   out vec4 colour;
   ${TONE}
   ${ATMOSPHERE}
@@ -393,112 +319,57 @@ const skyProgram = compile(
       float k = 1.0 - smoothstep(0.75 * disc.x, 1.25 * disc.x, angle);
       c += k * disc.y * sunRgb;
     } else {
-      c = ground(d * (eyeZ / -d.z), eyeZ, 1.0);
+      vec3 ray = d * (eyeZ / -d.z);
+      float t = 1.0;
+      if (shadows) {
+        float fade = smoothstep(${SHADOW_FADE_START.toFixed(2)} * viewDistance, viewDistance, length(ray.xy));
+        float near = fade < 1.0 ? texelFetch(shadowTex, ivec2(gl_FragCoord.xy), 0).r : far;
+        t = near + fade * (far - near);
+      }
+      c = ground(ray, eyeZ, t);
     }
-    colour = vec4(tone(c), 1.0);
+    colour = vec4(display(c), 1.0);
   }`,
 );
 
-// Ground shadow of one tile: multiplies the ground by (lit with T) / (lit with T = 1),
-// both hazed. T is read from the tile's derived maps (R at its keyframe's t0, G at t1,
-// blended by the drawn time), bilinearly between column centres, where the sun ray
-// from the ground point crosses the layer's base (the quad is shifted away from the
-// sun: render::tile::shadow_lookup after shadow_shift). The tiles (and so the shadows) end near the view distance: over its last
-// 30 % the shadow turns into the layer's mean shadow `far`, and beyond it a quad of
-// `far` alone (mode 1) stands in for the unknown clouds (scene::background does the
-// same), so the far ground has neither a hard edge nor a sunlit band.
+// Ground shadow of one tile, multiplied into the shadow target (cleared to 1): T read
+// from the tile's derived maps (R at its keyframe's t0, G at t1, blended by the drawn
+// time), bilinearly between column centres, where the sun ray from the ground point
+// crosses the layer's base: the quad is the tile shifted away from the sun
+// (render::tile::shadow_lookup after shadow_shift). Outside every quad T stays 1, as
+// GroundShadow::at is 1 outside its tile.
 const shadowProgram = compile(
   `#version 300 es
   uniform mat4 viewProj;
   uniform vec4 rect; // x0, y0 relative to the eye; side; eye altitude
   out vec2 uv;
-  out vec3 rel;
   void main() {
     vec2 q = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
     uv = q; // the derived maps' row 0 is the southern edge
-    rel = vec3(rect.xy + q * rect.z, -rect.w);
-    gl_Position = viewProj * vec4(rel, 1.0);
+    gl_Position = viewProj * vec4(rect.xy + q * rect.z, -rect.w, 1.0);
   }`,
   `#version 300 es
   precision highp float;
   in vec2 uv;
-  in vec3 rel;
   uniform sampler2D shadow;  // R: transmittance at the keyframe's t0, G: at t1 (RG16F)
   uniform float shadowF;     // where the drawn time falls in the tile's span
-  uniform float eyeZ, viewDistance, far, mode; // mode 0: a tile; 1: the far ground
-  uniform vec3 forward, right, up;
-  uniform vec2 tanHalf, viewport;
   out vec4 colour;
-  ${TONE}
-  ${ATMOSPHERE}
-  ${GROUND}
   void main() {
-    // The ground point from this pixel's view ray (as the sky pass does), not the
-    // interpolated vertex position: both modes see the same r, so the tiles and the
-    // far quad split the ground exactly at the view distance.
-    vec2 ndc = gl_FragCoord.xy / viewport * 2.0 - 1.0;
-    vec3 d = normalize(forward + ndc.x * tanHalf.x * right + ndc.y * tanHalf.y * up);
-    if (d.z >= 0.0) discard;
-    vec3 ray = d * (eyeZ / -d.z);
-    float r = length(ray.xy);
-    float t;
-    if (mode < 0.5) {
-      if (r >= viewDistance) discard;
-      vec4 s = texture(shadow, uv);
-      t = mix(mix(s.r, s.g, shadowF), far, smoothstep(0.7 * viewDistance, viewDistance, r));
-    } else {
-      if (r < viewDistance) discard;
-      t = far;
-    }
-    vec3 lit = tone(ground(ray, eyeZ, 1.0));
-    vec3 shadowed = tone(ground(ray, eyeZ, t));
-    colour = vec4(shadowed / max(lit, vec3(1e-4)), 1.0);
+    vec4 s = texture(shadow, uv);
+    colour = vec4(mix(s.r, s.g, shadowF));
   }`,
 );
 
-// The detail noise of src/render/detail.rs as GLSL: fBm in [0, 1] of a 3-D gradient
-// noise, lacunarity 2, gain ½. The octave rule and constants are the server's; the
-// basis has a 32-bit integer hash (WebGL has no 64-bit integers), so the pattern is
-// not the server's bit for bit. `p` is the point in units of the first wavelength.
-const DETAIL_NOISE = `
-uint hash(ivec3 q) {
-  uvec3 p = uvec3(q);
-  uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
-  h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
-  return h;
-}
-vec3 grad(ivec3 q) {
-  uint h = hash(q);
-  vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
-  return g / max(length(g), 1e-6);
-}
-float gnoise(vec3 x) {
-  vec3 i = floor(x), f = x - i;
-  ivec3 b = ivec3(i);
-  vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
-  float n000 = dot(grad(b), f);
-  float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
-  float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
-  float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
-  float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
-  float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
-  float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
-  float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
-  float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
-                mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
-  return clamp(n * 1.15, -1.0, 1.0);
-}
-float detailNoise(vec3 p, int octaves) {
-  float sum = 0.0, norm = 0.0, amp = 1.0;
-  for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
-    if (o >= octaves) break;
-    sum += amp * gnoise(p + float(o) * 17.31);
-    norm += amp;
-    amp *= 0.5; p *= 2.0;
-  }
-  return clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
-}
-`;
+// The linear picture mapped for display (light.rs `tone_map`), once per pixel.
+const toneProgram = compile(
+  FULL_SCREEN,
+  `#version 300 es
+  precision highp float;
+  uniform sampler2D scene;
+  out vec4 colour;
+  ${TONE}
+  void main() { colour = vec4(tone(texelFetch(scene, ivec2(gl_FragCoord.xy), 0).rgb), 1.0); }`,
+);
 
 // Extinction of rain and snow, per km, at a rate R (mm/h, water equivalent). Rain:
 // σ = 0.25·R^0.63 (Atlas 1953, optical extinction by rainfall; geometric optics on a
@@ -520,24 +391,39 @@ function precipitationPerMetre(rate, snow) {
   return (snow ? 3 * rate ** 0.7 : 0.25 * rate ** 0.63) * 1e-3;
 }
 
-// Camera-facing billboards textured with their splat (premultiplied `over`). The colour
-// is the pre-shaded (isotropic) colour plus the phase correction of the scattering
-// octaves (Lighting::phase_correction, src/render/light.rs):
-// albedo · sun · Σ_{i<N} bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ_sun}. When the erosion pass
-// runs it also writes, into a second target with the same `over`, (n_k · α, 0, 0, α):
-// n_k the detail noise at the fragment's own point on billboard k's plane (first
-// wavelength k's radius, octaves while one spans MIN_WAVELENGTH_PIXELS of k's pixel
-// footprint, distance · pixelAngle; n_k = 0 when not even the first does). Blended
-// back to front that sums Σ_k w_k n_k with w_k = (1 − A)·α_k, the weights
-// src/render/composite.rs accumulates front to back, and its alpha is Σ_k w_k = A.
-// Points are taken relative to the eye plus the eye's position modulo 65536 m, so
-// f32 noise never sees raw world metres.
+// Camera-facing billboards (premultiplied `over`), as render::composite draws them.
+// The opacity at a pixel is 1 − exp(−τ P(q)), τ the ball's centre optical depth and
+// P(q) = S(√q)/S(0) the splat profile at the pixel's squared distance q from the
+// centre in radii (S the line integral of Wyvill's field function through the unit
+// ball, render::splats::line_integral), evaluated per pixel as the server's
+// compositor does, whatever the billboard's size on screen. The colour is the
+// pre-shaded (isotropic) colour plus the phase correction of the scattering octaves
+// (Lighting::phase_correction, src/render/light.rs):
+// albedo · sun · Σ_{i<N} bⁱ (p(cos θ; cⁱ g) − 1) e^{−aⁱ τ_sun}, seen through the air
+// between the eye and the centre.
+//
+// A ball whose centre lies within AROUND_EYE_RADII radii of the eye is not a quad: it
+// covers the whole screen and each pixel takes the part of the ball's chord along its
+// ray that lies in front of the eye (line_integral_beyond), shaded for that ray's
+// direction and not hazed (composite.rs `Draw::AroundEye`): inside a cloud layer that
+// is fog, thicker toward nearby centres. Other billboards nearer than NEAR_CLIP_RADII
+// radii along the view axis lie beside the eye and are not drawn.
+//
+// When the erosion pass runs each billboard also writes, into a second target with the
+// same `over`, (n_k · α, α, 0, α): n_k the detail noise at the fragment's own point
+// on billboard k's plane (first wavelength k's radius, octaves while one spans
+// MIN_WAVELENGTH_PIXELS of k's pixel footprint, distance · pixelAngle; n_k = 0 when
+// not even the first does). Blended back to front that sums Σ_k w_k n_k and Σ_k w_k
+// with w_k = (1 − A)·α_k, the weights src/render/composite.rs accumulates front to
+// back; a ball around the eye writes (0, 0, 0, α): fog, not an edge, it weighs
+// nothing. Points are taken relative to the eye plus the eye's position modulo
+// 65536 m, so f32 noise never sees raw world metres.
 //
 // Each instance holds both ends of its keyframe span and is drawn at `time` by the
 // animation rule (render::keyframe): moved by its velocity, its centre optical depth
-// τ, colour and τ_sun linear in f. The splat drawn is the one nearest τ
-// (SplatSheet::index_for_tau) with its opacity raised to τ / τ_k, which is the
-// opacity 1 − exp(−τ P(q)) of the ball's own τ.
+// τ, colour and τ_sun linear in f.
+const AROUND_EYE_RADII = 2.0;
+const NEAR_CLIP_RADII = 0.5;
 const billboardProgram = compile(
   `#version 300 es
   layout(location = 0) in vec4 centreRadius; // centre at t0 relative to the buffer origin; radius
@@ -546,10 +432,8 @@ const billboardProgram = compile(
   layout(location = 3) in vec3 rgb1;         // colour at t1
   layout(location = 4) in vec4 taus;         // centre optical depth at t0, t1; sun optical depth at t0, t1
   uniform float time;       // drawn time relative to timeOrigin, seconds
-  uniform vec2 splatTable;  // splat count, tau_max (/v1/splats.json)
   uniform mat4 viewProj;
-  uniform vec3 eye, right, up, sunRgb;
-  uniform vec4 sheet; // columns, size (texels), texture width, texture height
+  uniform vec3 eye, forward, right, up, sunRgb;
   uniform float albedo;
   uniform vec3 phase; // g1, g2, mix
   uniform vec4 octaves; // N, a, b, c
@@ -561,38 +445,48 @@ const billboardProgram = compile(
   uniform float rainSigma, rainTop;
   uniform vec3 rainHaze;
   out vec2 corner;
-  out vec2 cellOrigin;
   out vec3 radiance;
   out vec3 rel;
   flat out float radius;
-  flat out float alphaPower;
+  flat out float tau;
   flat out int detailOctaves;
-  float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
+  // A ball around the eye: its centre relative to the eye, in radii (w: 1), its
+  // pre-shaded colour and sun optical depth; w = 0 for a quad.
+  flat out vec4 aroundEye;
+  flat out vec4 fogColourTauSun;
   ${ATMOSPHERE}
+  ${OCTAVES}
   ${PRECIPITATION}
   void main() {
     corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1)) * 2.0 - 1.0;
     float span = motion.w;
     float since = clamp(time - motion.z, 0.0, span);
     float f = span > 0.0 ? since / span : 0.0;
-    float tau = mix(taus.x, taus.y, f);
-    if (!(tau > 0.0)) {
-      // Absent at this time (it forms or vanishes during the span): nothing to draw.
+    tau = mix(taus.x, taus.y, f);
+    radius = centreRadius.w;
+    vec3 c = centreRadius.xyz + vec3(motion.xy * since, 0.0) - eye;
+    float dist = length(c);
+    aroundEye = vec4(0.0);
+    // Absent at this time (it forms or vanishes during the span), or beside the eye.
+    if (!(tau > 0.0) || !(radius > 0.0) || (dist >= ${AROUND_EYE_RADII.toFixed(1)} * radius && dot(c, forward) < ${NEAR_CLIP_RADII.toFixed(1)} * radius)) {
       gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
       return;
     }
-    float count = splatTable.x, tauMax = splatTable.y;
-    float k = clamp(floor(sqrt(min(tau, tauMax) / tauMax) * count - 0.5), 0.0, count - 1.0);
-    float tauK = tauMax * ((k + 1.0) / count) * ((k + 1.0) / count);
-    alphaPower = tau / tauK;
     vec3 rgb = mix(rgb0, rgb1, f);
     float tauSun = mix(taus.z, taus.w, f);
-    vec3 c = centreRadius.xyz + vec3(motion.xy * since, 0.0) - eye;
-    vec3 p = c + (corner.x * right + corner.y * up) * centreRadius.w;
+    if (dist < ${AROUND_EYE_RADII.toFixed(1)} * radius) {
+      aroundEye = vec4(c / radius, 1.0);
+      fogColourTauSun = vec4(rgb, tauSun);
+      rel = vec3(0.0);
+      detailOctaves = 0;
+      radiance = vec3(0.0);
+      gl_Position = vec4(corner, 0.0, 1.0);
+      return;
+    }
+    vec3 p = c + (corner.x * right + corner.y * up) * radius;
     rel = p;
-    radius = centreRadius.w;
     // detail::octaves_for(radius, metres per pixel at the billboard's distance).
-    float mpp = length(c) * pixelAngle;
+    float mpp = dot(c, forward) * pixelAngle;
     float wl = radius;
     detailOctaves = 0;
     while (detail && detailOctaves < ${MAX_DETAIL_OCTAVES} && wl >= ${MIN_WAVELENGTH_PIXELS.toFixed(1)} * mpp) {
@@ -600,18 +494,7 @@ const billboardProgram = compile(
       wl *= 0.5;
     }
     gl_Position = viewProj * vec4(p, 1.0);
-    cellOrigin = vec2(mod(k, sheet.x), floor(k / sheet.x)) * sheet.y;
-    float cosTheta = dot(normalize(c), sunDir);
-    float w = 1.0, att = 1.0, ecc = 1.0, corr = 0.0;
-    for (int i = 0; i < 8; i++) {
-      if (float(i) >= octaves.x) break;
-      float g1 = clamp(phase.x * ecc, -0.99, 0.99), g2 = clamp(phase.y * ecc, -0.99, 0.99);
-      float ph = mix(hg(g2, cosTheta), hg(g1, cosTheta), phase.z);
-      corr += w * (ph - 1.0) * exp(-att * tauSun);
-      w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
-    }
-    // The sun's share of the scattered light: sun_rgb / 4 (render::light::SUN_SCATTER).
-    radiance = max(rgb + albedo * 0.25 * sunRgb * corr, vec3(0.0));
+    radiance = max(rgb + phaseCorrection(tauSun, normalize(c)), vec3(0.0));
     radiance += flashAt.w * vec3(1.4, 1.5, 1.8) * exp(-length(c - flashAt.xyz) / 2500.0);
     // Aerial perspective by the billboard's distance (composite.rs: c · T + L_in).
     vec3 T, L;
@@ -621,37 +504,55 @@ const billboardProgram = compile(
     // far as it lies below the streak top (the rate at the eye stands for the whole
     // stretch; the boxes haze what lies behind). Beer–Lambert, lit by the rain's haze.
     if (rainSigma > 0.0) {
-      float d = length(c);
       float below = c.z > 0.0 ? clamp((rainTop - eye.z) / c.z, 0.0, 1.0) : 1.0;
-      float tr = exp(-rainSigma * d * below);
-      radiance = radiance * tr + precipitationHaze(rainHaze, c.z / max(d, 1e-6)) * (1.0 - tr);
+      float tr = exp(-rainSigma * dist * below);
+      radiance = radiance * tr + precipitationHaze(rainHaze, c.z / max(dist, 1e-6)) * (1.0 - tr);
     }
   }`,
   `#version 300 es
   precision highp float;
   precision highp int;
   in vec2 corner;
-  in vec2 cellOrigin;
   in vec3 radiance;
   in vec3 rel;
   flat in float radius;
-  flat in float alphaPower;
+  flat in float tau;
   flat in int detailOctaves;
-  uniform sampler2D splats;
-  uniform vec4 sheet;
+  flat in vec4 aroundEye;
+  flat in vec4 fogColourTauSun;
   uniform vec3 eyeMod; // eye position modulo 65536 m (z as is)
+  uniform vec3 forward, right, up, sunRgb, sunDir;
+  uniform vec2 tanHalf, viewport;
+  uniform float albedo;
+  uniform vec3 phase;
+  uniform vec4 octaves;
   layout(location = 0) out vec4 colour;
   layout(location = 1) out vec4 detailOut;
   ${TONE}
   ${DETAIL_NOISE}
+  ${OCTAVES}
+  ${SPLAT}
   void main() {
-    if (dot(corner, corner) >= 1.0) discard;
-    float c = (sheet.y - 1.0) * 0.5; // SplatSheet::sample: texel centres span [-1, 1]
-    vec2 texel = cellOrigin + 0.5 + c + corner * c;
-    float a = 1.0 - pow(max(1.0 - texture(splats, texel / sheet.zw).a, 1e-6), alphaPower);
-    colour = vec4(tone(radiance) * a, a);
+    if (aroundEye.w > 0.0) {
+      vec2 ndc = gl_FragCoord.xy / viewport * 2.0 - 1.0;
+      vec3 d = normalize(forward + ndc.x * tanHalf.x * right + ndc.y * tanHalf.y * up);
+      vec3 w = aroundEye.xyz;
+      float sc = dot(w, d);
+      float q = max(dot(w, w) - sc * sc, 0.0);
+      if (!(q < 1.0)) discard;
+      float a = 1.0 - exp(-tau * chord(q, -sc) / S0);
+      if (!(a > 0.0)) discard;
+      vec3 c = max(fogColourTauSun.rgb + phaseCorrection(fogColourTauSun.a, d), vec3(0.0));
+      colour = vec4(display(c) * a, a);
+      detailOut = vec4(0.0, 0.0, 0.0, a);
+      return;
+    }
+    float q = dot(corner, corner);
+    if (q >= 1.0) discard;
+    float a = 1.0 - exp(-tau * chord(q, -1.0) / S0);
+    colour = vec4(display(radiance) * a, a);
     float n = detailOctaves > 0 && a > 0.0 ? detailNoise((rel + eyeMod) / radius, detailOctaves) : 0.0;
-    detailOut = vec4(n * a, 0.0, 0.0, a);
+    detailOut = vec4(n * a, a, 0.0, a);
   }`,
 );
 
@@ -663,38 +564,24 @@ const billboardProgram = compile(
 // overlap free of contour ripples: that point sweeps along the view ray through many
 // wavelengths within a few pixels, each n_k is smooth across the screen.
 const erosionProgram = compile(
-  `#version 300 es
-  out vec2 uv;
-  void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
-    uv = p * 0.5 + 0.5;
-    gl_Position = vec4(p, 0.0, 1.0);
-  }`,
+  FULL_SCREEN,
   `#version 300 es
   precision highp float;
-  in vec2 uv;
   uniform sampler2D cloud, detailTex;
   uniform float strength;
   out vec4 colour;
   void main() {
-    vec4 c = texture(cloud, uv);
+    ivec2 at = ivec2(gl_FragCoord.xy);
+    vec4 c = texelFetch(cloud, at, 0);
     float a = c.a;
     if (a <= 0.0) discard;
-    vec4 d = texture(detailTex, uv);
-    float n = d.a > 0.0 ? strength * clamp(d.x / d.a, 0.0, 1.0) : 0.0;
+    vec4 d = texelFetch(detailTex, at, 0);
+    float n = d.y > 0.0 ? strength * clamp(d.x / d.y, 0.0, 1.0) : 0.0;
     float lo = n * (1.0 - a);
     float eroded = lo >= 1.0 ? 0.0 : clamp((a - lo) / (1.0 - lo), 0.0, a);
     colour = vec4(c.rgb * (eroded / a), eroded);
   }`,
 );
-
-/** The offscreen targets of the billboards when the erosion pass runs (null without float targets). */
-/** A vertex shader drawing one triangle over the whole screen (3 vertices, no buffers). */
-const FULL_SCREEN = `#version 300 es
-  void main() {
-    vec2 p = vec2(float((gl_VertexID << 1) & 2), float(gl_VertexID & 2)) * 2.0 - 1.0;
-    gl_Position = vec4(p, 0.0, 1.0);
-  }`;
 
 // Precipitation under the clouds (issue 24): each drawn tile whose layer precipitates
 // is a box from the ground up to its layer's top. Its back faces ray-march the view
@@ -754,13 +641,14 @@ const rainProgram = compile(
       tau += v.a * precipitationPerKm(rate, z >= snowLevel) * 1e-3 * ds;
     }
     float alpha = 1.0 - exp(-tau);
-    colour = vec4(tone(precipitationHaze(hazeRgb, d.z)) * alpha, alpha);
+    colour = vec4(display(precipitationHaze(hazeRgb, d.z)) * alpha, alpha);
   }`,
 );
 
 // Streaks where the eye stands in rain or snow: falling lines (rain) or drifting
 // flakes (snow) over the screen, as many as the rate at the eye asks for. The haze
-// around the eye is the boxes' (it grows with distance).
+// around the eye is the boxes' (it grows with distance). Drawn over the mapped
+// picture, in display values.
 const streakProgram = compile(
   FULL_SCREEN,
   `#version 300 es
@@ -799,8 +687,9 @@ const streakProgram = compile(
   }`,
 );
 
-// Lightning: a bolt (cloud-to-ground), drawn as a jagged line, and the flash lighting
-// the air around the viewer (added over everything).
+// Lightning: a bolt (cloud-to-ground), drawn as a jagged line into the scene (radiance
+// that maps to near white at full gain), and the flash lighting the air around the
+// viewer (added over the mapped picture).
 const boltProgram = compile(
   `#version 300 es
   layout(location = 0) in vec3 position; // relative to the eye
@@ -810,7 +699,8 @@ const boltProgram = compile(
   precision highp float;
   uniform float gain;
   out vec4 colour;
-  void main() { colour = vec4(vec3(0.85, 0.9, 1.0) * gain, 0.0); }`,
+  ${TONE}
+  void main() { colour = vec4(display(vec3(0.85, 0.9, 1.0) * 4.0 * gain), 0.0); }`,
 );
 const boltBuffer = gl.createBuffer();
 const boltVao = gl.createVertexArray();
@@ -829,17 +719,25 @@ const veilProgram = compile(
   void main() { colour = vec4(rgb, 0.0); }`,
 );
 
+/** Whether float textures can be drawn into: the linear scene, the clouds' erosion pass. */
 const floatTargets = gl.getExtension('EXT_color_buffer_float');
-let cloudTarget = null;
+/** Offscreen targets by name: { w, h, target: { fb, textures } or null when incomplete }. */
+const targets = new Map();
+const RGBA16F = () => [gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT];
 
-function cloudTargets(w, h) {
-  if (!floatTargets) return null;
-  if (cloudTarget && cloudTarget.w === w && cloudTarget.h === h) return cloudTarget;
-  if (cloudTarget) {
-    gl.deleteFramebuffer(cloudTarget.fb);
-    cloudTarget.textures.forEach((t) => gl.deleteTexture(t));
+/**
+ * The offscreen target `name` of `w` × `h` pixels with one texture (colour attachment)
+ * per format [internal, format, type], made again when the size changes; null when
+ * the implementation cannot draw into it.
+ */
+function offscreen(name, w, h, formats) {
+  const held = targets.get(name);
+  if (held && held.w === w && held.h === h) return held.target;
+  if (held && held.target) {
+    gl.deleteFramebuffer(held.target.fb);
+    held.target.textures.forEach((t) => gl.deleteTexture(t));
   }
-  const make = (internal, format, type) => {
+  const textures = formats.map(([internal, format, type]) => {
     const t = gl.createTexture();
     gl.bindTexture(gl.TEXTURE_2D, t);
     gl.texImage2D(gl.TEXTURE_2D, 0, internal, w, h, 0, format, type, null);
@@ -848,21 +746,20 @@ function cloudTargets(w, h) {
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
     gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
     return t;
-  };
-  // The colour, and (Σ w_k n_k, 0, 0, A) of the detail noise.
-  const textures = [make(gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE), make(gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT)];
+  });
   const fb = gl.createFramebuffer();
   gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
   textures.forEach((t, i) => gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0 + i, gl.TEXTURE_2D, t, 0));
-  gl.drawBuffers([gl.COLOR_ATTACHMENT0, gl.COLOR_ATTACHMENT1]);
+  gl.drawBuffers(textures.map((_, i) => gl.COLOR_ATTACHMENT0 + i));
   const ok = gl.checkFramebufferStatus(gl.FRAMEBUFFER) === gl.FRAMEBUFFER_COMPLETE;
   gl.bindFramebuffer(gl.FRAMEBUFFER, null);
-  cloudTarget = ok ? { fb, textures, w, h } : null;
   if (!ok) {
     gl.deleteFramebuffer(fb);
     textures.forEach((t) => gl.deleteTexture(t));
   }
-  return cloudTarget;
+  const target = ok ? { fb, textures } : null;
+  targets.set(name, { w, h, target });
+  return target;
 }
 
 const billboardVao = gl.createVertexArray();
@@ -878,8 +775,6 @@ for (const [loc, size, at] of [[0, 4, 0], [1, 4, 4], [2, 3, 8], [3, 3, 11], [4, 
 }
 gl.bindVertexArray(null);
 const emptyVao = gl.createVertexArray();
-
-let splatTexture = null;
 
 function texture(image, filter) {
   const tex = gl.createTexture();
@@ -942,74 +837,21 @@ function drawnLayers() {
 }
 
 /**
- * The tiles the camera sees (src/render/scene.rs `plan`), coarsened until at most
- * MAX_TILES remain.
+ * The tiles the camera sees, as `cloudscape render` plans them (the client's
+ * planTiles: scene.rs plan_bands, the view distance `view=` or the renderer's, the
+ * shadows thrown by the loaded sky's sun, which is the tiles' sun bucket's centre;
+ * straight down before the sky is in, and the plan grows once it is), coarsened until
+ * at most MAX_TILES remain.
  */
 function plan() {
-  const cam = state.camera;
-  const w = Math.max(1, canvas.clientWidth);
-  const h = Math.max(1, canvas.clientHeight);
-  const { forward, right, up } = basis(cam);
-  const tanH = Math.tan(rad(cam.fov) / 2);
-  const tanV = (tanH * h) / w;
-  const pixelAngle = (2 * tanH) / w;
-  const view = state.viewDistance;
+  const sun = skyIsCurrent() ? skyInfo.sun.direction : null;
+  const layers = drawnLayers().map((l) => l.name);
+  const [w, h] = [canvas.clientWidth, canvas.clientHeight];
   for (let lod = LOD_PIXELS[state.quality]; ; lod *= 2) {
-    const out = [];
-    let tooMany = false;
-    for (const l of drawnLayers()) {
-      const zb = l.base;
-      const zt = l.top;
-      const tileSize = (z) => TILE_COLUMNS * l.cell_size * 2 ** z;
-      let zTop = 0;
-      while (tileSize(zTop) < 2 * view && zTop < worldInfo.maxzoom) zTop++;
-      const s = tileSize(zTop);
-      const stack = [];
-      for (let y = Math.floor((cam.y - view) / s); y <= Math.floor((cam.y + view) / s); y++) {
-        for (let x = Math.floor((cam.x - view) / s); x <= Math.floor((cam.x + view) / s); x++) stack.push([zTop, x, y]);
-      }
-      while (stack.length) {
-        const [z, x, y] = stack.pop();
-        const size = tileSize(z);
-        const x0 = x * size;
-        const y0 = y * size;
-        const x1 = x0 + size;
-        const y1 = y0 + size;
-        const dx = Math.max(x0 - cam.x, 0, cam.x - x1);
-        const dy = Math.max(y0 - cam.y, 0, cam.y - y1);
-        const dz = Math.max(zb - cam.z, 0, cam.z - zt);
-        if (Math.hypot(dx, dy) > view) continue;
-        // The box reaches down to the ground: a tile's shadow falls there even when
-        // its clouds are out of view (scene.rs `plan_bands`).
-        const outside = [true, true, true, true, true];
-        for (const cx of [x0, x1]) {
-          for (const cy of [y0, y1]) {
-            for (const cz of [Math.min(zb, 0), zt]) {
-              const r = [cx - cam.x, cy - cam.y, cz - cam.z];
-              const a = dot(r, right);
-              const b = dot(r, up);
-              const f = dot(r, forward);
-              const tests = [f < 0, a > f * tanH, a < -f * tanH, b > f * tanV, b < -f * tanV];
-              for (let i = 0; i < 5; i++) outside[i] = outside[i] && tests[i];
-            }
-          }
-        }
-        if (outside.some(Boolean)) continue;
-        const dist = Math.max(Math.hypot(dx, dy, dz), 1);
-        const column = l.cell_size * 2 ** z;
-        if (z > 0 && column / (dist * pixelAngle) > lod) {
-          for (const [ox, oy] of [[0, 0], [1, 0], [0, 1], [1, 1]]) stack.push([z - 1, x * 2 + ox, y * 2 + oy]);
-          if (out.length + stack.length > 64 * MAX_TILES) {
-            tooMany = true;
-            break;
-          }
-          continue;
-        }
-        out.push({ layer: l.index, layerName: l.name, z, x, y, origin: [x0, y0], size });
-      }
-      if (tooMany) break;
+    const tiles = planTiles(worldInfo, state.camera, w, h, { lodPixels: lod, viewDistance: state.viewDistance, sun, layers, maxTiles: MAX_TILES });
+    if (tiles && tiles.length <= MAX_TILES) {
+      return tiles.map((t) => ({ layer: t.layerIndex, layerName: t.layer, z: t.z, x: t.x, y: t.y, origin: t.origin, size: t.size }));
     }
-    if (!tooMany && out.length <= MAX_TILES) return out;
   }
 }
 
@@ -1638,24 +1480,22 @@ function hazeRgb(light) {
 /** Sets the ATMOSPHERE and GROUND uniforms of `prog` from skyInfo (sky table on texture unit 1). */
 function setAtmosphere(prog) {
   const u = prog.u;
-  const s = skyInfo;
-  const a = s.aerial;
+  const v = skyValues;
   gl.activeTexture(gl.TEXTURE1);
   gl.bindTexture(gl.TEXTURE_2D, skyTexture);
   gl.uniform1i(u.skyTable, 1);
-  gl.uniform2f(u.skySize, s.sky.columns, s.sky.rows);
-  gl.uniform3fv(u.sunDir, s.sun.direction);
-  gl.uniform3fv(u.night, s.night_rgb);
-  gl.uniform3fv(u.betaR, a.rayleigh_scattering);
-  gl.uniform4f(u.mie, a.mie_scattering, a.mie_extinction, a.mie_scale_height, a.mie_g);
-  gl.uniform4f(u.air, a.rayleigh_scale_height, a.scatter_irradiance, a.top_altitude, a.sun_step_m);
-  gl.uniform3fv(u['sunT[0]'], a.sun_transmittance);
-  gl.uniform3fv(u['multi[0]'], a.multiple);
-  setExposure(prog);
+  gl.uniform2fv(u.skySize, v.skySize);
+  gl.uniform3fv(u.sunDir, v.sunDir);
+  gl.uniform3fv(u.night, v.night);
+  gl.uniform3fv(u.betaR, v.betaR);
+  gl.uniform4fv(u.mie, v.mie);
+  gl.uniform4fv(u.air, v.air);
+  gl.uniform3fv(u['sunT[0]'], v.sunT);
+  gl.uniform3fv(u['multi[0]'], v.multi);
   if (u.sunGround) {
-    gl.uniform3fv(u.sunGround, s.sun_rgb_ground);
-    gl.uniform3fv(u.above, s.sky_ambient_above);
-    gl.uniform3fv(u.groundAlbedo, s.ground_albedo);
+    gl.uniform3fv(u.sunGround, v.sunGround);
+    gl.uniform3fv(u.above, v.above);
+    gl.uniform3fv(u.groundAlbedo, v.groundAlbedo);
   }
   gl.activeTexture(gl.TEXTURE0);
 }
@@ -1702,12 +1542,8 @@ async function loadSky() {
   } finally {
     skyUrlLoading = '';
   }
-  const { rows, columns, rgb } = info.sky;
-  const data = new Float32Array(rows * columns * 4);
-  for (let i = 0; i < rows * columns; i++) {
-    data.set(rgb.slice(i * 3, i * 3 + 3), i * 4);
-    data[i * 4 + 3] = 1;
-  }
+  const { table, values } = skyUniforms(info);
+  const { data, columns, rows } = table;
   if (skyTexture) gl.deleteTexture(skyTexture);
   skyTexture = gl.createTexture();
   gl.bindTexture(gl.TEXTURE_2D, skyTexture);
@@ -1717,27 +1553,95 @@ async function loadSky() {
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
   gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
   skyInfo = info;
+  skyValues = values;
   skyLoaded = { url: w.url, t: w.t };
-  // The wanted sky may have moved on while this one loaded.
+  // The wanted sky may have moved on while this one loaded; else the plan follows its
+  // sun (the tiles whose shadows it throws into view).
   if (!skyIsCurrent()) loadSky().catch((e) => showError(e.message));
+  else if (worldInfo) updateTiles();
 }
 
+/** Sets TONE's uniforms of `prog`: sky.json's exposure, and whether the pass maps its own output. */
+function setDisplay(prog, toneOut) {
+  gl.uniform1f(prog.u.exposure ?? null, skyValues.exposure);
+  gl.uniform1i(prog.u.toneOut ?? null, toneOut ? 1 : 0);
+}
+
+/**
+ * The mean shadow of the drawn tiles (scene::mean_shadow): over each layer's tiles
+ * the mean of their maps at the drawn time, multiplied over the layers.
+ */
+function meanShadow(drawn) {
+  const layers = new Map();
+  for (const t of drawn) {
+    const f = fraction(t.t0, t.t1, state.t);
+    const m = clamp((1 - f) * t.meanShadow[0] + f * t.meanShadow[1], 0, 1);
+    const e = layers.get(t.layer) || { sum: 0, n: 0 };
+    layers.set(t.layer, { sum: e.sum + (Number.isFinite(m) ? m : 1), n: e.n + 1 });
+  }
+  let far = 1;
+  for (const e of layers.values()) far *= e.sum / e.n;
+  return far;
+}
+
+/**
+ * Draws a frame as view::held::draw does: the ground shadows, the sky and the shadowed
+ * ground, the billboards over them; in linear radiance into the scene target, mapped
+ * for display at the end. Rain, bolts, streaks and flashes are the viewer's own.
+ */
 function draw() {
   resize();
   if (instancesDirty) rebuildInstances();
   const cam = state.camera;
-  const aspect = canvas.width / canvas.height;
+  const [w, h] = [canvas.width, canvas.height];
+  const aspect = w / h;
   const { forward, right, up } = basis(cam);
   const light = lighting();
   const vp = viewProjection(cam, aspect);
   const tanH = Math.tan(rad(cam.fov) / 2);
   let calls = 0;
+  // Without float targets every pass maps its own output onto the canvas.
+  const scene = floatTargets ? offscreen('scene', w, h, [RGBA16F()]) : null;
+  const toneOut = !scene;
+  stats.linear = Boolean(scene);
 
-  gl.viewport(0, 0, canvas.width, canvas.height);
+  gl.viewport(0, 0, w, h);
   gl.disable(gl.DEPTH_TEST);
   gl.disable(gl.CULL_FACE);
 
+  // Ground shadows: each tile's quad on the ground multiplies its shadow into the
+  // shadow target, cleared to 1 (no shadow where no tile's falls). A tile's maps are
+  // indexed where the sun ray from the ground crosses the layer's base: the quad is
+  // shifted away from the tile's sun by (s_x, s_y) · base / s_z (shadowShift,
+  // render::tile::shadow_shift).
+  const drawn = drawnTiles();
+  const shadowFormat = floatTargets ? [gl.R16F, gl.RED, gl.HALF_FLOAT] : [gl.RGBA8, gl.RGBA, gl.UNSIGNED_BYTE];
+  const shadows = cam.z > 0 && light.dir[2] > 0 ? offscreen('shadow', w, h, [shadowFormat]) : null;
+  const far = meanShadow(drawn);
+  if (shadows) {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, shadows.fb);
+    gl.clearColor(1, 1, 1, 1);
+    gl.clear(gl.COLOR_BUFFER_BIT);
+    gl.enable(gl.BLEND);
+    gl.blendFunc(gl.DST_COLOR, gl.ZERO);
+    gl.useProgram(shadowProgram.program);
+    const hu = shadowProgram.u;
+    gl.uniformMatrix4fv(hu.viewProj, false, vp);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.uniform1i(hu.shadow, 0);
+    gl.bindVertexArray(emptyVao);
+    for (const t of drawn) {
+      const shift = shadowShift(t.billboards, worldInfo.layers[t.layer].base);
+      gl.uniform1f(hu.shadowF, fraction(t.t0, t.t1, state.t));
+      gl.bindTexture(gl.TEXTURE_2D, t.shadow);
+      gl.uniform4f(hu.rect, t.origin[0] - shift[0] - cam.x, t.origin[1] - shift[1] - cam.y, t.size, cam.z);
+      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
+      calls++;
+    }
+  }
+
   // Sky and ground.
+  gl.bindFramebuffer(gl.FRAMEBUFFER, scene ? scene.fb : null);
   gl.disable(gl.BLEND);
   gl.useProgram(skyProgram.program);
   const su = skyProgram.u;
@@ -1746,64 +1650,20 @@ function draw() {
   gl.uniform3fv(su.up, up);
   gl.uniform2f(su.tanHalf, tanH, tanH / aspect);
   setAtmosphere(skyProgram);
+  setDisplay(skyProgram, toneOut);
   gl.uniform3fv(su.sunRgb, light.sunRgb);
   gl.uniform2f(su.disc, skyInfo.sun_disc.angular_radius, skyInfo.sun_disc.gain);
   gl.uniform1f(su.eyeZ, cam.z);
+  gl.uniform1i(su.shadows, shadows ? 1 : 0);
+  gl.uniform1f(su.far, far);
+  gl.uniform1f(su.viewDistance, state.viewDistance);
+  gl.activeTexture(gl.TEXTURE2);
+  gl.bindTexture(gl.TEXTURE_2D, shadows ? shadows.textures[0] : null);
+  gl.uniform1i(su.shadowTex, 2);
+  gl.activeTexture(gl.TEXTURE0);
   gl.bindVertexArray(emptyVao);
   gl.drawArrays(gl.TRIANGLES, 0, 3);
   calls++;
-
-  // Ground shadows: one quad per tile, multiplied in.
-  const drawn = drawnTiles();
-  if (cam.z > 0 && light.dir[2] > 0) {
-    gl.enable(gl.BLEND);
-    gl.blendFunc(gl.DST_COLOR, gl.ZERO);
-    gl.useProgram(shadowProgram.program);
-    const hu = shadowProgram.u;
-    gl.uniformMatrix4fv(hu.viewProj, false, vp);
-    setAtmosphere(shadowProgram);
-    gl.uniform1f(hu.eyeZ, cam.z);
-    gl.uniform1f(hu.viewDistance, state.viewDistance);
-    gl.uniform3fv(hu.forward, forward);
-    gl.uniform3fv(hu.right, right);
-    gl.uniform3fv(hu.up, up);
-    gl.uniform2f(hu.tanHalf, tanH, tanH / aspect);
-    gl.uniform2f(hu.viewport, canvas.width, canvas.height);
-    gl.activeTexture(gl.TEXTURE0);
-    gl.uniform1i(hu.shadow, 0);
-    // A tile's maps are indexed where the sun ray from the ground crosses the layer's
-    // base: drawn shifted away from the tile's sun by (s_x, s_y) · base / s_z
-    // (shadowShift, render::tile::shadow_shift).
-    const far = new Map();
-    const shadowF = new Map();
-    for (const t of drawn) {
-      const f = fraction(t.t0, t.t1, state.t);
-      shadowF.set(t, f);
-      const e = far.get(t.layer) || { sum: 0, n: 0 };
-      far.set(t.layer, { sum: e.sum + (1 - f) * t.meanShadow[0] + f * t.meanShadow[1], n: e.n + 1 });
-    }
-    gl.uniform1f(hu.mode, 0);
-    for (const t of drawn) {
-      const shift = shadowShift(t.billboards, worldInfo.layers[t.layer].base);
-      const f = far.get(t.layer);
-      gl.uniform1f(hu.far, f.sum / f.n);
-      gl.uniform1f(hu.shadowF, shadowF.get(t));
-      gl.bindTexture(gl.TEXTURE_2D, t.shadow);
-      gl.uniform4f(hu.rect, t.origin[0] - shift[0] - cam.x, t.origin[1] - shift[1] - cam.y, t.size, cam.z);
-      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
-      calls++;
-    }
-    // The far ground of each layer, past the view distance.
-    gl.uniform1f(hu.mode, 1);
-    gl.uniform1f(hu.shadowF, 0);
-    const big = 400000;
-    for (const f of far.values()) {
-      gl.uniform1f(hu.far, f.sum / f.n);
-      gl.uniform4f(hu.rect, -big, -big, 2 * big, cam.z);
-      gl.drawArrays(gl.TRIANGLE_STRIP, 0, 4);
-      calls++;
-    }
-  }
 
   // Rain and snow under the clouds, hazing the sky and the ground by their distance:
   // before the billboards (clouds in front of a distant shaft hide it). When the eye
@@ -1816,13 +1676,13 @@ function draw() {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(rainProgram.program);
-    setExposure(rainProgram);
     const ru = rainProgram.u;
     gl.uniformMatrix4fv(ru.viewProj, false, vp);
     gl.uniform1f(ru.eyeZ, cam.z);
     gl.uniform1f(ru.snowLevel, worldInfo.snow_level);
     gl.uniform1f(ru.viewDistance, state.viewDistance);
     gl.uniform3fv(ru.hazeRgb, haze);
+    setDisplay(rainProgram, toneOut);
     gl.activeTexture(gl.TEXTURE0);
     gl.uniform1i(ru.rain, 0);
     gl.bindVertexArray(emptyVao);
@@ -1854,6 +1714,7 @@ function draw() {
       gl.blendFunc(gl.ONE, gl.ONE);
       gl.useProgram(boltProgram.program);
       gl.uniformMatrix4fv(boltProgram.u.viewProj, false, vp);
+      setDisplay(boltProgram, toneOut);
       gl.uniform1f(boltProgram.u.gain, Math.min(1, 1.5 * g));
       gl.bindVertexArray(boltVao);
       gl.bindBuffer(gl.ARRAY_BUFFER, boltBuffer);
@@ -1866,7 +1727,7 @@ function draw() {
 
   // Billboards, back to front.
   const n = instances.length / INSTANCE_FLOATS;
-  if (n > 0 && splatTexture) {
+  if (n > 0) {
     const eye = [cam.x - bufferOrigin[0], cam.y - bufferOrigin[1], cam.z];
     const time = state.t - timeOrigin;
     // The clouds drift a few metres a second: while only the time runs, the order is
@@ -1879,34 +1740,36 @@ function draw() {
       sortInstances(eye, time);
     }
     // Into the offscreen targets (cleared to nothing) when the erosion pass runs.
-    const target = SHADING.detailErosion > 0 ? cloudTargets(canvas.width, canvas.height) : null;
-    if (target) {
-      gl.bindFramebuffer(gl.FRAMEBUFFER, target.fb);
+    const clouds = scene && SHADING.detailErosion > 0 ? offscreen('clouds', w, h, [RGBA16F(), RGBA16F()]) : null;
+    if (clouds) {
+      gl.bindFramebuffer(gl.FRAMEBUFFER, clouds.fb);
       gl.clearColor(0, 0, 0, 0);
       gl.clear(gl.COLOR_BUFFER_BIT);
     }
-    stats.erosion = !!target;
+    stats.erosion = Boolean(clouds);
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(billboardProgram.program);
     const bu = billboardProgram.u;
     gl.uniformMatrix4fv(bu.viewProj, false, vp);
     gl.uniform3fv(bu.eye, eye);
+    gl.uniform3fv(bu.forward, forward);
     gl.uniform3fv(bu.right, right);
     gl.uniform3fv(bu.up, up);
+    gl.uniform2f(bu.tanHalf, tanH, tanH / aspect);
+    gl.uniform2f(bu.viewport, w, h);
     setAtmosphere(billboardProgram);
+    setDisplay(billboardProgram, toneOut);
     const sh = shading();
     gl.uniform3fv(bu.sunRgb, sh.sunRgb || light.sunRgb);
     gl.uniform1f(bu.albedo, sh.albedo);
     gl.uniform3fv(bu.phase, sh.phase);
     gl.uniform4fv(bu.octaves, sh.octaves);
     gl.uniform1f(bu.time, time);
-    gl.uniform2f(bu.splatTable, splatInfo.count, splatInfo.tauMax);
-    gl.uniform4f(bu.sheet, splatInfo.columns, splatInfo.size, splatInfo.width, splatInfo.height);
     const wrap = (v) => v - 65536 * Math.floor(v / 65536);
     gl.uniform3f(bu.eyeMod, wrap(cam.x), wrap(cam.y), cam.z);
-    gl.uniform1f(bu.pixelAngle, (2 * tanH) / canvas.width);
-    gl.uniform1i(bu.detail, target ? 1 : 0);
+    gl.uniform1f(bu.pixelAngle, (2 * tanH) / w);
+    gl.uniform1i(bu.detail, clouds ? 1 : 0);
     gl.uniform1f(bu.rainSigma, atEye.rate > 0 ? precipitationPerMetre(atEye.rate, atEye.snow) : 0);
     gl.uniform1f(bu.rainTop, atEye.top);
     gl.uniform3fv(bu.rainHaze, haze);
@@ -1918,19 +1781,16 @@ function draw() {
     } else {
       gl.uniform4f(bu.flashAt, 0, 0, 0, 0);
     }
-    gl.activeTexture(gl.TEXTURE0);
-    gl.bindTexture(gl.TEXTURE_2D, splatTexture);
-    gl.uniform1i(bu.splats, 0);
     gl.bindVertexArray(billboardVao);
     gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, n);
     calls++;
     gl.bindVertexArray(null);
-    if (target) {
+    if (clouds) {
       // Erode the accumulated opacity and lay the clouds over the sky and ground.
-      gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+      gl.bindFramebuffer(gl.FRAMEBUFFER, scene.fb);
       gl.useProgram(erosionProgram.program);
       const eu = erosionProgram.u;
-      target.textures.forEach((t, i) => {
+      clouds.textures.forEach((t, i) => {
         gl.activeTexture(gl.TEXTURE0 + i);
         gl.bindTexture(gl.TEXTURE_2D, t);
       });
@@ -1943,6 +1803,19 @@ function draw() {
       gl.activeTexture(gl.TEXTURE0);
     }
   }
+  // The linear picture mapped for display.
+  if (scene) {
+    gl.bindFramebuffer(gl.FRAMEBUFFER, null);
+    gl.disable(gl.BLEND);
+    gl.useProgram(toneProgram.program);
+    setDisplay(toneProgram, true);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, scene.textures[0]);
+    gl.uniform1i(toneProgram.u.scene, 0);
+    gl.bindVertexArray(emptyVao);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    calls++;
+  }
   // Streaks where the eye stands in rain or snow, then the flashes' veil.
   stats.eyeRate = atEye.rate;
   stats.eyeSnow = atEye.snow;
@@ -1950,13 +1823,13 @@ function draw() {
     gl.enable(gl.BLEND);
     gl.blendFunc(gl.ONE, gl.ONE_MINUS_SRC_ALPHA);
     gl.useProgram(streakProgram.program);
-    setExposure(streakProgram);
     const zu = streakProgram.u;
     gl.uniform2f(zu.viewport, canvas.width, canvas.height);
     gl.uniform1f(zu.time, (now / 1000) % 1000);
     gl.uniform1f(zu.rate, atEye.rate);
     gl.uniform1f(zu.snow, atEye.snow ? 1 : 0);
     gl.uniform3fv(zu.hazeRgb, haze);
+    setDisplay(streakProgram, true);
     gl.bindVertexArray(emptyVao);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
     calls++;
@@ -2077,10 +1950,9 @@ function setupControls() {
 
   const quality = $('quality');
   quality.value = state.quality;
-  quality.addEventListener('change', async () => {
+  quality.addEventListener('change', () => {
     state.quality = quality.value;
     client.quality = state.quality;
-    await loadSplats();
     updateTiles();
     syncUrl();
   });
@@ -2157,7 +2029,6 @@ function fly(dt) {
 function settled() {
   return (
     worldInfo !== null &&
-    splatTexture !== null &&
     skyIsCurrent() &&
     wanted.every((k) => tiles.get(k)?.state === 'ready') &&
     wanted.every((k) => !shadowJobs.has(k))
@@ -2250,7 +2121,7 @@ function frame(now) {
   const moving = flashes.length > 0 || stats.eyeRate > 0;
   const timeOnly = still === lastDrawnStill;
   const due = !timeOnly || now - drawCostEnd >= drawCost - TIME_FRAME_MS;
-  if (splatTexture && skyInfo && (continuous || moving || (shown !== lastDrawn && due))) {
+  if (skyInfo && (continuous || moving || (shown !== lastDrawn && due))) {
     draw();
     viewerStats.frames++;
     lastDrawn = shown;
@@ -2282,18 +2153,6 @@ function updateHud() {
   function c() { return state.camera; }
 }
 
-async function loadSplats() {
-  const q = `quality=${state.quality}`;
-  const [json, png] = await Promise.all([client.splats(state.quality), client.bytes(`/v1/splats.png?${q}`)]);
-  const image = await decodeImage(png, 'image/png');
-  if (splatTexture) gl.deleteTexture(splatTexture);
-  splatTexture = texture(image, gl.LINEAR);
-  splatInfo = {
-    columns: json.columns, size: json.size, width: image.width, height: image.height, count: json.count, tauMax: json.tau_max,
-  };
-  image.close?.();
-}
-
 async function switchWorld(name) {
   state.world = name;
   $('error').hidden = true;
@@ -2316,7 +2175,6 @@ async function start() {
   const list = await client.worldList();
   const world = $('world');
   for (const w of list.worlds) world.append(new Option(`${w.name} (seed ${w.seed})`, w.name));
-  await loadSplats();
   await switchWorld(state.world);
   requestAnimationFrame(frame);
 }

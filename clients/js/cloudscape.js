@@ -1232,6 +1232,375 @@ export function shadowAtPoint(maps, tile, base, x, y, f) {
 }
 
 // ---------------------------------------------------------------------------------
+// The level choice of a view (crates/cloudscape-core/src/render/scene.rs plan_bands).
+// ---------------------------------------------------------------------------------
+
+/** How far (horizontally, metres) `cloudscape render` draws clouds (render::scene::VIEW_DISTANCE). */
+export const VIEW_DISTANCE = 30000;
+/** Where the ground's cloud shadow starts to fade into the mean shadow, a fraction of the view distance (render::scene::SHADOW_FADE_START). */
+export const SHADOW_FADE_START = 0.4;
+/** A tile splits while one of its columns would span more pixels than this (QualitySettings::lod_pixels). */
+export const LOD_PIXELS = { fast: 8, balanced: 4, accurate: 2 };
+
+/**
+ * A camera's unit vectors (render::camera::Camera::basis): `camera` { yaw, pitch }
+ * in degrees, yaw clockwise from north, pitch above the horizon.
+ */
+export function cameraBasis(camera) {
+  const yaw = (camera.yaw * Math.PI) / 180;
+  const pitch = (camera.pitch * Math.PI) / 180;
+  const forward = [Math.sin(yaw) * Math.cos(pitch), Math.cos(yaw) * Math.cos(pitch), Math.sin(pitch)];
+  const right = [Math.cos(yaw), -Math.sin(yaw), 0];
+  const up = [
+    right[1] * forward[2] - right[2] * forward[1],
+    right[2] * forward[0] - right[0] * forward[2],
+    right[0] * forward[1] - right[1] * forward[0],
+  ];
+  return { forward, right, up };
+}
+
+/**
+ * The tiles a camera sees, as `cloudscape render` plans them (scene.rs plan_bands):
+ * per layer a quadtree from the coarsest tiles covering the view distance, a tile
+ * split while one of its columns, at the tile's nearest distance from the eye, would
+ * span more than `lodPixels`; a tile kept when its clouds or its shadow on the ground
+ * lie in the view frustum and within the view distance. The shadow of a point at
+ * altitude z lies (s_x, s_y) · z / s_z away from the sun `sun` (a unit vector toward
+ * it: the tiles' sun bucket's centre, sky.json's `sun.direction`), at most the view
+ * distance away; with no sun, or the sun down, straight below.
+ *
+ * `camera` { x, y, z, yaw, pitch, fov } (metres, degrees, horizontal FOV), the image
+ * `width` × `height` pixels. Options: `quality` (fast | balanced | accurate) or
+ * `lodPixels`; `viewDistance` (VIEW_DISTANCE); `layers` (names, default all);
+ * `maxTiles`: past 64 × maxTiles tiles under way the plan stops and gives null
+ * (`cloudscape render` refuses such a view; a client may plan coarser). Returns
+ * `{ layer, layerIndex, z, x, y, origin, size }` sorted by layer, level, y, x.
+ */
+export function planTiles(world, camera, width, height, options = {}) {
+  const lodPixels = options.lodPixels ?? LOD_PIXELS[options.quality ?? 'balanced'];
+  const view = options.viewDistance ?? VIEW_DISTANCE;
+  const maxTiles = options.maxTiles ?? Infinity;
+  const { forward, right, up } = cameraBasis(camera);
+  const w = Math.max(1, width);
+  const h = Math.max(1, height);
+  const tanH = Math.tan((camera.fov * Math.PI) / 360);
+  const tanV = (tanH * h) / w;
+  const pixelAngle = (2 * tanH) / w;
+  const s = options.sun;
+  const k = s && s[2] > 0 ? 1 / Math.max(s[2], Math.sin(Math.PI / 180)) : 0;
+  /** The move of the shadow of a point at altitude z. */
+  const move = (z) => {
+    const [x, y] = k ? [-s[0] * k * Math.max(z, 0), -s[1] * k * Math.max(z, 0)] : [0, 0];
+    const len = Math.hypot(x, y);
+    const scale = len > view ? view / len : 1;
+    return [x * scale, y * scale];
+  };
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+  const out = [];
+  for (const [layerIndex, l] of world.layers.entries()) {
+    if (options.layers && !options.layers.includes(l.name)) continue;
+    const [zb, zt] = [l.base, l.top];
+    const tileSize = (z) => (world.tile_size || TILE_COLUMNS) * l.cell_size * 2 ** z;
+    let zTop = 0;
+    while (tileSize(zTop) < 2 * view && zTop < world.maxzoom) zTop++;
+    const side = tileSize(zTop);
+    // The shadow's moves for the layer's base and top.
+    const moves = [move(zb), move(zt)];
+    const far = view + Math.hypot(...moves[1]);
+    const stack = [];
+    for (let y = Math.floor((camera.y - far) / side); y <= Math.floor((camera.y + far) / side); y++) {
+      for (let x = Math.floor((camera.x - far) / side); x <= Math.floor((camera.x + far) / side); x++) stack.push([zTop, x, y]);
+    }
+    while (stack.length) {
+      const [z, x, y] = stack.pop();
+      const size = tileSize(z);
+      const [x0, y0] = [x * size, y * size];
+      const [x1, y1] = [x0 + size, y0 + size];
+      const dx = Math.max(x0 - camera.x, 0, camera.x - x1);
+      const dy = Math.max(y0 - camera.y, 0, camera.y - y1);
+      const dz = Math.max(zb - camera.z, 0, camera.z - zt);
+      // The shadow's bounding rectangle on the ground.
+      const [mx0, mx1] = [Math.min(moves[0][0], moves[1][0]), Math.max(moves[0][0], moves[1][0])];
+      const [my0, my1] = [Math.min(moves[0][1], moves[1][1]), Math.max(moves[0][1], moves[1][1])];
+      const sdx = Math.max(x0 + mx0 - camera.x, 0, camera.x - x1 - mx1);
+      const sdy = Math.max(y0 + my0 - camera.y, 0, camera.y - y1 - my1);
+      if (Math.hypot(dx, dy) > view && Math.hypot(sdx, sdy) > view) continue;
+      // Culled when all corners of its box, of the ground under it and of its shadow
+      // on the ground lie outside one plane of the frustum.
+      const outside = [true, true, true, true, true];
+      for (const cx of [x0, x1]) {
+        for (const cy of [y0, y1]) {
+          const corners = [
+            [cx, cy, Math.min(zb, 0)],
+            [cx, cy, zt],
+            [cx + moves[0][0], cy + moves[0][1], 0],
+            [cx + moves[1][0], cy + moves[1][1], 0],
+          ];
+          for (const c of corners) {
+            const r = [c[0] - camera.x, c[1] - camera.y, c[2] - camera.z];
+            const [a, b, f] = [dot(r, right), dot(r, up), dot(r, forward)];
+            const tests = [f < 0, a > f * tanH, a < -f * tanH, b > f * tanV, b < -f * tanV];
+            for (let i = 0; i < 5; i++) outside[i] = outside[i] && tests[i];
+          }
+        }
+      }
+      if (outside.some(Boolean)) continue;
+      const dist = Math.max(Math.hypot(dx, dy, dz), 1);
+      if (z > 0 && (l.cell_size * 2 ** z) / (dist * pixelAngle) > lodPixels) {
+        for (const [ox, oy] of [[0, 0], [1, 0], [0, 1], [1, 1]]) stack.push([z - 1, x * 2 + ox, y * 2 + oy]);
+        if (out.length + stack.length > 64 * maxTiles) return null;
+        continue;
+      }
+      out.push({ layer: l.name, layerIndex, z, x, y, origin: [x0, y0], size });
+    }
+  }
+  return out.sort((a, b) => a.layerIndex - b.layerIndex || a.z - b.z || a.y - b.y || a.x - b.x);
+}
+
+// ---------------------------------------------------------------------------------
+// Drawing in WebGL2: the server's light (crates/cloudscape-core/src/render/light.rs,
+// sky.rs, splats.rs, detail.rs, composite.rs) as GLSL ES 3.00 chunks and the uniform
+// values of /v1/sky.json, so a WebGL2 engine (the viewer, the three.js example) draws
+// what `cloudscape render` draws. The chunks declare the uniforms they read.
+// ---------------------------------------------------------------------------------
+
+/** Lengths of the sky.json tables (src/render/sky.rs SUN_TABLE_LEN, MS_ALTITUDES). */
+export const SUN_TABLE_LEN = 41;
+export const MULTIPLE_SCATTERING_LEN = 12;
+/** src/render/detail.rs: most detail octaves, and the footprint (pixels) an octave must span. */
+export const MAX_DETAIL_OCTAVES = 4;
+export const MIN_WAVELENGTH_PIXELS = 2;
+/** The share of the sun's radiance (header lighting `sunRgb`) that cloud scatters (render::light::SUN_SCATTER). */
+export const SUN_SCATTER = 0.25;
+const MS_LEN = MULTIPLE_SCATTERING_LEN;
+
+export const GLSL = {
+  /**
+   * The display mapping (light.rs `tone_map`): `tone(x)` = (1 − exp(−exposure · x))^(1/2.2),
+   * `exposure` sky.json's (1 when it names none). Blend in radiance and map once, as
+   * the server does; `display(x)` maps only when `toneOut` (a pass drawing straight to
+   * the screen, for want of float targets).
+   */
+  tone: `
+uniform float exposure;
+uniform bool toneOut;
+vec3 tone(vec3 x) { return pow(1.0 - exp(-exposure * max(x, vec3(0.0))), vec3(1.0 / 2.2)); }
+vec3 display(vec3 x) { return toneOut ? tone(x) : x; }
+`,
+  /**
+   * The atmosphere (sky.rs): `skyRadiance(d)`, the sky table lookup (Sky::radiance),
+   * and `aerial(v, z0, z1, vis, T, L)`, the air between the eye at altitude z0 and a
+   * point at offset v and altitude z1 (Sky::aerial_lit, Hoffman & Preetham 2002 with
+   * the server's coefficients and tables): transmittance T and in-scattered light L,
+   * the sun's share scaled by vis. Uniforms: skyUniforms.
+   */
+  atmosphere: `
+const float PI = 3.14159265358979;
+uniform sampler2D skyTable;
+uniform vec2 skySize;          // columns, rows
+uniform vec3 sunDir, night;
+uniform vec3 betaR;            // Rayleigh scattering per metre
+uniform vec4 mie;              // scattering, extinction, scale height, g
+uniform vec4 air;              // Rayleigh scale height, scatter irradiance, top altitude, sun table step
+uniform vec3 sunT[${SUN_TABLE_LEN}];
+uniform vec3 multi[${MS_LEN}];
+vec3 skyRadiance(vec3 d) {
+  float e = asin(clamp(d.z, 0.0, 1.0));
+  float hd = length(d.xy);
+  float hs = length(sunDir.xy);
+  float phi = 0.0;
+  if (hd > 1e-6 && hs > 1e-6) phi = acos(clamp(dot(d.xy, sunDir.xy) / (hd * hs), -1.0, 1.0));
+  else if (hd > 1e-6) phi = acos(clamp(d.y / hd, -1.0, 1.0));
+  vec2 uv = vec2(phi / PI, sqrt(e / (0.5 * PI)));
+  vec2 tc = (uv * (skySize - 1.0) + 0.5) / skySize;
+  return texture(skyTable, tc).rgb + night;
+}
+float phaseR(float mu) { return 3.0 / (16.0 * PI) * (1.0 + mu * mu); }
+float phaseM(float mu, float g) {
+  float g2 = g * g;
+  float d = max(1.0 + g2 - 2.0 * g * mu, 1e-12);
+  return 3.0 / (8.0 * PI) * (1.0 - g2) * (1.0 + mu * mu) / ((2.0 + g2) * d * sqrt(d));
+}
+float meanDensity(float z0, float z1, float h) {
+  float dz = z1 - z0;
+  if (abs(dz) < 1e-3 * h) return exp(-0.5 * (z0 + z1) / h);
+  return h * (exp(-z0 / h) - exp(-z1 / h)) / dz;
+}
+vec3 sunAt(float h) {
+  float x = clamp(h / air.w, 0.0, float(${SUN_TABLE_LEN} - 1));
+  int i = min(int(x), ${SUN_TABLE_LEN} - 2);
+  return mix(sunT[i], sunT[i + 1], x - float(i));
+}
+vec3 multiAt(float h) {
+  float x = sqrt(clamp(h / air.z, 0.0, 1.0)) * float(${MS_LEN} - 1);
+  int i = min(int(x), ${MS_LEN} - 2);
+  return mix(multi[i], multi[i + 1], x - float(i));
+}
+// The air between the eye (altitude z0) and a point at offset v (altitude z1):
+// transmittance T and in-scattered light L; the sun's share scaled by vis.
+void aerial(vec3 v, float z0, float z1, float vis, out vec3 T, out vec3 L) {
+  float d = length(v);
+  if (!(d > 0.0)) { T = vec3(1.0); L = vec3(0.0); return; }
+  z0 = clamp(z0, 0.0, air.z);
+  z1 = clamp(z1, 0.0, air.z);
+  float mR = meanDensity(z0, z1, air.x);
+  float mM = meanDensity(z0, z1, mie.z);
+  float mu = dot(v / d, sunDir);
+  float h = 0.5 * (z0 + z1);
+  vec3 sr = betaR * mR;
+  float sm = mie.x * mM;
+  vec3 ext = sr + mie.y * mM;
+  T = exp(-ext * d);
+  vec3 src = (sr * phaseR(mu) + sm * phaseM(mu, mie.w)) * air.y * sunAt(h) * vis + (sr + sm) * multiAt(h);
+  L = src / ext * (1.0 - T);
+}
+`,
+  /**
+   * The ground (Lighting::ground_radiance) seen along offset v from the eye at eyeZ:
+   * albedo · (sun · t · cos + sky light, turning grey as the shadow deepens), through
+   * the air (its sunlit in-scatter shadowed too); t the sun's transmittance through
+   * the clouds. Needs `atmosphere` before it.
+   */
+  ground: `
+uniform vec3 sunGround, above, groundAlbedo;
+vec3 ground(vec3 v, float eyeZ, float t) {
+  float grey = dot(above, vec3(0.2126, 0.7152, 0.0722));
+  vec3 sky = t * above + (1.0 - t) * vec3(grey);
+  vec3 g = groundAlbedo * (sunGround * t * max(sunDir.z, 0.0) + sky);
+  vec3 T, L;
+  aerial(v, eyeZ, 0.0, t, T, L);
+  return g * T + L;
+}
+`,
+  /**
+   * The phase correction of the scattering octaves (Lighting::phase_correction,
+   * Octaves::sun_sum − Octaves::isotropic_sum, of the sun's SUN_SCATTER share): what
+   * view direction d adds to a billboard's pre-shaded (isotropic) colour for sun
+   * optical depth tauSun. Reads the
+   * uniforms albedo, phase (g1, g2, mix), octaves (N, a, b, c) and sunRgb of the
+   * keyframe's header lighting, and sunDir; declare them before it.
+   */
+  octaves: `
+  float hg(float g, float c) { float d = max(1.0 + g * g - 2.0 * g * c, 1e-12); return (1.0 - g * g) / (d * sqrt(d)); }
+  vec3 phaseCorrection(float tauSun, vec3 d) {
+    float cosTheta = dot(d, sunDir);
+    float w = 1.0, att = 1.0, ecc = 1.0, corr = 0.0;
+    for (int i = 0; i < 8; i++) {
+      if (float(i) >= octaves.x) break;
+      float g1 = clamp(phase.x * ecc, -0.99, 0.99), g2 = clamp(phase.y * ecc, -0.99, 0.99);
+      float ph = mix(hg(g2, cosTheta), hg(g1, cosTheta), phase.z);
+      corr += w * (ph - 1.0) * exp(-att * max(tauSun, 0.0));
+      w *= octaves.z; att *= octaves.y; ecc *= octaves.w;
+    }
+    return albedo * ${SUN_SCATTER.toFixed(2)} * sunRgb * corr;
+  }`,
+  /**
+   * The splat profile (splats.rs): `chord(q, v0)`, the integral of Wyvill's field
+   * function along a line at squared impact parameter q (radii) over v ≥ v0, v the
+   * signed distance from the closest approach (line_integral_beyond; v0 ≤ −√(1 − q):
+   * the whole chord S), and S0 = S(0). A billboard's opacity at q is
+   * 1 − exp(−τ · chord(q, −1) / S0).
+   */
+  splat: `  // render::splats::line_integral_beyond: the field's integral along a line at impact
+  // parameter sqrt(q) (radii) over v >= v0, v the signed distance from the closest
+  // approach; v0 <= -sqrt(1 - q) gives the whole chord, S.
+  float chord(float q, float v0) {
+    if (!(q < 1.0)) return 0.0;
+    float l = sqrt(1.0 - q);
+    float c0 = 1.0 - 22.0 / 9.0 * q + 17.0 / 9.0 * q * q - 4.0 / 9.0 * q * q * q;
+    float c2 = -22.0 / 9.0 + 34.0 / 9.0 * q - 4.0 / 3.0 * q * q;
+    float c4 = 17.0 / 9.0 - 4.0 / 3.0 * q;
+    float c6 = -4.0 / 9.0;
+    vec2 v = vec2(l, clamp(v0, -l, l));
+    vec2 v2 = v * v;
+    vec2 a = v * (c0 + v2 * (c2 / 3.0 + v2 * (c4 / 5.0 + v2 * c6 / 7.0)));
+    return max(a.x - a.y, 0.0);
+  }
+  // S(0) = 2 (1 − 22/27 + 17/45 − 4/63).
+  const float S0 = 2.0 * (1.0 - 22.0 / 27.0 + 17.0 / 45.0 - 4.0 / 63.0);
+`,
+  /**
+   * The detail noise (detail.rs): `detailNoise(p, octaves)`, fBm in [0, 1] of a 3-D
+   * gradient noise, lacunarity 2, gain ½, p in units of the first wavelength. The
+   * octave rule and constants are the server's; the basis has a 32-bit integer hash
+   * (WebGL has no 64-bit integers), so the pattern is not the server's bit for bit.
+   */
+  detailNoise: `
+uint hash(ivec3 q) {
+  uvec3 p = uvec3(q);
+  uint h = p.x * 0x8da6b343u ^ p.y * 0xd8163841u ^ p.z * 0xcb1ab31fu;
+  h ^= h >> 16; h *= 0x7feb352du; h ^= h >> 15; h *= 0x846ca68bu; h ^= h >> 16;
+  return h;
+}
+vec3 grad(ivec3 q) {
+  uint h = hash(q);
+  vec3 g = vec3(float(h & 1023u), float((h >> 10) & 1023u), float((h >> 20) & 1023u)) / 511.5 - 1.0;
+  return g / max(length(g), 1e-6);
+}
+float gnoise(vec3 x) {
+  vec3 i = floor(x), f = x - i;
+  ivec3 b = ivec3(i);
+  vec3 u = f * f * f * (f * (f * 6.0 - 15.0) + 10.0);
+  float n000 = dot(grad(b), f);
+  float n100 = dot(grad(b + ivec3(1, 0, 0)), f - vec3(1, 0, 0));
+  float n010 = dot(grad(b + ivec3(0, 1, 0)), f - vec3(0, 1, 0));
+  float n110 = dot(grad(b + ivec3(1, 1, 0)), f - vec3(1, 1, 0));
+  float n001 = dot(grad(b + ivec3(0, 0, 1)), f - vec3(0, 0, 1));
+  float n101 = dot(grad(b + ivec3(1, 0, 1)), f - vec3(1, 0, 1));
+  float n011 = dot(grad(b + ivec3(0, 1, 1)), f - vec3(0, 1, 1));
+  float n111 = dot(grad(b + ivec3(1, 1, 1)), f - vec3(1, 1, 1));
+  float n = mix(mix(mix(n000, n100, u.x), mix(n010, n110, u.x), u.y),
+                mix(mix(n001, n101, u.x), mix(n011, n111, u.x), u.y), u.z);
+  return clamp(n * 1.15, -1.0, 1.0);
+}
+float detailNoise(vec3 p, int octaves) {
+  float sum = 0.0, norm = 0.0, amp = 1.0;
+  for (int o = 0; o < ${MAX_DETAIL_OCTAVES}; o++) {
+    if (o >= octaves) break;
+    sum += amp * gnoise(p + float(o) * 17.31);
+    norm += amp;
+    amp *= 0.5; p *= 2.0;
+  }
+  return clamp(0.5 + 0.5 * sum / norm, 0.0, 1.0);
+}
+`,
+};
+
+/**
+ * The uniform values of GLSL.atmosphere, GLSL.ground and GLSL.tone for a parsed
+ * /v1/sky.json: `table` the sky radiance as RGBA float texels (`columns` × `rows`,
+ * for a linear-filtered float texture bound to `skyTable`), and `values`, by uniform
+ * name, numbers and arrays (sunT and multi flattened).
+ */
+export function skyUniforms(sky) {
+  const { rows, columns, rgb } = sky.sky;
+  const data = new Float32Array(rows * columns * 4);
+  for (let i = 0; i < rows * columns; i++) {
+    data.set(rgb.slice(i * 3, i * 3 + 3), i * 4);
+    data[i * 4 + 3] = 1;
+  }
+  const a = sky.aerial;
+  const exposure = Number.isFinite(sky.exposure) && sky.exposure > 0 ? sky.exposure : 1;
+  return {
+    table: { data, columns, rows },
+    values: {
+      skySize: [columns, rows],
+      sunDir: sky.sun.direction,
+      night: sky.night_rgb,
+      betaR: a.rayleigh_scattering,
+      mie: [a.mie_scattering, a.mie_extinction, a.mie_scale_height, a.mie_g],
+      air: [a.rayleigh_scale_height, a.scatter_irradiance, a.top_altitude, a.sun_step_m],
+      sunT: a.sun_transmittance,
+      multi: a.multiple,
+      sunGround: sky.sun_rgb_ground,
+      above: sky.sky_ambient_above,
+      groundAlbedo: sky.ground_albedo,
+      exposure,
+    },
+  };
+}
+
+// ---------------------------------------------------------------------------------
 // three.js: y up.
 // ---------------------------------------------------------------------------------
 

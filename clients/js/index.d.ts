@@ -350,6 +350,93 @@ export function shadowMaps(tiles: HeldTile[]): DerivedShadow[];
 /** The transmittance a ground point (x, y) reads from a tile's maps a fraction `f` through its span. */
 export function shadowAtPoint(maps: DerivedShadow, tile: BillboardTile, base: number, x: number, y: number, f: number): number;
 
+/** How far (horizontally, metres) `cloudscape render` draws clouds. */
+export const VIEW_DISTANCE: 30000;
+/** Where the ground's cloud shadow starts to fade into the mean shadow, a fraction of the view distance (render::scene::SHADOW_FADE_START). */
+export const SHADOW_FADE_START: 0.4;
+/** A tile splits while one of its columns would span more pixels than this, by quality. */
+export const LOD_PIXELS: { fast: 8; balanced: 4; accurate: 2 };
+/** A camera: position in metres (x east, y north, z up); yaw clockwise from north, pitch above the horizon, horizontal FOV, degrees. */
+export interface Camera {
+  x: number;
+  y: number;
+  z: number;
+  yaw: number;
+  pitch: number;
+  fov: number;
+}
+/** A camera's unit vectors (render::camera::Camera::basis). */
+export function cameraBasis(camera: Pick<Camera, 'yaw' | 'pitch'>): {
+  forward: [number, number, number];
+  right: [number, number, number];
+  up: [number, number, number];
+};
+/** A tile of a plan: its layer by name and index in discovery's list. */
+export interface PlannedTile extends PlacedTile {
+  layerIndex: number;
+}
+/**
+ * The tiles a camera sees, as `cloudscape render` plans them (scene.rs plan_bands):
+ * clouds or their shadow (for `sun`, a unit vector toward it) in the view; null once
+ * more than 64 × maxTiles tiles are under way.
+ */
+export function planTiles(
+  world: World,
+  camera: Camera,
+  width: number,
+  height: number,
+  options?: {
+    quality?: 'fast' | 'balanced' | 'accurate';
+    lodPixels?: number;
+    viewDistance?: number;
+    sun?: [number, number, number] | null;
+    layers?: string[];
+    maxTiles?: number;
+  },
+): PlannedTile[] | null;
+
+/** Lengths of the sky.json tables. */
+export const SUN_TABLE_LEN: 41;
+export const MULTIPLE_SCATTERING_LEN: 12;
+/** The detail noise's most octaves, and the footprint (pixels) an octave must span. */
+export const MAX_DETAIL_OCTAVES: 4;
+export const MIN_WAVELENGTH_PIXELS: 2;
+/** The share of the sun's radiance that cloud scatters (render::light::SUN_SCATTER). */
+export const SUN_SCATTER: 0.25;
+/** The server's light as GLSL ES 3.00 chunks (each declares the uniforms it reads). */
+export const GLSL: {
+  /** tone(x), display(x); uniforms exposure, toneOut. */
+  tone: string;
+  /** skyRadiance(d), aerial(v, z0, z1, vis, out T, out L); uniforms of skyUniforms. */
+  atmosphere: string;
+  /** ground(v, eyeZ, t); uniforms sunGround, above, groundAlbedo; needs atmosphere. */
+  ground: string;
+  /** phaseCorrection(tauSun, d); reads albedo, phase, octaves, sunRgb, sunDir. */
+  octaves: string;
+  /** chord(q, v0) and S0: the splat profile. */
+  splat: string;
+  /** detailNoise(p, octaves). */
+  detailNoise: string;
+};
+/** The uniform values of GLSL.atmosphere, GLSL.ground and GLSL.tone for a parsed /v1/sky.json. */
+export function skyUniforms(sky: object): {
+  table: { data: Float32Array; columns: number; rows: number };
+  values: {
+    skySize: [number, number];
+    sunDir: [number, number, number];
+    night: [number, number, number];
+    betaR: [number, number, number];
+    mie: [number, number, number, number];
+    air: [number, number, number, number];
+    sunT: number[];
+    multi: number[];
+    sunGround: [number, number, number];
+    above: [number, number, number];
+    groundAlbedo: [number, number, number];
+    exposure: number;
+  };
+};
+
 export function zUpToYUp(p: ArrayLike<number>): [number, number, number];
 
 /** Typed arrays for a three.js InstancedMesh (y up). */

@@ -30,6 +30,8 @@ export async function galleryScreenshots(browser, base, outDir, viewport, helper
     const { page, log } = await openPage(context);
     await page.goto(`${base}/?world=default&t=${v.t}&camera=${v.camera}&quality=balanced&sun=${v.sun}`);
     await settle(page);
+    // The picture alone, for the contact sheet beside the server's renders.
+    await page.addStyleTag({ content: '#panel, #hud { display: none !important; }' });
     await page.screenshot({ path: join(outDir, `gallery-${v.name}.png`), timeout: screenshotTimeout });
     const l = await canvasLuminance(page);
     figure(`gallery ${v.name}: luminance std`, std(l.lum).toFixed(3));

@@ -11,11 +11,14 @@
 // draws the same; animating across a keyframe, the billboard mode reads the next
 // keyframe as a delta (billboards.delta.bin) on the one it holds, through the JS
 // client; and the page fetches the tiles from the tile server's own origin (CORS)
-// when the server sends CORS headers. Screenshots go to OUT_DIR.
+// when the server sends CORS headers. The billboard mode draws what `cloudscape
+// render` draws: the viewer's default view against the server's render.png, as the
+// viewer's own test holds it (render_match.mjs). Screenshots go to OUT_DIR.
 
-import { mkdirSync } from 'node:fs';
+import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { checks, launchChromium, mean } from './harness.mjs';
+import { difference, luma } from './render_match.mjs';
 
 const [example, tiles, outDir = 'target/browser'] = process.argv.slice(2);
 if (!example || !tiles) {
@@ -149,6 +152,49 @@ try {
     }
     await page.close();
   }
+  // What `cloudscape render` draws: the viewer's default view (camera, noon, the
+  // clock's sun at noon) against render.png at the same size and quality. Measured:
+  // mean |Δ luma| 0.0004, worst tenth of the rows 0.0018, SSIM 0.9996; before (one
+  // tile of one layer, splats from the sheet blended in display values over a slate
+  // background): 0.21, 0.32, 0.76. The viewer's bounds (viewer.test.mjs).
+  {
+    const view = 'world=default&t=43200&camera=12800,-6000,900,0,6,75&sun=180,68&quality=fast';
+    const { page, log, status } = await open(context, view);
+    check('three.js billboards, the default view: the page loads', !status.error, status.error || '');
+    if (!status.error) {
+      await page.screenshot({ path: join(outDir, 'threejs-default-view.png') });
+      const size = `${VIEWPORT.width}x${VIEWPORT.height}`;
+      const png = Buffer.from(await (await fetch(`${tiles}/v1/worlds/default/render.png?camera=12800,-6000,900,0,6,75&t=43200&size=${size}&quality=fast&sun=180,68`)).arrayBuffer());
+      writeFileSync(join(outDir, 'threejs-default-view-render.png'), png);
+      const both = await page.evaluate(async (data) => {
+        const read = (src, w, h) => {
+          const c = document.createElement('canvas');
+          c.width = w;
+          c.height = h;
+          const ctx = c.getContext('2d');
+          ctx.drawImage(src, 0, 0, w, h);
+          return Array.from(ctx.getImageData(0, 0, w, h).data);
+        };
+        const canvas = document.querySelector('canvas');
+        const img = await createImageBitmap(await (await fetch(data)).blob(), { premultiplyAlpha: 'none', colorSpaceConversion: 'none' });
+        if (img.width !== canvas.width || img.height !== canvas.height) return { error: `render.png ${img.width}×${img.height}, canvas ${canvas.width}×${canvas.height}` };
+        return { width: canvas.width, height: canvas.height, example: read(canvas, canvas.width, canvas.height), render: read(img, img.width, img.height) };
+      }, `data:image/png;base64,${png.toString('base64')}`);
+      if (both.error) {
+        check('three.js billboards draw what cloudscape render draws', false, both.error);
+      } else {
+        const m = difference(luma(both.example), luma(both.render), both.width, both.height);
+        check(
+          'three.js billboards draw what cloudscape render draws (mean |Δ luma| ≤ 0.006, every tenth of the rows ≤ 0.012, SSIM ≥ 0.99)',
+          m.mae <= 0.006 && m.worstBand <= 0.012 && m.ssim >= 0.99,
+          `mean ${m.mae.toFixed(4)}, bands ${m.bands.map((v) => v.toFixed(3)).join(' ')}, SSIM ${m.ssim.toFixed(4)}`,
+        );
+      }
+    }
+    check('three.js billboards, the default view: logs no console errors', log.errors.length === 0, log.errors.slice(0, 3).join(' | '));
+    await page.close();
+  }
+
   await drawsWhereCoverageSays(context, 'volume', 'three.js volume (density.u8 as Data3DTexture)');
 
   // density.ktx2 through KTX2Loader, when the server has the product.

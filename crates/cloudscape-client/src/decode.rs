@@ -159,7 +159,10 @@ pub struct PlannedTile {
 
 impl RemoteRender {
     /// Plans `req` against `world`'s discovery document: the same level choice as a
-    /// local `cloudscape render`.
+    /// local `cloudscape render` when `req` names its sun. With the clock's sun, which
+    /// the client learns from the tiles, the plan's shadows fall straight down until
+    /// [`RemoteRender::for_served_sun`] plans the tiles whose shadows the sun throws
+    /// into view too.
     pub fn plan(world: &str, info: RemoteWorld, req: &RenderRequest) -> Result<RemoteRender, ClientError> {
         check_remote(req)?;
         let tiles = plan_bands(&info.bands(), info.maxzoom, req)?;
@@ -174,6 +177,30 @@ impl RemoteRender {
             tiles,
             query,
         })
+    }
+
+    /// When the request named no sun: the plan for the sun the server shaded
+    /// `keyframe` for (the clock's, its bucket's centre), which holds this plan's
+    /// tiles and those whose shadows that sun throws into view; the same URLs, with no
+    /// sun in them. `None` when the request named its sun or nothing was fetched.
+    pub fn for_served_sun(&self, keyframe: Option<&BinBillboards>) -> Result<Option<RemoteRender>, ClientError> {
+        if self.req.sun.is_some() {
+            return Ok(None);
+        }
+        let Some(sun) = keyframe.and_then(|k| Sun::new(k.sun_azimuth_deg as f64, k.sun_elevation_deg as f64)) else {
+            return Ok(None);
+        };
+        let with_sun = RenderRequest {
+            sun: Some(sun),
+            ..self.req
+        };
+        Ok(Some(RemoteRender {
+            world: self.world.clone(),
+            req: self.req,
+            info: self.info.clone(),
+            tiles: plan_bands(&self.info.bands(), self.info.maxzoom, &with_sun)?,
+            query: self.query.clone(),
+        }))
     }
 
     /// The keyframe span of a tile of `layer` that holds `t`.

@@ -128,9 +128,19 @@ impl AsyncTileClient {
     pub async fn render(&mut self, world: &str, req: &RenderRequest) -> Result<Rendered, ClientError> {
         check_remote(req)?;
         let plan = RemoteRender::plan(world, self.world(world).await?, req)?;
+        let mut fetched = Vec::new();
+        for p in plan.tiles() {
+            fetched.push((p, self.keyframe(&plan, &p).await?));
+        }
+        // The clock's sun, learnt from the tiles, throws shadows of more tiles into view.
+        let plan = plan.for_served_sun(fetched.first().map(|(_, k)| &**k))?.unwrap_or(plan);
         let mut keyframes = Vec::new();
         for p in plan.tiles() {
-            keyframes.push(BinBillboards::clone(&*self.keyframe(&plan, &p).await?));
+            let k = match fetched.iter().find(|(q, _)| q == &p) {
+                Some((_, k)) => Arc::clone(k),
+                None => self.keyframe(&plan, &p).await?,
+            };
+            keyframes.push(BinBillboards::clone(&k));
         }
         if self.prefetch {
             for p in plan.prefetch() {

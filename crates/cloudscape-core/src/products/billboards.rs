@@ -107,7 +107,7 @@ const BIN_V1_SIZES: (usize, usize) = (64, 36);
 pub(crate) fn header_json(tile: &ShadedTile) -> serde_json::Value {
     let l = &tile.lighting;
     let s = tile.quality.settings();
-    let octaves = l.params.octaves.sanitised();
+    let octaves = l.billboard.octaves.sanitised();
     json!({
         "algorithm_version": ALGORITHM_VERSION,
         "layer": tile.layer_name,
@@ -250,7 +250,7 @@ pub fn encode_json(tile: &ShadedTile) -> Vec<u8> {
 pub fn encode_bin(tile: &ShadedTile) -> Vec<u8> {
     let s = tile.quality.settings();
     let l = &tile.lighting;
-    let octaves = l.params.octaves.sanitised();
+    let octaves = l.billboard.octaves.sanitised();
     let mut out = Vec::with_capacity(BIN_HEADER_BYTES + BIN_RECORD_BYTES * tile.billboards.len());
     let f32s = |out: &mut Vec<u8>, v: &[f64]| v.iter().for_each(|&x| out.extend_from_slice(&(x as f32).to_le_bytes()));
     out.extend_from_slice(&BIN_MAGIC);
@@ -585,7 +585,7 @@ mod tests {
         assert_eq!(d.algorithm_version, Some(ALGORITHM_VERSION));
         let l = d.lighting.unwrap();
         assert_eq!(l.sun_direction, s.lighting.sun_dir.map(|v| v as f32));
-        assert_eq!(l.octaves, s.lighting.params.octaves.sanitised().0);
+        assert_eq!(l.octaves, s.lighting.billboard.octaves.sanitised().0);
         // Some balls form or vanish within a span, most persist.
         let absent = |e: &BinEnd| e.splat_tau == Some(0.0);
         assert!(d.records.iter().any(|r| absent(&r.ends[0]) || absent(&r.ends[1])));

@@ -736,7 +736,7 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
     let body: usize = writer.planes.iter().map(Vec::len).sum();
     let mut out = Vec::with_capacity(header_bytes + body);
     let l = &tile.lighting;
-    let octaves = l.params.octaves.sanitised();
+    let octaves = l.billboard.octaves.sanitised();
     let f32s = |out: &mut Vec<u8>, v: &[f64]| v.iter().for_each(|&x| out.extend_from_slice(&(x as f32).to_le_bytes()));
     out.extend_from_slice(&BIN_MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());

@@ -246,7 +246,7 @@ pub fn composite_cancellable(
     order.sort_by(|&a, &b| items[a].dist.total_cmp(&items[b].dist).then(b.cmp(&a)));
     let items: Vec<&Item> = order.iter().map(|&i| &items[i]).collect();
 
-    let erosion = lighting.params.detail_erosion;
+    let erosion = lighting.billboard.detail_erosion;
     let erosion = if erosion.is_finite() {
         erosion.clamp(0.0, 1.0)
     } else {
@@ -399,7 +399,7 @@ fn take(acc: &mut [f64; 3], acc_a: &mut f64, open: &mut usize, a: f64, colour: [
 mod tests {
     use super::*;
     use crate::render::camera::Camera;
-    use crate::render::light::ShadingParams;
+    use crate::render::light::{BillboardLight, ShadingParams};
     use crate::render::splats::SplatSheet;
     use crate::render::sun::Sun;
 
@@ -447,7 +447,10 @@ mod tests {
             .collect();
         let draw = |erosion: f64| {
             let params = ShadingParams {
-                detail_erosion: erosion,
+                light: Some(BillboardLight {
+                    detail_erosion: erosion,
+                    ..BillboardLight::default()
+                }),
                 ..ShadingParams::default()
             };
             let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);
@@ -479,7 +482,10 @@ mod tests {
         let sheet = SplatSheet::new(64, 17);
         // The textbook client has no detail erosion (tested on its own below).
         let params = ShadingParams {
-            detail_erosion: 0.0,
+            light: Some(BillboardLight {
+                detail_erosion: 0.0,
+                ..BillboardLight::default()
+            }),
             ..ShadingParams::default()
         };
         let lighting = Lighting::new(Sun::new(100.0, 30.0).unwrap(), params);

@@ -136,17 +136,10 @@ pub const MAX_OCTAVES: u32 = 8;
 
 impl Default for Octaves {
     /// Three octaves with the attenuation and eccentricity of Wrenninge et al. 2013
-    /// and Hillaire 2016 (a = c = ½) and contribution b = ¾, fitted to the path
-    /// tracer (`--quality reference`) by `examples/calibrate_scattering.rs`: a grid
-    /// over N ∈ {1, 2, 3, 4, 6}, a ∈ {¼ … 1}, b ∈ {¼, ½, ¾, 0.9} and
-    /// `ShadingParams::sky_extinction_scale` ∈ {¼ … 8}, minimising the mean over the
-    /// four scenes of `bench::quality::SCENES` (three views, suns from 1° to 50°) and
-    /// their occupied view-optical-depth bins of `ln(balanced / reference mean
-    /// radiance)²`, at 128×128 against a 64-spp reference. The literature's b = ½
-    /// scores 0.052 (its deep bins 0.64–0.79 of the reference: too little multiple
-    /// scattering); b = ¾ with sky scale 2 scores 0.011, every bin within 0.89–1.10
-    /// except the 1° sun's, 1.07–1.24 (BENCHMARKS.md, "Rendering against the path
-    /// tracer").
+    /// and Hillaire 2016 (a = c = ½) and contribution b = ¾: `balanced`'s fit to the
+    /// path tracer (`Quality::light` has every preset's). The literature's b = ½
+    /// gives deep cloud 0.64–0.79 of the reference's radiance: too little multiple
+    /// scattering.
     fn default() -> Self {
         Octaves {
             count: 3,
@@ -225,15 +218,10 @@ pub struct ShadingParams {
     /// Sun radiance above the atmosphere, in units where a white surface facing it
     /// reads this (~1; the air takes ~10 % of it at a zenith sun).
     pub sun_intensity: f64,
-    /// Multiple scattering of sunlight in the billboard paths.
-    pub octaves: Octaves,
-    /// Scale of the sky-light attenuation coefficient of [`ShadingParams::sky_extinction`]
-    /// (1 = the diffusion-theory value; the default 2, fitted with [`Octaves`], makes
-    /// sky light fade almost as fast as a collimated beam: 0.96 of the extinction).
-    pub sky_extinction_scale: f64,
-    /// Strength in [0, 1] of the detail erosion of billboard edges
-    /// (`render::detail`; 0 = smooth metaballs).
-    pub detail_erosion: f64,
+    /// The billboard paths' light model; `None` (the default) takes each preset's own
+    /// fit to the path tracer ([`crate::render::Quality::light`]). The volumetric
+    /// renderers ignore it.
+    pub light: Option<BillboardLight>,
 }
 
 impl Default for ShadingParams {
@@ -243,22 +231,20 @@ impl Default for ShadingParams {
             albedo: 0.9,
             phase: Phase::default(),
             sun_intensity: 1.2,
-            octaves: Octaves::default(),
-            sky_extinction_scale: 2.0,
-            detail_erosion: 0.6,
+            light: None,
         }
     }
 }
 
 impl ShadingParams {
-    /// The fraction of the extinction that attenuates diffuse sky light travelling
-    /// into a cloud: the effective attenuation coefficient of diffusion theory,
+    /// The fraction of the extinction that attenuates diffuse light travelling into a
+    /// cloud by diffusion theory: the effective attenuation coefficient
     /// `σ_tr = √(3 σ_a σ_t')` with `σ_a = (1 − ω)σ` and the reduced extinction
     /// `σ_t' = (1 − ω ḡ)σ` (Ishimaru 1978, ch. 9; Jensen et al. 2001, eq. 5), ḡ the
-    /// mean cosine of the phase function. Defaults (ω = 0.9, ḡ = 0.25) give 0.48:
-    /// diffuse light penetrates about twice as deep as a collimated beam. Times
-    /// `sky_extinction_scale`; finite and in [0, 1] for any input.
-    pub fn sky_extinction(&self) -> f64 {
+    /// mean cosine of the phase function, over σ. Defaults (ω = 0.9, ḡ = 0.25) give
+    /// 0.48: diffuse light penetrates about twice as deep as a collimated beam.
+    /// Finite and in [0, 1] for any input.
+    pub fn diffusion_attenuation(&self) -> f64 {
         let w = if self.albedo.is_finite() {
             self.albedo.clamp(0.0, 1.0)
         } else {
@@ -277,13 +263,35 @@ impl ShadingParams {
             }
         };
         let mean_cos = mix * g(self.phase.g1) + (1.0 - mix) * g(self.phase.g2);
-        let k = (3.0 * (1.0 - w) * (1.0 - w * mean_cos)).sqrt();
-        let scale = if self.sky_extinction_scale.is_finite() {
-            self.sky_extinction_scale.max(0.0)
-        } else {
-            1.0
-        };
-        (k * scale).clamp(0.0, 1.0)
+        (3.0 * (1.0 - w) * (1.0 - w * mean_cos)).sqrt().clamp(0.0, 1.0)
+    }
+}
+
+/// The light model of the billboard paths (the presets `fast`, `balanced`,
+/// `accurate`), whose constants are fitted per preset to the path tracer
+/// ([`crate::render::Quality::light`]): a metaball stands for a whole region of
+/// cloud, so how deep light reaches into it and how soft its edge is depend on its
+/// size, which differs between presets.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BillboardLight {
+    /// Multiple scattering of sunlight (Wrenninge's octaves).
+    pub octaves: Octaves,
+    /// Scale of the sky- and ground-light attenuation coefficient,
+    /// [`ShadingParams::diffusion_attenuation`] times this (1 = diffusion theory).
+    pub sky_extinction_scale: f64,
+    /// Strength in [0, 1] of the detail erosion of billboard edges
+    /// (`render::detail`; 0 = smooth metaballs).
+    pub detail_erosion: f64,
+    /// Scale of the optical depth a ball's splat is drawn with (its opacity), against
+    /// the optical depth its density gives (which its light and shadows keep): below 1
+    /// a coarse preset's large, soft balls cover no more than the cloud they stand for.
+    pub opacity_scale: f64,
+}
+
+impl Default for BillboardLight {
+    /// The `balanced` preset's light.
+    fn default() -> Self {
+        crate::render::Quality::Balanced.light()
     }
 }
 
@@ -313,6 +321,8 @@ pub struct Lighting {
     pub ambient_rgb: [f64; 3],
     /// The cloud's optical properties.
     pub params: ShadingParams,
+    /// The billboard paths' light model: `params.light`, or the preset's own.
+    pub billboard: BillboardLight,
     /// Global horizontal illuminance (sun + sky on an upward surface at the ground)
     /// relative to the sun above the atmosphere, in [0, 1]: 0 at night, ~0.9 at noon.
     pub daylight: f64,
@@ -325,8 +335,17 @@ fn luminance(c: [f64; 3]) -> f64 {
 }
 
 impl Lighting {
+    /// Light for `sun` and the billboard light of `quality` (unless `params` names
+    /// one): [`Lighting::new`] for a preset.
+    pub fn for_quality(sun: Sun, params: ShadingParams, quality: crate::render::Quality) -> Lighting {
+        let mut l = Lighting::new(sun, params);
+        l.billboard = params.light.unwrap_or_else(|| quality.light());
+        l
+    }
+
     /// Light for `sun`: builds the sky tables for it (about a millisecond) and takes
-    /// the sun colour and the ambients from them. Finite at every elevation.
+    /// the sun colour and the ambients from them; the billboard light of `params`, or
+    /// `balanced`'s. Finite at every elevation.
     pub fn new(sun: Sun, params: ShadingParams) -> Lighting {
         let sun_dir = sun.direction();
         let sky = Sky::shared(sun_dir, params.sun_intensity);
@@ -354,6 +373,7 @@ impl Lighting {
             sky_ambient_below: below,
             ambient_rgb,
             params,
+            billboard: params.light.unwrap_or_default(),
             daylight,
             sky,
         }
@@ -392,7 +412,7 @@ impl Lighting {
     /// [`Lighting::source_with_phase`].
     pub fn sun_octaves(&self, tau_sun: f64, view_dir: [f64; 3]) -> [f64; 3] {
         let cos = dot(view_dir, self.sun_dir);
-        let s = self.params.octaves.sun_sum(&self.params.phase, cos, tau_sun);
+        let s = self.billboard.octaves.sun_sum(&self.params.phase, cos, tau_sun);
         self.sun_scatter().map(|c| c * s)
     }
 
@@ -400,7 +420,7 @@ impl Lighting {
     /// phase function per octave: `albedo · sun · (Σ bⁱ pᵢ(cos θ) e^{−aⁱτ} − Σ bⁱ e^{−aⁱτ})`.
     pub fn phase_correction(&self, tau_sun: f64, view_dir: [f64; 3]) -> [f64; 3] {
         let cos = dot(view_dir, self.sun_dir);
-        let o = &self.params.octaves;
+        let o = &self.billboard.octaves;
         let d = o.sun_sum(&self.params.phase, cos, tau_sun) - o.isotropic_sum(tau_sun);
         let a = self.params.albedo.clamp(0.0, 1.0);
         self.sun_scatter().map(|c| a * c * d)
@@ -421,11 +441,21 @@ impl Lighting {
     /// more than the unoccluded `½ (sky + ground)` (with sky = ground = L it is at most
     /// L: the white furnace's value).
     pub fn ambient_source(&self, sky: [f64; 3], ground: [f64; 3], tau_up: f64, tau_down: f64) -> [f64; 3] {
-        let k = self.params.sky_extinction();
+        let k = self.sky_extinction();
         let att = |t: f64| if t > 0.0 { (-k * t).exp() } else { 1.0 };
         let (u, d) = (att(tau_up), att(tau_down));
         let ok = |v: f64| if v.is_finite() { v.max(0.0) } else { 0.0 };
         [0, 1, 2].map(|i| 0.5 * ok(sky[i]) * u + 0.5 * ok(ground[i]) * d)
+    }
+
+    /// The fraction of the extinction that attenuates sky and ground light travelling
+    /// into a cloud in the billboard paths: diffusion theory's
+    /// ([`ShadingParams::diffusion_attenuation`]) times the preset's
+    /// `sky_extinction_scale`, within [0, 1].
+    pub fn sky_extinction(&self) -> f64 {
+        let scale = self.billboard.sky_extinction_scale;
+        let scale = if scale.is_finite() { scale.max(0.0) } else { 1.0 };
+        (self.params.diffusion_attenuation() * scale).clamp(0.0, 1.0)
     }
 
     /// Radiance of the clear sky seen along `dir` (a unit vector, z up), without the
@@ -671,7 +701,10 @@ mod tests {
         }
         // And the billboard path's sun term with one octave is the marcher's.
         let params = ShadingParams {
-            octaves: Octaves::SINGLE,
+            light: Some(BillboardLight {
+                octaves: Octaves::SINGLE,
+                ..BillboardLight::default()
+            }),
             ..ShadingParams::default()
         };
         let l = Lighting::new(Sun::new(40.0, 30.0).unwrap(), params);
@@ -730,14 +763,20 @@ mod tests {
             );
         }
         // The attenuation is diffusion theory's σ_tr / σ for the defaults, √(3·0.1·0.775),
-        // times the fitted scale 2.
+        // times the preset's scale.
         let diffusion = (3.0f64 * 0.1 * 0.775).sqrt();
-        assert!((ShadingParams::default().sky_extinction() - 2.0 * diffusion).abs() < 1e-12);
-        let unscaled = ShadingParams {
-            sky_extinction_scale: 1.0,
-            ..ShadingParams::default()
-        };
-        assert!((unscaled.sky_extinction() - diffusion).abs() < 1e-12);
+        assert!((ShadingParams::default().diffusion_attenuation() - diffusion).abs() < 1e-12);
+        for scale in [0.5, 1.0, 2.0] {
+            let params = ShadingParams {
+                light: Some(BillboardLight {
+                    sky_extinction_scale: scale,
+                    ..BillboardLight::default()
+                }),
+                ..ShadingParams::default()
+            };
+            let l = Lighting::new(Sun::new(0.0, 45.0).unwrap(), params);
+            assert!((l.sky_extinction() - (scale * diffusion).min(1.0)).abs() < 1e-12);
+        }
     }
 
     #[test]

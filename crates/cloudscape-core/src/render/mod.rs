@@ -270,6 +270,48 @@ impl Quality {
         }
     }
 
+    /// The preset's billboard light, fitted to the path tracer (`--quality
+    /// reference`) by `examples/calibrate_scattering.rs` on the four scenes of
+    /// `bench::quality::SCENES` (figures and commands in BENCHMARKS.md, "Presets'
+    /// light and edges").
+    ///
+    /// The form is Wrenninge's scattering octaves for the sun (Wrenninge, Kulla &
+    /// Lundqvist 2013; as used by Hillaire 2016 §5.1.4 and Schneider's Nubis, see
+    /// [`light::Octaves`]) plus sky and ground light attenuated at diffusion theory's
+    /// rate ([`light::ShadingParams::diffusion_attenuation`], scale 1), not a table
+    /// fitted to the path tracer: three constants per preset that keep an energy
+    /// bound (`a ≤ b`) and a physical reading, shipped in every keyframe's header so
+    /// a client applies the same phase per octave. The sky half of the sphere is lit
+    /// by the upper hemisphere's own radiance (`sky_ambient_above`), which is what
+    /// brings thick cloud to the path tracer's bluish grey.
+    ///
+    /// Per preset: `balanced` and `accurate` take the literature's a = c = ½ with
+    /// b = ¾; `fast`'s balls are four columns apart and its self-shadowing coarser,
+    /// so its deep cloud took too much of the higher octaves (a stratus deck from
+    /// below 1.41–1.76× the reference in τ > 2): its octaves fade faster with depth,
+    /// a = 0.65 (still `a ≤ b`). Detail erosion 0.3
+    /// (was 0.6 everywhere): at 0.6 `accurate` ate 7–9 % of the reference's cloud
+    /// pixels on cumulus and altocumulus. The splat opacity is the density's own
+    /// (scale 1) in every preset: a larger scale brings `fast`'s thin altocumulus
+    /// back but inflates its cumulus by as much.
+    pub fn light(&self) -> light::BillboardLight {
+        let preset = |attenuation: f64| light::BillboardLight {
+            octaves: light::Octaves {
+                count: 3,
+                attenuation,
+                contribution: 0.75,
+                eccentricity: 0.5,
+            },
+            sky_extinction_scale: 1.0,
+            detail_erosion: 0.3,
+            opacity_scale: 1.0,
+        };
+        match self {
+            Quality::Fast => preset(0.65),
+            Quality::Balanced | Quality::Accurate | Quality::Reference | Quality::ReferenceSingle => preset(0.5),
+        }
+    }
+
     /// The splat sheet of this preset.
     pub fn splat_sheet(&self) -> splats::SplatSheet {
         let s = self.settings();

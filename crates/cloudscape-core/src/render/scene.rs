@@ -5,8 +5,12 @@
 //! Level choice (far = coarser): per layer, a quadtree over tiles. It starts from the
 //! coarsest tiles that cover [`VIEW_DISTANCE`] around the camera and splits a tile into
 //! its four children while one of its columns, at the tile's nearest distance from
-//! the eye, would span more than the preset's `lod_pixels` pixels. Tiles outside the
-//! view frustum or farther than `VIEW_DISTANCE` horizontally are dropped. The work is
+//! the eye, would span more than the preset's `lod_pixels` pixels. A tile is kept
+//! when its clouds or its shadow on the ground ([`ShadowReach`]) lie within the view
+//! frustum and within `VIEW_DISTANCE` horizontally; its shadow matters because a
+//! ground point reads the shadow of the tile its sun ray crosses, which is not the
+//! tile above it (without it, a layer whose clouds are out of view left the ground
+//! they shadow sunlit: a straight seam along the tile's shadowed edge). The work is
 //! bounded: at most [`MAX_RENDER_TILES`] tiles and [`MAX_RENDER_PIXELS`] pixels (the
 //! volumetric renderers at most [`MAX_REFERENCE_PIXELS`], and the path tracer at most
 //! `[limits] max_path_samples` samples × pixels); a bigger request is refused up front.
@@ -27,6 +31,12 @@ use super::{ParseError, Quality, RenderError};
 
 /// Clouds farther than this (horizontally, metres) from the camera are not drawn.
 pub const VIEW_DISTANCE: f64 = 30_000.0;
+/// Where the ground's cloud shadow starts to fade into the tiles' mean shadow, as a
+/// fraction of [`VIEW_DISTANCE`] (see [`background`]). Seen from low altitude the
+/// ground between here and the view distance spans a few rows of pixels only; a fade
+/// over the last 30 % drew as a line across the picture at the horizon, over the last
+/// 60 % it spans about three times as many rows.
+pub const SHADOW_FADE_START: f64 = 0.4;
 /// Most tiles (over all layers) one render may compute.
 pub const MAX_RENDER_TILES: usize = 24;
 /// Largest image, pixels, for billboard presets.
@@ -146,7 +156,8 @@ pub struct LayerBand {
     pub cell_size: f64,
 }
 
-/// The tiles (layer, tile) the camera sees, per the level choice above.
+/// The tiles (layer, tile) the camera sees, per the level choice above, for the
+/// request's sun (from the world clock when it names none).
 pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(usize, TileId)>, RenderError> {
     let bands: Vec<LayerBand> = world
         .layers
@@ -158,10 +169,56 @@ pub fn plan(world: &World, config: &Config, req: &RenderRequest) -> Result<Vec<(
         })
         .collect();
     check_samples(req, config.limits.max_path_samples)?;
-    plan_bands(&bands, config.limits.max_level, req)
+    let req = RenderRequest {
+        sun: Some(request_sun(config, req)),
+        ..*req
+    };
+    plan_bands(&bands, config.limits.max_level, &req)
 }
 
-/// [`plan`] over layer bands, with levels up to `max_level`.
+/// Where a tile's shadow falls on the ground, for the level choice: the tile moved
+/// away from the sun by `(s_x, s_y) · z / s_z` for the altitudes `z` of its layer,
+/// each move at most [`VIEW_DISTANCE`] long (a lower sun throws shadows farther than
+/// the view reaches; their clouds are not fetched, and that ground stays sunlit).
+/// The sun is the centre of the request's sun bucket, which the tiles are shaded for
+/// (`render::tile::shadow_shift` reads the maps with it); with no sun, or the sun at
+/// or below the horizon, shadows fall straight down.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct ShadowReach {
+    /// Horizontal move of a shadow per metre of altitude, away from the sun.
+    per_metre: [f64; 2],
+}
+
+impl ShadowReach {
+    fn new(sun: Option<Sun>) -> ShadowReach {
+        let per_metre = match sun.map(|s| s.bucket().centre().direction()) {
+            Some(s) if s[2] > 0.0 => {
+                let k = 1.0 / s[2].max(1f64.to_radians().sin());
+                [-s[0] * k, -s[1] * k]
+            }
+            _ => [0.0, 0.0],
+        };
+        ShadowReach { per_metre }
+    }
+
+    /// The move of the shadow of a point at altitude `z`.
+    fn offset(&self, z: f64) -> [f64; 2] {
+        let [x, y] = self.per_metre.map(|k| k * z.max(0.0));
+        let len = (x * x + y * y).sqrt();
+        let scale = if len > VIEW_DISTANCE { VIEW_DISTANCE / len } else { 1.0 };
+        [x * scale, y * scale]
+    }
+
+    /// The longest move of a layer reaching up to `top`, metres.
+    fn longest(&self, top: f64) -> f64 {
+        let [x, y] = self.offset(top);
+        (x * x + y * y).sqrt()
+    }
+}
+
+/// [`plan`] over layer bands, with levels up to `max_level`; shadows fall for the
+/// request's sun (straight down when it names none: a client that does not know the
+/// clock's sun yet plans that first, and the same tiles and more once it knows it).
 pub fn plan_bands(
     layers: &[LayerBand],
     max_level: u32,
@@ -175,6 +232,7 @@ pub fn plan_bands(
     let tan_v = tan_h * req.height as f64 / req.width as f64;
     let pixel_angle = 2.0 * tan_h / req.width as f64;
     let p = cam.position;
+    let reach = ShadowReach::new(req.sun);
     let mut out = Vec::new();
     for (li, l) in layers.iter().enumerate() {
         let (zb, zt) = (l.base, l.top);
@@ -184,7 +242,10 @@ pub fn plan_bands(
             z_top += 1;
         }
         let s = tile_size(z_top);
-        let range = |c: f64| ((c - VIEW_DISTANCE) / s).floor() as i64..=((c + VIEW_DISTANCE) / s).floor() as i64;
+        let far = VIEW_DISTANCE + reach.longest(zt);
+        let range = |c: f64| ((c - far) / s).floor() as i64..=((c + far) / s).floor() as i64;
+        // The shadow's moves for the layer's base and top.
+        let moves = [reach.offset(zb), reach.offset(zt)];
         let mut stack: Vec<TileId> = Vec::new();
         for y in range(p[1]) {
             for x in range(p[0]) {
@@ -198,17 +259,26 @@ pub fn plan_bands(
             let dx = (x0 - p[0]).max(0.0).max(p[0] - x1);
             let dy = (y0 - p[1]).max(0.0).max(p[1] - y1);
             let dz = (zb - p[2]).max(0.0).max(p[2] - zt);
-            if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE {
+            // The shadow's bounding rectangle on the ground.
+            let (mx0, mx1) = (moves[0][0].min(moves[1][0]), moves[0][0].max(moves[1][0]));
+            let (my0, my1) = (moves[0][1].min(moves[1][1]), moves[0][1].max(moves[1][1]));
+            let sdx = (x0 + mx0 - p[0]).max(0.0).max(p[0] - x1 - mx1);
+            let sdy = (y0 + my0 - p[1]).max(0.0).max(p[1] - y1 - my1);
+            if (dx * dx + dy * dy).sqrt() > VIEW_DISTANCE && (sdx * sdx + sdy * sdy).sqrt() > VIEW_DISTANCE {
                 continue;
             }
-            // Frustum culling: drop the box if all 8 corners are outside one plane. The
-            // box reaches down to the ground: the tile's shadow falls there even when
-            // its clouds are out of view (without it, a layer above the view's top edge
-            // lost its shadow on the near ground: a seam at the tile's edge).
+            // Frustum culling: drop the tile if all corners of its box, of the ground
+            // under it and of its shadow on the ground are outside one plane.
             let mut outside = [true; 5];
             for &cx in &[x0, x1] {
                 for &cy in &[y0, y1] {
-                    for &cz in &[zb.min(0.0), zt] {
+                    let corners = [
+                        [cx, cy, zb.min(0.0)],
+                        [cx, cy, zt],
+                        [cx + moves[0][0], cy + moves[0][1], 0.0],
+                        [cx + moves[1][0], cy + moves[1][1], 0.0],
+                    ];
+                    for [cx, cy, cz] in corners {
                         let r = [cx - p[0], cy - p[1], cz - p[2]];
                         let (a, b, f) = (
                             r[0] * right[0] + r[1] * right[1] + r[2] * right[2],
@@ -409,8 +479,8 @@ pub fn draw_volumetric(
 
 /// Sky and ground (shadowed by `ground_t(x, y)`, the sun transmittance at a ground
 /// point, and hazed by the air between the eye and it) behind the clouds. Beyond the
-/// tiles the shadow is unknown: over the last 30 % of [`VIEW_DISTANCE`] it turns
-/// into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
+/// tiles the shadow is unknown: from [`SHADOW_FADE_START`] of [`VIEW_DISTANCE`] on it
+/// turns into `far_t`, the mean shadow of the tiles drawn ([`mean_shadow`]), so the far
 /// ground has neither a hard edge nor a sunlit band.
 pub fn background(view: &View, lighting: &Lighting, far_t: f64, ground_t: impl Fn(f64, f64) -> f64 + Sync) -> Image {
     let mut img = Image::new(view.width, view.height);
@@ -422,7 +492,7 @@ pub fn background(view: &View, lighting: &Lighting, far_t: f64, ground_t: impl F
                 let s = -o[2] / d[2];
                 let (gx, gy) = (o[0] + d[0] * s, o[1] + d[1] * s);
                 let r = ((gx - o[0]).powi(2) + (gy - o[1]).powi(2)).sqrt();
-                let fade = smoothstep(0.7 * VIEW_DISTANCE, VIEW_DISTANCE, r);
+                let fade = smoothstep(SHADOW_FADE_START * VIEW_DISTANCE, VIEW_DISTANCE, r);
                 let near = if fade < 1.0 { ground_t(gx, gy) } else { far_t };
                 near + fade * (far_t - near)
             } else {
@@ -497,6 +567,41 @@ mod tests {
         let mut bad_t = r;
         bad_t.t = -1.0;
         assert!(matches!(plan(&world, &config, &bad_t), Err(RenderError::Sim(_))));
+    }
+
+    #[test]
+    fn plan_takes_the_tiles_whose_shadows_fall_in_view() {
+        let config = Config::embedded();
+        let world = config.world("default").unwrap();
+        let bands: Vec<LayerBand> = world
+            .layers
+            .iter()
+            .map(|l| LayerBand {
+                base: l.base,
+                top: l.top(),
+                cell_size: l.cell_size,
+            })
+            .collect();
+        let cirrus = world.layers.iter().position(|l| l.name == "cirrus").unwrap();
+        // The viewer's default view with a western sun at 28°: the cirrus tile south-west
+        // of the eye is out of view, and its shadow (moved 15 km east) lies ahead.
+        let mut r = req("12800,-6000,900,0,6,75", Quality::Fast);
+        (r.width, r.height) = (1280, 720);
+        r.sun = Some(Sun::new(275.0, 28.0).unwrap());
+        let with_sun = plan(&world, &config, &r).unwrap();
+        let straight_down = plan_bands(&bands, config.limits.max_level, &RenderRequest { sun: None, ..r }).unwrap();
+        let west = (cirrus, TileId { z: 0, x: -1, y: -1 });
+        assert!(with_sun.contains(&west), "{with_sun:?}");
+        assert!(!straight_down.contains(&west), "{straight_down:?}");
+        // Knowing the sun only adds tiles (a client that learns it later fetches more).
+        assert!(straight_down.iter().all(|t| with_sun.contains(t)));
+        // A sun at the horizon throws shadows at most the view distance far: the
+        // gallery's sunset view stays within the work limit.
+        let mut sunset = req("12800,12800,300,270,6,75", Quality::Balanced);
+        (sunset.width, sunset.height) = (640, 360);
+        sunset.sun = Some(Sun::new(270.0, 2.0).unwrap());
+        let tiles = plan(&world, &config, &sunset).unwrap();
+        assert!(tiles.len() <= MAX_RENDER_TILES, "{}", tiles.len());
     }
 
     #[test]

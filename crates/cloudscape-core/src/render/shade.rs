@@ -284,8 +284,10 @@ pub fn shade(
 /// balls above (`τ_up`) and, from the column total, of those below (`τ_down`), each
 /// plus `κ τ_self`. The colour is `albedo · (sun_scatter · Σ bⁱ e^{−aⁱ τ_sun) + ambient)`
 /// with the octaves of [`crate::render::light::Octaves`] and the ambient of
-/// [`Lighting::ambient_source`]: the sky (`ambient_rgb`) through `τ_up`, and the
-/// ground under the ball (lit through the sun buffer's total depth) through `τ_down`.
+/// [`Lighting::ambient_source`]: the upper hemisphere's sky (`sky_ambient_above`)
+/// through `τ_up`, and the ground under the ball (lit through the sun buffer's total
+/// depth) through `τ_down`. The splat is the one of the sheet nearest the ball's
+/// optical depth times the preset's `opacity_scale`.
 pub fn shade_where(
     balls: &[Metaball],
     lattice: &Lattice,
@@ -306,7 +308,13 @@ pub fn shade_where(
     let (front_up, up_buffer) = sweep(balls, &taus, r, [0.0, 0.0, 1.0], light_texel, origin);
     let sun_up = lighting.sun_dir[2] > 0.0;
     let albedo = lighting.params.albedo.clamp(0.0, 1.0);
-    let octaves = lighting.params.octaves;
+    let octaves = lighting.billboard.octaves;
+    let opacity_scale = lighting.billboard.opacity_scale;
+    let opacity_scale = if opacity_scale.is_finite() {
+        opacity_scale.max(0.0)
+    } else {
+        1.0
+    };
     let sun = lighting.sun_scatter();
     let out = balls
         .iter()
@@ -326,12 +334,15 @@ pub fn shade_where(
             } else {
                 1.0
             };
-            let ambient =
-                lighting.ambient_source(lighting.ambient_rgb, lighting.ground_below(ground_t), tau_up, tau_down);
+            let ambient = lighting.ambient_source(
+                lighting.sky_ambient_above,
+                lighting.ground_below(ground_t),
+                tau_up,
+                tau_down,
+            );
             let iso = octaves.isotropic_sum(tau_sun);
-            let k = sheet.index_for_tau(tau);
-            let colour =
-                [0, 1, 2].map(|ch| (albedo * (sun[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
+            let k = sheet.index_for_tau(opacity_scale * tau);
+            let colour = [0, 1, 2].map(|ch| (albedo * (sun[ch] * iso + ambient[ch])).clamp(0.0, 2.0) as f32);
             Billboard {
                 index: b.index,
                 centre: c,
@@ -399,13 +410,14 @@ mod tests {
     fn bases_are_darker_than_tops_in_sky_light() {
         // A tall column (12 balls, 1.2 km) lit by the sky and the ground only (no sun):
         // every ball is darker than the one above it, the base darker than the top.
-        // At diffusion theory's attenuation (scale 1): with the fitted default (2) the
-        // sky light is gone a few balls in, and the ground's light from below makes the
-        // middle of the column its darkest part, as it should be.
+        // At diffusion theory's attenuation (scale 1, every preset's fit).
         let (balls, lat) = column_of_balls(12, 0.6);
         let params = ShadingParams {
             sun_intensity: 0.0,
-            sky_extinction_scale: 1.0,
+            light: Some(crate::render::light::BillboardLight {
+                sky_extinction_scale: 1.0,
+                ..crate::render::light::BillboardLight::default()
+            }),
             ..ShadingParams::default()
         };
         let l = Lighting::new(Sun::new(0.0, 60.0).unwrap(), params);
@@ -422,14 +434,14 @@ mod tests {
         // half the ground (lit by the sun through the whole column: no sun here, so by
         // the sky alone) through the column below plus κτ.
         let top = bb.last().unwrap();
-        let k = l.params.sky_extinction();
+        let k = l.sky_extinction();
         let tau = top.tau as f64;
         let below: f64 = bb[..bb.len() - 1].iter().map(|b| b.tau as f64).sum();
         let ground = l.ground_below(1.0);
         #[allow(clippy::needless_range_loop)] // ch indexes three arrays and names the channel in the message
         for ch in 0..3 {
             let expected = l.params.albedo
-                * (0.5 * l.ambient_rgb[ch] * (-k * SELF_SHADOW * tau).exp()
+                * (0.5 * l.sky_ambient_above[ch] * (-k * SELF_SHADOW * tau).exp()
                     + 0.5 * ground[ch] * (-k * (below + SELF_SHADOW * tau)).exp());
             // The balls below are offset by half a spacing on odd levels, so the column
             // the up-buffer sees under the top is within a factor of its sum.

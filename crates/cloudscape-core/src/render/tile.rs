@@ -403,7 +403,7 @@ impl TileShading {
             bucket: sun.bucket(),
             lattice: Lattice::new(spacing, settings.radius_factor * spacing, l.base, l.top() - l.base)
                 .drifting(l.wind, l.shear, 0.0),
-            lighting: Lighting::new(sun.bucket().centre(), *params),
+            lighting: Lighting::for_quality(sun.bucket().centre(), *params, quality),
             sheet: SplatSheet::new(settings.splat_count, settings.splat_size),
             light_texel: settings.light_texel,
             origin,

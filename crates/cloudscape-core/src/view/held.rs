@@ -261,7 +261,7 @@ pub fn draw(tiles: &[HeldTile], req: &RenderRequest, sun: Sun) -> Image {
 /// [`draw`] that leaves the remaining bands undrawn once `cancel` fires.
 pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
     let view = View::perspective(&req.camera, req.width, req.height);
-    let lighting = Lighting::new(sun.bucket().centre(), req.params);
+    let lighting = Lighting::for_quality(sun.bucket().centre(), req.params, req.quality);
     let shadows: Vec<GroundShadow> = tiles
         .iter()
         .zip(shadow_maps(tiles))

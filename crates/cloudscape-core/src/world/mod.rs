@@ -56,7 +56,11 @@ use serde::Deserialize;
 ///    4π-normalised phase, [`crate::render::light::SUN_SCATTER`]), the air is lit by
 ///    it without a display factor, and the tone map carries the exposure
 ///    ([`crate::render::light::EXPOSURE`]).
-pub const ALGORITHM_VERSION: u32 = 13;
+/// 14: the billboard presets' light and edges fitted to the path tracer per preset
+///    ([`crate::render::Quality::light`]): sky light enters through the upper
+///    hemisphere's own radiance, attenuated at diffusion theory's rate; per-preset
+///    octaves, detail erosion and splat opacity.
+pub const ALGORITHM_VERSION: u32 = 14;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

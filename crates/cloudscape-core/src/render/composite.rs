@@ -27,7 +27,8 @@
 //! accumulated opacity `A` (the smooth field's coverage) is eroded by Nubis's remap,
 //! `A' = erode(A, E · n)`, and its colour scaled by `A'/A`, with
 //! `E` = the preset's `BillboardLight::detail_erosion` ([`super::Quality::light`])
-//! and `n = Σ_k w_k n_k / Σ_k w_k` the opacity-weighted mean over the billboards the pixel took (`w_k = (1 − A)·α_k`) of
+//! and `n = Σ_k w_k n_k / Σ_k w_k` the opacity-weighted mean over the billboards the
+//! pixel took (`w_k = (1 − A)·α_k`) of
 //! the detail noise `n_k` at the pixel's point on billboard `k`'s plane (first
 //! octave one radius of `k`, octaves limited by `k`'s pixel footprint; `n_k = 0`,
 //! no erosion, where not even the first octave spans the footprint). Each `n_k` is

@@ -502,8 +502,8 @@ fn fnv1a(bytes: &[u8]) -> u64 {
 /// config (as JSON), the world, camera, sun, time and shading parameters. A change
 /// to any of them, or a new algorithm version, is a new file; a change to the path
 /// tracer must bump `ALGORITHM_VERSION` anyway (its bytes are served). A file holds
-/// the two halves (linear RGB, f32), the view rays' optical depths and the times the
-/// run that made it measured.
+/// the two halves (linear RGB, f32), the view rays' optical depths (f32) and the
+/// times the run that made it measured.
 #[derive(Clone, Debug)]
 pub struct ReferenceCache {
     dir: PathBuf,
@@ -708,9 +708,11 @@ pub fn reference(
     let t = Instant::now();
     let split = split_reference(&tiles, &req, sun);
     let draw_s = t.elapsed().as_secs_f64();
+    // At the precision the cache keeps, so a cached reference measures as a fresh one.
+    let tau = view_tau(&tiles, &req).into_iter().map(|t| t as f32 as f64).collect();
     let r = Reference::from_halves(
         split.halves,
-        view_tau(&tiles, &req),
+        tau,
         StageTimes {
             density_s,
             billboards_s: 0.0,
@@ -1188,7 +1190,9 @@ mod tests {
             billboards_s: 0.0,
             draw_s: 12.25,
         };
-        let r = Reference::from_halves([half(1.0), half(3.0)], vec![0.0, 0.1, 1.0, 2.0, 6.0, 50.0], times, 4, 8, false);
+        // Optical depths are kept as f32, as `reference` rounds them.
+        let tau = [0.0, 0.1, 1.0, 2.0, 6.0, 50.0].map(|t: f64| t as f32 as f64).to_vec();
+        let r = Reference::from_halves([half(1.0), half(3.0)], tau, times, 4, 8, false);
         assert_eq!(r.image.rgb[1], [2.0, 3.0, 0.25], "the mean of the halves");
         let req = SCENES[0].request(Quality::Reference, (w, h), 8).unwrap();
         let path = cache.path(&config, &SCENES[0], &req);

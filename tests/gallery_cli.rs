@@ -77,7 +77,15 @@ fn a_quick_gallery_writes_every_picture_and_the_contact_sheet() {
     std::fs::write(viewer.join("gallery-up-60.png"), png_bytes).unwrap();
     let gallery = |out: &std::path::Path| {
         Command::new(env!("CARGO_BIN_EXE_cloudscape"))
-            .args(["gallery", "--quick", "--size", "32x18", "--config", &cfg, "--viewer-dir"])
+            .args([
+                "gallery",
+                "--quick",
+                "--size",
+                "32x18",
+                "--config",
+                &cfg,
+                "--viewer-dir",
+            ])
             .arg(&viewer)
             .arg("--reference-cache")
             .arg(&cache)
@@ -134,7 +142,10 @@ fn a_quick_gallery_writes_every_picture_and_the_contact_sheet() {
     for v in VIEWS {
         assert!(row(&stdout, v, "reference")[3].ends_with("(cached)"), "{v}");
         let file = format!("{v}-reference.png");
-        assert_eq!(std::fs::read(out.join(&file)).unwrap(), std::fs::read(again.join(&file)).unwrap());
+        assert_eq!(
+            std::fs::read(out.join(&file)).unwrap(),
+            std::fs::read(again.join(&file)).unwrap()
+        );
     }
 }
 

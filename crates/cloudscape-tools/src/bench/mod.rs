@@ -237,7 +237,10 @@ pub fn run(
         ("fields", Box::new(|o, _| core::fields(effort, o))),
         ("tile pipeline", Box::new(|o, _| pipeline::tiles(effort, o))),
         ("encoders", Box::new(|o, _| pipeline::encoders(effort, o))),
-        ("quality presets", Box::new(|o, p| quality::speed_accuracy(quality, o, p))),
+        (
+            "quality presets",
+            Box::new(|o, p| quality::speed_accuracy(quality, o, p)),
+        ),
         ("http", Box::new(|o, _| http::http(effort, o))),
         ("rosa 2013", Box::new(|o, _| pipeline::rosa(effort, o))),
         ("scaling", Box::new(|o, _| core::scaling(effort, o))),

@@ -117,7 +117,11 @@ impl Scene {
     /// by `-` (`stratus-deck-from-below`; a gallery view's name is one already).
     pub fn slug(&self) -> String {
         let mut s = String::new();
-        for w in self.name.split(|c: char| !c.is_alphanumeric()).filter(|w| !w.is_empty()) {
+        for w in self
+            .name
+            .split(|c: char| !c.is_alphanumeric())
+            .filter(|w| !w.is_empty())
+        {
             if !s.is_empty() {
                 s.push('-');
             }
@@ -699,7 +703,10 @@ pub fn reference(
 ) -> Result<Reference, String> {
     let req = scene.request(Quality::Reference, size, samples)?;
     let path = cache.map(|c| c.path(config, scene, &req));
-    if let Some(r) = path.as_deref().and_then(|p| ReferenceCache::load(p, size.0, size.1, samples)) {
+    if let Some(r) = path
+        .as_deref()
+        .and_then(|p| ReferenceCache::load(p, size.0, size.1, samples))
+    {
         return Ok(r);
     }
     let (density_s, grids, plan) = scene_density(world, config, &req)?;
@@ -881,7 +888,11 @@ pub fn table_header(size: (usize, usize), samples: u32) -> String {
 
 /// A speed-up, `12×` or `0.4×`.
 fn fmt_ratio(r: f64) -> String {
-    if r < 9.95 { format!("{r:.1}×") } else { format!("{r:.0}×") }
+    if r < 9.95 {
+        format!("{r:.1}×")
+    } else {
+        format!("{r:.0}×")
+    }
 }
 
 /// The rows of one view: every preset's, then the reference's.
@@ -918,7 +929,9 @@ pub fn table_rows(name: &str, reference: &Reference, presets: &[PresetFigures]) 
     let colour = presets
         .iter()
         .find_map(|p| p.comparison.thick_colour)
-        .map_or(("–".into(), "–".into()), |(_, r)| (format!("{:.3}", r[0]), format!("{:.3}", r[1])));
+        .map_or(("–".into(), "–".into()), |(_, r)| {
+            (format!("{:.3}", r[0]), format!("{:.3}", r[1]))
+        });
     md += &format!(
         "| {name} | reference | {:.1} s{} | – | split half {:.3} | 1 ({DEFAULT_SAMPLES} spp: {:.1} s) | {} | {} | {} | 1 | {} px |\n",
         reference.times.total(Quality::Reference),
@@ -939,7 +952,9 @@ fn range_of(v: &[f64], f: impl Fn(f64) -> String) -> String {
     if v.is_empty() {
         return "–".to_string();
     }
-    let (lo, hi) = v.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
+    let (lo, hi) = v
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
     format!("{} – {}", f(lo), f(hi))
 }
 
@@ -1005,9 +1020,7 @@ pub fn speed_accuracy(setup: &QualitySetup, out: &mut BenchRun, progress: &mut d
     let mut points: Vec<(Quality, f64, f64)> = Vec::new();
     let mut summary = Vec::new();
     for s in &setup.scenes {
-        let world = config
-            .world(s.world)
-            .ok_or_else(|| format!("no world `{}`", s.world))?;
+        let world = config.world(s.world).ok_or_else(|| format!("no world `{}`", s.world))?;
         let t = Instant::now();
         let r = reference(&world, &config, s, setup.size, setup.samples, setup.cache.as_ref())?;
         progress(&format!(
@@ -1217,7 +1230,11 @@ mod tests {
         let mut changed = config.clone();
         changed.worlds.get_mut("stratus").unwrap().seed += 1;
         assert_ne!(other(&SCENES[0], 8, &changed), path);
-        assert_eq!(other(&SCENES[0], 8, &config.clone()), path, "the same inputs, the same file");
+        assert_eq!(
+            other(&SCENES[0], 8, &config.clone()),
+            path,
+            "the same inputs, the same file"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
@@ -1228,17 +1245,22 @@ mod tests {
         let all = all_scenes();
         assert_eq!(all.len(), SCENES.len() + gallery::VIEWS.len());
         let setup = QualitySetup::for_effort(Effort::Full)
-            .only_views(&["backlit".into(), "stratus deck from below".into(), "low-sun-at-the-horizon".into()])
+            .only_views(&[
+                "backlit".into(),
+                "stratus deck from below".into(),
+                "low-sun-at-the-horizon".into(),
+            ])
             .unwrap();
         let names: Vec<&str> = setup.scenes.iter().map(|s| s.name).collect();
         assert_eq!(names, ["backlit", "stratus deck from below", "low sun at the horizon"]);
         assert_eq!((setup.size, setup.samples), ((160, 120), 512));
-        let err = QualitySetup::for_effort(Effort::Full).only_views(&["nowhere".into()]).unwrap_err();
+        let err = QualitySetup::for_effort(Effort::Full)
+            .only_views(&["nowhere".into()])
+            .unwrap_err();
         assert!(err.contains("nowhere") && err.contains("ground-noon"), "{err}");
         let config = scene_config().unwrap();
         for s in &all {
             assert!(config.world(s.world).is_some(), "{}", s.name);
         }
     }
-
 }

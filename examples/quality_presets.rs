@@ -13,7 +13,8 @@ fn main() -> Result<(), String> {
         Some(other) => return Err(format!("effort must be smoke | quick | full, got `{other}`")),
     };
     let mut run = BenchRun::default();
-    quality::speed_accuracy(effort, &mut run)?;
+    let setup = quality::QualitySetup::for_effort(effort);
+    quality::speed_accuracy(&setup, &mut run, &mut |m| eprintln!("{m}"))?;
     for s in &run.sections {
         println!("## {}\n\n{}", s.title, s.markdown);
     }

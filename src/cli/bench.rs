@@ -6,6 +6,7 @@ use std::time::Instant;
 
 use clap::Args;
 
+use cloudscape_tools::bench::quality::{QualitySetup, ReferenceCache};
 use cloudscape_tools::bench::{self, Effort};
 
 #[derive(Args)]
@@ -27,6 +28,17 @@ pub struct BenchArgs {
     /// the others are left as they are.
     #[arg(long, value_delimiter = ',')]
     only: Option<Vec<String>>,
+    /// The quality section on these views only (comma-separated names of the scene set,
+    /// as `stratus-deck-from-below`, or of the gallery, as `ground-noon`).
+    #[arg(long, value_delimiter = ',')]
+    quality_views: Option<Vec<String>>,
+    /// Directory where the quality section keeps its reference renders between runs
+    /// (keyed by view, size, samples, ALGORITHM_VERSION and the scene's inputs).
+    #[arg(long, default_value = "target/quality-ref")]
+    reference_cache: String,
+    /// Path-trace every reference again (nothing read from or written to the cache).
+    #[arg(long)]
+    no_reference_cache: bool,
 }
 
 /// `to` relative to directory `from` when `to` is inside it, else `to` as given.
@@ -44,6 +56,13 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
     } else {
         Effort::Full
     };
+    let mut quality = QualitySetup::for_effort(effort);
+    if let Some(views) = &a.quality_views {
+        quality = quality.only_views(views).map_err(|e| format!("--quality-views: {e}"))?;
+    }
+    if !a.no_reference_cache {
+        quality = quality.with_cache(ReferenceCache::new(&a.reference_cache));
+    }
     let out = PathBuf::from(&a.out);
     let out_dir = match out.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
@@ -55,7 +74,7 @@ pub fn run(a: BenchArgs) -> Result<(), String> {
     std::fs::create_dir_all(&plots).map_err(|e| format!("cannot create {}: {e}", plots.display()))?;
 
     let start = Instant::now();
-    let run = bench::run(effort, a.only.as_deref(), |name| {
+    let run = bench::run(effort, a.only.as_deref(), &quality, |name| {
         eprintln!("[{:>6.1} s] bench: {name}", start.elapsed().as_secs_f64());
     })?;
     let prefix = link(&out_dir, &plots);

@@ -14,6 +14,9 @@
 //! grid sizes of Rosa 2013 Table 5.1, scaling (region area, level, t), keyframes, and
 //! the precipitation of a storm over a day as a user's `/series` queries answer it.
 //!
+//! The quality section's size, reference samples and views are its own
+//! ([`quality::QualitySetup`]); its reference renders can be kept on disk.
+//!
 //! Times are wall-clock medians over repeated runs (at least one) within a budget per
 //! measurement; [`Effort`] sets sizes and budgets. Ratios in a table are measured in
 //! the same run, side by side.
@@ -183,8 +186,9 @@ pub fn fmt_rate(r: f64) -> String {
     format!("{:.1}×10^{}", r / 10f64.powf(e), e as i32)
 }
 
-/// One section of a run: it measures and adds its tables to the run.
-type SectionFn = fn(Effort, &mut BenchRun) -> Result<(), String>;
+/// One section of a run: it measures, adds its tables to the run and may report
+/// its progress (the long ones do).
+type SectionFn<'a> = Box<dyn FnOnce(&mut BenchRun, &mut dyn FnMut(&str)) -> Result<(), String> + 'a>;
 
 /// Names of the sections [`run`] measures, in order (what `bench --only` accepts).
 pub const SECTION_NAMES: [&str; 13] = [
@@ -203,9 +207,15 @@ pub const SECTION_NAMES: [&str; 13] = [
     "wire",
 ];
 
-/// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names) and
-/// reports each one's name to `progress` as it starts.
-pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&str)) -> Result<BenchRun, String> {
+/// Runs every section (or, with `only`, those of [`SECTION_NAMES`] it names), the
+/// quality section as `quality` sets it up, and reports each one's name to
+/// `progress` as it starts (and the quality section each view).
+pub fn run(
+    effort: Effort,
+    only: Option<&[String]>,
+    quality: &quality::QualitySetup,
+    mut progress: impl FnMut(&str),
+) -> Result<BenchRun, String> {
     if let Some(names) = only
         && let Some(bad) = names.iter().find(|n| !SECTION_NAMES.contains(&n.as_str()))
     {
@@ -216,29 +226,38 @@ pub fn run(effort: Effort, only: Option<&[String]>, mut progress: impl FnMut(&st
     }
     let mut out = BenchRun::default();
     let steps: [(&str, SectionFn); 13] = [
-        ("machine", |e, o| {
-            o.sections.push(machine(e));
-            Ok(())
-        }),
-        ("automaton", core::automaton),
-        ("fields", core::fields),
-        ("tile pipeline", pipeline::tiles),
-        ("encoders", pipeline::encoders),
-        ("quality presets", quality::speed_accuracy),
-        ("http", http::http),
-        ("rosa 2013", pipeline::rosa),
-        ("scaling", core::scaling),
-        ("keyframes", keyframes::keyframes),
-        ("keyframe stages", stages::stages),
-        ("precipitation over a day", weather::precipitation_day),
-        ("bytes on the wire", wire::wire),
+        (
+            "machine",
+            Box::new(|o, _| {
+                o.sections.push(machine(effort));
+                Ok(())
+            }),
+        ),
+        ("automaton", Box::new(|o, _| core::automaton(effort, o))),
+        ("fields", Box::new(|o, _| core::fields(effort, o))),
+        ("tile pipeline", Box::new(|o, _| pipeline::tiles(effort, o))),
+        ("encoders", Box::new(|o, _| pipeline::encoders(effort, o))),
+        (
+            "quality presets",
+            Box::new(|o, p| quality::speed_accuracy(quality, o, p)),
+        ),
+        ("http", Box::new(|o, _| http::http(effort, o))),
+        ("rosa 2013", Box::new(|o, _| pipeline::rosa(effort, o))),
+        ("scaling", Box::new(|o, _| core::scaling(effort, o))),
+        ("keyframes", Box::new(|o, _| keyframes::keyframes(effort, o))),
+        ("keyframe stages", Box::new(|o, _| stages::stages(effort, o))),
+        (
+            "precipitation over a day",
+            Box::new(|o, _| weather::precipitation_day(effort, o)),
+        ),
+        ("bytes on the wire", Box::new(|o, _| wire::wire(effort, o))),
     ];
     for ((name, step), id) in steps.into_iter().zip(SECTION_NAMES) {
         if only.is_some_and(|names| !names.iter().any(|n| n == id)) {
             continue;
         }
         progress(name);
-        step(effort, &mut out).map_err(|e| format!("bench section {name}: {e}"))?;
+        step(&mut out, &mut progress).map_err(|e| format!("bench section {name}: {e}"))?;
     }
     Ok(out)
 }

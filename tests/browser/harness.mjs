@@ -57,3 +57,21 @@ export function checks(suite) {
 }
 
 export const mean = (a) => a.reduce((s, v) => s + v, 0) / Math.max(a.length, 1);
+
+/** Standard deviation of the samples `a`. */
+export const std = (a) => {
+  const m = mean(a);
+  return Math.sqrt(mean(a.map((v) => (v - m) ** 2)));
+};
+
+/**
+ * Whether the samples `hi` are brighter than `lo` beyond doubt: by at least 0.02 (five
+ * display steps) and by more than four standard errors of the difference of the means.
+ * (Under one sun a thin deck seen from above reads about what the sunlit ground does,
+ * in the path tracer too: "brighter" is a small difference, not a fixed margin.)
+ */
+export const separated = (hi, lo) => {
+  const d = mean(hi) - mean(lo);
+  const se = Math.sqrt(std(hi) ** 2 / hi.length + std(lo) ** 2 / lo.length);
+  return d > Math.max(0.02, 4 * se);
+};

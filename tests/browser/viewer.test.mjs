@@ -29,7 +29,7 @@
 import { mkdirSync, writeFileSync } from 'node:fs';
 import { join } from 'node:path';
 import { galleryScreenshots } from './gallery.mjs';
-import { checks, launchChromium, mean } from './harness.mjs';
+import { checks, launchChromium, mean, separated, std } from './harness.mjs';
 import { difference, luma, readBoth, seams, shadowShifts } from './render_match.mjs';
 
 const base = process.argv[2];
@@ -146,20 +146,6 @@ const rowLum = (m) => 0.2126 * m[0] + 0.7152 * m[1] + 0.0722 * m[2];
 /** Mean colour of rows [a, b). */
 const rowsMean = (rows, a, b) => [0, 1, 2].map((k) => rows.slice(a, b).reduce((s, m) => s + m[k], 0) / (b - a));
 
-const std = (a) => {
-  const m = mean(a);
-  return Math.sqrt(mean(a.map((v) => (v - m) ** 2)));
-};
-
-/**
- * Whether the samples `hi` are brighter than `lo` beyond doubt: by at least 0.02 (five
- * display steps) and by more than four standard errors of the difference of the means.
- */
-const separated = (hi, lo) => {
-  const d = mean(hi) - mean(lo);
-  const se = Math.sqrt(std(hi) ** 2 / hi.length + std(lo) ** 2 / lo.length);
-  return d > Math.max(0.02, 4 * se);
-};
 
 try {
   const context = await browser.newContext({ viewport: VIEWPORT });

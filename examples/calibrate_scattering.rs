@@ -51,21 +51,7 @@ use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, scene_dens
 
 /// The default world's cumulus layer alone (the same seed and layer index, so the
 /// same cumulus), for `set=one-layer`.
-const CUMULUS_ONLY: &str = r#"
-[worlds.cumulus_only]
-seed = 1
-freezing_level = 3000.0
-[[worlds.cumulus_only.layers]]
-name = "cumulus"
-preset = "cumulus"
-base = 1200.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 14
-dt = 20.0
-wind = [6.0, 2.0]
-shear = [0.002, 0.0005]
-"#;
+const CUMULUS_ONLY: &str = include_str!("../tests/data/cumulus_only.toml");
 
 /// One view the fit answers to.
 struct Scene {

@@ -179,21 +179,7 @@ fn luminance_stats(path: &std::path::Path) -> (f64, f64) {
 
 /// The default world's cumulus layer alone (its seed, preset and levels: the same
 /// cumulus), added to the embedded config.
-const CUMULUS_ONLY: &str = r#"
-[worlds.cumulus_only]
-seed = 1
-freezing_level = 3000.0
-[[worlds.cumulus_only.layers]]
-name = "cumulus"
-preset = "cumulus"
-base = 1200.0
-cell_size = 100.0
-cell_height = 100.0
-depth = 14
-dt = 20.0
-wind = [6.0, 2.0]
-shear = [0.002, 0.0005]
-"#;
+const CUMULUS_ONLY: &str = include_str!("data/cumulus_only.toml");
 
 #[test]
 fn inside_a_cloud_layer_the_view_is_fog_like_the_reference() {

@@ -120,7 +120,7 @@ fn bench_only_rewrites_the_sections_it_names() {
         text.contains("<!-- bench:http:begin -->\nkept\n<!-- bench:http:end -->"),
         "{text}"
     );
-    assert!(!text.contains("stale") && text.contains("half vs half"), "{text}");
+    assert!(!text.contains("stale") && text.contains("split half"), "{text}");
     assert!(
         !text.contains("bench:machine:begin"),
         "only the named section is measured"

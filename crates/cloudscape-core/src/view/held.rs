@@ -222,8 +222,15 @@ fn derive_shadow<'a>(target: &HeldTile, sources: impl Iterator<Item = &'a HeldTi
     [lit(a), lit(b)]
 }
 
-/// One tile's shadow maps as the ground reads them at the drawn time.
+/// One tile's shadow maps as the ground and the layers below read them at the drawn
+/// time.
 struct GroundShadow {
+    /// The layer whose clouds cast it.
+    layer: usize,
+    /// Altitude of the layer's base, metres: where the maps lie.
+    base: f64,
+    /// The move of the sun ray per metre of climb ([`shadow_shift`] of 1 m).
+    shift_per_metre: [f64; 2],
     origin: [f64; 2],
     column: f64,
     /// Added to a ground point before the lookup ([`shadow_shift`]).
@@ -233,9 +240,26 @@ struct GroundShadow {
 }
 
 impl GroundShadow {
-    /// Bilinear lookup of each end, blended; 1 outside the tile.
+    /// The sun transmittance through the tile's layer of the sun ray from ground point
+    /// (x, y): bilinear lookup of each end, blended; 1 outside the tile.
     fn at(&self, x: f64, y: f64) -> f64 {
-        let (x, y) = (x + self.shift[0], y + self.shift[1]);
+        self.at_base(x + self.shift[0], y + self.shift[1])
+    }
+
+    /// The sun transmittance through the tile's layer of the sun ray from `p`, a point
+    /// below the layer's base (1 at or above it: its own layer's light buffer holds
+    /// what shadows it there).
+    fn above(&self, p: [f64; 3]) -> f64 {
+        if !(p[2] < self.base) {
+            return 1.0;
+        }
+        let climb = self.base - p[2];
+        let s = self.shift_per_metre;
+        self.at_base(p[0] + s[0] * climb, p[1] + s[1] * climb)
+    }
+
+    /// The transmittance of the sun ray crossing the base at (x, y); 1 outside the tile.
+    fn at_base(&self, x: f64, y: f64) -> f64 {
         let a = shadow_lookup(&self.ends[0], self.origin, self.column, x, y);
         if self.fraction == 0.0 {
             return a;
@@ -251,6 +275,40 @@ impl GroundShadow {
     }
 }
 
+/// Lights `billboards` of layer `layer` through the clouds of the other layers above
+/// them ([`Lighting::beneath_layers`]): the sun's optical depth through each layer
+/// whose base is above a ball is read from that layer's shadow maps (`shadows`, the
+/// ground's), where the sun ray from the ball crosses the base; the vertical one
+/// (what stands between the ball and the sky) is that times the sun's height, the
+/// deck taken as locally uniform.
+///
+/// Each tile is shaded with its own layer's balls only, and the layers above are
+/// applied here, when the held tiles are drawn, rather than in the tile's shading:
+/// a tile product then depends on one layer's density alone, so it stays cacheable
+/// per layer and deterministic by itself (shading a tile knowing the layers above
+/// would make every lower tile depend on the tiles above it, at every level and sun
+/// bucket, and recompute when any of them changes), and every client that holds the
+/// tiles (the Rust client, the viewer) draws the same picture from the same shadow
+/// maps it already derives for the ground.
+fn beneath_layers(billboards: &mut [Billboard], layer: usize, shadows: &[GroundShadow], lighting: &Lighting) {
+    let above: Vec<&GroundShadow> = shadows.iter().filter(|s| s.layer != layer).collect();
+    if above.is_empty() || !(lighting.sun_dir[2] > 0.0) {
+        return;
+    }
+    let sun_height = lighting.sun_dir[2];
+    for b in billboards.iter_mut() {
+        let t: f64 = above.iter().map(|s| s.above(b.centre)).product();
+        let tau = -t.clamp(1e-30, 1.0).ln();
+        if tau <= 0.0 {
+            continue;
+        }
+        let (colour, tau_sun) = lighting.beneath_layers(b.colour, b.tau_sun, tau, tau * sun_height);
+        b.colour = colour;
+        b.tau_sun = tau_sun;
+        b.sun_transmittance = (-tau_sun).exp().clamp(0.0, 1.0);
+    }
+}
+
 /// Draws held tiles for `req` under `sun` (whose bucket's centre lights the sky and
 /// ground): the billboards at `req.t` over the sky and the ground shadowed by each
 /// tile's maps.
@@ -260,12 +318,16 @@ pub fn draw(tiles: &[HeldTile], req: &RenderRequest, sun: Sun) -> Image {
 
 /// [`draw`] that leaves the remaining bands undrawn once `cancel` fires.
 pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
+    use rayon::prelude::*;
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::for_quality(sun.bucket().centre(), req.params, req.quality);
     let shadows: Vec<GroundShadow> = tiles
         .iter()
         .zip(shadow_maps(tiles))
         .map(|(t, ends)| GroundShadow {
+            layer: t.layer,
+            base: t.base,
+            shift_per_metre: shadow_shift(t.sun(), 1.0),
             origin: t.keyframe.origin,
             column: t.column(),
             shift: shadow_shift(t.sun(), t.base),
@@ -277,7 +339,15 @@ pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cance
     let mut image = background(&view, &lighting, far, |x, y| {
         shadows.iter().map(|s| s.at(x, y)).product()
     });
-    let all: Vec<Billboard> = tiles.iter().flat_map(|t| t.billboards_at(req.t)).collect();
+    let all: Vec<Billboard> = tiles
+        .par_iter()
+        .map(|t| {
+            let mut bbs = t.billboards_at(req.t);
+            beneath_layers(&mut bbs, t.layer, &shadows, &lighting);
+            bbs
+        })
+        .collect::<Vec<_>>()
+        .concat();
     composite_cancellable(&mut image, &all, &lighting, &view, cancel);
     image
 }

@@ -563,6 +563,23 @@ impl Lighting {
     }
 }
 
+/// The share of the sun ray's optical depth through the layers above a billboard
+/// (read from their shadow maps, the direct beam's) that [`Lighting::beneath_layers`]
+/// takes as `τ_above`. Below 1 because a deck far above does not remove from the
+/// light below what it removes from the direct beam: its forward-peaked phase sends
+/// most of what it scatters on downward (the similarity argument: a thick deck's
+/// diffuse transmission falls with a reduced depth), which the octaves, fitted for
+/// light inside one cloud, do not count. Fitted with `examples/calibrate_scattering`
+/// (`set=gallery`, `balanced`) against `--quality reference`; every preset takes it.
+pub const LAYERS_ABOVE_SUN_DEPTH: f64 = 0.4;
+
+/// The share of the layers above's vertical optical depth that
+/// [`Lighting::beneath_layers`] dims sky and ground light with (at
+/// [`Lighting::sky_extinction`]'s rate): the deck's own diffuse glow, lit by the sun
+/// above it, stands in for much of the sky it hides. Fitted with
+/// [`LAYERS_ABOVE_SUN_DEPTH`].
+pub const LAYERS_ABOVE_SKY_DEPTH: f64 = 0.25;
+
 /// The sun's share of the in-scattered radiance per unit `sun_rgb` and unit
 /// 4π-normalised phase value: the irradiance `π · sun_rgb` times the phase function's
 /// normalisation `1 / 4π` (see [`Lighting::sun_scatter`]).

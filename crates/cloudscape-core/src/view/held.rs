@@ -15,6 +15,12 @@
 //!   crosses the base ([`shadow_shift`]), bilinearly, the two ends blended by the
 //!   span's fraction, as `shadow.png` is read. A version-2 client's served shadow maps
 //!   are drawn the same way ([`HeldTile::served_shadow`]).
+//! - Each billboard lit through the layers above it ([`beneath_layers`]): the optical
+//!   depth of its sun ray through every other layer whose base is above the ball, read
+//!   from that layer's ground shadow maps where the ray crosses its base, dims the sun
+//!   term of its colour and adds to its sun optical depth; the vertical depth (that
+//!   times the sun's height) dims its sky and ground light
+//!   ([`crate::render::light::Lighting::beneath_layers`]).
 //! - Composited over the sky and shadowed ground ([`background`], [`composite`]).
 //!
 //! A client holds only the tiles its view plans, so a tile's shadow is cast by the
@@ -29,7 +35,7 @@ use crate::render::camera::View;
 use crate::render::composite::composite_cancellable;
 use crate::render::image::Image;
 use crate::render::keyframe::between;
-use crate::render::light::Lighting;
+use crate::render::light::{LAYERS_ABOVE_SKY_DEPTH, LAYERS_ABOVE_SUN_DEPTH, Lighting};
 use crate::render::scene::{RenderRequest, background, mean_shadow};
 use crate::render::shade::{Billboard, profile_at, profile_table};
 use crate::render::sun::Sun;
@@ -280,7 +286,8 @@ impl GroundShadow {
 /// whose base is above a ball is read from that layer's shadow maps (`shadows`, the
 /// ground's), where the sun ray from the ball crosses the base; the vertical one
 /// (what stands between the ball and the sky) is that times the sun's height, the
-/// deck taken as locally uniform.
+/// deck taken as locally uniform. Each is taken at its fitted share
+/// ([`LAYERS_ABOVE_SUN_DEPTH`], [`LAYERS_ABOVE_SKY_DEPTH`]).
 ///
 /// Each tile is shaded with its own layer's balls only, and the layers above are
 /// applied here, when the held tiles are drawn, rather than in the tile's shading:
@@ -302,7 +309,12 @@ fn beneath_layers(billboards: &mut [Billboard], layer: usize, shadows: &[GroundS
         if tau <= 0.0 {
             continue;
         }
-        let (colour, tau_sun) = lighting.beneath_layers(b.colour, b.tau_sun, tau, tau * sun_height);
+        let (colour, tau_sun) = lighting.beneath_layers(
+            b.colour,
+            b.tau_sun,
+            LAYERS_ABOVE_SUN_DEPTH * tau,
+            LAYERS_ABOVE_SKY_DEPTH * tau * sun_height,
+        );
         b.colour = colour;
         b.tau_sun = tau_sun;
         b.sun_transmittance = (-tau_sun).exp().clamp(0.0, 1.0);

@@ -11,7 +11,9 @@
 // is tone-mapped once at the end (`exposure` from sky.json). The ground shadow is
 // not fetched: each tile's maps are derived from the billboards of the layer's tiles
 // the view holds (the client's ShadowDerivation, the rule of view/held.rs), a frame's
-// budget at a time. Level choice follows the server's renderer (src/render/scene.rs
+// budget at a time. The same maps light each billboard through the other layers
+// above it (the client's lightBeneathLayers, docs/formats.md "Layers above"), applied
+// to its two ends when the instances are built. Level choice follows the server's renderer (src/render/scene.rs
 // `plan`): a quadtree per layer, split while a column would span more than the
 // preset's `lod_pixels`, out to the renderer's view distance.
 //

@@ -1304,13 +1304,34 @@ export function lightBeneathLayers(target, others) {
   const tauSun = Float32Array.from(r.tauSun);
   const lighting = k.header.lighting;
   const s = keyframeSun(k);
-  const above = others
-    .filter((u) => u.layer !== target.layer && u.maps)
-    .map((u) => ({ ...u, shift: shadowShift(u.keyframe, u.base) }));
-  if (!lighting || !above.length || !(s[2] > 0)) return { colour, tauSun };
-  const per = s[2] > 0 ? 1 / Math.max(s[2], Math.sin(Math.PI / 180)) : 0;
+  const per = 1 / Math.max(s[2], Math.sin(Math.PI / 180));
   const o = k.header.origin;
   const span = k.header.t0 !== null && k.header.t1 !== null ? k.header.t1 - k.header.t0 : 0;
+  // The box the balls' sun rays cross an upper tile's base in, to skip the tiles they miss.
+  let zMin = Infinity;
+  let zMax = -Infinity;
+  let reach = 0;
+  for (let i = 0; i < k.count; i++) {
+    zMin = Math.min(zMin, r.offset[3 * i + 2]);
+    zMax = Math.max(zMax, r.offset[3 * i + 2]);
+    reach = Math.max(reach, Math.hypot(r.velocity[2 * i], r.velocity[2 * i + 1]) * span);
+  }
+  const size = k.header.size;
+  const crosses = (u) => {
+    const lo = Math.max(u.base - zMax, 0) * per;
+    const hi = Math.max(u.base - zMin, 0) * per;
+    const ux = u.keyframe.header.origin;
+    const us = u.keyframe.header.size;
+    const x0 = o[0] - reach + Math.min(s[0] * lo, s[0] * hi);
+    const x1 = o[0] + size + reach + Math.max(s[0] * lo, s[0] * hi);
+    const y0 = o[1] - reach + Math.min(s[1] * lo, s[1] * hi);
+    const y1 = o[1] + size + reach + Math.max(s[1] * lo, s[1] * hi);
+    return x0 <= ux[0] + us && ux[0] <= x1 && y0 <= ux[1] + us && ux[1] <= y1;
+  };
+  const above = others
+    .filter((u) => u.layer !== target.layer && u.maps && u.base > zMin && crosses(u))
+    .map((u) => ({ ...u, shift: shadowShift(u.keyframe, u.base) }));
+  if (!lighting || !above.length || !(s[2] > 0)) return { colour, tauSun };
   for (let i = 0; i < k.count; i++) {
     const z = r.offset[3 * i + 2];
     for (let e = 0; e < 2; e++) {

@@ -440,7 +440,13 @@ impl Lighting {
     /// below); a deck above dims both (the ground under the ball lies in the deck's
     /// shadow too), at the rate sky light is attenuated inside a cloud
     /// ([`Lighting::sky_extinction`], diffusion theory's): `e^{−k τ_above_vertical}`.
-    pub fn beneath_layers(&self, colour: [f32; 3], tau_sun: f32, tau_above: f64, tau_above_vertical: f64) -> ([f32; 3], f32) {
+    pub fn beneath_layers(
+        &self,
+        colour: [f32; 3],
+        tau_sun: f32,
+        tau_above: f64,
+        tau_above_vertical: f64,
+    ) -> ([f32; 3], f32) {
         let ok = |t: f64| if t.is_finite() { t.max(0.0) } else { 0.0 };
         let (tau_above, vertical) = (ok(tau_above), ok(tau_above_vertical));
         if tau_above <= 0.0 && vertical <= 0.0 {

@@ -363,3 +363,76 @@ pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cance
     composite_cancellable(&mut image, &all, &lighting, &view, cancel);
     image
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::light::ShadingParams;
+
+    fn ball(z: f64) -> Billboard {
+        Billboard {
+            index: [0, 0, 0],
+            centre: [12_800.0, 12_800.0, z],
+            radius: 300.0,
+            density: 0.5,
+            tau: 1.0,
+            splat: 10,
+            splat_tau: 1.0,
+            opacity: 0.6,
+            tau_sun: 1.0,
+            sun_transmittance: (-1.0f32).exp(),
+            colour: [0.3, 0.32, 0.36],
+        }
+    }
+
+    #[test]
+    fn a_deck_above_dims_the_layers_below_it_only() {
+        let sun = Sun::new(180.0, 60.0).unwrap();
+        let lighting = Lighting::new(sun, ShadingParams::default());
+        let n = TILE_COLUMNS * TILE_COLUMNS;
+        let deck = GroundShadow {
+            layer: 1,
+            base: 3000.0,
+            shift_per_metre: shadow_shift(sun, 1.0),
+            origin: [0.0, 0.0],
+            column: 100.0,
+            shift: shadow_shift(sun, 3000.0),
+            ends: [vec![(-3.0f32).exp(); n], vec![(-3.0f32).exp(); n]],
+            fraction: 0.0,
+        };
+        let shadows = [deck];
+        // A ball of the layer below: the deck's τ 3 at the fitted shares.
+        let mut below = [ball(1500.0)];
+        beneath_layers(&mut below, 0, &shadows, &lighting);
+        let s_z = sun.direction()[2];
+        let (colour, tau_sun) = lighting.beneath_layers(
+            ball(1500.0).colour,
+            1.0,
+            LAYERS_ABOVE_SUN_DEPTH * 3.0,
+            LAYERS_ABOVE_SKY_DEPTH * 3.0 * s_z,
+        );
+        for ch in 0..3 {
+            assert!(
+                (below[0].colour[ch] - colour[ch]).abs() < 1e-5,
+                "{:?} vs {colour:?}",
+                below[0].colour
+            );
+            assert!(below[0].colour[ch] < ball(1500.0).colour[ch]);
+        }
+        assert!((below[0].tau_sun - tau_sun).abs() < 1e-4);
+        assert!((below[0].sun_transmittance - (-tau_sun).exp()).abs() < 1e-6);
+        // Above the deck's base, or of the deck's own layer: left alone (its own light
+        // buffer holds what shadows it).
+        let mut above = [ball(3500.0)];
+        beneath_layers(&mut above, 0, &shadows, &lighting);
+        assert_eq!(above[0], ball(3500.0));
+        let mut own = [ball(1500.0)];
+        beneath_layers(&mut own, 1, &shadows, &lighting);
+        assert_eq!(own[0], ball(1500.0));
+        // With the sun down nothing changes (the maps are all 1 then anyway).
+        let night = Lighting::new(Sun::new(180.0, -5.0).unwrap(), ShadingParams::default());
+        let mut dark = [ball(1500.0)];
+        beneath_layers(&mut dark, 0, &shadows, &night);
+        assert_eq!(dark[0], ball(1500.0));
+    }
+}

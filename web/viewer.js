@@ -11,7 +11,9 @@
 // is tone-mapped once at the end (`exposure` from sky.json). The ground shadow is
 // not fetched: each tile's maps are derived from the billboards of the layer's tiles
 // the view holds (the client's ShadowDerivation, the rule of view/held.rs), a frame's
-// budget at a time. Level choice follows the server's renderer (src/render/scene.rs
+// budget at a time. The same maps light each billboard through the other layers
+// above it (the client's lightBeneathLayers, docs/formats.md "Layers above"), applied
+// to its two ends when the instances are built. Level choice follows the server's renderer (src/render/scene.rs
 // `plan`): a quadtree per layer, split while a column would span more than the
 // preset's `lod_pixels`, out to the renderer's view distance.
 //
@@ -51,6 +53,7 @@ import {
   fraction,
   keyframeOf,
   keyframeSun,
+  lightBeneathLayers,
   planTiles,
   prefetchAt,
   shadowShift,
@@ -1233,11 +1236,13 @@ function finishShadow(tile, maps, sources) {
   gl.pixelStorei(gl.UNPACK_ALIGNMENT, 4);
   gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, n, n, gl.RG, gl.FLOAT, data);
   tile.meanShadow = [m0 / (n * n), m1 / (n * n)];
+  tile.shadowMaps = maps;
   tile.shadowSources = sources;
   viewerStats.shadows++;
+  // The tile's maps light the layers below it too.
+  instancesDirty = true;
   if (tile.state === 'shading') {
     tile.state = 'ready';
-    instancesDirty = true;
     dropUnneeded();
   }
   // A new picture, though nothing else changed.
@@ -1270,10 +1275,24 @@ function rebuildInstances() {
   bufferOrigin = [Math.round(state.camera.x), Math.round(state.camera.y)];
   timeOrigin = Math.floor(state.t);
   let at = 0;
+  // The layers above light each tile's billboards (the client's lightBeneathLayers,
+  // view/held.rs beneath_layers): through the drawn tiles of the other layers whose
+  // ground shadow maps are derived.
+  const shadowed = drawn.filter((t) => t.shadowMaps).map((t) => ({ ...t.held, maps: t.shadowMaps }));
   for (const t of drawn) {
     const { count, header } = t.billboards;
     const data = t.instances;
     instances.set(data, at);
+    const lit = lightBeneathLayers(t.held, shadowed);
+    for (let i = 0; i < count; i++) {
+      const d = at + i * INSTANCE_FLOATS;
+      for (let c = 0; c < 3; c++) {
+        instances[d + 8 + c] = lit.colour[6 * i + c];
+        instances[d + 11 + c] = lit.colour[6 * i + 3 + c];
+      }
+      instances[d + 16] = lit.tauSun[2 * i];
+      instances[d + 17] = lit.tauSun[2 * i + 1];
+    }
     const ox = header.origin[0] - bufferOrigin[0];
     const oy = header.origin[1] - bufferOrigin[1];
     const ot = t.t0 - timeOrigin;

@@ -1231,6 +1231,139 @@ export function shadowAtPoint(maps, tile, base, x, y, f) {
   return f === 0 ? a : (1 - f) * a + f * at(maps.t1);
 }
 
+/**
+ * How much of the layers above a billboard its light sees (render::light
+ * LAYERS_ABOVE_SUN_DEPTH, LAYERS_ABOVE_SKY_DEPTH): the share of the sun ray's optical
+ * depth through them, and of their vertical depth, that `beneathLayers` takes.
+ */
+export const LAYERS_ABOVE_SUN_DEPTH = 0.4;
+export const LAYERS_ABOVE_SKY_DEPTH = 0.25;
+
+/**
+ * A billboard end's pre-shaded colour `rgb` and sun optical depth `tauSun` under
+ * other layers: the sun ray from the ball crosses them with optical depth `tauAbove`,
+ * the vertical with `tauVertical` (Lighting::beneath_layers). The sun term
+ * albedo · SUN_SCATTER · sunRgb · Σ bⁱ e^{−aⁱ τ} is re-evaluated at τ_sun + tauAbove,
+ * the rest (sky and ground light) is dimmed by e^{−k · tauVertical}, k diffusion
+ * theory's attenuation of the header's albedo and phase (every preset's sky-light
+ * scale is 1). `lighting` is a keyframe header's. Returns `{ rgb, tauSun }`.
+ */
+export function beneathLayers(lighting, rgb, tauSun, tauAbove, tauVertical) {
+  const ok = (t) => (Number.isFinite(t) ? Math.max(t, 0) : 0);
+  tauAbove = ok(tauAbove);
+  tauVertical = ok(tauVertical);
+  if (tauAbove <= 0 && tauVertical <= 0) return { rgb, tauSun };
+  const { albedo, phase, octaves, sunRgb } = lighting;
+  const a = Math.min(Math.max(albedo, 0), 1);
+  const fix = (v, lo, hi, nan) => (Number.isFinite(v) ? Math.min(Math.max(v, lo), hi) : nan);
+  const n = Math.min(Math.max(octaves.count, 1), 8);
+  const oa = fix(octaves.a, 1e-3, 1, 1);
+  const ob = fix(octaves.b, 0, 0.99, 0);
+  const iso = (tau) => {
+    let w = 1;
+    let att = 1;
+    let sum = 0;
+    for (let i = 0; i < n; i++) {
+      sum += w * Math.exp(-att * tau);
+      w *= ob;
+      att *= oa;
+    }
+    return sum;
+  };
+  const g = (v) => fix(v, -0.99, 0.99, 0);
+  const mix = fix(phase.mix, 0, 1, 0.5);
+  const meanCos = mix * g(phase.g1) + (1 - mix) * g(phase.g2);
+  const k = Math.min(Math.max(Math.sqrt(3 * (1 - a) * (1 - a * meanCos)), 0), 1);
+  const t0 = ok(tauSun);
+  const t1 = Math.min(t0 + tauAbove, 1e6);
+  const before = iso(t0);
+  const after = iso(t1);
+  const sky = Math.exp(-k * tauVertical);
+  const out = [0, 1, 2].map((i) => {
+    const sun = a * SUN_SCATTER * sunRgb[i];
+    const ambient = Math.max(rgb[i] - sun * before, 0);
+    return Math.min(Math.max(sun * after + ambient * sky, 0), 2);
+  });
+  return { rgb: out, tauSun: t1 };
+}
+
+/**
+ * The colours and sun optical depths of a held tile's billboards (`target`:
+ * `{ layer, keyframe }`) lit through the layers above them (view/held.rs
+ * beneath_layers): `others` are held tiles of the other layers with their ground
+ * shadow maps (`{ layer, base, keyframe, maps }`, maps from deriveShadow); at each
+ * end of each record, the sun transmittance through every layer whose base is above
+ * the ball is read where the sun ray from the ball crosses that base, at the same end
+ * of its span. Returns `{ colour, tauSun }` laid out as the records' (6 and 2 per
+ * record).
+ */
+export function lightBeneathLayers(target, others) {
+  const k = target.keyframe;
+  const r = k.records;
+  const colour = Float32Array.from(r.colour);
+  const tauSun = Float32Array.from(r.tauSun);
+  const lighting = k.header.lighting;
+  const s = keyframeSun(k);
+  const per = 1 / Math.max(s[2], Math.sin(Math.PI / 180));
+  const o = k.header.origin;
+  const span = k.header.t0 !== null && k.header.t1 !== null ? k.header.t1 - k.header.t0 : 0;
+  // The box the balls' sun rays cross an upper tile's base in, to skip the tiles they miss.
+  let zMin = Infinity;
+  let zMax = -Infinity;
+  let reach = 0;
+  for (let i = 0; i < k.count; i++) {
+    zMin = Math.min(zMin, r.offset[3 * i + 2]);
+    zMax = Math.max(zMax, r.offset[3 * i + 2]);
+    reach = Math.max(reach, Math.hypot(r.velocity[2 * i], r.velocity[2 * i + 1]) * span);
+  }
+  const size = k.header.size;
+  const crosses = (u) => {
+    const lo = Math.max(u.base - zMax, 0) * per;
+    const hi = Math.max(u.base - zMin, 0) * per;
+    const ux = u.keyframe.header.origin;
+    const us = u.keyframe.header.size;
+    const x0 = o[0] - reach + Math.min(s[0] * lo, s[0] * hi);
+    const x1 = o[0] + size + reach + Math.max(s[0] * lo, s[0] * hi);
+    const y0 = o[1] - reach + Math.min(s[1] * lo, s[1] * hi);
+    const y1 = o[1] + size + reach + Math.max(s[1] * lo, s[1] * hi);
+    return x0 <= ux[0] + us && ux[0] <= x1 && y0 <= ux[1] + us && ux[1] <= y1;
+  };
+  const above = others
+    .filter((u) => u.layer !== target.layer && u.maps && u.base > zMin && crosses(u))
+    .map((u) => ({ ...u, shift: shadowShift(u.keyframe, u.base) }));
+  if (!lighting || !above.length || !(s[2] > 0)) return { colour, tauSun };
+  for (let i = 0; i < k.count; i++) {
+    const z = r.offset[3 * i + 2];
+    for (let e = 0; e < 2; e++) {
+      const moved = e === 1 ? span : 0;
+      const x = o[0] + r.offset[3 * i] + r.velocity[2 * i] * moved;
+      const y = o[1] + r.offset[3 * i + 1] + r.velocity[2 * i + 1] * moved;
+      let t = 1;
+      for (const u of above) {
+        if (!(z < u.base)) continue;
+        // shadowAtPoint reads from the ground: shift back by the climb not taken.
+        const climb = u.base - z;
+        const gx = x + s[0] * per * climb - u.shift[0];
+        const gy = y + s[1] * per * climb - u.shift[1];
+        t *= shadowAtPoint(u.maps, u.keyframe, u.base, gx, gy, e);
+      }
+      const tau = -Math.log(Math.min(Math.max(t, 1e-30), 1));
+      if (!(tau > 0)) continue;
+      const rgb = [0, 1, 2].map((c) => colour[6 * i + 3 * e + c]);
+      const lit = beneathLayers(
+        lighting,
+        rgb,
+        tauSun[2 * i + e],
+        LAYERS_ABOVE_SUN_DEPTH * tau,
+        LAYERS_ABOVE_SKY_DEPTH * tau * s[2],
+      );
+      for (let c = 0; c < 3; c++) colour[6 * i + 3 * e + c] = lit.rgb[c];
+      tauSun[2 * i + e] = lit.tauSun;
+    }
+  }
+  return { colour, tauSun };
+}
+
 // ---------------------------------------------------------------------------------
 // The level choice of a view (crates/cloudscape-core/src/render/scene.rs plan_bands).
 // ---------------------------------------------------------------------------------

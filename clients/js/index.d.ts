@@ -347,6 +347,22 @@ export class ShadowDerivation {
 export function deriveShadow(target: HeldTile, sources: Iterable<Pick<HeldTile, 'keyframe'>>): DerivedShadow;
 /** The shadow maps of every held tile, each cast by the held tiles of its layer. */
 export function shadowMaps(tiles: HeldTile[]): DerivedShadow[];
+/** The share of the optical depth of the layers above a billboard that its light takes: the sun ray's, the vertical's. */
+export const LAYERS_ABOVE_SUN_DEPTH: number;
+export const LAYERS_ABOVE_SKY_DEPTH: number;
+/** A billboard end's colour and sun optical depth under layers of optical depth `tauAbove` (sun ray) and `tauVertical` above it. */
+export function beneathLayers(
+  lighting: Lighting,
+  rgb: ArrayLike<number>,
+  tauSun: number,
+  tauAbove: number,
+  tauVertical: number,
+): { rgb: number[] | ArrayLike<number>; tauSun: number };
+/** The colours (6 per record) and sun optical depths (2 per record) of a held tile's billboards lit through the other layers' held tiles above them. */
+export function lightBeneathLayers(
+  target: Pick<HeldTile, 'layer' | 'keyframe'>,
+  others: Array<Pick<HeldTile, 'layer' | 'base' | 'keyframe'> & { maps?: DerivedShadow | null }>,
+): { colour: Float32Array; tauSun: Float32Array };
 /** The transmittance a ground point (x, y) reads from a tile's maps a fraction `f` through its span. */
 export function shadowAtPoint(maps: DerivedShadow, tile: BillboardTile, base: number, x: number, y: number, f: number): number;
 

@@ -4,8 +4,9 @@
 //   the server's renderer plans for the camera (the JS client's planTiles), their
 //   shaded metaballs as one InstancedMesh of camera-facing quads sorted back to front,
 //   animated between keyframes by the documented rule (clients/js billboardsAt), over
-//   the server's sky and the ground shadowed by maps derived from the billboards; the
-//   shading is the client's GLSL of the server's light. The JS client fetches a tile's
+//   the server's sky and the ground shadowed by maps derived from the billboards, each
+//   billboard lit through the other layers above it by those maps (clients/js
+//   lightBeneathLayers); the shading is the client's GLSL of the server's light. The JS client fetches a tile's
 //   first keyframe as billboards.bin and, animating, every later one as
 //   billboards.delta.bin decoded on the keyframe it holds (CloudscapeClient.keyframe);
 // - mode=volume: the density tile (density.u8) of the keyframes on either side of t as
@@ -39,6 +40,7 @@ import {
   decodeDensityU8,
   fraction,
   keyframeOf,
+  lightBeneathLayers,
   planTiles,
   shadowShift,
   skyUniforms,
@@ -491,9 +493,16 @@ async function billboards(world) {
         shadowData[2 * (i * n + j) + 1] = THREE.DataUtils.toHalfFloat(maps.t1[j]);
       }
       target.mean = [mean(maps.t0), mean(maps.t1)];
+      target.maps = maps;
     });
     shadowMaps.needsUpdate = true;
-    loaded.forEach((l, i) => (loaded[i].held = held[i]));
+    loaded.forEach((l, i) => {
+      l.held = held[i];
+      // Lit through the other layers above (the client's lightBeneathLayers, as
+      // `cloudscape render` and the viewer draw them).
+      const lit = lightBeneathLayers(held[i], held);
+      l.drawn = { ...l.billboards, records: { ...l.billboards.records, colour: lit.colour, tauSun: lit.tauSun } };
+    });
   }
 
   /** The frame at time t: the billboards moved by the rule and sorted, the shadows blended. */
@@ -511,7 +520,7 @@ async function billboards(world) {
     background.uniforms.shadowCount.value = loaded.length;
     background.uniforms.far.value = [...layers.values()].reduce((p, e) => p * (e.sum / e.n), 1);
 
-    const frames = loaded.map((l) => billboardsAt(l.billboards, t));
+    const frames = loaded.map((l) => billboardsAt(l.drawn ?? l.billboards, t));
     const a = threeArrays(frames, { origin, eye });
     if (!mesh || mesh.instanceMatrix.count < a.count) {
       if (mesh) {

@@ -9,11 +9,15 @@ import { before, test } from 'node:test';
 
 import {
   CloudscapeClient,
+  LAYERS_ABOVE_SKY_DEPTH,
+  LAYERS_ABOVE_SUN_DEPTH,
   TILE_COLUMNS,
+  beneathLayers,
   decodeBillboards,
   decodeCoverage,
   decodeShadow,
   deriveShadow,
+  lightBeneathLayers,
   lineIntegral,
   shadowAtPoint,
   shadowMaps,
@@ -117,6 +121,47 @@ test('one ball under a high sun: exp(−τ P(q)) at each column centre, worked o
   // At t1 the ball has moved with its wind, 10 m/s for 20 s: two columns east.
   assert.ok(Math.abs(at(maps.t1, 102, 60) - Math.exp(-tau)) < 1e-6);
   assert.ok(maps.t0.every((v) => v > 0 && v <= 1) && maps.t1.every((v) => v > 0 && v <= 1));
+});
+
+test('a ball under a deck is lit through it: the sun term at τ_sun + 0.4 τ_a, sky and ground light dimmed (docs/formats.md "Layers above")', () => {
+  const lighting = {
+    sunRgb: [1, 0.9, 0.8],
+    albedo: 0.9,
+    phase: { g1: 0.8, g2: -0.3, mix: 0.8 },
+    octaves: { count: 3, a: 0.5, b: 0.75, c: 0.5 },
+  };
+  const iso = (tau) => Math.exp(-tau) + 0.75 * Math.exp(-tau / 2) + 0.5625 * Math.exp(-tau / 4);
+  const meanCos = 0.8 * 0.8 + 0.2 * -0.3;
+  const k = Math.sqrt(3 * 0.1 * (1 - 0.9 * meanCos));
+  const ambient = [0.05, 0.06, 0.08];
+  const rgb = [0, 1, 2].map((i) => 0.9 * (0.25 * lighting.sunRgb[i] * iso(1) + ambient[i]));
+  // Nothing above: unchanged.
+  assert.deepEqual(beneathLayers(lighting, rgb, 1, 0, 0), { rgb, tauSun: 1 });
+  const lit = beneathLayers(lighting, rgb, 1, 2, 1.5);
+  assert.equal(lit.tauSun, 3);
+  for (let i = 0; i < 3; i++) {
+    const expected = 0.9 * (0.25 * lighting.sunRgb[i] * iso(3) + ambient[i] * Math.exp(-k * 1.5));
+    assert.ok(Math.abs(lit.rgb[i] - expected) < 1e-9, `channel ${i}: ${lit.rgb[i]} vs ${expected}`);
+  }
+  // A ball of a lower layer under a deck whose maps are uniformly e^−3 (sun overhead):
+  // each end takes τ_a = 3 at the fitted shares; a ball above the deck's base, or of
+  // the deck's own layer, is left alone.
+  const low = oneBall({ x: 12800, y: 12800, z: 1500, radius: 300, tau: 1, sun: [0, 90] });
+  low.header.lighting = lighting;
+  low.records.colour.set([...rgb, ...rgb]);
+  low.records.tauSun.set([1, 1]);
+  const deck = oneBall({ x: 12800, y: 12800, z: 3300, radius: 300, tau: 1, sun: [0, 90] });
+  const maps = { t0: new Float32Array(n * n).fill(Math.exp(-3)), t1: new Float32Array(n * n).fill(Math.exp(-3)) };
+  const out = lightBeneathLayers({ layer: 0, keyframe: low }, [{ layer: 1, base: 3000, keyframe: deck, maps }]);
+  const want = beneathLayers(lighting, rgb, 1, LAYERS_ABOVE_SUN_DEPTH * 3, LAYERS_ABOVE_SKY_DEPTH * 3);
+  for (let e = 0; e < 2; e++) {
+    assert.ok(Math.abs(out.tauSun[e] - want.tauSun) < 1e-5, `end ${e}: τ_sun ${out.tauSun[e]}`);
+    for (let i = 0; i < 3; i++) assert.ok(Math.abs(out.colour[3 * e + i] - want.rgb[i]) < 1e-5, `end ${e} channel ${i}`);
+  }
+  const same = lightBeneathLayers({ layer: 1, keyframe: low }, [{ layer: 1, base: 3000, keyframe: deck, maps }]);
+  assert.deepEqual([...same.tauSun], [1, 1]);
+  const high = lightBeneathLayers({ layer: 0, keyframe: low }, [{ layer: 1, base: 1000, keyframe: deck, maps }]);
+  assert.deepEqual([...high.tauSun], [1, 1]);
 });
 
 test('one ball under a low sun: the shadow falls away from the sun, stretched along it, where the ground reads it', () => {

@@ -426,6 +426,47 @@ impl Lighting {
         self.sun_scatter().map(|c| a * c * d)
     }
 
+    /// A pre-shaded billboard colour (`colour`, sun optical depth `tau_sun`, both as
+    /// its own layer's light buffer shaded them) under other layers whose clouds the
+    /// sun ray from the ball crosses with optical depth `tau_above`, and which stand
+    /// between the ball and the sky with vertical optical depth `tau_above_vertical`.
+    /// Returns the colour and sun optical depth to draw.
+    ///
+    /// The layers above are part of the medium the sun's beam crosses, so the octave
+    /// sum takes them as it takes the ball's own layer: `τ_sun' = τ_sun + τ_above`, and
+    /// the sun term `albedo · sun · Σ bⁱ e^{−aⁱ τ}` is re-evaluated there (the later
+    /// octaves stand for the light the deck scatters forward, its diffuse
+    /// transmission). The rest of the colour is the ambient (sky above, ground
+    /// below); a deck above dims both (the ground under the ball lies in the deck's
+    /// shadow too), at the rate sky light is attenuated inside a cloud
+    /// ([`Lighting::sky_extinction`], diffusion theory's): `e^{−k τ_above_vertical}`.
+    pub fn beneath_layers(
+        &self,
+        colour: [f32; 3],
+        tau_sun: f32,
+        tau_above: f64,
+        tau_above_vertical: f64,
+    ) -> ([f32; 3], f32) {
+        let ok = |t: f64| if t.is_finite() { t.max(0.0) } else { 0.0 };
+        let (tau_above, vertical) = (ok(tau_above), ok(tau_above_vertical));
+        if tau_above <= 0.0 && vertical <= 0.0 {
+            return (colour, tau_sun);
+        }
+        let a = self.params.albedo.clamp(0.0, 1.0);
+        let tau_sun = ok(tau_sun as f64);
+        let below = (tau_sun + tau_above).min(1e6);
+        let octaves = &self.billboard.octaves;
+        let (before, after) = (octaves.isotropic_sum(tau_sun), octaves.isotropic_sum(below));
+        let sky = (-self.sky_extinction() * vertical).exp();
+        let sun = self.sun_scatter();
+        let out = [0, 1, 2].map(|i| {
+            let sun_part = a * sun[i] * before;
+            let ambient = (colour[i] as f64 - sun_part).max(0.0);
+            (a * sun[i] * after + ambient * sky).clamp(0.0, 2.0) as f32
+        });
+        (out, below as f32)
+    }
+
     /// The radiance of the ground seen from below a cloud: the ground of
     /// [`Lighting::ground_radiance`] under sun transmittance `ground_t`.
     pub fn ground_below(&self, ground_t: f64) -> [f64; 3] {
@@ -528,6 +569,23 @@ impl Lighting {
     }
 }
 
+/// The share of the sun ray's optical depth through the layers above a billboard
+/// (read from their shadow maps, the direct beam's) that [`Lighting::beneath_layers`]
+/// takes as `τ_above`. Below 1 because a deck far above does not remove from the
+/// light below what it removes from the direct beam: its forward-peaked phase sends
+/// most of what it scatters on downward (the similarity argument: a thick deck's
+/// diffuse transmission falls with a reduced depth), which the octaves, fitted for
+/// light inside one cloud, do not count. Fitted with `examples/calibrate_scattering`
+/// (`set=gallery`, `balanced`) against `--quality reference`; every preset takes it.
+pub const LAYERS_ABOVE_SUN_DEPTH: f64 = 0.4;
+
+/// The share of the layers above's vertical optical depth that
+/// [`Lighting::beneath_layers`] dims sky and ground light with (at
+/// [`Lighting::sky_extinction`]'s rate): the deck's own diffuse glow, lit by the sun
+/// above it, stands in for much of the sky it hides. Fitted with
+/// [`LAYERS_ABOVE_SUN_DEPTH`].
+pub const LAYERS_ABOVE_SKY_DEPTH: f64 = 0.25;
+
 /// The sun's share of the in-scattered radiance per unit `sun_rgb` and unit
 /// 4π-normalised phase value: the irradiance `π · sun_rgb` times the phase function's
 /// normalisation `1 / 4π` (see [`Lighting::sun_scatter`]).
@@ -567,6 +625,32 @@ pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn layers_above_only_dim_a_billboard() {
+        let l = Lighting::new(Sun::new(180.0, 50.0).unwrap(), ShadingParams::default());
+        let tau_sun = 1.5f32;
+        let iso = l.billboard.octaves.isotropic_sum(tau_sun as f64);
+        let ambient = [0.05, 0.07, 0.1];
+        let colour = [0, 1, 2].map(|i| (l.params.albedo * (l.sun_scatter()[i] * iso + ambient[i])) as f32);
+        // Nothing above: unchanged.
+        assert_eq!(l.beneath_layers(colour, tau_sun, 0.0, 0.0), (colour, tau_sun));
+        // Deeper decks above: darker in every channel, the sun ray's depth summed.
+        let mut last = colour;
+        for tau in [0.5, 2.0, 8.0, 30.0] {
+            let (c, t) = l.beneath_layers(colour, tau_sun, tau, tau * 0.77);
+            assert!((t - (tau_sun + tau as f32)).abs() < 1e-4);
+            for ch in 0..3 {
+                assert!(c[ch] < last[ch], "{tau}: {c:?} vs {last:?}");
+            }
+            last = c;
+        }
+        // Under an opaque deck almost nothing is left of either term.
+        let (c, _) = l.beneath_layers(colour, tau_sun, 1e4, 1e4);
+        assert!(c.iter().all(|&v| v < 1e-3), "{c:?}");
+        // Bad input leaves it unchanged rather than poisoning it.
+        assert_eq!(l.beneath_layers(colour, tau_sun, f64::NAN, -1.0), (colour, tau_sun));
+    }
 
     fn integrate_over_sphere(f: impl Fn(f64) -> f64) -> f64 {
         // ∫ p dω = 2π ∫_{-1}^{1} p(μ) dμ, midpoint rule.

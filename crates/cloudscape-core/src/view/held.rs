@@ -15,6 +15,12 @@
 //!   crosses the base ([`shadow_shift`]), bilinearly, the two ends blended by the
 //!   span's fraction, as `shadow.png` is read. A version-2 client's served shadow maps
 //!   are drawn the same way ([`HeldTile::served_shadow`]).
+//! - Each billboard lit through the layers above it ([`beneath_layers`]): the optical
+//!   depth of its sun ray through every other layer whose base is above the ball, read
+//!   from that layer's ground shadow maps where the ray crosses its base, dims the sun
+//!   term of its colour and adds to its sun optical depth; the vertical depth (that
+//!   times the sun's height) dims its sky and ground light
+//!   ([`crate::render::light::Lighting::beneath_layers`]).
 //! - Composited over the sky and shadowed ground ([`background`], [`composite`]).
 //!
 //! A client holds only the tiles its view plans, so a tile's shadow is cast by the
@@ -29,7 +35,7 @@ use crate::render::camera::View;
 use crate::render::composite::composite_cancellable;
 use crate::render::image::Image;
 use crate::render::keyframe::between;
-use crate::render::light::Lighting;
+use crate::render::light::{LAYERS_ABOVE_SKY_DEPTH, LAYERS_ABOVE_SUN_DEPTH, Lighting};
 use crate::render::scene::{RenderRequest, background, mean_shadow};
 use crate::render::shade::{Billboard, profile_at, profile_table};
 use crate::render::sun::Sun;
@@ -222,8 +228,15 @@ fn derive_shadow<'a>(target: &HeldTile, sources: impl Iterator<Item = &'a HeldTi
     [lit(a), lit(b)]
 }
 
-/// One tile's shadow maps as the ground reads them at the drawn time.
+/// One tile's shadow maps as the ground and the layers below read them at the drawn
+/// time.
 struct GroundShadow {
+    /// The layer whose clouds cast it.
+    layer: usize,
+    /// Altitude of the layer's base, metres: where the maps lie.
+    base: f64,
+    /// The move of the sun ray per metre of climb ([`shadow_shift`] of 1 m).
+    shift_per_metre: [f64; 2],
     origin: [f64; 2],
     column: f64,
     /// Added to a ground point before the lookup ([`shadow_shift`]).
@@ -233,9 +246,26 @@ struct GroundShadow {
 }
 
 impl GroundShadow {
-    /// Bilinear lookup of each end, blended; 1 outside the tile.
+    /// The sun transmittance through the tile's layer of the sun ray from ground point
+    /// (x, y): bilinear lookup of each end, blended; 1 outside the tile.
     fn at(&self, x: f64, y: f64) -> f64 {
-        let (x, y) = (x + self.shift[0], y + self.shift[1]);
+        self.at_base(x + self.shift[0], y + self.shift[1])
+    }
+
+    /// The sun transmittance through the tile's layer of the sun ray from `p`, a point
+    /// below the layer's base (1 at or above it: its own layer's light buffer holds
+    /// what shadows it there).
+    fn above(&self, p: [f64; 3]) -> f64 {
+        if !(p[2] < self.base) {
+            return 1.0;
+        }
+        let climb = self.base - p[2];
+        let s = self.shift_per_metre;
+        self.at_base(p[0] + s[0] * climb, p[1] + s[1] * climb)
+    }
+
+    /// The transmittance of the sun ray crossing the base at (x, y); 1 outside the tile.
+    fn at_base(&self, x: f64, y: f64) -> f64 {
         let a = shadow_lookup(&self.ends[0], self.origin, self.column, x, y);
         if self.fraction == 0.0 {
             return a;
@@ -251,6 +281,46 @@ impl GroundShadow {
     }
 }
 
+/// Lights `billboards` of layer `layer` through the clouds of the other layers above
+/// them ([`Lighting::beneath_layers`]): the sun's optical depth through each layer
+/// whose base is above a ball is read from that layer's shadow maps (`shadows`, the
+/// ground's), where the sun ray from the ball crosses the base; the vertical one
+/// (what stands between the ball and the sky) is that times the sun's height, the
+/// deck taken as locally uniform. Each is taken at its fitted share
+/// ([`LAYERS_ABOVE_SUN_DEPTH`], [`LAYERS_ABOVE_SKY_DEPTH`]).
+///
+/// Each tile is shaded with its own layer's balls only, and the layers above are
+/// applied here, when the held tiles are drawn, rather than in the tile's shading:
+/// a tile product then depends on one layer's density alone, so it stays cacheable
+/// per layer and deterministic by itself (shading a tile knowing the layers above
+/// would make every lower tile depend on the tiles above it, at every level and sun
+/// bucket, and recompute when any of them changes), and every client that holds the
+/// tiles (the Rust client, the viewer) draws the same picture from the same shadow
+/// maps it already derives for the ground.
+fn beneath_layers(billboards: &mut [Billboard], layer: usize, shadows: &[GroundShadow], lighting: &Lighting) {
+    let above: Vec<&GroundShadow> = shadows.iter().filter(|s| s.layer != layer).collect();
+    if above.is_empty() || !(lighting.sun_dir[2] > 0.0) {
+        return;
+    }
+    let sun_height = lighting.sun_dir[2];
+    for b in billboards.iter_mut() {
+        let t: f64 = above.iter().map(|s| s.above(b.centre)).product();
+        let tau = -t.clamp(1e-30, 1.0).ln();
+        if tau <= 0.0 {
+            continue;
+        }
+        let (colour, tau_sun) = lighting.beneath_layers(
+            b.colour,
+            b.tau_sun,
+            LAYERS_ABOVE_SUN_DEPTH * tau,
+            LAYERS_ABOVE_SKY_DEPTH * tau * sun_height,
+        );
+        b.colour = colour;
+        b.tau_sun = tau_sun;
+        b.sun_transmittance = (-tau_sun).exp().clamp(0.0, 1.0);
+    }
+}
+
 /// Draws held tiles for `req` under `sun` (whose bucket's centre lights the sky and
 /// ground): the billboards at `req.t` over the sky and the ground shadowed by each
 /// tile's maps.
@@ -260,12 +330,16 @@ pub fn draw(tiles: &[HeldTile], req: &RenderRequest, sun: Sun) -> Image {
 
 /// [`draw`] that leaves the remaining bands undrawn once `cancel` fires.
 pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cancel: &Cancel) -> Image {
+    use rayon::prelude::*;
     let view = View::perspective(&req.camera, req.width, req.height);
     let lighting = Lighting::for_quality(sun.bucket().centre(), req.params, req.quality);
     let shadows: Vec<GroundShadow> = tiles
         .iter()
         .zip(shadow_maps(tiles))
         .map(|(t, ends)| GroundShadow {
+            layer: t.layer,
+            base: t.base,
+            shift_per_metre: shadow_shift(t.sun(), 1.0),
             origin: t.keyframe.origin,
             column: t.column(),
             shift: shadow_shift(t.sun(), t.base),
@@ -277,7 +351,88 @@ pub fn draw_cancellable(tiles: &[HeldTile], req: &RenderRequest, sun: Sun, cance
     let mut image = background(&view, &lighting, far, |x, y| {
         shadows.iter().map(|s| s.at(x, y)).product()
     });
-    let all: Vec<Billboard> = tiles.iter().flat_map(|t| t.billboards_at(req.t)).collect();
+    let all: Vec<Billboard> = tiles
+        .par_iter()
+        .map(|t| {
+            let mut bbs = t.billboards_at(req.t);
+            beneath_layers(&mut bbs, t.layer, &shadows, &lighting);
+            bbs
+        })
+        .collect::<Vec<_>>()
+        .concat();
     composite_cancellable(&mut image, &all, &lighting, &view, cancel);
     image
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::light::ShadingParams;
+
+    fn ball(z: f64) -> Billboard {
+        Billboard {
+            index: [0, 0, 0],
+            centre: [12_800.0, 12_800.0, z],
+            radius: 300.0,
+            density: 0.5,
+            tau: 1.0,
+            splat: 10,
+            splat_tau: 1.0,
+            opacity: 0.6,
+            tau_sun: 1.0,
+            sun_transmittance: (-1.0f32).exp(),
+            colour: [0.3, 0.32, 0.36],
+        }
+    }
+
+    #[test]
+    fn a_deck_above_dims_the_layers_below_it_only() {
+        let sun = Sun::new(180.0, 60.0).unwrap();
+        let lighting = Lighting::new(sun, ShadingParams::default());
+        let n = TILE_COLUMNS * TILE_COLUMNS;
+        let deck = GroundShadow {
+            layer: 1,
+            base: 3000.0,
+            shift_per_metre: shadow_shift(sun, 1.0),
+            origin: [0.0, 0.0],
+            column: 100.0,
+            shift: shadow_shift(sun, 3000.0),
+            ends: [vec![(-3.0f32).exp(); n], vec![(-3.0f32).exp(); n]],
+            fraction: 0.0,
+        };
+        let shadows = [deck];
+        // A ball of the layer below: the deck's τ 3 at the fitted shares.
+        let mut below = [ball(1500.0)];
+        beneath_layers(&mut below, 0, &shadows, &lighting);
+        let s_z = sun.direction()[2];
+        let (colour, tau_sun) = lighting.beneath_layers(
+            ball(1500.0).colour,
+            1.0,
+            LAYERS_ABOVE_SUN_DEPTH * 3.0,
+            LAYERS_ABOVE_SKY_DEPTH * 3.0 * s_z,
+        );
+        for ch in 0..3 {
+            assert!(
+                (below[0].colour[ch] - colour[ch]).abs() < 1e-5,
+                "{:?} vs {colour:?}",
+                below[0].colour
+            );
+            assert!(below[0].colour[ch] < ball(1500.0).colour[ch]);
+        }
+        assert!((below[0].tau_sun - tau_sun).abs() < 1e-4);
+        assert!((below[0].sun_transmittance - (-tau_sun).exp()).abs() < 1e-6);
+        // Above the deck's base, or of the deck's own layer: left alone (its own light
+        // buffer holds what shadows it).
+        let mut above = [ball(3500.0)];
+        beneath_layers(&mut above, 0, &shadows, &lighting);
+        assert_eq!(above[0], ball(3500.0));
+        let mut own = [ball(1500.0)];
+        beneath_layers(&mut own, 1, &shadows, &lighting);
+        assert_eq!(own[0], ball(1500.0));
+        // With the sun down nothing changes (the maps are all 1 then anyway).
+        let night = Lighting::new(Sun::new(180.0, -5.0).unwrap(), ShadingParams::default());
+        let mut dark = [ball(1500.0)];
+        beneath_layers(&mut dark, 0, &shadows, &night);
+        assert_eq!(dark[0], ball(1500.0));
+    }
 }

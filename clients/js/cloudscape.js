@@ -1236,8 +1236,8 @@ export function shadowAtPoint(maps, tile, base, x, y, f) {
  * LAYERS_ABOVE_SUN_DEPTH, LAYERS_ABOVE_SKY_DEPTH): the share of the sun ray's optical
  * depth through them, and of their vertical depth, that `beneathLayers` takes.
  */
-export const LAYERS_ABOVE_SUN_DEPTH = 0.4;
-export const LAYERS_ABOVE_SKY_DEPTH = 0.25;
+export const LAYERS_ABOVE_SUN_DEPTH = 1;
+export const LAYERS_ABOVE_SKY_DEPTH = 0;
 
 /**
  * A billboard end's pre-shaded colour `rgb` and sun optical depth `tauSun` under

@@ -123,7 +123,7 @@ test('one ball under a high sun: exp(−τ P(q)) at each column centre, worked o
   assert.ok(maps.t0.every((v) => v > 0 && v <= 1) && maps.t1.every((v) => v > 0 && v <= 1));
 });
 
-test('a ball under a deck is lit through it: the sun term at τ_sun + 0.4 τ_a, sky and ground light dimmed (docs/formats.md "Layers above")', () => {
+test('a ball under a deck is lit through it: the sun term at τ_sun + τ_a, sky and ground light dimmed by the vertical depth given (docs/formats.md "Layers above")', () => {
   const lighting = {
     sunRgb: [1, 0.9, 0.8],
     albedo: 0.9,
@@ -144,7 +144,7 @@ test('a ball under a deck is lit through it: the sun term at τ_sun + 0.4 τ_a, 
     assert.ok(Math.abs(lit.rgb[i] - expected) < 1e-9, `channel ${i}: ${lit.rgb[i]} vs ${expected}`);
   }
   // A ball of a lower layer under a deck whose maps are uniformly e^−3 (sun overhead):
-  // each end takes τ_a = 3 at the fitted shares; a ball above the deck's base, or of
+  // each end takes τ_a = 3 at the LAYERS_ABOVE_* shares; a ball above the deck's base, or of
   // the deck's own layer, is left alone.
   const low = oneBall({ x: 12800, y: 12800, z: 1500, radius: 300, tau: 1, sun: [0, 90] });
   low.header.lighting = lighting;

@@ -401,7 +401,7 @@ mod tests {
             fraction: 0.0,
         };
         let shadows = [deck];
-        // A ball of the layer below: the deck's τ 3 at the fitted shares.
+        // A ball of the layer below: the deck's τ 3 at the shares of LAYERS_ABOVE_*.
         let mut below = [ball(1500.0)];
         beneath_layers(&mut below, 0, &shadows, &lighting);
         let s_z = sun.direction()[2];

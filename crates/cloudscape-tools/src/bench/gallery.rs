@@ -254,10 +254,20 @@ pub fn render_gallery(
     setup: &GallerySetup,
     mut progress: impl FnMut(&GalleryView, Quality),
 ) -> Result<Gallery, String> {
+    let (width, height) = setup.size;
+    // The gallery is an offline tool: the work its reference does is what its flags ask
+    // for (its default, 640×360 at 256 samples, is 59 M paths), not the budget a
+    // server holds one request to (`limits.max_path_samples`), so that budget is
+    // raised to the gallery's own for its renders.
+    let mut config = config.clone();
+    let paths = (width as u64)
+        .saturating_mul(height as u64)
+        .saturating_mul(setup.samples as u64);
+    config.limits.max_path_samples = config.limits.max_path_samples.max(paths);
+    let config = &config;
     let world = config
         .world(WORLD)
         .ok_or_else(|| format!("the config has no world `{WORLD}`"))?;
-    let (width, height) = setup.size;
     let mut shots = Vec::new();
     let mut views = Vec::new();
     let mut cells = Vec::new();

@@ -37,17 +37,14 @@
 
 use std::path::PathBuf;
 
-use cloudscape_core::products::keyframe_bin::Quantisation;
-use cloudscape_core::render::camera::View;
-use cloudscape_core::render::composite::composite;
 use cloudscape_core::render::image::Image;
-use cloudscape_core::render::light::Lighting;
 use cloudscape_core::render::scene::RenderRequest;
 use cloudscape_core::render::{Camera, Quality, ShadingParams, Sun};
-use cloudscape_core::view::held_tiles;
 use cloudscape_core::world::{Config, DEFAULT_CONFIG, World};
 use cloudscape_tools::bench::gallery::VIEWS;
-use cloudscape_tools::bench::quality::{SCENE_WORLDS, SCENES, compare, scene_density, shade_grids, view_tau};
+use cloudscape_tools::bench::quality::{
+    SCENE_WORLDS, SCENES, billboard_opacity, compare, luminance, scene_density, shade_grids, view_tau,
+};
 
 /// The default world's cumulus layer alone (the same seed and layer index, so the
 /// same cumulus), for `set=one-layer`.
@@ -111,23 +108,6 @@ fn reference(scene: &Scene, world: &World, config: &Config, samples: u32) -> Res
     std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
     std::fs::write(&path, bytes).map_err(|e| e.to_string())?;
     Ok((img, tau))
-}
-
-/// The cloud's composited opacity per pixel of `req` drawn from `tiles` (no background).
-fn cloud_opacity(tiles: &[cloudscape_core::render::ShadedTile], req: &RenderRequest, sun: Sun) -> Vec<f32> {
-    let view = View::perspective(&req.camera, req.width, req.height);
-    let lighting = Lighting::for_quality(sun.bucket().centre(), req.params, req.quality);
-    let all: Vec<_> = held_tiles(tiles, Quantisation::DEFAULT)
-        .iter()
-        .flat_map(|t| t.billboards_at(req.t))
-        .collect();
-    let mut img = Image::new(req.width, req.height);
-    composite(&mut img, &all, &lighting, &view);
-    img.alpha
-}
-
-fn luminance(c: [f32; 3]) -> f64 {
-    0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64
 }
 
 /// Mean of the lowest (`low`) or highest fraction `f` of `v`.
@@ -386,7 +366,7 @@ fn main() -> Result<(), String> {
                 let tiles = shade_grids(&p.world, &req, plan, grids.clone())?;
                 let sun = req.sun.ok_or("no sun")?;
                 let img = cloudscape_core::view::draw_billboards(&tiles, &req, sun);
-                let opacity = cloud_opacity(&tiles, &req, sun);
+                let opacity = billboard_opacity(&tiles, &req, sun);
                 let f = measure(&img, &opacity, &p.reference, &p.tau);
                 total += f.objective() / scenes.len() as f64;
                 lines += &format!("\n  {:<28} {}", s.name, f.line());

@@ -27,7 +27,10 @@ fn small_config(dir: &std::path::Path) -> String {
     // 18 432 paths): a server's per-request limit, which the offline gallery raises to
     // what its own flags ask for.
     let presets = presets.replace("max_path_samples = 16777216", "max_path_samples = 4096");
-    assert!(presets.contains("max_path_samples = 4096"), "the embedded config sets max_path_samples");
+    assert!(
+        presets.contains("max_path_samples = 4096"),
+        "the embedded config sets max_path_samples"
+    );
     let world = "[worlds.default]\nseed = 3\n[[worlds.default.layers]]\nname = \"cumulus\"\npreset = \"cumulus\"\nbase = 1200.0\ncell_size = 400.0\ncell_height = 200.0\ndepth = 2\ndt = 20.0\nwind = [6.0, 2.0]\n";
     let path = dir.join("small.toml");
     std::fs::write(&path, format!("{presets}\n{world}")).unwrap();

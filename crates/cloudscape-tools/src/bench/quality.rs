@@ -190,7 +190,8 @@ fn colour_ratios(sum: [f64; 3]) -> [f64; 2] {
     [sum[2] / sum[1], sum[0] / sum[1]]
 }
 
-fn luminance(c: [f32; 3]) -> f64 {
+/// Linear luminance (Rec. 709 weights) of a linear RGB radiance.
+pub fn luminance(c: [f32; 3]) -> f64 {
     0.2126 * c[0] as f64 + 0.7152 * c[1] as f64 + 0.0722 * c[2] as f64
 }
 
@@ -466,7 +467,7 @@ pub fn shade_grids(
 /// so it is the fraction of the sky and ground the cloud hides.
 pub fn billboard_opacity(tiles: &[ShadedTile], req: &RenderRequest, sun: Sun) -> Vec<f32> {
     let view = View::perspective(&req.camera, req.width, req.height);
-    let lighting = Lighting::new(sun.bucket().centre(), req.params);
+    let lighting = Lighting::for_quality(sun.bucket().centre(), req.params, req.quality);
     let billboards: Vec<_> = held_tiles(tiles, Quantisation::DEFAULT)
         .iter()
         .flat_map(|t| t.billboards_at(req.t))

@@ -4,19 +4,17 @@
 //! the served `shadow.png` maps), both through `view::held` as clients draw them, at
 //! `fast` and `balanced`, mid-span (the animation rule at work).
 //!
-//! The bounds: the quantisation alone keeps every displayed channel within 5/255
-//! (PSNR ≥ 48 dB), and the whole new picture, derived shadows included, stays
+//! The bounds: the quantisation alone keeps every displayed channel within 3/255
+//! (PSNR ≥ 50 dB), and the whole new picture, derived shadows included, stays
 //! ≥ 44.5 dB from the old. The error is computed here, on the 8-bit display values,
-//! independently of the bench's. 5/255, not the 2/255 of one layer: a billboard under
-//! another layer is split into its sun and ambient parts by its `τ_sun` when drawn
-//! (`view::held::beneath_layers`), and the sun ray takes the whole depth of the layers
-//! above (`LAYERS_ABOVE_SUN_DEPTH` = 1), so under a deck the drawn colour is mostly
-//! the ambient, the small difference of the quantised colour and the sun part of the
-//! quantised `τ_sun`, and dark, where the display curve is steepest (measured: 4–5/255,
-//! 48.4–55.6 dB; 16 steps of `τ_sun` per e-fold instead of 8 gained at most 0.9 dB, so
-//! the colour's 6 bits dominate). Sending the ambient rather than the whole colour
-//! would remove the difference; that is a new format version, not done.
-
+//! independently of the bench's. Under another layer a billboard is split into its sun
+//! and ambient parts by its `τ_sun` when drawn (`view::held::beneath_layers`), and the
+//! sun ray takes the whole depth of the layers above (`LAYERS_ABOVE_SUN_DEPTH` = 1):
+//! under a deck the drawn colour is mostly the ambient. Since ALGORITHM_VERSION 15 the
+//! colour codes carry that ambient (docs/formats.md "Ambient codes"), so it keeps one
+//! step's precision (measured: 2–3/255, 56–57 dB; with the whole colour on the codes
+//! it was 4–5/255, 48.4–55.6 dB). The derived shadows' bound is 44.5 dB: the backlit
+//! low sun's long, stretched shadows (measured 44.9 dB at `balanced`).
 use cloudscape_core::products::keyframe_bin::Quantisation;
 use cloudscape_core::render::image::{Image, to_u8};
 use cloudscape_core::render::scene::{RenderRequest, prepare};
@@ -86,7 +84,7 @@ fn version_3_draws_the_picture_version_2_drew_within_the_stated_error() {
             let (psnr_q, max_q) = error(&old, &quantised);
             let q = quality.as_str();
             eprintln!("{q} {name}: quantisation {max_q}/255, PSNR {psnr_q:.1} dB");
-            if !(max_q <= 5 && psnr_q >= 48.0) {
+            if !(max_q <= 3 && psnr_q >= 50.0) {
                 failures.push(format!(
                     "{q} {name}: the quantisation alone puts a channel {max_q}/255 off, PSNR {psnr_q:.1} dB"
                 ));

@@ -670,6 +670,13 @@ export function colourOfCode(q, algorithmVersion) {
   return Math.min(-Math.log(1 - q ** 2.2) / 3, 2);
 }
 
+/**
+ * The first ALGORITHM_VERSION whose colour codes carry a billboard's ambient part (sky
+ * and ground light), the decoder adding the sun term of the dequantised τ_sun back
+ * (products::keyframe_bin::AMBIENT_CODES_SINCE).
+ */
+export const AMBIENT_CODES_SINCE = 15;
+
 /** Dequantised colour channel and τ_sun of each code (256 codes; values are one byte). */
 function codeTables(colourBits, tauSunSteps, tauFloor, algorithmVersion) {
   const levels = 2 ** colourBits - 1;
@@ -895,6 +902,7 @@ function decodeKeyframe(bytes, v, previous) {
   if (count !== header.count) throw new Error(`billboards.bin: ${count} billboards decoded, the header says ${header.count}`);
   const rec = recordColumns(count);
   const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor, header.algorithmVersion);
+  const ambientCodes = header.algorithmVersion >= AMBIENT_CODES_SINCE ? sunTerm(header.lighting) : null;
   const origin = header.origin;
   const splatCount = header.splatCount;
   let n = 0;
@@ -925,10 +933,11 @@ function decodeKeyframe(bytes, v, previous) {
             rec.splatTau[m] = splatTauOf(splat, splatCount);
           }
           rec.opacity[m] = byteFraction(Math.fround(1 - Math.fround(Math.exp(-rec.splatTau[m]))));
-          rec.colour[6 * n + 3 * e] = tables.colour[light[s + 2]];
-          rec.colour[6 * n + 3 * e + 1] = tables.colour[light[s + 1]];
-          rec.colour[6 * n + 3 * e + 2] = tables.colour[light[s + 3]];
           rec.tauSun[m] = tables.tauSun[light[s + 4]];
+          const rgb = [tables.colour[light[s + 2]], tables.colour[light[s + 1]], tables.colour[light[s + 3]]];
+          // Since AMBIENT_CODES_SINCE the codes are the ambient part: add the sun term back.
+          const sun = ambientCodes ? ambientCodes(rec.tauSun[m]) : null;
+          for (let c = 0; c < 3; c++) rec.colour[6 * n + 3 * e + c] = sun ? Math.min(rgb[c] + sun[c], 2) : rgb[c];
           rec.sunTransmittance[m] = byteFraction(Math.fround(Math.exp(-rec.tauSun[m])));
         }
         n++;
@@ -1253,13 +1262,41 @@ export function beneathLayers(lighting, rgb, tauSun, tauAbove, tauVertical) {
   tauAbove = ok(tauAbove);
   tauVertical = ok(tauVertical);
   if (tauAbove <= 0 && tauVertical <= 0) return { rgb, tauSun };
-  const { albedo, phase, octaves, sunRgb } = lighting;
+  const { albedo, phase } = lighting;
+  const a = Math.min(Math.max(albedo, 0), 1);
+  const fix = (v, lo, hi, nan) => (Number.isFinite(v) ? Math.min(Math.max(v, lo), hi) : nan);
+  const g = (v) => fix(v, -0.99, 0.99, 0);
+  const mix = fix(phase.mix, 0, 1, 0.5);
+  const meanCos = mix * g(phase.g1) + (1 - mix) * g(phase.g2);
+  const k = Math.min(Math.max(Math.sqrt(3 * (1 - a) * (1 - a * meanCos)), 0), 1);
+  const t0 = ok(tauSun);
+  const t1 = Math.min(t0 + tauAbove, 1e6);
+  const sun = sunTerm(lighting);
+  const before = sun(t0);
+  const after = sun(t1);
+  const sky = Math.exp(-k * tauVertical);
+  const out = [0, 1, 2].map((i) => {
+    const ambient = Math.max(rgb[i] - before[i], 0);
+    return Math.min(Math.max(after[i] + ambient * sky, 0), 2);
+  });
+  return { rgb: out, tauSun: t1 };
+}
+
+/**
+ * The sun term of a pre-shaded billboard colour for a keyframe header's `lighting`
+ * (products::keyframe_bin::SunTerm): a function of the sun optical depth τ giving
+ * albedo · SUN_SCATTER · sunRgb · Σ bⁱ e^{−aⁱ τ} per channel (red, green, blue).
+ */
+export function sunTerm(lighting) {
+  const { albedo, octaves, sunRgb } = lighting;
   const a = Math.min(Math.max(albedo, 0), 1);
   const fix = (v, lo, hi, nan) => (Number.isFinite(v) ? Math.min(Math.max(v, lo), hi) : nan);
   const n = Math.min(Math.max(octaves.count, 1), 8);
   const oa = fix(octaves.a, 1e-3, 1, 1);
   const ob = fix(octaves.b, 0, 0.99, 0);
-  const iso = (tau) => {
+  const scale = [0, 1, 2].map((i) => (Number.isFinite(sunRgb[i]) ? a * SUN_SCATTER * sunRgb[i] : 0));
+  return (tau) => {
+    tau = tau > 0 ? tau : 0;
     let w = 1;
     let att = 1;
     let sum = 0;
@@ -1268,23 +1305,8 @@ export function beneathLayers(lighting, rgb, tauSun, tauAbove, tauVertical) {
       w *= ob;
       att *= oa;
     }
-    return sum;
+    return scale.map((c) => c * sum);
   };
-  const g = (v) => fix(v, -0.99, 0.99, 0);
-  const mix = fix(phase.mix, 0, 1, 0.5);
-  const meanCos = mix * g(phase.g1) + (1 - mix) * g(phase.g2);
-  const k = Math.min(Math.max(Math.sqrt(3 * (1 - a) * (1 - a * meanCos)), 0), 1);
-  const t0 = ok(tauSun);
-  const t1 = Math.min(t0 + tauAbove, 1e6);
-  const before = iso(t0);
-  const after = iso(t1);
-  const sky = Math.exp(-k * tauVertical);
-  const out = [0, 1, 2].map((i) => {
-    const sun = a * SUN_SCATTER * sunRgb[i];
-    const ambient = Math.max(rgb[i] - sun * before, 0);
-    return Math.min(Math.max(sun * after + ambient * sky, 0), 2);
-  });
-  return { rgb: out, tauSun: t1 };
 }
 
 /**

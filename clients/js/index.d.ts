@@ -358,6 +358,10 @@ export function beneathLayers(
   tauAbove: number,
   tauVertical: number,
 ): { rgb: number[] | ArrayLike<number>; tauSun: number };
+/** The sun term of a pre-shaded billboard colour for a header's lighting: τ_sun → albedo · SUN_SCATTER · sunRgb · Σ bⁱ e^{−aⁱ τ_sun}, red, green, blue. */
+export function sunTerm(lighting: Pick<Lighting, 'albedo' | 'octaves' | 'sunRgb'>): (tauSun: number) => number[];
+/** The first ALGORITHM_VERSION whose billboards.bin colour codes carry the ambient part, the decoder adding the sun term back. */
+export const AMBIENT_CODES_SINCE: 15;
 /** The colours (6 per record) and sun optical depths (2 per record) of a held tile's billboards lit through the other layers' held tiles above them. */
 export function lightBeneathLayers(
   target: Pick<HeldTile, 'layer' | 'keyframe'>,

@@ -111,10 +111,13 @@
 //! kinds to the larger end); a site of the box outside its row's run is outside the
 //! tile and holds nothing. The codes, per site and end, are: splat `0` (no ball) or
 //! `index + 1`; colour `c = 2 (v / (2^bits − 1))^2.2` per channel; `τ_sun = τ_floor ·
-//! e^{(v − 1) / steps}`.
+//! e^{(v − 1) / steps}`. Since ALGORITHM_VERSION 13 the colour codes are even steps of
+//! the display ([`ColourCurve`]); since 15 they carry the colour's ambient part, the
+//! sun term following from `τ_sun` and the header's lighting ([`SunTerm`]).
 
 use crate::render::ShadedTile;
 use crate::render::image::to_u8;
+use crate::render::light::{Octaves, SUN_SCATTER};
 use crate::render::shade::Billboard;
 use crate::render::splats::TAU_MAX;
 use crate::world::ALGORITHM_VERSION;
@@ -438,12 +441,62 @@ impl ColourCurve {
     }
 }
 
+/// The first ALGORITHM_VERSION whose colour codes carry the ambient part of a
+/// billboard's colour (its sky and ground light) rather than the whole colour.
+pub const AMBIENT_CODES_SINCE: u32 = 15;
+
+/// The sun term of a pre-shaded billboard colour, `albedo · sun_rgb / 4 · Σ bⁱ
+/// e^{−aⁱ τ_sun}` ([`crate::render::light::Lighting::beneath_layers`]), from the
+/// header's lighting (offsets 92, 116, 136, 140), so an encoder and every decoder
+/// compute it from the same f32 values.
+///
+/// Since [`AMBIENT_CODES_SINCE`] the colour codes carry `colour − sun(τ_sun)`, and a
+/// decoder adds `sun(τ_sun')` of the dequantised `τ_sun'` back. A client drawing a
+/// billboard under another layer takes the sun term away and evaluates it deeper
+/// (`beneath_layers`): with the whole colour on the codes, what is left (the small,
+/// dark ambient) carried the rounding of the large, bright colour, up to 15/255 on
+/// the display under a deck (`cloudscape bench --only wire`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunTerm {
+    scale: [f64; 3],
+    octaves: Octaves,
+}
+
+impl SunTerm {
+    /// From a header's sun colour, albedo, octave count and octave constants a, b, c.
+    pub fn of_header(sun_rgb: [f32; 3], albedo: f32, octaves: u32, abc: [f32; 3]) -> SunTerm {
+        let a = (albedo as f64).clamp(0.0, 1.0);
+        SunTerm {
+            scale: sun_rgb.map(|c| if c.is_finite() { a * SUN_SCATTER * c as f64 } else { 0.0 }),
+            octaves: Octaves {
+                count: octaves,
+                attenuation: abc[0] as f64,
+                contribution: abc[1] as f64,
+                eccentricity: abc[2] as f64,
+            },
+        }
+    }
+
+    /// Of a decoded header's lighting.
+    pub fn of_lighting(l: &BinLighting) -> SunTerm {
+        SunTerm::of_header(l.sun_rgb, l.albedo, l.octaves, l.octave_abc)
+    }
+
+    /// The sun term of each channel at sun optical depth `tau_sun`.
+    pub fn at(&self, tau_sun: f64) -> [f64; 3] {
+        let s = self.octaves.isotropic_sum(tau_sun);
+        self.scale.map(|c| c * s)
+    }
+}
+
 /// The quantiser and dequantiser of the states.
 #[derive(Clone, Copy)]
 struct Codes {
     levels: f64,
     steps: f64,
     curve: ColourCurve,
+    /// The sun term the colour codes leave out (since [`AMBIENT_CODES_SINCE`]).
+    sun: Option<SunTerm>,
 }
 
 impl Codes {
@@ -452,11 +505,45 @@ impl Codes {
             levels: ((1u32 << q.colour_bits.clamp(1, 8)) - 1) as f64,
             steps: q.tau_sun_steps.max(1) as f64,
             curve,
+            sun: None,
         }
     }
 
-    fn colour(&self, c: f32) -> u16 {
-        (self.curve.encode(c as f64) * self.levels).round() as u16
+    /// The codes of a file of `algorithm_version` lit by `sun`.
+    fn of(q: Quantisation, algorithm_version: u32, sun: SunTerm) -> Codes {
+        Codes {
+            sun: (algorithm_version >= AMBIENT_CODES_SINCE).then_some(sun),
+            ..Codes::new(q, ColourCurve::of(algorithm_version))
+        }
+    }
+
+    /// The colour codes (green, red, blue) of `colour` with sun optical depth
+    /// `tau_sun`: of the whole colour, or of its ambient part.
+    fn colours(&self, colour: [f32; 3], tau_sun: f32) -> [u16; 3] {
+        let part = match self.sun {
+            None => colour.map(|c| c as f64),
+            Some(sun) => {
+                let s = sun.at(tau_sun as f64);
+                [0, 1, 2].map(|i| (colour[i] as f64 - s[i]).max(0.0))
+            }
+        };
+        [self.colour(part[1]), self.colour(part[0]), self.colour(part[2])]
+    }
+
+    /// The colour (red, green, blue) of the codes `grb` and the dequantised `tau_sun`.
+    fn colour_values(&self, grb: [u16; 3], tau_sun: f32) -> [f32; 3] {
+        let part = [grb[1], grb[0], grb[2]].map(|v| self.colour_value(v));
+        match self.sun {
+            None => part,
+            Some(sun) => {
+                let s = sun.at(tau_sun as f64);
+                [0, 1, 2].map(|i| (part[i] as f64 + s[i]).min(2.0) as f32)
+            }
+        }
+    }
+
+    fn colour(&self, c: impl Into<f64>) -> u16 {
+        (self.curve.encode(c.into()) * self.levels).round() as u16
     }
 
     fn colour_value(&self, v: u16) -> f32 {
@@ -478,11 +565,7 @@ impl Codes {
         }
         SiteState {
             splat: b.splat + 1,
-            grb: [
-                self.colour(b.colour[1]),
-                self.colour(b.colour[0]),
-                self.colour(b.colour[2]),
-            ],
+            grb: self.colours(b.colour, b.tau_sun),
             tau_sun: self.tau_sun(b.tau_sun),
         }
     }
@@ -709,7 +792,16 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
         form
     };
     let geometry = SiteGeometry::of(tile);
-    let codes = Codes::new(q, ColourCurve::of(ALGORITHM_VERSION));
+    let l = &tile.lighting;
+    let octaves = l.billboard.octaves.sanitised();
+    // The sun term of the header's f32 values, as every decoder computes it.
+    let sun = SunTerm::of_header(
+        l.sun_rgb.map(|v| v as f32),
+        l.params.albedo as f32,
+        octaves.0,
+        [octaves.1 as f32, octaves.2 as f32, octaves.3 as f32],
+    );
+    let codes = Codes::of(q, ALGORITHM_VERSION, sun);
     let (mut start, mut end) = states_of(tile, &geometry, codes);
     let s = tile.quality.settings();
     let wide = s.splat_count > 255;
@@ -735,8 +827,6 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
     let header_bytes = FIXED_BYTES + LEVEL_BYTES * geometry.levels.len() + 4 * PLANES;
     let body: usize = writer.planes.iter().map(Vec::len).sum();
     let mut out = Vec::with_capacity(header_bytes + body);
-    let l = &tile.lighting;
-    let octaves = l.billboard.octaves.sanitised();
     let f32s = |out: &mut Vec<u8>, v: &[f64]| v.iter().for_each(|&x| out.extend_from_slice(&(x as f32).to_le_bytes()));
     out.extend_from_slice(&BIN_MAGIC);
     out.extend_from_slice(&VERSION.to_le_bytes());
@@ -990,8 +1080,18 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
         end,
         shadow_widening: h.u16(198)? as f32 / 1000.0,
     };
-    let curve = ColourCurve::of(h.u32(152)?);
-    let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count, curve);
+    let lighting = BinLighting {
+        sun_direction: h.f32x3(80)?,
+        sun_rgb: h.f32x3(92)?,
+        ambient_rgb: h.f32x3(104)?,
+        albedo: h.f32(116)?,
+        extinction_per_m: h.f32(120)?,
+        phase: h.f32x3(124)?,
+        octaves: h.u32(136)?,
+        octave_abc: h.f32x3(140)?,
+    };
+    let codes = Codes::of(lattice.quantisation, h.u32(152)?, SunTerm::of_lighting(&lighting));
+    let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count, codes);
     if records.len() != h.u32(156)? as usize {
         return Err(format!(
             "billboards.bin: {} billboards decoded, the header says {}",
@@ -1011,16 +1111,7 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
         splat_size: h.u16(58)?,
         size: h.f32(60)?,
         keyframe: Some(keyframe),
-        lighting: Some(BinLighting {
-            sun_direction: h.f32x3(80)?,
-            sun_rgb: h.f32x3(92)?,
-            ambient_rgb: h.f32x3(104)?,
-            albedo: h.f32(116)?,
-            extinction_per_m: h.f32(120)?,
-            phase: h.f32x3(124)?,
-            octaves: h.u32(136)?,
-            octave_abc: h.f32x3(140)?,
-        }),
+        lighting: Some(lighting),
         algorithm_version: Some(h.u32(152)?),
         records,
         lattice: Some(lattice),
@@ -1030,8 +1121,7 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
 /// The billboards of a decoded lattice: every site with a ball at either end, in site
 /// order, as version-2 records (an end without a ball draws nothing and keeps the
 /// other end's light, as `render::tile` pairs them).
-fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, curve: ColourCurve) -> Vec<BinRecord> {
-    let codes = Codes::new(lattice.quantisation, curve);
+fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, codes: Codes) -> Vec<BinRecord> {
     let g = &lattice.geometry;
     let mut out = Vec::new();
     let mut at = 0usize;
@@ -1046,14 +1136,8 @@ fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, curve:
                     continue;
                 }
                 let light = |x: &SiteState| {
-                    (
-                        [
-                            codes.colour_value(x.grb[1]),
-                            codes.colour_value(x.grb[0]),
-                            codes.colour_value(x.grb[2]),
-                        ],
-                        codes.tau_sun_value(x.tau_sun),
-                    )
+                    let tau_sun = codes.tau_sun_value(x.tau_sun);
+                    (codes.colour_values(x.grb, tau_sun), tau_sun)
                 };
                 let end = |x: &SiteState, other: &SiteState| {
                     let (colour, tau_sun) = light(if x.splat != 0 { x } else { other });

@@ -60,7 +60,10 @@ use serde::Deserialize;
 ///    ([`crate::render::Quality::light`]): sky light enters through the upper
 ///    hemisphere's own radiance, attenuated at diffusion theory's rate; per-preset
 ///    octaves, detail erosion and splat opacity.
-pub const ALGORITHM_VERSION: u32 = 14;
+/// 15: `billboards.bin`'s colour codes carry a billboard's ambient part, the sun term
+///    following from `τ_sun` ([`crate::products::keyframe_bin::SunTerm`]), so the
+///    light a client draws under another layer keeps one step's precision.
+pub const ALGORITHM_VERSION: u32 = 15;
 
 /// Largest accepted world time in seconds (PRODUCT.md: `0 <= t <= 1e12`).
 pub const MAX_TIME: f64 = 1e12;

@@ -47,6 +47,53 @@ fn colour_tolerance(c: f32, bits: u8) -> f32 {
     ((up - c).abs().max((c - down).abs()) * 1.0001 + 1e-6) as f32
 }
 
+/// The sun term of a billboard colour of `tile` at sun optical depth `tau_sun`,
+/// written out from its lighting (`albedo · sun_rgb / 4 · Σ bⁱ e^{−aⁱ τ}`, the
+/// shader's form) rather than taken from the code under test.
+fn sun_term(tile: &ShadedTile, tau_sun: f32) -> [f64; 3] {
+    let l = &tile.lighting;
+    let o = l.billboard.octaves;
+    let (mut w, mut att, mut sum) = (1.0, 1.0, 0.0);
+    for _ in 0..o.count {
+        sum += w * (-att * tau_sun.max(0.0) as f64).exp();
+        w *= o.contribution;
+        att *= o.attenuation;
+    }
+    l.sun_rgb.map(|c| l.params.albedo * c / 4.0 * sum)
+}
+
+#[test]
+fn under_a_deck_a_billboard_keeps_one_colour_step() {
+    // A client drawing a billboard under another layer takes the sun term out of the
+    // colour and evaluates it deeper (Lighting::beneath_layers). Deep under a deck what
+    // is left is the ambient, small and dark: it must keep the precision of one
+    // colour step on the display, not carry the rounding of the bright whole colour.
+    let s = fast(TileId { z: 0, x: 0, y: 0 }, 43210.0);
+    let q = Quantisation::DEFAULT;
+    let d = decode_bin(&encode(&s, Form::SelfContained, q)).unwrap();
+    let shown = |x: f32| crate::render::light::tone_map(x as f64);
+    let mut worst: f64 = 0.0;
+    let mut lit = 0;
+    for (r, b) in d.records.iter().zip(&s.billboards) {
+        if !(b.splat_tau > 0.0) {
+            continue;
+        }
+        // Sunlit enough that the sun term dominates the colour.
+        lit += usize::from(sun_term(&s, b.tau_sun)[1] > 2.0 * b.colour[1] as f64 / 3.0);
+        let exact = s.lighting.beneath_layers(b.colour, b.tau_sun, 6.0, 0.0).0;
+        let drawn = s
+            .lighting
+            .beneath_layers(r.ends[0].colour, r.ends[0].tau_sun, 6.0, 0.0)
+            .0;
+        for c in 0..3 {
+            worst = worst.max((shown(drawn[c]) - shown(exact[c])).abs());
+        }
+    }
+    assert!(lit > 100, "{lit} sunlit billboards");
+    // Half a step of 63, plus what e^{−6} leaves of the sun term's rounding.
+    assert!(worst <= 0.5 / 63.0 + 0.002, "{:.2}/255 off under a deck", worst * 255.0);
+}
+
 #[test]
 fn colour_codes_are_even_display_steps_at_the_served_exposure() {
     // The format fixes its exposure; the tone map's must be the same, or the codes
@@ -138,8 +185,20 @@ fn self_contained_keyframe_round_trips_within_its_steps() {
             }
             // An end without a ball keeps the other end's light.
             let light = if bb.splat_tau > 0.0 { bb } else { other };
+            // The codes carry the ambient (the colour less its sun term) within half a
+            // display step; the sun term follows from the dequantised τ_sun.
+            let (sun, sun_q) = (sun_term(&s, light.tau_sun), sun_term(&s, end.tau_sun));
             for c in 0..3 {
-                let tol = colour_tolerance(light.colour[c], q.colour_bits);
+                let ambient = (light.colour[c] as f64 - sun[c]).max(0.0) as f32;
+                let got = (end.colour[c] as f64 - sun_q[c]) as f32;
+                let tol = colour_tolerance(ambient, q.colour_bits) + 1e-5;
+                if end.colour[c] < 2.0 {
+                    assert!(
+                        (got - ambient).abs() <= tol,
+                        "channel {c}: ambient {got} for {ambient} (±{tol})"
+                    );
+                }
+                let tol = tol + (sun_q[c] - sun[c]).abs() as f32;
                 assert!(
                     (end.colour[c] - light.colour[c]).abs() <= tol,
                     "channel {c}: {} for {} (±{tol})",

@@ -12,9 +12,10 @@
 //! the splat (`1 − e^{−τ_k}`), sun transmittance from `τ_sun` (`e^{−τ_sun}`).
 //!
 //! Each state is quantised to the precision the rendered picture needs (measured by
-//! `cloudscape bench --only wire`): colour channels on `2^bits − 1` steps of
-//! `(c / 2)^(1/2.2)` (steps even in display brightness), `τ_sun` on `steps` steps
-//! per e-fold above `τ_floor`, the splat index exactly.
+//! `cloudscape bench --only wire`): colour channels on `2^bits − 1` steps even in
+//! display brightness ([`ColourCurve`]; since ALGORITHM_VERSION 15 of the colour's
+//! ambient part, [`SunTerm`]), `τ_sun` on `steps` steps per e-fold above `τ_floor`,
+//! the splat index exactly.
 //!
 //! The states are coded as residuals, one byte per value (two for splat indices of a
 //! sheet of more than 255), in planes of one field each, so that the HTTP layer's

@@ -1289,7 +1289,8 @@ export function beneathLayers(lighting, rgb, tauSun, tauAbove, tauVertical) {
  */
 export function sunTerm(lighting) {
   const { albedo, octaves, sunRgb } = lighting;
-  const a = Math.min(Math.max(albedo, 0), 1);
+  // Damaged bytes (NaN, ±∞) count as 0, as the Rust decoder's SunTerm::of_header.
+  const a = Number.isFinite(albedo) ? Math.min(Math.max(albedo, 0), 1) : 0;
   const fix = (v, lo, hi, nan) => (Number.isFinite(v) ? Math.min(Math.max(v, lo), hi) : nan);
   const n = Math.min(Math.max(octaves.count, 1), 8);
   const oa = fix(octaves.a, 1e-3, 1, 1);

@@ -465,8 +465,15 @@ pub struct SunTerm {
 
 impl SunTerm {
     /// From a header's sun colour, albedo, octave count and octave constants a, b, c.
+    /// A value no encoder writes (damaged bytes: NaN, ±∞) counts as 0 for the sun
+    /// colour and the albedo, so the colours stay finite; the octave constants are
+    /// sanitised as [`Octaves::sanitised`] does.
     pub fn of_header(sun_rgb: [f32; 3], albedo: f32, octaves: u32, abc: [f32; 3]) -> SunTerm {
-        let a = (albedo as f64).clamp(0.0, 1.0);
+        let a = if albedo.is_finite() {
+            (albedo as f64).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         SunTerm {
             scale: sun_rgb.map(|c| if c.is_finite() { a * SUN_SCATTER * c as f64 } else { 0.0 }),
             octaves: Octaves {

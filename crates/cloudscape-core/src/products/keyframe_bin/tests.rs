@@ -333,6 +333,21 @@ fn truncated_or_damaged_bytes_are_refused_with_a_reason() {
         b[at] = (x >> 32) as u8;
         let _ = decode_bin(&b);
     }
+    // A lighting no encoder writes (the sun term of the ambient codes is computed from
+    // it): colours stay finite and in [0, 2].
+    for (at, v) in [
+        (116, f32::NAN),
+        (92, f32::INFINITY),
+        (96, f32::MAX),
+        (140, f32::NAN),
+        (144, f32::INFINITY),
+    ] {
+        let mut b = bytes.clone();
+        b[at..at + 4].copy_from_slice(&v.to_le_bytes());
+        let d = decode_bin(&b).unwrap();
+        let colours = d.records.iter().flat_map(|r| r.ends.iter().flat_map(|e| e.colour));
+        assert!(colours.into_iter().all(|c| (0.0..=2.0).contains(&c)), "{v} at {at}");
+    }
 }
 
 #[test]

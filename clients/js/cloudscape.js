@@ -1284,12 +1284,12 @@ export function beneathLayers(lighting, rgb, tauSun, tauAbove, tauVertical) {
 
 /**
  * The sun term of a pre-shaded billboard colour for a keyframe header's `lighting`
- * (products::keyframe_bin::SunTerm): a function of the sun optical depth τ giving
+ * (render::light::SunTerm): a function of the sun optical depth τ giving
  * albedo · SUN_SCATTER · sunRgb · Σ bⁱ e^{−aⁱ τ} per channel (red, green, blue).
  */
 export function sunTerm(lighting) {
   const { albedo, octaves, sunRgb } = lighting;
-  // Damaged bytes (NaN, ±∞) count as 0, as the Rust decoder's SunTerm::of_header.
+  // Damaged bytes (NaN, ±∞) count as 0, as the Rust SunTerm::new.
   const a = Number.isFinite(albedo) ? Math.min(Math.max(albedo, 0), 1) : 0;
   const fix = (v, lo, hi, nan) => (Number.isFinite(v) ? Math.min(Math.max(v, lo), hi) : nan);
   const n = Math.min(Math.max(octaves.count, 1), 8);

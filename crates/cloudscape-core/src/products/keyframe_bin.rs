@@ -118,7 +118,7 @@
 
 use crate::render::ShadedTile;
 use crate::render::image::to_u8;
-use crate::render::light::{Octaves, SUN_SCATTER};
+use crate::render::light::{Octaves, SunTerm};
 use crate::render::shade::Billboard;
 use crate::render::splats::TAU_MAX;
 use crate::world::ALGORITHM_VERSION;
@@ -446,55 +446,23 @@ impl ColourCurve {
 /// billboard's colour (its sky and ground light) rather than the whole colour.
 pub const AMBIENT_CODES_SINCE: u32 = 15;
 
-/// The sun term of a pre-shaded billboard colour, `albedo · sun_rgb / 4 · Σ bⁱ
-/// e^{−aⁱ τ_sun}` ([`crate::render::light::Lighting::beneath_layers`]), from the
-/// header's lighting (offsets 92, 116, 136, 140), so an encoder and every decoder
-/// compute it from the same f32 values.
-///
-/// Since [`AMBIENT_CODES_SINCE`] the colour codes carry `colour − sun(τ_sun)`, and a
-/// decoder adds `sun(τ_sun')` of the dequantised `τ_sun'` back. A client drawing a
-/// billboard under another layer takes the sun term away and evaluates it deeper
-/// (`beneath_layers`): with the whole colour on the codes, what is left (the small,
-/// dark ambient) carried the rounding of the large, bright colour, up to 15/255 on
-/// the display under a deck (`cloudscape bench --only wire`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct SunTerm {
-    scale: [f64; 3],
-    octaves: Octaves,
-}
-
-impl SunTerm {
-    /// From a header's sun colour, albedo, octave count and octave constants a, b, c.
-    /// A value no encoder writes (damaged bytes: NaN, ±∞) counts as 0 for the sun
-    /// colour and the albedo, so the colours stay finite; the octave constants are
-    /// sanitised as [`Octaves::sanitised`] does.
-    pub fn of_header(sun_rgb: [f32; 3], albedo: f32, octaves: u32, abc: [f32; 3]) -> SunTerm {
-        let a = if albedo.is_finite() {
-            (albedo as f64).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        SunTerm {
-            scale: sun_rgb.map(|c| if c.is_finite() { a * SUN_SCATTER * c as f64 } else { 0.0 }),
-            octaves: Octaves {
-                count: octaves,
-                attenuation: abc[0] as f64,
-                contribution: abc[1] as f64,
-                eccentricity: abc[2] as f64,
-            },
-        }
-    }
-
-    /// Of a decoded header's lighting.
-    pub fn of_lighting(l: &BinLighting) -> SunTerm {
-        SunTerm::of_header(l.sun_rgb, l.albedo, l.octaves, l.octave_abc)
-    }
-
-    /// The sun term of each channel at sun optical depth `tau_sun`.
-    pub fn at(&self, tau_sun: f64) -> [f64; 3] {
-        let s = self.octaves.isotropic_sum(tau_sun);
-        self.scale.map(|c| c * s)
-    }
+/// The [`SunTerm`] of a header's lighting (offsets 92, 116, 136, 140), so an encoder
+/// and every decoder compute it from the same f32 values. Since
+/// [`AMBIENT_CODES_SINCE`] the colour codes carry `colour − S(τ_sun)`, and a decoder
+/// adds `S(τ_sun')` of the dequantised `τ_sun'` back. A client drawing a billboard
+/// under another layer takes the sun term away and evaluates it deeper
+/// ([`crate::render::light::Lighting::beneath_layers`]): with the whole colour on the
+/// codes, what is left (the small, dark ambient) carried the rounding of the large,
+/// bright colour, up to 15/255 on the display under a deck (`cloudscape bench --only
+/// wire`).
+fn header_sun_term(sun_rgb: [f32; 3], albedo: f32, octaves: u32, abc: [f32; 3]) -> SunTerm {
+    let octaves = Octaves {
+        count: octaves,
+        attenuation: abc[0] as f64,
+        contribution: abc[1] as f64,
+        eccentricity: abc[2] as f64,
+    };
+    SunTerm::new(sun_rgb.map(f64::from), albedo as f64, octaves)
 }
 
 /// The quantiser and dequantiser of the states.
@@ -803,7 +771,7 @@ pub fn encode(tile: &ShadedTile, form: Form, q: Quantisation) -> Vec<u8> {
     let l = &tile.lighting;
     let octaves = l.billboard.octaves.sanitised();
     // The sun term of the header's f32 values, as every decoder computes it.
-    let sun = SunTerm::of_header(
+    let sun = header_sun_term(
         l.sun_rgb.map(|v| v as f32),
         l.params.albedo as f32,
         octaves.0,
@@ -1098,7 +1066,11 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
         octaves: h.u32(136)?,
         octave_abc: h.f32x3(140)?,
     };
-    let codes = Codes::of(lattice.quantisation, h.u32(152)?, SunTerm::of_lighting(&lighting));
+    let codes = Codes::of(
+        lattice.quantisation,
+        h.u32(152)?,
+        header_sun_term(lighting.sun_rgb, lighting.albedo, lighting.octaves, lighting.octave_abc),
+    );
     let records = records(&lattice, [h.f64(32)?, h.f64(40)?], splat_count, codes);
     if records.len() != h.u32(156)? as usize {
         return Err(format!(

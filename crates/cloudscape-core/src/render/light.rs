@@ -206,6 +206,41 @@ impl Octaves {
     }
 }
 
+/// The sun term of a pre-shaded (isotropic) billboard colour, `albedo · sun_rgb / 4 ·
+/// Σ bⁱ e^{−aⁱ τ_sun}` per channel: the part of the colour a layer above dims
+/// ([`Lighting::beneath_layers`]) and the part `billboards.bin`'s colour codes leave
+/// out since ALGORITHM_VERSION 15 (`products::keyframe_bin`, which builds it from the
+/// header's f32 lighting). The rest of the colour is the ambient.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SunTerm {
+    scale: [f64; 3],
+    octaves: Octaves,
+}
+
+impl SunTerm {
+    /// Of sun colour `sun_rgb`, albedo `albedo` and the scattering octaves. A value no
+    /// light has (NaN, ±∞: damaged bytes) counts as 0 for the sun colour and the
+    /// albedo, so the term stays finite; the octaves are sanitised as
+    /// [`Octaves::sanitised`] does.
+    pub fn new(sun_rgb: [f64; 3], albedo: f64, octaves: Octaves) -> SunTerm {
+        let a = if albedo.is_finite() {
+            albedo.clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        SunTerm {
+            scale: sun_rgb.map(|c| if c.is_finite() { a * (c * SUN_SCATTER) } else { 0.0 }),
+            octaves,
+        }
+    }
+
+    /// The sun term of each channel at sun optical depth `tau_sun`.
+    pub fn at(&self, tau_sun: f64) -> [f64; 3] {
+        let s = self.octaves.isotropic_sum(tau_sun);
+        self.scale.map(|c| c * s)
+    }
+}
+
 /// How clouds interact with light. Both renderers read the same values.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadingParams {
@@ -452,19 +487,21 @@ impl Lighting {
         if tau_above <= 0.0 && vertical <= 0.0 {
             return (colour, tau_sun);
         }
-        let a = self.params.albedo.clamp(0.0, 1.0);
         let tau_sun = ok(tau_sun as f64);
         let below = (tau_sun + tau_above).min(1e6);
-        let octaves = &self.billboard.octaves;
-        let (before, after) = (octaves.isotropic_sum(tau_sun), octaves.isotropic_sum(below));
+        let sun = self.sun_term();
+        let (before, after) = (sun.at(tau_sun), sun.at(below));
         let sky = (-self.sky_extinction() * vertical).exp();
-        let sun = self.sun_scatter();
         let out = [0, 1, 2].map(|i| {
-            let sun_part = a * sun[i] * before;
-            let ambient = (colour[i] as f64 - sun_part).max(0.0);
-            (a * sun[i] * after + ambient * sky).clamp(0.0, 2.0) as f32
+            let ambient = (colour[i] as f64 - before[i]).max(0.0);
+            (after[i] + ambient * sky).clamp(0.0, 2.0) as f32
         });
         (out, below as f32)
+    }
+
+    /// The sun term of this light's pre-shaded billboard colours ([`SunTerm`]).
+    pub fn sun_term(&self) -> SunTerm {
+        SunTerm::new(self.sun_rgb, self.params.albedo, self.billboard.octaves)
     }
 
     /// The radiance of the ground seen from below a cloud: the ground of

@@ -61,7 +61,7 @@ use serde::Deserialize;
 ///    hemisphere's own radiance, attenuated at diffusion theory's rate; per-preset
 ///    octaves, detail erosion and splat opacity.
 /// 15: `billboards.bin`'s colour codes carry a billboard's ambient part, the sun term
-///    following from `τ_sun` ([`crate::products::keyframe_bin::SunTerm`]), so the
+///    following from `τ_sun` ([`crate::render::light::SunTerm`]), so the
 ///    light a client draws under another layer keeps one step's precision.
 pub const ALGORITHM_VERSION: u32 = 15;
 

@@ -902,7 +902,9 @@ function decodeKeyframe(bytes, v, previous) {
   if (count !== header.count) throw new Error(`billboards.bin: ${count} billboards decoded, the header says ${header.count}`);
   const rec = recordColumns(count);
   const tables = codeTables(colourBits, tauSunSteps, quantisation.tauFloor, header.algorithmVersion);
-  const ambientCodes = header.algorithmVersion >= AMBIENT_CODES_SINCE ? sunTerm(header.lighting) : null;
+  // Since AMBIENT_CODES_SINCE the colour codes leave out the sun term: one per τ_sun code, computed once.
+  const sunOf = header.algorithmVersion >= AMBIENT_CODES_SINCE ? sunTerm(header.lighting) : null;
+  const sunOfCode = sunOf ? Array.from(tables.tauSun, (tau) => sunOf(tau)) : null;
   const origin = header.origin;
   const splatCount = header.splatCount;
   let n = 0;
@@ -936,7 +938,7 @@ function decodeKeyframe(bytes, v, previous) {
           rec.tauSun[m] = tables.tauSun[light[s + 4]];
           const rgb = [tables.colour[light[s + 2]], tables.colour[light[s + 1]], tables.colour[light[s + 3]]];
           // Since AMBIENT_CODES_SINCE the codes are the ambient part: add the sun term back.
-          const sun = ambientCodes ? ambientCodes(rec.tauSun[m]) : null;
+          const sun = sunOfCode ? sunOfCode[light[s + 4]] : null;
           for (let c = 0; c < 3; c++) rec.colour[6 * n + 3 * e + c] = sun ? Math.min(rgb[c] + sun[c], 2) : rgb[c];
           rec.sunTransmittance[m] = byteFraction(Math.fround(Math.exp(-rec.tauSun[m])));
         }

@@ -507,15 +507,20 @@ impl Codes {
     }
 
     /// The colour (red, green, blue) of the codes `grb` and the dequantised `tau_sun`.
-    fn colour_values(&self, grb: [u16; 3], tau_sun: f32) -> [f32; 3] {
+    /// `sun` is the sun term of the site's dequantised `τ_sun` ([`Codes::sun_terms`]).
+    fn colour_values(&self, grb: [u16; 3], sun: Option<&[f64; 3]>) -> [f32; 3] {
         let part = [grb[1], grb[0], grb[2]].map(|v| self.colour_value(v));
-        match self.sun {
+        match sun {
             None => part,
-            Some(sun) => {
-                let s = sun.at(tau_sun as f64);
-                [0, 1, 2].map(|i| (part[i] as f64 + s[i]).min(2.0) as f32)
-            }
+            Some(s) => [0, 1, 2].map(|i| (part[i] as f64 + s[i]).min(2.0) as f32),
         }
+    }
+
+    /// The sun term of every `τ_sun` code (0 to 255) when the colour codes leave it
+    /// out: computed once a keyframe, not once a billboard.
+    fn sun_terms(&self) -> Option<Vec<[f64; 3]>> {
+        self.sun
+            .map(|sun| (0..=255u16).map(|v| sun.at(self.tau_sun_value(v) as f64)).collect())
     }
 
     fn colour(&self, c: impl Into<f64>) -> u16 {
@@ -1102,6 +1107,7 @@ pub fn decode(bytes: &[u8], previous: Option<&BinBillboards>) -> Result<BinBillb
 /// order, as version-2 records (an end without a ball draws nothing and keeps the
 /// other end's light, as `render::tile` pairs them).
 fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, codes: Codes) -> Vec<BinRecord> {
+    let suns = codes.sun_terms();
     let g = &lattice.geometry;
     let mut out = Vec::new();
     let mut at = 0usize;
@@ -1116,8 +1122,8 @@ fn records(lattice: &LatticeKeyframe, origin: [f64; 2], splat_count: u16, codes:
                     continue;
                 }
                 let light = |x: &SiteState| {
-                    let tau_sun = codes.tau_sun_value(x.tau_sun);
-                    (codes.colour_values(x.grb, tau_sun), tau_sun)
+                    let sun = suns.as_ref().map(|t| &t[usize::from(x.tau_sun.min(255))]);
+                    (codes.colour_values(x.grb, sun), codes.tau_sun_value(x.tau_sun))
                 };
                 let end = |x: &SiteState, other: &SiteState| {
                     let (colour, tau_sun) = light(if x.splat != 0 { x } else { other });
